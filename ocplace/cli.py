@@ -1,0 +1,53 @@
+"""The `ocplace` console script.
+
+Each subcommand lives in the module that owns the work and registers itself through a
+`register(subparsers)` function. Command modules import heavy libraries (JAX, MuJoCo) inside
+their handlers so that `ocplace --help` stays instant.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+
+from ocplace import __version__
+from ocplace.errors import OcplaceError
+
+COMMAND_MODULES = (
+    "ocplace.sim.library.commands",
+    "ocplace.sim.commands",
+)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="ocplace", description="Object-centric, language-conditioned object placement."
+    )
+    parser.add_argument("--version", action="version", version=f"ocplace {__version__}")
+    parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
+    subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for module_name in COMMAND_MODULES:
+        importlib.import_module(module_name).register(subparsers)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(
+        level=logging.DEBUG if args.verbose else logging.INFO,
+        format="%(levelname)s %(name)s: %(message)s",
+    )
+    try:
+        return args.func(args) or 0
+    except OcplaceError as error:
+        print(f"ocplace {args.command}: error: {error}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,32 @@
+"""What a built object is: the record the scene code, the dataset and the models read."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+
+@dataclasses.dataclass(frozen=True)
+class ObjectAsset:
+    """One processed object in the library cache.
+
+    Meshes are in metres, in the object frame: base on z = 0, AABB centred on x = y = 0,
+    +z up in the object's stable resting pose.
+    """
+
+    name: str  # stable identifier, e.g. "alphabet_soup"
+    human_name: str  # what instructions call it, e.g. "alphabet soup can"
+    synonyms: tuple[str, ...]
+    category: str  # e.g. "can", "bowl", "toy"
+    split: str  # "seen" or "unseen"
+    source: str  # e.g. "libero:stable_hope_objects", "pybullet_data", "gso:/path"
+    licence: str
+    directory: Path  # cache folder holding every file below
+    visual_mesh: Path  # textured OBJ with UVs, <= 20k faces
+    texture: Path | None  # PNG, <= 1024 px; None for an untextured object
+    rgba: tuple[float, float, float, float]  # base colour, used when texture is None
+    hulls: tuple[Path, ...]  # convex collision pieces (OBJ), at most 32
+    mjcf: Path  # standalone MuJoCo model of the object
+    urdf: Path  # PyBullet model of the same meshes
+    extents: tuple[float, float, float]  # AABB size (x, y, z) in metres
+    mass: float  # kg

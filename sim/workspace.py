@@ -1,0 +1,38 @@
+"""The table: the placement area, its 3x3 grid, and where scene objects are dropped.
+
+World frame (DESIGN): table top is z = 0, +x right in the image, +y away from the viewer.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+
+@dataclasses.dataclass(frozen=True)
+class Table:
+    """The placement area: the table top rectangle, centred on the world origin."""
+
+    half_extents: tuple[float, float] = (0.40, 0.30)  # metres, (x, y)
+    thickness: float = 0.04
+    drop_half_extents: tuple[float, float] = (0.24, 0.16)  # central area objects are dropped over
+
+    @property
+    def bounds(self) -> np.ndarray:
+        """`(2, 2)` array `[[xmin, ymin], [xmax, ymax]]`."""
+        hx, hy = self.half_extents
+        return np.array([[-hx, -hy], [hx, hy]])
+
+    @property
+    def cell_size(self) -> np.ndarray:
+        """`(2,)` size of one cell of the 3x3 grid."""
+        return 2.0 * np.asarray(self.half_extents) / 3.0
+
+    def cell_bounds(self, column: int, row: int) -> np.ndarray:
+        """`(2, 2)` bounds of grid cell (column 0..2 left to right, row 0..2 front to back)."""
+        low = self.bounds[0] + self.cell_size * np.array([column, row])
+        return np.stack([low, low + self.cell_size])
+
+
+DEFAULT_TABLE = Table()
