@@ -21,7 +21,7 @@ from ocplace.errors import SceneError
 from ocplace.sim.camera import DEFAULT_CAMERA, Camera
 from ocplace.sim.library.types import ObjectAsset
 from ocplace.sim.render import OffscreenCamera
-from ocplace.sim.scene import RenderedScene, SceneObject, SceneSpec, sample_drop_poses
+from ocplace.sim.scene import RenderedScene, SceneObject, SceneSpec, retry_seed, sample_drop_poses
 from ocplace.sim.workspace import DEFAULT_TABLE, Table
 
 VISIBLE_GROUP = 1
@@ -78,6 +78,9 @@ def arena_xml(objects: Sequence[ObjectAsset], textures: dict[str, Path], config:
     ET.SubElement(visual, "global", offwidth=str(camera.width), offheight=str(camera.height))
     ET.SubElement(visual, "quality", shadowsize="0" if not config.render.shadows else "4096")
     ET.SubElement(visual, "headlight", ambient="0.45 0.45 0.45", diffuse="0.45 0.45 0.45", specular="0 0 0")
+    # Clipping planes scale with the model extent, which parked objects would inflate: pin it so
+    # near = 0.015 m and far = 7.5 m whatever the library holds.
+    ET.SubElement(root, "statistic", extent="1.5", center="0 0 0")
     ET.SubElement(visual, "map", znear="0.01", zfar="5")
     default = ET.SubElement(ET.SubElement(root, "default"), "geom", friction=" ".join(map(str, physics.friction)))
     default.set("condim", "4")
@@ -139,8 +142,20 @@ def _add_object(asset: ET.Element, world: ET.Element, index: int, obj: ObjectAss
                       density=f"{density:.6f}", group=str(COLLISION_GROUP), rgba="0 0 0 0")
 
 
+class ObjectsFellOff(SceneError):
+    """A drop ended with an object off the table."""
+
+
 class MujocoScenes:
     """Builds, settles and renders scenes; reuse one instance for many scenes, then `close()`."""
+
+    @classmethod
+    def from_library(cls, library, names: Sequence[str] | None = None,
+                     config: ArenaConfig | None = None) -> MujocoScenes:
+        """An arena of `names` (default: every object) and every table texture of `library`."""
+        objects = [library.get(name) for name in (library.names() if names is None else names)]
+        textures = {name: texture.path for name, texture in library.textures.items()}
+        return cls(objects, textures, config)
 
     def __init__(self, objects: Sequence[ObjectAsset], textures: dict[str, Path],
                  config: ArenaConfig | None = None):
@@ -151,7 +166,7 @@ class MujocoScenes:
         self.model = mujoco.MjModel.from_xml_string(arena_xml(objects, textures, self.config))
         self.data = mujoco.MjData(self.model)
         self._body = {name: self.model.body(name).id for name in self._order}
-        self._hull_vertices = {obj.name: _hull_points(obj) for obj in objects}
+        self._hull_vertices = {obj.name: object_hull_points(obj) for obj in objects}
         self._table_geom = self.model.geom("table").id
         self._visual_geoms = {name: self.model.geom(f"{name}_visual").id for name in self._order}
         self._collision_geoms = {
@@ -274,8 +289,20 @@ class MujocoScenes:
             for i, name in enumerate(names)
         )
 
-    def build(self, spec: SceneSpec) -> RenderedScene:
-        """Drops the spec's objects over the table, settles them and renders the camera view."""
+    def build(self, spec: SceneSpec, max_attempts: int = 5) -> RenderedScene:
+        """Drops the spec's objects over the table, settles them and renders the camera view.
+
+        When an object falls off the table the drop is repeated with a seed derived from the
+        spec's (`retry_seed`); the returned scene's spec holds the seed that was used.
+        """
+        for attempt in range(max_attempts):
+            try:
+                return self._build_once(spec)
+            except ObjectsFellOff:
+                spec = dataclasses.replace(spec, seed=retry_seed(spec.seed, attempt))
+        raise SceneError(f"objects of scene {spec} fell off the table {max_attempts} times in a row")
+
+    def _build_once(self, spec: SceneSpec) -> RenderedScene:
         names = spec.objects
         self.activate(names, spec.table_texture)
         extents = [self.objects[name].extents for name in names]
@@ -287,7 +314,7 @@ class MujocoScenes:
         objects = self.scene_objects(names)
         fallen = [obj.name for obj in objects if obj.aabb[0, 2] < -0.01 or not self._on_table(obj)]
         if fallen:
-            raise SceneError(f"scene seed {spec.seed}: {fallen} fell off the table; resample the scene")
+            raise ObjectsFellOff(f"scene seed {spec.seed}: {fallen} fell off the table")
         rgb, depth, segmentation = self.render(names)
         return RenderedScene(spec, objects, rgb, depth, segmentation, steps)
 
@@ -296,7 +323,7 @@ class MujocoScenes:
         return bool(np.all(np.abs(centre) <= np.asarray(self.config.table.half_extents)))
 
 
-def _hull_points(obj: ObjectAsset) -> np.ndarray:
+def object_hull_points(obj: ObjectAsset) -> np.ndarray:
     """`(P, 3)` vertices of the convex hull of the visual mesh, in the object frame."""
     mesh = trimesh.load(obj.visual_mesh, force="mesh", process=False)
     return np.asarray(mesh.convex_hull.vertices)

@@ -136,3 +136,16 @@ def sample_drop_poses(
         positions.append(np.array([xy[0], xy[1], centre_z]) - centre_offset)
         quaternions.append(quaternion)
     return np.array(positions), np.array(quaternions)
+
+
+def split_pools(library, split: str) -> tuple[list[str], list[str]]:
+    """Object names and table texture names of a library split ("seen" or "unseen")."""
+    if split not in ("seen", "unseen"):
+        raise SceneError(f"unknown split {split!r}; choose 'seen' or 'unseen'")
+    textures = sorted(name for name, texture in library.textures.items() if texture.split == split)
+    return library.names(split), textures
+
+
+def retry_seed(seed: int, attempt: int) -> int:
+    """The drop seed of the `attempt`-th retry of a scene whose objects fell off the table."""
+    return int(np.random.default_rng([seed, attempt]).integers(2**31 - 1))

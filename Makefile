@@ -1,0 +1,29 @@
+# Two commands on a fresh machine: `make demo` and `make test`. Both set everything up first.
+VENV ?= .venv
+GL = $$(cat $(VENV)/mujoco-gl 2>/dev/null || echo egl)
+RUN = MUJOCO_GL=$(GL) PYOPENGL_PLATFORM=$(GL) $(VENV)/bin/
+
+.PHONY: setup library demo test test-all bench clean
+
+setup: $(VENV)/.setup-done
+
+$(VENV)/.setup-done: pyproject.toml scripts/setup.sh
+	bash scripts/setup.sh $(VENV)
+
+library: setup
+	$(RUN)ocplace assets build
+
+demo: library
+	$(RUN)ocplace demo --out out/demo
+
+test: library
+	$(RUN)python -m pytest
+
+test-all: library
+	$(RUN)python -m pytest -m "slow or not slow"
+
+bench: library
+	$(RUN)python bench/scenes.py
+
+clean:
+	rm -rf out .pytest_cache

@@ -1,0 +1,212 @@
+"""The same scenes in PyBullet, for parity checks against MuJoCo.
+
+Objects come from the same processed meshes (the library's URDFs); the camera has the same
+intrinsics and pose, expressed as OpenGL view and projection matrices. Like the MuJoCo arena,
+objects are loaded once and parked (static, far away) while a scene does not use them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import pybullet
+from pybullet_utils import bullet_client
+
+from ocplace.errors import SceneError
+from ocplace.sim.library.types import ObjectAsset
+from ocplace.sim.mujoco_backend import ArenaConfig, default_config
+from ocplace.sim.scene import SceneObject, SceneSpec, quaternion_to_matrix, sample_drop_poses
+
+RENDERERS = ("tiny", "egl")
+
+
+def _xyzw(quaternion_wxyz: np.ndarray) -> list[float]:
+    w, x, y, z = quaternion_wxyz
+    return [x, y, z, w]
+
+
+def _wxyz(quaternion_xyzw: Sequence[float]) -> np.ndarray:
+    x, y, z, w = quaternion_xyzw
+    return np.array([w, x, y, z])
+
+
+class PybulletScenes:
+    """PyBullet twin of `MujocoScenes`: same objects, table, camera and drop poses."""
+
+    near, far = 0.015, 7.5  # clipping planes, metres: the same as the MuJoCo arena's
+
+    def __init__(self, objects: Sequence[ObjectAsset], textures: dict[str, Path],
+                 config: ArenaConfig | None = None, renderer: str = "tiny"):
+        if renderer not in RENDERERS:
+            raise SceneError(f"unknown PyBullet renderer {renderer!r}; choose one of {RENDERERS}")
+        self.config = config or default_config()
+        self.objects = {obj.name: obj for obj in objects}
+        self.client = bullet_client.BulletClient(connection_mode=pybullet.DIRECT)
+        self.client.setGravity(0, 0, -9.81)
+        self.client.setTimeStep(self.config.physics.timestep)
+        self._renderer_flag = pybullet.ER_TINY_RENDERER
+        if renderer == "egl":
+            self._load_egl()
+        self._textures = {name: self.client.loadTexture(str(path)) for name, path in textures.items()}
+        self._table = self._add_table()
+        self._bodies: dict[str, int] = {}
+        self._active: tuple[str, ...] = ()
+        self._view, self._projection = self._camera_matrices()
+
+    def close(self) -> None:
+        if self.client is not None:
+            self.client.disconnect()
+            self.client = None
+
+    def __enter__(self) -> PybulletScenes:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def _load_egl(self) -> None:
+        import pkgutil
+
+        egl = pkgutil.get_loader("eglRenderer")
+        if egl is None or self.client.loadPlugin(egl.get_filename(), "_eglRendererPlugin") < 0:
+            raise SceneError("PyBullet's EGL renderer plugin could not be loaded; use renderer='tiny'")
+        self._renderer_flag = pybullet.ER_BULLET_HARDWARE_OPENGL
+
+    def _add_table(self) -> int:
+        table = self.config.table
+        half = [*table.half_extents, table.thickness / 2]
+        shape = self.client.createCollisionShape(pybullet.GEOM_BOX, halfExtents=half)
+        visual = self.client.createVisualShape(pybullet.GEOM_BOX, halfExtents=half)
+        body = self.client.createMultiBody(0, shape, visual, basePosition=[0, 0, -table.thickness / 2])
+        floor = self.client.createCollisionShape(pybullet.GEOM_PLANE)
+        floor_visual = self.client.createVisualShape(pybullet.GEOM_BOX, halfExtents=[3, 3, 0.001],
+                                                     rgbaColor=[0.25, 0.25, 0.27, 1])
+        self.client.createMultiBody(0, floor, floor_visual, basePosition=[0, 0, -0.75])
+        friction = self.config.physics.friction[0]
+        self.client.changeDynamics(body, -1, lateralFriction=friction)
+        return body
+
+    def _camera_matrices(self) -> tuple[list[float], list[float]]:
+        camera = self.config.camera
+        view = self.client.computeViewMatrix(cameraEyePosition=list(camera.position),
+                                             cameraTargetPosition=[camera.position[0], camera.position[1], 0.0],
+                                             cameraUpVector=[0, 1, 0])
+        projection = self.client.computeProjectionMatrixFOV(
+            fov=camera.fov_y_deg, aspect=camera.width / camera.height, nearVal=self.near, farVal=self.far)
+        return view, projection
+
+    def _body(self, name: str) -> int:
+        if name not in self._bodies:
+            asset = self.objects.get(name)
+            if asset is None:
+                raise SceneError(f"object {name!r} is not in this PyBullet arena")
+            body = self.client.loadURDF(str(asset.urdf), basePosition=self._parking(len(self._bodies)),
+                                        flags=pybullet.URDF_USE_INERTIA_FROM_FILE)
+            if asset.texture is not None:
+                texture = self.client.loadTexture(str(asset.texture))
+                self.client.changeVisualShape(body, -1, textureUniqueId=texture, rgbaColor=[1, 1, 1, 1])
+            friction = self.config.physics.friction[0]
+            self.client.changeDynamics(body, -1, lateralFriction=friction, mass=0.0)
+            self._bodies[name] = body
+        return self._bodies[name]
+
+    @staticmethod
+    def _parking(index: int) -> list[float]:
+        return [20.0 + index, 20.0, 1.0]
+
+    def activate(self, names: Sequence[str], table_texture: str | None = None) -> None:
+        """Parks every object not in `names` as a static body far away; `names` become dynamic."""
+        for index, name in enumerate(self._bodies):
+            if name not in names:
+                self.client.changeDynamics(self._bodies[name], -1, mass=0.0)
+                self.client.resetBasePositionAndOrientation(self._bodies[name], self._parking(index), [0, 0, 0, 1])
+        for name in names:
+            self.client.changeDynamics(self._body(name), -1, mass=self.objects[name].mass)
+        if table_texture is not None:
+            if table_texture not in self._textures:
+                raise SceneError(f"unknown table texture {table_texture!r}; known: {sorted(self._textures)}")
+            self.client.changeVisualShape(self._table, -1, textureUniqueId=self._textures[table_texture])
+        self._active = tuple(names)
+
+    def set_poses(self, names: Sequence[str], positions: np.ndarray, quaternions: np.ndarray) -> None:
+        """Object-frame poses, (w, x, y, z) quaternions as in MuJoCo."""
+        for name, position, quaternion in zip(names, positions, quaternions, strict=True):
+            body = self._body(name)
+            # PyBullet places a URDF base at its centre of mass: shift from the object frame.
+            com = self._com_offset(body)
+            world_com = np.asarray(position) + quaternion_to_matrix(np.asarray(quaternion)) @ com
+            self.client.resetBasePositionAndOrientation(body, world_com.tolist(), _xyzw(quaternion))
+            self.client.resetBaseVelocity(body, [0, 0, 0], [0, 0, 0])
+
+    def _com_offset(self, body: int) -> np.ndarray:
+        return np.asarray(self.client.getDynamicsInfo(body, -1)[3])
+
+    def poses(self, names: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
+        """`(N, 3)` object-frame positions and `(N, 4)` (w, x, y, z) quaternions."""
+        positions, quaternions = [], []
+        for name in names:
+            body = self._body(name)
+            com, orientation = self.client.getBasePositionAndOrientation(body)
+            quaternion = _wxyz(orientation)
+            positions.append(np.asarray(com) - quaternion_to_matrix(quaternion) @ self._com_offset(body))
+            quaternions.append(quaternion)
+        return np.array(positions), np.array(quaternions)
+
+    def settle(self, names: Sequence[str] | None = None) -> int:
+        physics = self.config.physics
+        names = self._active if names is None else names
+        bodies = [self._body(name) for name in names]
+        max_steps = int(physics.max_settle_time / physics.timestep)
+        steps = 0
+        while steps < max_steps:
+            for _ in range(physics.check_every):
+                self.client.stepSimulation()
+            steps += physics.check_every
+            velocities = [self.client.getBaseVelocity(body) for body in bodies]
+            linear = max(np.abs(v[0]).max() for v in velocities)
+            angular = max(np.abs(v[1]).max() for v in velocities)
+            if linear < physics.settle_linear_speed and angular < physics.settle_angular_speed:
+                break
+        return steps
+
+    def aabbs(self, names: Sequence[str], hull_points: dict[str, np.ndarray]) -> np.ndarray:
+        """`(N, 2, 3)` world AABBs from each object's hull points (object frame)."""
+        positions, quaternions = self.poses(names)
+        boxes = []
+        for name, position, quaternion in zip(names, positions, quaternions, strict=True):
+            points = hull_points[name] @ quaternion_to_matrix(quaternion).T + position
+            boxes.append(np.stack([points.min(axis=0), points.max(axis=0)]))
+        return np.array(boxes)
+
+    def render(self, names: Sequence[str] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """RGB `(H, W, 3)` uint8, planar depth `(H, W)` float32 metres, object ids `(H, W)` int32."""
+        names = self._active if names is None else names
+        camera = self.config.camera
+        _, _, rgba, zbuffer, body_ids = self.client.getCameraImage(
+            camera.width, camera.height, viewMatrix=self._view, projectionMatrix=self._projection,
+            renderer=self._renderer_flag, shadow=0)
+        rgb = np.asarray(rgba, dtype=np.uint8).reshape(camera.height, camera.width, 4)[..., :3].copy()
+        zbuffer = np.asarray(zbuffer, dtype=np.float64).reshape(camera.height, camera.width)
+        depth = (self.far * self.near / (self.far - (self.far - self.near) * zbuffer)).astype(np.float32)
+        body_ids = np.asarray(body_ids, dtype=np.int64).reshape(camera.height, camera.width)
+        lookup = {self._body(name): object_id for object_id, name in enumerate(names, start=1)}
+        segmentation = np.zeros(body_ids.shape, dtype=np.int32)
+        for body, object_id in lookup.items():
+            segmentation[body_ids == body] = object_id
+        return rgb, depth, segmentation
+
+    def drop(self, spec: SceneSpec, hull_points: dict[str, np.ndarray]) -> tuple[SceneObject, ...]:
+        """Drops the spec's objects from the same initial poses as MuJoCo and settles them."""
+        names = spec.objects
+        self.activate(names, spec.table_texture)
+        extents = [self.objects[name].extents for name in names]
+        positions, quaternions = sample_drop_poses(
+            spec.seed, extents, self.config.table.drop_half_extents, self.config.physics.max_tilt)
+        self.set_poses(names, positions, quaternions)
+        self.settle(names)
+        positions, quaternions = self.poses(names)
+        aabbs = self.aabbs(names, hull_points)
+        return tuple(SceneObject(i + 1, name, positions[i], quaternions[i], aabbs[i])
+                     for i, name in enumerate(names))
