@@ -225,6 +225,7 @@ class MujocoScenes:
                 raise SceneError(f"unknown table texture {table_texture!r}; known: {self._texture_names}")
             self.model.geom_matid[self._table_geom] = self.model.material(f"table_{table_texture}").id
         self._active = tuple(names)
+        mujoco.mj_forward(self.model, self.data)
 
     def set_poses(self, names: Sequence[str], positions: np.ndarray, quaternions: np.ndarray) -> None:
         for name, position, quaternion in zip(names, positions, quaternions, strict=True):
