@@ -29,25 +29,28 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _scene(args: argparse.Namespace) -> int:
-    import numpy as np
-
-    from ocplace.sim.boxes import boxes_from_segmentation
-    from ocplace.sim.figures import save_png, scene_panel
+    from ocplace.sim.figures import labelled_scene, save_png
     from ocplace.sim.library import load_library
     from ocplace.sim.mujoco_backend import MujocoScenes
-    from ocplace.sim.scene import sample_scene_spec, split_pools
 
     library = load_library()
-    objects, textures = split_pools(library, args.split)
-    spec = sample_scene_spec(np.random.default_rng(args.seed), objects, textures)
     with MujocoScenes.from_library(library) as arena:
-        scene = arena.build(spec)
-    boxes = boxes_from_segmentation(scene.segmentation)
-    labels = {obj.object_id: library.get(obj.name).human_name for obj in scene.objects}
-    title = f"seed {args.seed} | {args.split} | table: {spec.table_texture} | held: {library.get(spec.held_object).human_name}"
-    save_png(args.out, scene_panel(scene.rgb, scene.depth, scene.segmentation, boxes, labels, title))
-    print(f"wrote {args.out}: {len(boxes)} boxes for {len(scene.objects)} objects")
+        scene = render_sampled_scene(library, arena, args.seed, args.split)
+    held = library.get(scene.spec.held_object).human_name
+    title = f"seed {args.seed} | {args.split} | table: {scene.spec.table_texture} | held: {held}"
+    save_png(args.out, labelled_scene(scene, library, title))
+    print(f"wrote {args.out}: {len(scene.objects)} objects, settled in {scene.settle_steps} steps")
     return 0
+
+
+def render_sampled_scene(library, arena, seed: int, split: str):
+    """Samples a scene of `split` from `seed` and builds it in `arena`."""
+    import numpy as np
+
+    from ocplace.sim.scene import sample_scene_spec, split_pools
+
+    objects, textures = split_pools(library, split)
+    return arena.build(sample_scene_spec(np.random.default_rng(seed), objects, textures))
 
 
 def _parity(args: argparse.Namespace) -> int:

@@ -70,3 +70,12 @@ def save_png(path: str | Path, image: np.ndarray) -> Path:
     with atomic_path(path) as tmp:
         tmp.write_bytes(encoded.tobytes())
     return path
+
+
+def labelled_scene(scene, library, title: str = "") -> np.ndarray:
+    """The picture of a `RenderedScene`, boxes labelled with the objects' human names."""
+    from ocplace.sim.boxes import boxes_from_segmentation
+
+    boxes = boxes_from_segmentation(scene.segmentation)
+    labels = {obj.object_id: library.get(obj.name).human_name for obj in scene.objects}
+    return scene_panel(scene.rgb, scene.depth, scene.segmentation, boxes, labels, title)
