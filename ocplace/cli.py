@@ -19,6 +19,7 @@ COMMAND_MODULES = (
     "ocplace.sim.library.commands",
     "ocplace.sim.commands",
     "ocplace.demo",
+    "ocplace.models.parsing.commands",
 )
 
 

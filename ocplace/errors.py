@@ -26,3 +26,7 @@ class LibraryNotBuilt(OcplaceError):
 
 class SceneError(OcplaceError):
     """A scene could not be built, settled or rendered."""
+
+
+class ParseError(OcplaceError, ValueError):
+    """An instruction that cannot be turned into `<reference, relation>` tuples."""

@@ -1,0 +1,129 @@
+"""Parser evaluation: seen and unseen generated instructions and the hand-written free-form set.
+
+Accuracy counts an instruction right when its set of `(reference, relation)` pairs equals the
+expected set (order-insensitive), or, for bad input, when the parser raises ParseError.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from pathlib import Path
+from typing import Iterable, Sequence
+
+import numpy as np
+
+from ocplace.errors import ParseError
+from ocplace.models.parsing import text
+from ocplace.models.parsing.types import Parser, as_pairs
+from ocplace.sim import language, relations
+
+# Stand-in tabletop object names until the library's own names are passed in: plain nouns,
+# colours, materials, "of"-phrases, "with"-attributes and a possessive, as a real library has.
+EVAL_OBJECT_NAMES: tuple[str, ...] = (
+    "alphabet soup can", "red bowl", "rubber duck", "black shoe with green stripes", "blue mug",
+    "white mug", "tomato sauce can", "ketchup bottle", "mustard bottle", "cream cheese box",
+    "butter stick", "chocolate pudding box", "milk carton", "orange juice carton",
+    "salad dressing bottle", "bbq sauce bottle", "green apple", "banana", "lemon", "orange",
+    "peach", "pear", "strawberry", "plum", "yellow sponge", "toy airplane", "wooden block",
+    "tennis ball", "baseball", "rubik's cube", "spiderman figure", "teddy bear", "toy car",
+    "plastic cup", "coffee mug", "ceramic plate", "soap bottle", "toothpaste box", "power drill",
+    "pair of scissors", "screwdriver", "hammer", "marker", "stapler", "roll of tape", "padlock",
+    "alarm clock", "sunglasses", "baseball cap", "wooden spoon",
+)
+FREEFORM_PATH = Path(__file__).resolve().parents[2] / "tests" / "data" / "freeform_instructions.jsonl"
+LEVEL_WEIGHTS = {"table": 9, "1obj": 9, "2obj": 22}  # the test subsets' ratio (DESIGN "Dataset")
+
+
+@dataclasses.dataclass(frozen=True)
+class Case:
+    instruction: str
+    expected: frozenset[tuple[str, str]]  # empty when a ParseError is expected
+    expects_error: bool = False
+    note: str = ""
+
+
+@dataclasses.dataclass(frozen=True)
+class Report:
+    name: str
+    num_cases: int
+    num_correct: int
+    latency_ms: tuple[float, float, float]  # mean, median, 95th percentile per instruction
+    failures: tuple[tuple[str, str, str], ...]  # (instruction, expected, got)
+
+    @property
+    def accuracy(self) -> float:
+        return self.num_correct / max(self.num_cases, 1)
+
+    def summary(self) -> str:
+        mean, median, p95 = self.latency_ms
+        return (f"{self.name:12s} {self.accuracy * 100:6.2f}% ({self.num_correct}/{self.num_cases})"
+                f"  latency ms: mean {mean:.3f}, median {median:.3f}, p95 {p95:.3f}")
+
+
+def sample_reference_tuples(level: str, names: Sequence[str], rng: np.random.Generator
+                            ) -> tuple[language.ReferenceTuple, ...]:
+    """Random tuples for one instruction of `level` ("table", "1obj", "2obj")."""
+    if level == "table":
+        relation = relations.RELATION_NAMES[int(rng.integers(len(relations.RELATION_NAMES)))]
+        return (language.ReferenceTuple(language.TABLE_NAME, relation, True),)
+    count = {"1obj": 1, "2obj": 2}[level]
+    picked = rng.choice(len(names), size=count, replace=False)
+    object_relations = relations.OBJECT_RELATION_NAMES
+    return tuple(
+        language.ReferenceTuple(names[int(i)], object_relations[int(rng.integers(len(object_relations)))],
+                                False)
+        for i in picked
+    )
+
+
+def generated_cases(style: str, num_cases: int, seed: int,
+                    names: Sequence[str] = EVAL_OBJECT_NAMES) -> list[Case]:
+    """Instructions rendered by `sim.language` with levels in the test subsets' ratio."""
+    rng = np.random.default_rng(seed)
+    levels = list(LEVEL_WEIGHTS)
+    weights = np.array(list(LEVEL_WEIGHTS.values()), dtype=float)
+    cases = []
+    for _ in range(num_cases):
+        level = levels[int(rng.choice(len(levels), p=weights / weights.sum()))]
+        tuples = sample_reference_tuples(level, names, rng)
+        instruction = language.render_instruction(tuples, style, rng)
+        expected = frozenset((text.normalise_reference(t.name.split()), t.relation) for t in tuples)
+        cases.append(Case(instruction, expected, note=level))
+    return cases
+
+
+def freeform_cases(path: Path = FREEFORM_PATH, split: str | None = None) -> list[Case]:
+    """The hand-written set; `split` "dev" or "test" keeps one half."""
+    cases = []
+    for line in Path(path).read_text(encoding="utf-8").splitlines():
+        record = json.loads(line)
+        if split and record["split"] != split:
+            continue
+        expected = frozenset((t["reference"], t["relation"]) for t in record["tuples"])
+        cases.append(Case(record["instruction"], expected, bool(record.get("error")),
+                          record.get("note", "")))
+    return cases
+
+
+def evaluate(parser: Parser, cases: Iterable[Case], name: str) -> Report:
+    """Accuracy and per-instruction latency of `parser` on `cases`."""
+    correct, latencies, failures = 0, [], []
+    for case in cases:
+        start = time.perf_counter()
+        try:
+            got: frozenset | str = frozenset(as_pairs(parser.parse(case.instruction)))
+        except ParseError as error:
+            got = f"ParseError: {error}"
+        latencies.append((time.perf_counter() - start) * 1e3)
+        right = isinstance(got, str) if case.expects_error else got == case.expected
+        correct += right
+        if not right:
+            expected = "ParseError" if case.expects_error else str(sorted(case.expected))
+            got_text = got if isinstance(got, str) else str(sorted(got))
+            failures.append((case.instruction, expected, got_text))
+    values = np.array(latencies or [0.0])
+    return Report(name, len(latencies), correct,
+                  (float(values.mean()), float(np.median(values)), float(np.percentile(values, 95))),
+                  tuple(failures))
