@@ -18,6 +18,7 @@ from ocplace.errors import OcplaceError
 COMMAND_MODULES = (
     "ocplace.sim.library.commands",
     "ocplace.sim.commands",
+    "ocplace.sim.dataset.commands",
     "ocplace.demo",
     "ocplace.models.parsing.commands",
 )

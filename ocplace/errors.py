@@ -30,3 +30,30 @@ class SceneError(OcplaceError):
 
 class ParseError(OcplaceError, ValueError):
     """An instruction that cannot be turned into `<reference, relation>` tuples."""
+
+
+class InvalidPlacementProblem(OcplaceError, ValueError):
+    """Grounded tuples or scene geometry that cannot describe a placement problem."""
+
+
+class NoFeasiblePlacement(OcplaceError):
+    """No placement satisfies every tuple and avoids every object; names the scene and the cause."""
+
+    def __init__(self, scene: str, reason: str):
+        super().__init__(scene, reason)
+        self.scene = scene
+        self.reason = reason
+
+    def __str__(self) -> str:
+        return (
+            f"no feasible placement in scene {self.scene}: {self.reason}. Check the grounded references "
+            "and relations; a smaller held object or a finer grid may also help"
+        )
+
+
+class DatasetConfigError(OcplaceError):
+    """A dataset configuration that cannot be generated (unknown split or level, zero scenes, ...)."""
+
+
+class DatasetError(OcplaceError):
+    """A dataset folder that is missing, belongs to another dataset, or holds corrupt files."""

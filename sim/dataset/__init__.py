@@ -1,0 +1,1 @@
+"""The benchmark dataset: generation, records on disk, verification and loading."""
