@@ -1,0 +1,160 @@
+"""Dataset generation: ground truth, oracle, resumability, determinism, verification, bad input."""
+
+import dataclasses
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from ocplace.errors import DatasetConfigError, DatasetError
+from ocplace.sim.dataset.config import SplitConfig, make_config, smoke_config
+from ocplace.sim.dataset.job import MANIFEST_FILE, generate_dataset, verify_dataset
+from ocplace.sim.dataset.loader import batches, iter_examples
+from ocplace.sim.dataset.records import read_scene
+from ocplace.sim.language import TABLE_NAME
+from ocplace.sim.metric import placement_success
+from ocplace.sim.physical import physical_check
+
+TINY = make_config(train=4, test=4)
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory, library):
+    out = tmp_path_factory.mktemp("dataset")
+    generate_dataset(out, smoke_config(), progress=False)
+    return out
+
+
+def _records(out, split):
+    return [read_scene(d) for d in sorted((out / split).iterdir())]
+
+
+def test_counts_and_levels_follow_the_config(dataset):
+    manifest = json.loads((dataset / MANIFEST_FILE).read_text())
+    for split in smoke_config().splits:
+        assert manifest["counts"][split.name] == {level: n for level, n in split.levels if n}
+    assert verify_dataset(dataset) == []
+
+
+def test_ground_truth_matches_instruction_and_boxes(dataset, library):
+    for split in ("train", "unseen_obj", "unseen_inst"):
+        for record in _records(dataset, split):
+            meta, tuples, boxes = record.meta, record.tuples, record.boxes
+            assert len(tuples) == {"table": 1, "1obj": 1, "2obj": 2}[meta["level"]]
+            referenced = [t.reference_object_id for t in tuples]
+            assert len(set(referenced)) == len(referenced)
+            for t in tuples:
+                assert t.reference_name in meta["instruction"]
+                if t.reference_object_id == 0:
+                    assert t.reference_name == TABLE_NAME and t.token_index == len(boxes)
+                else:
+                    assert boxes.object_ids[t.token_index] == t.reference_object_id
+                    obj = meta["objects"][t.reference_object_id - 1]
+                    assert obj["human_name"] == t.reference_name
+            wanted = "unseen" if split == "unseen_obj" else "seen"
+            assert all(library.get(obj["name"]).split == wanted for obj in meta["objects"])
+            assert library.textures[meta["table_texture"]].split == wanted
+            assert meta["instruction_style"] == ("unseen" if split == "unseen_inst" else "seen")
+
+
+def test_oracle_placements_pass_the_metric(dataset):
+    for split in ("train", "seen", "unseen_obj", "unseen_inst"):
+        for record in _records(dataset, split):
+            placement = np.asarray([record.meta["oracle"]["placement"]])
+            assert placement_success(placement, record.problem()).all(), record.id
+
+
+def test_physical_check_accepts_oracle_and_rejects_a_drop_on_an_object(dataset, arena):
+    record = _records(dataset, "seen")[0]
+    good = physical_check(arena, record.meta, np.asarray(record.meta["oracle"]["placement"]))
+    assert good.success, good
+    tallest = max(record.meta["objects"], key=lambda obj: obj["aabb"][1][2])
+    centre = np.mean(np.asarray(tallest["aabb"])[:, :2], axis=0)
+    bad = physical_check(arena, record.meta, centre)
+    assert not bad.success and bad.release_height > tallest["aabb"][1][2]
+
+
+def test_loader_yields_crops_and_targets(dataset):
+    examples = list(iter_examples(dataset, "seen", crop_size=64))
+    assert len(examples) == smoke_config().split("seen").num_scenes
+    for example in examples:
+        assert example.crops.shape[1:] == (64, 64, 3) and example.workspace.shape == (64, 64, 3)
+        assert np.all(example.targets <= len(example.crops))
+    batch = next(batches(dataset, "seen", batch_size=3, crop_size=32))
+    assert batch["crops"].shape == (3, 5, 32, 32, 3) and batch["targets"].shape == (3, 4)
+    assert np.all(batch["targets"][batch["tuple_mask"]] <= batch["num_boxes"].repeat(4).reshape(3, 4)[batch["tuple_mask"]])
+
+
+def test_same_seed_same_bytes_with_one_or_two_workers(tmp_path, library, dataset):
+    config = dataclasses.replace(TINY, splits=TINY.splits[:1])
+    one = generate_dataset(tmp_path / "one", config, workers=1, progress=False)
+    two = generate_dataset(tmp_path / "two", config, workers=2, progress=False)
+    assert one["files"] == two["files"]
+
+
+def _generate_command(out):
+    return [sys.executable, "-m", "ocplace.cli", "generate", "--out", str(out), "--smoke", "--split", "train",
+            "--workers", "1"]
+
+
+def test_killed_generation_resumes_without_duplicates_or_corruption(tmp_path, library, dataset):
+    out = tmp_path / "killed"
+    process = subprocess.Popen(_generate_command(out), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                               env=os.environ | {"PYTHONUNBUFFERED": "1"})
+    deadline = time.time() + 240
+    while time.time() < deadline and len(list((out / "train").glob("train-*"))) < 3:
+        time.sleep(0.2)
+    process.send_signal(signal.SIGKILL)
+    process.wait()
+    assert not (out / MANIFEST_FILE).exists(), "the run finished before it could be killed"
+    result = subprocess.run(_generate_command(out), capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stderr
+    assert verify_dataset(out) == []
+    resumed = json.loads((out / MANIFEST_FILE).read_text())["files"]
+    reference = json.loads((dataset / MANIFEST_FILE).read_text())["files"]
+    assert resumed == {k: v for k, v in reference.items() if k.startswith("train/")}
+    assert not list((out / "train").glob(".tmp-*"))
+
+
+def test_verify_names_a_corrupt_scene_and_generate_regenerates_exactly_it(tmp_path, library):
+    config = dataclasses.replace(TINY, splits=TINY.splits[:1])
+    out = tmp_path / "corrupt"
+    before = generate_dataset(out, config, progress=False)["files"]
+    target = out / "train" / "train-00002" / "rgb.png"
+    target.write_bytes(target.read_bytes()[:100])
+    other = out / "train" / "train-00001" / "scene.json"
+    mtime = other.stat().st_mtime_ns
+    problems = verify_dataset(out)
+    assert [scene for scene, _ in problems] == ["train-00002"]
+    after = generate_dataset(out, config, progress=False)
+    assert after["files"] == before and after["statistics"]["regenerated_corrupt_scenes"] == 1
+    assert other.stat().st_mtime_ns == mtime, "an intact scene was rewritten"
+
+
+def test_bad_configurations_fail_before_any_work(tmp_path, library):
+    with pytest.raises(DatasetConfigError, match="unknown split"):
+        generate_dataset(tmp_path / "a", TINY, splits=["validation"], progress=False)
+    zero = dataclasses.replace(TINY, splits=(SplitConfig("train", (("table", 0),), "seen", "seen", "seen"),))
+    with pytest.raises(DatasetConfigError, match="zero scenes"):
+        generate_dataset(tmp_path / "b", zero, progress=False)
+    bad_level = dataclasses.replace(TINY, splits=(SplitConfig("train", (("3obj", 2),), "seen", "seen", "seen"),))
+    with pytest.raises(DatasetConfigError, match="unknown level"):
+        generate_dataset(tmp_path / "c", bad_level, progress=False)
+    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+
+
+def test_a_folder_of_another_dataset_is_refused(tmp_path, library):
+    out = tmp_path / "other"
+    config = dataclasses.replace(TINY, splits=TINY.splits[:1])
+    generate_dataset(out, config, progress=False)
+    with pytest.raises(DatasetError, match="another dataset"):
+        generate_dataset(out, dataclasses.replace(config, seed=1), progress=False)
+    (tmp_path / "full").mkdir()
+    (tmp_path / "full" / "notes.txt").write_text("mine")
+    with pytest.raises(DatasetError, match="not empty"):
+        generate_dataset(tmp_path / "full", config, progress=False)
