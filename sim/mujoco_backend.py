@@ -36,6 +36,7 @@ class PhysicsConfig:
     settle_angular_speed: float = 0.05  # rad/s
     max_settle_time: float = 3.0  # s of simulated time before giving up on settling
     check_every: int = 10  # steps between settle checks
+    still_checks: int = 3  # consecutive checks below the speeds: a slowly tipping object is not settled
     max_tilt: float = 0.35  # rad, largest initial tilt of a dropped object
     friction: tuple[float, float, float] = (0.9, 0.005, 0.0001)
 
@@ -248,14 +249,14 @@ class MujocoScenes:
         linear = np.array([[a, a + 1, a + 2] for a in dof_addresses], dtype=int)
         angular = linear + 3
         max_steps = int(physics.max_settle_time / physics.timestep)
-        steps = 0
-        while steps < max_steps:
+        steps = still = 0
+        while steps < max_steps and still < physics.still_checks:
             mujoco.mj_step(self.model, self.data, nstep=physics.check_every)
             steps += physics.check_every
             qvel = self.data.qvel
-            if (np.abs(qvel[linear]).max() < physics.settle_linear_speed
-                    and np.abs(qvel[angular]).max() < physics.settle_angular_speed):
-                break
+            slow = (np.abs(qvel[linear]).max() < physics.settle_linear_speed
+                    and np.abs(qvel[angular]).max() < physics.settle_angular_speed)
+            still = still + 1 if slow else 0
         return steps
 
     # Outputs ---------------------------------------------------------------------------------

@@ -36,6 +36,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     show.add_argument("--split", default="seen", help="split used with a numeric --id")
     show.add_argument("--out", type=Path, default=Path("scene.png"))
     show.set_defaults(func=_show)
+    check = actions.add_parser("check", help="score the oracle placements with the success metric "
+                                              "(and the physical drop check)")
+    check.add_argument("dir", type=Path)
+    check.add_argument("--split", choices=SPLIT_CHOICES, default="all")
+    check.add_argument("--physical", action="store_true", help="also drop the held object in MuJoCo")
+    check.set_defaults(func=_check)
 
 
 def _generate(args: argparse.Namespace) -> int:
@@ -83,3 +89,24 @@ def _show(args: argparse.Namespace) -> int:
     save_png(args.out, scene_figure(record))
     print(f"wrote {args.out}: {record.meta['instruction']}")
     return 0
+
+
+def _check(args: argparse.Namespace) -> int:
+    from ocplace.sim.dataset.check import check_oracle
+    from ocplace.sim.dataset.config import SPLIT_NAMES
+    from ocplace.sim.library import load_library
+
+    splits = [s for s in SPLIT_NAMES if (args.dir / s).is_dir()] if args.split == "all" else [args.split]
+    report = check_oracle(args.dir, splits, load_library() if args.physical else None, args.physical)
+    total = {"scenes": 0, "metric_success": 0, "physical_success": 0}
+    for split, row in report.items():
+        line = f"{split:>12}: metric {row['metric_success']}/{row['scenes']}"
+        if args.physical:
+            line += f", physical {row['physical_success']}/{row['scenes']}"
+        print(line)
+        for key in total:
+            total[key] += row.get(key, 0)
+    print(f"{'all':>12}: metric {total['metric_success']}/{total['scenes']}"
+          + (f", physical {total['physical_success']}/{total['scenes']} "
+             f"({100 * total['physical_success'] / total['scenes']:.1f}%)" if args.physical else ""))
+    return 0 if total["metric_success"] == total["scenes"] else 1

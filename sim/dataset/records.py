@@ -56,16 +56,16 @@ class SceneRecord:
                      np.array([b["box"] for b in entries], np.int32).reshape(-1, 4),
                      np.array([b["pixels"] for b in entries], np.int64).reshape(-1))
 
-    def object_aabbs(self) -> np.ndarray:
-        """`(num_objects, 2, 3)` world AABBs in object-id order."""
-        return np.array([obj["aabb"] for obj in self.meta["objects"]], dtype=np.float64)
-
     def problem(self) -> PlacementProblem:
-        """The placement problem with the ground-truth grounding."""
-        aabbs = self.object_aabbs()
-        tuples = [GroundedTuple(t.relation, None if t.reference_object_id == 0
-                                else aabbs[t.reference_object_id - 1, :, :2]) for t in self.tuples]
-        return encode_problem(tuples, aabbs[:, :, :2], self.meta["held_object"]["footprint_half_extents"])
+        return problem_from_meta(self.meta)
+
+
+def problem_from_meta(meta: dict) -> PlacementProblem:
+    """The placement problem of a scene.json, with the ground-truth grounding."""
+    aabbs = np.array([obj["aabb"] for obj in meta["objects"]], dtype=np.float64)[:, :, :2]
+    tuples = [GroundedTuple(t["relation"], None if t["reference_object_id"] == 0
+                            else aabbs[t["reference_object_id"] - 1]) for t in meta["tuples"]]
+    return encode_problem(tuples, aabbs, meta["held_object"]["footprint_half_extents"])
 
 
 def _encode_png(image: np.ndarray, compression: int) -> bytes:
