@@ -68,6 +68,8 @@ def _parity(args: argparse.Namespace) -> int:
     summary = report["summary"]
     print(f"scenes compared:                     {summary['scenes']}")
     print(f"(a) max projected centre error:      {summary['max_centre_error_px']:.3f} px (<= {config.centre_tolerance_px})")
+    dv, du = summary["mean_mask_centroid_offset_px"]
+    print(f"(a) mean mask centroid offset:       {dv:+.3f} rows, {du:+.3f} columns")
     print(f"(a) min box IoU (>= {config.iou_min_pixels} px objects): {summary['min_box_iou']:.3f} (>= {config.iou_threshold})")
     print(f"(b) max table depth error:           {summary['max_table_depth_error_m'] * 1000:.2f} mm "
           f"(<= {config.depth_tolerance_m * 1000:.1f})")

@@ -1,7 +1,8 @@
 """MuJoCo vs PyBullet parity on the same scene specs (issue: foundation, "PyBullet parity").
 
 (a) physics off, objects at MuJoCo's settled poses: object origins projected by each engine's own
-    camera matrices agree within 1 px, and segmentation boxes agree (IoU) for well-visible objects;
+    camera matrices agree within 1 px, and segmentation boxes agree (IoU) for well-visible objects
+    (the mean offset between the two engines' object masks is reported too);
 (b) depth on table pixels agrees within 2 mm;
 (c) after the same drop, both engines settle every object on the table (the physics may differ).
 """
@@ -81,6 +82,11 @@ def compare_static(mj: MujocoScenes, pb: PybulletScenes, spec: SceneSpec, config
     _, pb_depth, pb_segmentation = pb.render(names)
 
     centre_error = np.abs(mujoco_projection(mj, positions) - pybullet_projection(pb, positions)).max()
+    centroid_offsets = []
+    for object_id in range(1, len(names) + 1):
+        mj_pixels, pb_pixels = np.argwhere(scene.segmentation == object_id), np.argwhere(pb_segmentation == object_id)
+        if len(mj_pixels) >= config.iou_min_pixels and len(pb_pixels):
+            centroid_offsets.append(pb_pixels.mean(axis=0) - mj_pixels.mean(axis=0))
     mj_boxes = boxes_from_segmentation(scene.segmentation, config.iou_min_pixels)
     pb_boxes = boxes_from_segmentation(pb_segmentation, 1)
     ious = []
@@ -92,6 +98,7 @@ def compare_static(mj: MujocoScenes, pb: PybulletScenes, spec: SceneSpec, config
     return {
         "seed": scene.spec.seed,
         "centre_error_px": float(centre_error),
+        "mask_centroid_offsets_px": np.asarray(centroid_offsets).tolist(),
         "min_iou": float(min(ious)) if ious else np.nan,
         "boxes_compared": len(ious),
         "table_depth_error_m": depth_error,
@@ -143,7 +150,9 @@ def summarise(static_rows: list[dict], drop_rows: list[dict], config: ParityConf
     centre = max(row["centre_error_px"] for row in static_rows)
     ious = [row["min_iou"] for row in static_rows if row["boxes_compared"]]
     depth = max(row["table_depth_error_m"] for row in static_rows)
+    offsets = np.array([o for row in static_rows for o in row["mask_centroid_offsets_px"]]).reshape(-1, 2)
     return {
+        "mean_mask_centroid_offset_px": offsets.mean(axis=0).tolist() if len(offsets) else [np.nan, np.nan],
         "max_centre_error_px": centre,
         "min_box_iou": min(ious) if ious else float("nan"),
         "max_table_depth_error_m": depth,

@@ -54,6 +54,7 @@ class PybulletScenes:
         self._bodies: dict[str, int] = {}
         self._active: tuple[str, ...] = ()
         self._view, self._projection = self._camera_matrices()
+        self._render_projection = self._pixel_centred(self._projection) if renderer == "tiny" else self._projection
 
     def close(self) -> None:
         if self.client is not None:
@@ -97,6 +98,19 @@ class PybulletScenes:
             fov=camera.fov_y_deg, aspect=camera.width / camera.height, nearVal=self.near, farVal=self.far)
         return view, projection
 
+    def _pixel_centred(self, projection: list[float]) -> list[float]:
+        """Shifts the image by half a pixel left and down.
+
+        TinyRenderer samples each pixel at its corner, not its centre: measured on our scenes, its
+        masks sit (-0.5, +0.5) px (rows, columns) off MuJoCo's. The shift makes both engines
+        sample pixel centres, as the camera model assumes.
+        """
+        camera = self.config.camera
+        matrix = np.asarray(projection).reshape(4, 4, order="F").copy()
+        matrix[0] -= matrix[3] / camera.width
+        matrix[1] -= matrix[3] / camera.height
+        return matrix.reshape(-1, order="F").tolist()
+
     def _body(self, name: str) -> int:
         if name not in self._bodies:
             asset = self.objects.get(name)
@@ -134,14 +148,15 @@ class PybulletScenes:
         """Object-frame poses, (w, x, y, z) quaternions as in MuJoCo."""
         for name, position, quaternion in zip(names, positions, quaternions, strict=True):
             body = self._body(name)
-            # PyBullet places a URDF base at its centre of mass: shift from the object frame.
-            com = self._com_offset(body)
-            world_com = np.asarray(position) + quaternion_to_matrix(np.asarray(quaternion)) @ com
-            self.client.resetBasePositionAndOrientation(body, world_com.tolist(), _xyzw(quaternion))
+            # PyBullet poses a URDF base by its inertial frame (centre of mass and principal axes).
+            com, orientation = self.client.multiplyTransforms(
+                list(position), _xyzw(quaternion), *self._inertial_frame(body))
+            self.client.resetBasePositionAndOrientation(body, com, orientation)
             self.client.resetBaseVelocity(body, [0, 0, 0], [0, 0, 0])
 
-    def _com_offset(self, body: int) -> np.ndarray:
-        return np.asarray(self.client.getDynamicsInfo(body, -1)[3])
+    def _inertial_frame(self, body: int) -> tuple[list[float], list[float]]:
+        info = self.client.getDynamicsInfo(body, -1)
+        return list(info[3]), list(info[4])
 
     def poses(self, names: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
         """`(N, 3)` object-frame positions and `(N, 4)` (w, x, y, z) quaternions."""
@@ -149,9 +164,10 @@ class PybulletScenes:
         for name in names:
             body = self._body(name)
             com, orientation = self.client.getBasePositionAndOrientation(body)
-            quaternion = _wxyz(orientation)
-            positions.append(np.asarray(com) - quaternion_to_matrix(quaternion) @ self._com_offset(body))
-            quaternions.append(quaternion)
+            local_position, local_orientation = self.client.invertTransform(*self._inertial_frame(body))
+            position, orientation = self.client.multiplyTransforms(com, orientation, local_position, local_orientation)
+            positions.append(np.asarray(position))
+            quaternions.append(_wxyz(orientation))
         return np.array(positions), np.array(quaternions)
 
     def settle(self, names: Sequence[str] | None = None) -> int:
@@ -185,7 +201,7 @@ class PybulletScenes:
         names = self._active if names is None else names
         camera = self.config.camera
         _, _, rgba, zbuffer, body_ids = self.client.getCameraImage(
-            camera.width, camera.height, viewMatrix=self._view, projectionMatrix=self._projection,
+            camera.width, camera.height, viewMatrix=self._view, projectionMatrix=self._render_projection,
             renderer=self._renderer_flag, shadow=0)
         rgb = np.asarray(rgba, dtype=np.uint8).reshape(camera.height, camera.width, 4)[..., :3].copy()
         zbuffer = np.asarray(zbuffer, dtype=np.float64).reshape(camera.height, camera.width)
