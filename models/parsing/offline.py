@@ -61,6 +61,9 @@ class OfflineParser:
         """`(reference, canonical relation, phrase, similarity or None)` of a resolved mention."""
         reference = text.normalise_reference(mention.reference)
         phrase = mention.phrase
+        if not reference:
+            raise ParseError(f"{phrase!r} {' '.join(mention.reference)!r} names no object; "
+                             "say which object, e.g. 'to the left of the red bowl'")
         if mention.needs_snapping or self.config.relation_source == "encoder":
             snap = (self.snapper.snap(phrase) if mention.needs_snapping
                     else self.snapper.nearest(phrase))

@@ -17,6 +17,9 @@ from ocplace.models.parsing.encoder import TextEncoder
 from ocplace.sim import language, relations
 
 
+_SAME_PHRASE = 0.995  # cosine similarity of a phrase with itself, up to float error
+
+
 @dataclasses.dataclass(frozen=True)
 class Snap:
     relation: str
@@ -44,6 +47,7 @@ class Snapper:
             [relations.relation_index(name) for name, _ in targets], dtype=np.int32
         )
         self._target_embeddings = encode_texts([phrase for _, phrase in targets])  # (P, D)
+        encode_texts([targets[0][1]])  # compiles the one-phrase shape now, not on the first snap
 
     def relation_scores(self, phrases: Sequence[str]) -> np.ndarray:
         """`(len(phrases), 9)` best cosine similarity per canonical relation."""
@@ -64,6 +68,8 @@ class Snapper:
     def snap(self, phrase: str) -> Snap:
         """The canonical relation `phrase` means, or ParseError when no relation is close."""
         best = self.nearest(phrase)
+        if best.similarity >= _SAME_PHRASE:
+            return best  # a target phrase itself, however close its neighbours are
         if best.similarity < self.min_similarity or best.margin < self.min_margin:
             raise ParseError(
                 f"unknown relation {phrase!r} (closest: {best.relation!r}, similarity "
