@@ -82,9 +82,15 @@ def _parse_eval(args) -> int:
         "unseen": evaluation.generated_cases("unseen", args.num, args.seed + 1, names),
     }
     freeform_path = Path(args.freeform) if args.freeform else evaluation.FREEFORM_PATH
-    for split in ("dev", "test"):
+    for split in ("dev", "test", "blind"):
         sets[f"free-{split}"] = evaluation.freeform_cases(freeform_path, split)
     sets["free-all"] = evaluation.freeform_cases(freeform_path)
+    snaps = evaluation.expression_snapping(snapper_holder.snapper)
+    accepted = [s for s in snaps if s.accepted]
+    print(f"encoder alone on the {len(snaps)} unseen relation expressions: nearest relation right "
+          f"for {sum(s.nearest == s.relation for s in snaps)}; past the thresholds: "
+          f"{len(accepted)} ({sum(s.nearest == s.relation for s in accepted)} right), "
+          f"refused {len(snaps) - len(accepted)}")
     print(f"parser {parser.name}, {len(names)} object names")
     for set_name, cases in sets.items():
         report = evaluation.evaluate(parser, cases, set_name)

@@ -95,7 +95,8 @@ def generated_cases(style: str, num_cases: int, seed: int,
 
 
 def freeform_cases(path: Path = FREEFORM_PATH, split: str | None = None) -> list[Case]:
-    """The hand-written set; `split` "dev" or "test" keeps one half."""
+    """The hand-written set; `split` keeps one part: "dev" (parser developed on it), "test"
+    (written with dev, first scored after development), "blind" (written after the parser)."""
     cases = []
     for line in Path(path).read_text(encoding="utf-8").splitlines():
         record = json.loads(line)
@@ -127,3 +128,29 @@ def evaluate(parser: Parser, cases: Iterable[Case], name: str) -> Report:
     return Report(name, len(latencies), correct,
                   (float(values.mean()), float(np.median(values)), float(np.percentile(values, 95))),
                   tuple(failures))
+
+
+@dataclasses.dataclass(frozen=True)
+class ExpressionSnap:
+    expression: str
+    relation: str  # what the expression means
+    nearest: str  # the encoder's closest canonical relation
+    similarity: float
+    margin: float
+    accepted: bool  # passes the snapper's thresholds
+
+
+def expression_snapping(snapper) -> list[ExpressionSnap]:
+    """How the encoder alone snaps each of the 25 unseen relation expressions."""
+    out = []
+    for relation, expressions in language.UNSEEN_RELATION_EXPRESSIONS.items():
+        for expression in expressions:
+            best = snapper.nearest(expression)
+            try:
+                snapper.snap(expression)
+                accepted = True
+            except ParseError:
+                accepted = False
+            out.append(ExpressionSnap(expression, relation, best.relation, best.similarity,
+                                      best.margin, accepted))
+    return out

@@ -142,9 +142,13 @@ def mentions_in(words: list[str], sentence: int) -> list[Mention]:
     return found or _snapping_candidate(words, sentence)
 
 
+_RELATIVE_PRONOUNS = frozenset({"that", "which", "who", "where"})
+
+
 def _trim_reference(words: list[str]) -> list[str]:
     words = list(words)
-    while words and (words[-1] in lexicon.LINKERS or words[-1] in _CONJUNCTIONS):
+    while words and (words[-1] in lexicon.LINKERS or words[-1] in _CONJUNCTIONS
+                     or (len(words) > 1 and words[-1] in _RELATIVE_PRONOUNS)):
         words.pop()
     return words
 

@@ -126,11 +126,14 @@ def _viewer_match(words: list[str], i: int):
 def correct_typo(word: str) -> str:
     """A misspelt direction word corrected ("lfet" -> "left", "behnid" -> "behind"), else `word`.
 
-    Words of five letters or more within one edit and with the same first letter; four-letter
-    words only by swapping two neighbours, so "black" never becomes "back".
+    A doubled letter; or, for words of five letters or more, one edit with the same first
+    letter; four-letter words only by swapping two neighbours, so "black" never becomes "back".
     """
     if word in _DIRECTION_WORDS or word in FUNCTION_WORDS or word in FILLERS or len(word) < 4:
         return word
+    undoubled = "".join(c for i, c in enumerate(word) if i == 0 or c != word[i - 1])
+    if undoubled in _DIRECTION_TYPO_TARGETS:
+        return undoubled  # "lefft", "behiind"
     for target in _DIRECTION_TYPO_TARGETS:
         if len(target) >= 5 and word[0] == target[0] and _within_one_edit(word, target):
             return target

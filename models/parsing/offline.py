@@ -143,7 +143,8 @@ def _give_sides_to_proximity(mentions: list[grammar.Mention]) -> None:
     """Pairs each referenceless direction with a neighbouring reference-bearing mention.
 
     A neighbouring proximity mention is preferred ("beside the mug, on the left"); else the
-    next mention when it is on the other axis ("to the front and to the right of the block").
+    previous mention when it repeats the direction or is on the other axis; else the next
+    mention when it is on the other axis ("to the front and to the right of the block").
     """
     for index, mention in enumerate(mentions):
         if mention.reference or not mention.directions or mention.needs_snapping:
@@ -155,6 +156,10 @@ def _give_sides_to_proximity(mentions: list[grammar.Mention]) -> None:
                 and previous.sentence == mention.sentence
                 and mention.directions <= previous.directions):
             partner = previous  # "in front of the cup, towards me" repeats the relation
+        if (partner is None and previous is not None and previous.reference
+                and previous.sentence == mention.sentence and _axes(mention.directions)
+                and _axes(previous.directions).isdisjoint(_axes(mention.directions))):
+            partner = previous  # "to the front of the tray, slightly to the left": a corner
         if partner is None and index + 1 < len(mentions):
             following = mentions[index + 1]
             if (following.reference and following.sentence == mention.sentence
