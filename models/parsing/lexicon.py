@@ -48,9 +48,9 @@ FILLERS = frozenset(
 )
 FUNCTION_WORDS = frozenset(
     "to of at on in the a an teh hte from than and just slightly directly immediately somewhat bit "
-    "little very diagonally toward towards more most exactly straight squarely immediate a bit "
-    "over there here up down".split()
-) - frozenset({"over"})
+    "little very diagonally toward towards more most exactly straight squarely immediate there "
+    "here up down".split()
+)
 LINKERS = frozenset("of to the a an teh hte from than".split())
 PREPOSITION_CUES = frozenset("behind before beside besides by near alongside beyond past".split())
 PRONOUN_REFERENCES = frozenset({"it", "its", "them", "this", "that", "one", "it's"})
@@ -205,9 +205,7 @@ def _tag_distance_word(word: str, preceding: str | None, following: str | None) 
     if following in ("from", "away"):
         return Tag("unsupported", reason="distance ('far from')")
     is_near = word.startswith("near")
-    direction = (FRONT,) if is_near else (BACK,)
-    if following in FILLERS or following is None or preceding in ("the", "its"):
-        return Tag("dir", direction)
-    if is_near:
+    if is_near and following not in FILLERS and following is not None and preceding not in (
+            "the", "its"):
         return Tag("prox")
-    return Tag("dir", direction)
+    return Tag("dir", (FRONT,) if is_near else (BACK,))
