@@ -21,6 +21,7 @@ COMMAND_MODULES = (
     "ocplace.sim.dataset.commands",
     "ocplace.demo",
     "ocplace.models.parsing.commands",
+    "ocplace.train.commands",
 )
 
 

@@ -57,3 +57,19 @@ class DatasetConfigError(OcplaceError):
 
 class DatasetError(OcplaceError):
     """A dataset folder that is missing, belongs to another dataset, or holds corrupt files."""
+
+
+class BackboneError(OcplaceError):
+    """A backbone spec, checkpoint or input that the backbone cannot use."""
+
+
+class BackboneUnavailable(BackboneError):
+    """A backbone checkpoint that is neither local nor downloadable (for example: no network)."""
+
+
+class FeaturesError(OcplaceError):
+    """A feature file that is missing, corrupt, or does not match the data or backbone asked for."""
+
+
+class TrainingError(OcplaceError):
+    """A training run that cannot start or resume (bad configuration, mismatched checkpoint)."""

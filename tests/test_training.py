@@ -1,0 +1,137 @@
+"""Adapter training on synthetic cached features: fitting, determinism, checkpoints and resume."""
+
+import argparse
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+from safetensors.numpy import load_file
+
+from ocplace.errors import TrainingError
+from ocplace.models.features import save_features
+from ocplace.models.grounding import GroundingModel
+from ocplace.train import checkpoints, commands
+from ocplace.train.config import smoke_config
+from ocplace.train.loop import batch_indices, subset_indices, train
+from ocplace.train.metrics import MetricsLog, evaluate_features
+from ocplace.train.synthetic import synthetic_features
+
+DIM = 32
+
+
+@pytest.fixture(scope="module")
+def features():
+    return synthetic_features(48, DIM, seed=0)
+
+
+@pytest.fixture(scope="module")
+def fitted(tmp_path_factory, features):
+    run_dir = tmp_path_factory.mktemp("fitted")
+    return train(features, run_dir, smoke_config(), val_features=synthetic_features(16, DIM, seed=0), progress=False)
+
+
+def short_config():
+    return dataclasses.replace(smoke_config(), steps=200, checkpoint_every=100)
+
+
+def adapter_arrays(run_dir):
+    return load_file(str(run_dir / checkpoints.ADAPTERS_FILE))
+
+
+def test_training_fits_a_separable_problem(fitted, features):
+    zero_shot = evaluate_features(GroundingModel.zero_shot(DIM, 100.0), features)
+    assert zero_shot.tuple_accuracy < 0.6  # text and image prototypes are unrelated
+    records = MetricsLog(fitted.run_dir / "metrics.jsonl").records()
+    assert [r["step"] for r in records] == list(range(50, 301, 50))
+    assert records[-1]["loss"] < records[0]["loss"] / 10
+    assert fitted.train_accuracy.tuple_accuracy == 1.0 and fitted.train_accuracy.scene_accuracy == 1.0
+    assert records[-1]["train_tuple_accuracy"] == 1.0 and "val_scene_accuracy" in records[-1]
+
+
+def test_adapters_file_round_trip(fitted, features):
+    trained = checkpoints.load_adapters(fitted.run_dir)
+    assert trained.steps == 300 and trained.features_key == features.info.key
+    assert trained.model.config == fitted.model.config and trained.model.logit_scale == 100.0
+    np.testing.assert_array_equal(trained.model.logits(features.text, features.visual, features.visual_mask),
+                                  fitted.model.logits(features.text, features.visual, features.visual_mask))
+
+
+def test_checkpoint_round_trip(fitted):
+    saved = checkpoints.list_checkpoints(fitted.run_dir)
+    assert [p.name for p in saved] == ["step_000000200.safetensors", "step_000000300.safetensors"]  # keep 2
+    import jax
+
+    state, step, metadata = checkpoints.load_checkpoint(saved[-1], _state_template(fitted))
+    assert step == 300 and "run" in metadata
+    for a, b in zip(jax.tree_util.tree_leaves(state[0]), jax.tree_util.tree_leaves(fitted.model.params)):
+        np.testing.assert_array_equal(a, b)
+    with pytest.raises(TrainingError, match="does not match"):
+        checkpoints.load_checkpoint(saved[-1], (fitted.model.params, None))
+
+
+def _state_template(result):
+    from ocplace.train.loop import init_state, make_optimizer
+
+    return init_state(result.model.config, make_optimizer(smoke_config()), seed=123)
+
+
+def test_same_seed_same_weights_and_resume_equals_uninterrupted(tmp_path, features):
+    config = short_config()
+    train(features, tmp_path / "a", config, progress=False)
+    train(features, tmp_path / "b", config, progress=False)
+
+    def crash_after_first_checkpoint(record):
+        if record["step"] == 100:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        train(features, tmp_path / "c", config, progress=False, callback=crash_after_first_checkpoint)
+    assert not (tmp_path / "c" / checkpoints.ADAPTERS_FILE).exists()
+    train(features, tmp_path / "c", config, progress=False)
+    train(features, tmp_path / "d", dataclasses.replace(config, seed=1), progress=False)
+
+    a, b, c, d = (adapter_arrays(tmp_path / name) for name in "abcd")
+    for key in a:
+        np.testing.assert_array_equal(a[key], b[key])
+        np.testing.assert_array_equal(a[key], c[key])
+    assert any(not np.array_equal(a[key], d[key]) for key in a)
+    steps = [r["step"] for r in MetricsLog(tmp_path / "c" / "metrics.jsonl").records()]
+    assert steps == [50, 100, 150, 200]  # resumed at 100, nothing repeated
+
+
+def test_a_run_directory_refuses_other_settings(tmp_path, features):
+    config = dataclasses.replace(short_config(), steps=50, checkpoint_every=50, eval_every=50)
+    train(features, tmp_path, config, progress=False)
+    with pytest.raises(TrainingError, match="other settings"):
+        train(features, tmp_path, dataclasses.replace(config, learning_rate=1e-3), progress=False)
+
+
+def test_fraction_subsets_are_seeded_and_nested():
+    quarter, half = subset_indices(100, 0.25, 0), subset_indices(100, 0.5, 0)
+    assert len(quarter) == 25 and len(half) == 50
+    assert set(quarter) <= set(half)
+    np.testing.assert_array_equal(quarter, subset_indices(100, 0.25, 0))
+    assert not np.array_equal(quarter, subset_indices(100, 0.25, 1))
+
+
+def test_batch_indices_shuffle_each_epoch_and_depend_only_on_the_step():
+    indices = batch_indices(10, seed=0, start_step=0, num_steps=30, batch_size=1)[:, 0]
+    for epoch in range(3):
+        assert sorted(indices[10 * epoch:10 * epoch + 10]) == list(range(10))
+    assert not np.array_equal(indices[:10], indices[10:20])
+    np.testing.assert_array_equal(batch_indices(10, 0, 7, 13, 1)[:, 0], indices[7:20])
+    assert batch_indices(10, 0, 0, 5, 2).shape == (5, 2)
+
+
+def test_train_command(tmp_path, features):
+    path = save_features(features, tmp_path / "features.safetensors")
+    run = tmp_path / "run"
+    parser = argparse.ArgumentParser()
+    commands.register(parser.add_subparsers())
+    args = parser.parse_args(["train", "--features", str(path), "--out", str(run), "--smoke", "--steps", "100",
+                              "--fraction", "0.5"])
+    assert args.func(args) == 0
+    meta = json.loads((run / "config.json").read_text())
+    assert meta["train_scenes"] == 24 and meta["train_config"]["steps"] == 100
+    assert checkpoints.load_adapters(run).steps == 100
