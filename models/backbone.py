@@ -32,7 +32,8 @@ log = logging.getLogger(__name__)
 
 DEFAULT_CLIP = "openai/clip-vit-base-patch32"
 # kind -> "module:function(argument: str) -> Backbone"; the offline backbone adds its own kind.
-BACKBONE_LOADERS = {"clip": "ocplace.models.backbone:load_clip_backbone"}
+BACKBONE_LOADERS = {"clip": "ocplace.models.backbone:load_clip_backbone",
+                    "offline": "ocplace.models.offline_backbone:load_offline_backbone"}
 _HUB_PROBE_TIMEOUT_S = 3.0
 
 

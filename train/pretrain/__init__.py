@@ -1,0 +1,1 @@
+"""Contrastive pretraining of the offline backbone on rendered crops of training-split objects."""

@@ -1,0 +1,134 @@
+"""Pretraining recipes: what is rendered, how the towers are trained, and where the result goes.
+
+`default` is the recipe `load_backbone("offline")` loads (<= 30 min on 2 CPU cores, rendering
+included), `demo` a few-minute version for `make demo`, `smoke` a seconds-long one for tests.
+A recipe's result lives in `<cache>/backbones/offline-<hash of its config>/`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+from pathlib import Path
+
+from ocplace.errors import TrainingError
+from ocplace.models import offline_backbone
+from ocplace.models.offline_backbone import OfflineConfig
+
+
+@dataclasses.dataclass(frozen=True)
+class RenderConfig:
+    """Scenes of training-split objects on seen table textures, and how crops are cut from them."""
+
+    scenes: int = 1200
+    objects_per_scene: int = 5  # as in the benchmark: occlusions come with the drops
+    renders_per_scene: int = 2  # extra renders of a settled scene under new lighting and table colours
+    max_objects: int = 0  # > 0: only the first `max_objects` training objects (smoke tests)
+    crop_size: int = 224  # the benchmark loader's crop size, before the backbone's own resize
+    padding: float = 0.1  # the pipeline's crop padding (`sim.boxes.square_crop`)
+    canonical_share: float = 0.5  # share of crops cut exactly as the pipeline cuts them
+    padding_range: tuple[float, float] = (0.0, 0.3)  # jittered crops draw their padding from here
+    shift: float = 0.08  # jittered crops move the box by up to this share of its size
+    light_range: tuple[float, float] = (0.55, 1.25)  # scale of the headlight and the top light
+    light_tilt: float = 0.6  # largest tilt (rad) of the top light away from its default direction
+    table_jitter: float = 0.5  # probability that a render recolours the table pixels
+    chunk_scenes: int = 50  # scenes per resumable render chunk
+    seed: int = 0
+
+    def validate(self) -> list[str]:
+        problems = []
+        if self.scenes < 1 or self.renders_per_scene < 1 or self.chunk_scenes < 1:
+            problems.append("scenes, renders_per_scene and chunk_scenes must be positive")
+        if self.objects_per_scene < 1:
+            problems.append("objects_per_scene must be positive")
+        if not 0.0 <= self.canonical_share <= 1.0 or not 0.0 <= self.table_jitter <= 1.0:
+            problems.append("canonical_share and table_jitter are probabilities")
+        return problems
+
+
+@dataclasses.dataclass(frozen=True)
+class OptimConfig:
+    steps: int = 1500
+    batch_size: int = 64
+    table_share: float = 1 / 16  # share of each batch that is whole-workspace images ("a table")
+    learning_rate: float = 1e-3
+    warmup_steps: int = 100
+    weight_decay: float = 0.05
+    max_logit_scale: float = 100.0  # CLIP's clamp on the learned temperature
+    rotate: bool = True  # random quarter turns and flips: the camera looks straight down
+    colour_jitter: float = 0.1  # brightness/contrast/saturation jitter amplitude
+    checkpoint_every: int = 100
+    keep_checkpoints: int = 2
+    seed: int = 0
+
+    def validate(self) -> list[str]:
+        problems = []
+        if self.steps < 1 or self.batch_size < 2 or self.checkpoint_every < 1 or self.keep_checkpoints < 1:
+            problems.append("steps, checkpoint_every and keep_checkpoints must be positive, batch_size >= 2")
+        if not 0.0 <= self.table_share < 1.0:
+            problems.append("table_share must be in [0, 1)")
+        return problems
+
+
+@dataclasses.dataclass(frozen=True)
+class PretrainConfig:
+    recipe: str
+    model: OfflineConfig = OfflineConfig()
+    render: RenderConfig = RenderConfig()
+    optim: OptimConfig = OptimConfig()
+
+    def validate(self) -> None:
+        problems = self.render.validate() + self.optim.validate()
+        if problems:
+            raise TrainingError(f"invalid pretraining recipe {self.recipe!r}: " + "; ".join(problems))
+
+    def to_dict(self) -> dict:
+        return json.loads(json.dumps(dataclasses.asdict(self)))
+
+    @classmethod
+    def from_dict(cls, fields: dict) -> PretrainConfig:
+        render = {k: tuple(v) if isinstance(v, list) else v for k, v in fields["render"].items()}
+        return cls(fields["recipe"], OfflineConfig.from_dict(fields["model"]), RenderConfig(**render),
+                   OptimConfig(**fields["optim"]))
+
+    def key(self) -> str:
+        """12 hex digits that change with any setting."""
+        return hashlib.sha256(json.dumps(self.to_dict(), sort_keys=True).encode()).hexdigest()[:12]
+
+
+def default_config() -> PretrainConfig:
+    return PretrainConfig("default")
+
+
+def demo_config() -> PretrainConfig:
+    """A few minutes: fewer scenes and steps, same architecture."""
+    return PretrainConfig("demo", render=RenderConfig(scenes=240, renders_per_scene=2),
+                          optim=OptimConfig(steps=300, warmup_steps=30, checkpoint_every=50))
+
+
+def smoke_config() -> PretrainConfig:
+    """Seconds: a tiny tower, four objects, two scenes, a few steps."""
+    return PretrainConfig(
+        "smoke", model=offline_backbone.smoke_config(),
+        render=RenderConfig(scenes=2, objects_per_scene=3, renders_per_scene=2, max_objects=4, chunk_scenes=1),
+        optim=OptimConfig(steps=12, batch_size=16, table_share=0.125, learning_rate=3e-3, warmup_steps=2,
+                          checkpoint_every=4))
+
+
+RECIPES = {"default": default_config, "demo": demo_config, "smoke": smoke_config}
+
+
+def recipe_config(name: str) -> PretrainConfig:
+    if name not in RECIPES:
+        raise TrainingError(f"unknown pretraining recipe {name!r}; choose one of {', '.join(RECIPES)}")
+    return RECIPES[name]()
+
+
+def output_dir(config: PretrainConfig) -> Path:
+    return offline_backbone.backbones_root() / f"offline-{config.key()}"
+
+
+def recipe_dir(name: str) -> Path:
+    """Where the named recipe's backbone is (or will be) saved."""
+    return output_dir(recipe_config(name))

@@ -1,0 +1,284 @@
+"""The pretraining run: captions, rendering, contrastive training, saving the backbone.
+
+Output directory (default `<cache>/backbones/offline-<recipe hash>/`):
+    config.json, weights.safetensors, fingerprint.txt   the backbone (`models/offline_backbone.py`)
+    run/run.json                                         the recipe and pool this run belongs to
+    run/metrics.jsonl                                    loss, temperature, learning rate per logged step
+    run/renders/chunk_*.npz, run/checkpoints/            removed once the backbone is saved
+
+Every random draw is a pure function of the recipe's seeds and the step, so a run resumed from
+its newest checkpoint (and its rendered chunks) ends with the weights of an uninterrupted one.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime
+import functools
+import json
+import logging
+import math
+import shutil
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+
+from ocplace.errors import TrainingError
+from ocplace.models.offline_backbone import (
+    FINGERPRINT_FILE,
+    FrozenTextTower,
+    OfflineBackbone,
+    OfflineConfig,
+    image_embeddings,
+    init_params,
+    load_saved_backbone,
+    text_embeddings,
+)
+from ocplace.paths import write_text_atomic
+from ocplace.train import checkpoints
+from ocplace.train.metrics import MetricsLog
+from ocplace.train.pretrain.captions import CaptionBank, ObjectDescription, build_caption_bank
+from ocplace.train.pretrain.config import OptimConfig, PretrainConfig, output_dir
+from ocplace.train.pretrain.loss import contrastive_loss
+from ocplace.train.pretrain.render import RenderedImages, TrainingPool, render_all, training_pool
+
+log = logging.getLogger(__name__)
+
+RUN_DIR = "run"
+LOG_EVERY = 10
+
+
+@dataclasses.dataclass(frozen=True)
+class PretrainResult:
+    directory: Path
+    backbone: OfflineBackbone
+    probe_loss_before: float  # contrastive loss on a fixed, unaugmented batch at initialisation
+    probe_loss_after: float  # ... and after training
+    timings: dict  # seconds per phase of this invocation
+
+
+# ----------------------------------------------------------------------------- pure training pieces
+
+
+def learning_rate_schedule(optim: OptimConfig) -> optax.Schedule:
+    return optax.warmup_cosine_decay_schedule(0.0, optim.learning_rate, optim.warmup_steps,
+                                              max(optim.steps, optim.warmup_steps + 1), optim.learning_rate * 0.02)
+
+
+def make_optimizer(optim: OptimConfig) -> optax.GradientTransformation:
+    """AdamW with warm-up and cosine decay; weight decay on matrices only (not on norms, biases, scale)."""
+    decay_mask = functools.partial(jax.tree_util.tree_map, lambda p: p.ndim >= 2)
+    return optax.chain(optax.clip_by_global_norm(1.0),
+                       optax.adamw(learning_rate_schedule(optim), weight_decay=optim.weight_decay, mask=decay_mask))
+
+
+def colour_jitter(pixels, factors):
+    """uint8 `(B, S, S, 3)` -> float32 in [0, 255]: per-image saturation, contrast, brightness factors `(B, 3)`."""
+    x = pixels.astype(jnp.float32)
+    saturation, contrast, brightness = (factors[:, i, None, None, None] for i in range(3))
+    gray = x.mean(axis=-1, keepdims=True)
+    x = gray + (x - gray) * saturation
+    mean = x.mean(axis=(1, 2, 3), keepdims=True)
+    x = mean + (x - mean) * contrast
+    return jnp.clip(x * brightness, 0.0, 255.0)
+
+
+def batch_loss(model: OfflineConfig, params, pixels, sentences, positives):
+    images = image_embeddings(model, params, pixels)
+    texts = text_embeddings(params, sentences)
+    return contrastive_loss(images, texts, positives, jnp.exp(params["log_logit_scale"]))
+
+
+@functools.lru_cache(maxsize=4)
+def make_train_step(model: OfflineConfig, optim: OptimConfig):
+    """Jitted `step(state, batch arrays, bank) -> (state, loss)` with state `(params, opt_state)`.
+
+    Cached per configuration, so runs in one process (a resumed run, tests) compile it once.
+    """
+    optimizer = make_optimizer(optim)
+    max_log_scale = math.log(optim.max_logit_scale)
+
+    def step(state, pixels, factors, captions, positives, bank_sentences):
+        params, opt_state = state
+        loss, grads = jax.value_and_grad(functools.partial(batch_loss, model))(
+            params, colour_jitter(pixels, factors), bank_sentences[captions], positives)
+        updates, opt_state = optimizer.update(grads, opt_state, params)
+        params = optax.apply_updates(params, updates)
+        params = {**params, "log_logit_scale": jnp.minimum(params["log_logit_scale"], max_log_scale)}
+        return (params, opt_state), loss
+
+    return jax.jit(step)
+
+
+probe_loss = jax.jit(batch_loss, static_argnums=0)
+
+
+# ----------------------------------------------------------------------------- batches
+
+
+@dataclasses.dataclass(frozen=True)
+class Batch:
+    pixels: np.ndarray  # uint8 (B, S, S, 3)
+    factors: np.ndarray  # float32 (B, 3) saturation, contrast, brightness
+    labels: np.ndarray  # int32 (B,)
+    captions: np.ndarray  # int32 (B,) caption index per image (the texts of the batch)
+    positives: np.ndarray  # bool (B, B) caption j describes image i
+
+
+def sample_batch(images: RenderedImages, by_class: list[np.ndarray], bank: CaptionBank, optim: OptimConfig,
+                 rng: np.random.Generator, augment: bool = True) -> Batch:
+    """Object classes drawn uniformly (so rarely visible objects are not starved), plus a share of
+    workspace images; one caption per image. Augmentation: quarter turns, flips, colour factors."""
+    table = bank.table_class
+    num_table = min(max(round(optim.batch_size * optim.table_share), 1 if optim.table_share else 0),
+                    optim.batch_size - 1)
+    present = [k for k in range(table) if len(by_class[k])]
+    classes = np.concatenate([rng.choice(present, size=optim.batch_size - num_table), np.full(num_table, table)])
+    indices = np.array([by_class[k][rng.integers(len(by_class[k]))] for k in classes])
+    pixels = images.images[indices]
+    factors = np.ones((len(indices), 3), np.float32)
+    if augment:
+        if optim.rotate:
+            pixels = np.stack([np.rot90(p[:, ::-1] if flip else p, turns)
+                               for p, turns, flip in zip(pixels, rng.integers(4, size=len(pixels)),
+                                                         rng.random(len(pixels)) < 0.5, strict=True)])
+        amplitude = optim.colour_jitter
+        factors = rng.uniform(1 - amplitude, 1 + amplitude, size=(len(indices), 3)).astype(np.float32)
+    labels = images.labels[indices]
+    captions = bank.sample(rng, labels)
+    positives = bank.applies[captions][:, labels].T
+    return Batch(np.ascontiguousarray(pixels), factors, labels, captions, positives)
+
+
+def step_rng(seed: int, step: int) -> np.random.Generator:
+    return np.random.default_rng([seed, step])
+
+
+def probe_batch(images, by_class, bank, optim: OptimConfig) -> Batch:
+    """A fixed, unaugmented batch (its own seed stream) to compare the loss before and after training."""
+    return sample_batch(images, by_class, bank, optim, np.random.default_rng([optim.seed, 2**31]), augment=False)
+
+
+# ----------------------------------------------------------------------------- the run
+
+
+def pretrain(config: PretrainConfig, library, out_dir: str | Path | None = None, progress: bool = True,
+             keep_run: bool = False, stop_after: int | None = None) -> PretrainResult:
+    """Renders, trains and saves the offline backbone of `config` (resuming whatever was done).
+
+    `stop_after`: return after this many training steps without saving (to test resuming).
+    """
+    from tqdm import tqdm
+
+    config.validate()
+    began = time.perf_counter()
+    out_dir = Path(out_dir) if out_dir is not None else output_dir(config)
+    run_dir = out_dir / RUN_DIR
+    pool = training_pool(library, config.render.max_objects)
+    objects = [ObjectDescription.of(library.get(name)) for name in pool.objects]
+    bank = build_caption_bank(objects)
+    run_meta = _run_metadata(config, pool, bank)
+    if (out_dir / FINGERPRINT_FILE).exists() and _finished_meta(out_dir) == run_meta:
+        log.info("the offline backbone of recipe %r is already built in %s", config.recipe, out_dir)
+        backbone = load_saved_backbone(out_dir)
+        summary = json.loads((out_dir / "config.json").read_text())["pretraining"]
+        return PretrainResult(out_dir, backbone, summary["probe_loss_before"], summary["probe_loss_after"], {})
+    _claim(run_dir, run_meta)
+
+    text_tower = FrozenTextTower.load(config.model.text_max_length)
+    bank_sentences = jnp.asarray(np.concatenate([text_tower.encode(list(bank.texts[i:i + 64]))
+                                                 for i in range(0, len(bank.texts), 64)]))
+    timings = {"setup_s": time.perf_counter() - began}
+
+    mark = time.perf_counter()
+    images = render_all(library, pool, run_dir, config.render, config.model, progress)
+    timings["render_s"] = time.perf_counter() - mark
+    by_class = [np.flatnonzero(images.labels == k) for k in range(len(bank.class_names))]
+    if not len(by_class[bank.table_class]) or not any(len(c) for c in by_class[:-1]):
+        raise TrainingError("rendering produced no object crops; check the library with `ocplace scene`")
+
+    mark = time.perf_counter()
+    optim = config.optim
+    params = init_params(config.model, jax.random.key(optim.seed))
+    state = (params, make_optimizer(optim).init(params))
+    probe = probe_batch(images, by_class, bank, optim)
+    probe_args = (probe.pixels, bank_sentences[probe.captions], probe.positives)
+    loss_before = float(probe_loss(config.model, params, *probe_args))
+    start = 0
+    saved = checkpoints.list_checkpoints(run_dir)
+    if saved:
+        state, start, _ = checkpoints.load_checkpoint(saved[-1], state)
+        log.info("resuming pretraining in %s from step %d", run_dir, start)
+    metrics = MetricsLog(run_dir / "metrics.jsonl")
+    metrics.truncate_after(start)
+    train_step = make_train_step(config.model, optim)
+    schedule = learning_rate_schedule(optim)
+    ckpt_meta = {"run": json.dumps(run_meta, sort_keys=True)}
+    last = optim.steps if stop_after is None else min(optim.steps, start + stop_after)
+    recent = []
+    with tqdm(total=optim.steps, initial=start, unit="step", desc="pretrain", disable=not progress) as bar:
+        for step in range(start, last):
+            batch = sample_batch(images, by_class, bank, optim, step_rng(optim.seed, step))
+            state, loss = train_step(state, batch.pixels, batch.factors, batch.captions, batch.positives,
+                                     bank_sentences)
+            recent.append(loss)
+            done = step + 1
+            if done % LOG_EVERY == 0 or done == optim.steps:
+                mean_loss = float(np.mean(jax.device_get(recent)))
+                recent = []
+                metrics.append({"step": done, "loss": mean_loss, "learning_rate": float(schedule(done)),
+                                "logit_scale": float(jnp.exp(state[0]["log_logit_scale"])),
+                                "elapsed_s": round(time.perf_counter() - began, 2)})
+                bar.set_postfix(loss=f"{mean_loss:.3f}")
+            if done % optim.checkpoint_every == 0 or done == optim.steps:
+                checkpoints.save_checkpoint(run_dir, done, state, ckpt_meta, optim.keep_checkpoints)
+            bar.update(1)
+    timings["train_s"] = time.perf_counter() - mark
+    params = jax.device_get(state[0])
+    loss_after = float(probe_loss(config.model, params, *probe_args))
+    backbone = OfflineBackbone(config.model, params, text_tower, source=str(out_dir))
+    if last < optim.steps:
+        return PretrainResult(out_dir, backbone, loss_before, loss_after, timings)
+
+    timings["total_s"] = time.perf_counter() - began
+    summary = {"run": run_meta, "images": int(len(images.labels)),
+               "images_per_class": {name: int(len(c)) for name, c in zip(bank.class_names, by_class, strict=True)},
+               "probe_loss_before": loss_before, "probe_loss_after": loss_after,
+               "final_logit_scale": backbone.logit_scale,
+               "timings_s": {k: round(v, 1) for k, v in timings.items()}, "resumed": bool(saved),
+               "finished": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")}
+    backbone.save(out_dir, {"pretraining": summary})
+    if not keep_run:
+        shutil.rmtree(run_dir / "renders", ignore_errors=True)
+        shutil.rmtree(run_dir / checkpoints.CHECKPOINT_DIR, ignore_errors=True)
+    return PretrainResult(out_dir, backbone, loss_before, loss_after, timings)
+
+
+def _run_metadata(config: PretrainConfig, pool: TrainingPool, bank: CaptionBank) -> dict:
+    return {"recipe": config.to_dict(), "key": config.key(), "objects": list(pool.objects),
+            "textures": list(pool.textures), "captions": len(bank.texts)}
+
+
+def _finished_meta(out_dir: Path) -> dict | None:
+    try:
+        return json.loads((out_dir / "config.json").read_text())["pretraining"]["run"]
+    except (OSError, ValueError, KeyError):
+        return None
+
+
+def _claim(run_dir: Path, run_meta: dict) -> None:
+    """Writes `run.json`, or checks that an existing run directory belongs to this very run."""
+    path = run_dir / "run.json"
+    if path.exists():
+        existing = json.loads(path.read_text())
+        if existing != run_meta:
+            changed = sorted(k for k in run_meta if existing.get(k) != run_meta[k])
+            raise TrainingError(f"{run_dir} belongs to another pretraining run ({', '.join(changed)} differ); "
+                                "pass another --out, or delete that directory to start over")
+        return
+    run_dir.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(path, json.dumps(run_meta, indent=2, sort_keys=True) + "\n")

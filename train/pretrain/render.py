@@ -1,0 +1,205 @@
+"""Rendering the pretraining images: crops of training-split objects in settled MuJoCo scenes.
+
+Scenes are drawn from the training split's objects and the seen table textures only; the arena
+is compiled with nothing else, so unseen objects and textures cannot appear. Crops are cut the
+way the pipeline cuts them (`square_crop` at the benchmark loader's size), half of them with the
+pipeline's padding and the rest with jittered padding and box position, then put through the
+backbone's own preprocessing. Each settled scene is rendered again under new lighting, and
+renders may recolour the table, so the towers do not learn the three seen tables by heart.
+
+Chunks of scenes are written to `<run>/renders/chunk_*.npz` as they finish: a rerun renders only
+the missing chunks. Scene `i` is a pure function of `(seed, i)`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from ocplace.errors import TrainingError
+from ocplace.models.offline_backbone import OfflineConfig, preprocess_images
+from ocplace.paths import atomic_path
+from ocplace.sim.boxes import boxes_from_segmentation, square_crop
+from ocplace.sim.dataset.loader import letterbox
+from ocplace.sim.scene import sample_scene_spec, split_pools
+from ocplace.train.pretrain.config import RenderConfig
+
+RENDERS_DIR = "renders"
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainingPool:
+    """What pretraining may render: training-split objects and seen table textures."""
+
+    objects: tuple[str, ...]
+    textures: tuple[str, ...]
+
+
+def training_pool(library, max_objects: int = 0) -> TrainingPool:
+    """The training split's objects (the first `max_objects` if > 0) and the seen textures.
+
+    Raises `TrainingError` if the library marks any of them unseen, so that a change to the pool
+    logic can never leak the unseen test objects into pretraining.
+    """
+    objects, textures = split_pools(library, "seen")
+    if max_objects > 0:
+        objects = objects[:max_objects]
+    leaked = [n for n in objects if library.get(n).split != "seen"] + \
+        [t for t in textures if library.textures[t].split != "seen"]
+    if leaked:
+        raise TrainingError(f"unseen objects or textures in the pretraining pool: {leaked}")
+    return TrainingPool(tuple(objects), tuple(textures))
+
+
+def training_arena(library, pool: TrainingPool):
+    """A MuJoCo arena compiled with the pool's objects and textures and nothing else."""
+    from ocplace.sim.mujoco_backend import MujocoScenes
+
+    return MujocoScenes([library.get(name) for name in pool.objects],
+                        {name: library.textures[name].path for name in pool.textures})
+
+
+@dataclasses.dataclass(frozen=True)
+class RenderedImages:
+    """Preprocessed pretraining images: `images` uint8 `(M, S, S, 3)`, `labels` int32 `(M,)` class
+    indices (objects in pool order, the table last), `scenes` int32 `(M,)` scene index."""
+
+    images: np.ndarray
+    labels: np.ndarray
+    scenes: np.ndarray
+
+    @classmethod
+    def concatenate(cls, parts: list[RenderedImages]) -> RenderedImages:
+        return cls(*(np.concatenate([getattr(p, f.name) for p in parts])
+                     for f in dataclasses.fields(cls)))
+
+    def save(self, path: Path) -> None:
+        with atomic_path(path) as tmp, open(tmp, "wb") as handle:
+            np.savez(handle, **dataclasses.asdict(self))
+
+    @classmethod
+    def load(cls, path: Path) -> RenderedImages:
+        with np.load(path) as arrays:
+            return cls(*(arrays[f.name] for f in dataclasses.fields(cls)))
+
+
+@contextlib.contextmanager
+def random_lighting(model, rng: np.random.Generator, config: RenderConfig):
+    """Scales the headlight and the top light, tints them and tilts the top light; restores them after."""
+    headlight = model.vis.headlight
+    saved = (headlight.ambient.copy(), headlight.diffuse.copy(), model.light_diffuse.copy(), model.light_dir.copy())
+    try:
+        low, high = config.light_range
+        tint = rng.uniform(0.96, 1.04, size=3)
+        headlight.ambient[:] = saved[0] * rng.uniform(low, high) * tint
+        headlight.diffuse[:] = saved[1] * rng.uniform(low, high) * tint
+        model.light_diffuse[:] = saved[2] * rng.uniform(low, high) * tint
+        tilt = rng.uniform(-config.light_tilt, config.light_tilt, size=2)
+        direction = saved[3] + np.concatenate([tilt, [0.0]])
+        model.light_dir[:] = direction / np.linalg.norm(direction, axis=-1, keepdims=True)
+        yield
+    finally:
+        headlight.ambient[:], headlight.diffuse[:] = saved[0], saved[1]
+        model.light_diffuse[:], model.light_dir[:] = saved[2], saved[3]
+
+
+def recolour_table(rgb: np.ndarray, segmentation: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """The image with its background pixels (table, floor) shifted in hue, saturation and value."""
+    hsv = cv2.cvtColor(rgb, cv2.COLOR_RGB2HSV).astype(np.float32)
+    background = segmentation == 0
+    hsv[..., 0] = np.where(background, (hsv[..., 0] + rng.uniform(0, 180)) % 180, hsv[..., 0])
+    hsv[..., 1] = np.where(background, np.clip(hsv[..., 1] * rng.uniform(0.3, 2.5) + rng.uniform(0, 40), 0, 255),
+                           hsv[..., 1])
+    hsv[..., 2] = np.where(background, np.clip(hsv[..., 2] * rng.uniform(0.5, 1.5), 0, 255), hsv[..., 2])
+    return cv2.cvtColor(hsv.astype(np.uint8), cv2.COLOR_HSV2RGB)
+
+
+def jittered_box(box: np.ndarray, rng: np.random.Generator, shift: float) -> np.ndarray:
+    u0, v0, u1, v1 = (float(x) for x in box)
+    du, dv = rng.uniform(-shift, shift, size=2) * max(u1 - u0, v1 - v0)
+    return np.array([u0 + du, v0 + dv, u1 + du, v1 + dv])
+
+
+def crops_of_render(rgb: np.ndarray, segmentation: np.ndarray, labels_by_id: dict[int, int],
+                    rng: np.random.Generator, config: RenderConfig) -> tuple[list[np.ndarray], list[int]]:
+    """One crop per object with a box (`crop_size` px), cut like the pipeline or with jitter."""
+    boxes = boxes_from_segmentation(segmentation)
+    crops, labels = [], []
+    for object_id, box in zip(boxes.object_ids, boxes.boxes, strict=True):
+        if rng.random() < config.canonical_share:
+            crops.append(square_crop(rgb, box, config.padding, size=config.crop_size))
+        else:
+            padding = rng.uniform(*config.padding_range)
+            crops.append(square_crop(rgb, jittered_box(box, rng, config.shift), padding, size=config.crop_size))
+        labels.append(labels_by_id[int(object_id)])
+    return crops, labels
+
+
+def render_scene(arena, pool: TrainingPool, index: int, config: RenderConfig, model: OfflineConfig) -> RenderedImages:
+    """Every image of scene `index`: object crops and the workspace, `renders_per_scene` times."""
+    rng = np.random.default_rng([config.seed, index])
+    spec = sample_scene_spec(rng, list(pool.objects), list(pool.textures), num_objects=config.objects_per_scene)
+    class_of = {name: k for k, name in enumerate(pool.objects)}
+    table_class = len(pool.objects)
+    labels_by_id = {i + 1: class_of[name] for i, name in enumerate(spec.objects)}
+    images, labels = [], []
+    for render in range(config.renders_per_scene):
+        with random_lighting(arena.model, rng, config):
+            if render == 0:
+                rgb, segmentation = _built(arena, spec)
+            else:
+                rgb, _, segmentation = arena.render(spec.objects)
+        if rng.random() < config.table_jitter:
+            rgb = recolour_table(rgb, segmentation, rng)
+        crops, crop_labels = crops_of_render(rgb, segmentation, labels_by_id, rng, config)
+        images += crops + [letterbox(rgb, config.crop_size)]
+        labels += crop_labels + [table_class]
+    return RenderedImages(preprocess_images(model, np.stack(images)), np.array(labels, np.int32),
+                          np.full(len(labels), index, np.int32))
+
+
+def _built(arena, spec) -> tuple[np.ndarray, np.ndarray]:
+    scene = arena.build(spec)
+    if scene.spec.objects != spec.objects:
+        raise TrainingError(f"the arena changed the scene's objects: {scene.spec.objects} != {spec.objects}")
+    return scene.rgb, scene.segmentation
+
+
+def chunk_path(run_dir: Path, chunk: int) -> Path:
+    return Path(run_dir) / RENDERS_DIR / f"chunk_{chunk:05d}.npz"
+
+
+def render_all(library, pool: TrainingPool, run_dir: Path, config: RenderConfig, model: OfflineConfig,
+               progress: bool = True) -> RenderedImages:
+    """Renders the missing chunks into `run_dir`, then returns every image of every chunk."""
+    from tqdm import tqdm
+
+    num_chunks = -(-config.scenes // config.chunk_scenes)
+    missing = [c for c in range(num_chunks) if not chunk_path(run_dir, c).exists()]
+    done_scenes = config.scenes - sum(_chunk_scenes(c, config) for c in missing)
+    if missing:
+        arena = training_arena(library, pool)
+        try:
+            with tqdm(total=config.scenes, initial=done_scenes, unit="scene", desc="render",
+                      disable=not progress) as bar:
+                for chunk in missing:
+                    parts = []
+                    for index in _chunk_scenes_range(chunk, config):
+                        parts.append(render_scene(arena, pool, index, config, model))
+                        bar.update(1)
+                    RenderedImages.concatenate(parts).save(chunk_path(run_dir, chunk))
+        finally:
+            arena.close()
+    return RenderedImages.concatenate([RenderedImages.load(chunk_path(run_dir, c)) for c in range(num_chunks)])
+
+
+def _chunk_scenes_range(chunk: int, config: RenderConfig) -> range:
+    return range(chunk * config.chunk_scenes, min((chunk + 1) * config.chunk_scenes, config.scenes))
+
+
+def _chunk_scenes(chunk: int, config: RenderConfig) -> int:
+    return len(_chunk_scenes_range(chunk, config))
