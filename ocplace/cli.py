@@ -23,6 +23,7 @@ COMMAND_MODULES = (
     "ocplace.models.parsing.commands",
     "ocplace.train.commands",
     "ocplace.train.pretrain.commands",
+    "ocplace.models.placement_commands",
 )
 
 

@@ -281,3 +281,25 @@ def test_fig5_panels_draw_on_any_image(tmp_path):
     panels = [figures.Panel(title, np.ones(GRID.shape), np.zeros((3, 2)), np.zeros(2), refs) for title, _, refs in chosen]
     figures.save_figure(figures.draw_panels(image, Camera(), panels, GRID), tmp_path / "camera.png")
     assert (tmp_path / "camera.png").stat().st_size > 1000
+
+
+def test_place_demo_command_is_registered():
+    import argparse
+
+    from ocplace.models import placement_commands
+
+    parser = argparse.ArgumentParser()
+    placement_commands.register(parser.add_subparsers(dest="command"))
+    args = parser.parse_args(["place-demo", "--seed", "3", "--out", "x.png"])
+    assert (args.seed, args.split, str(args.out)) == (3, "seen", "x.png")
+
+
+@pytest.mark.slow
+def test_place_demo_draws_fig5_on_a_real_scene(tmp_path, library):
+    from ocplace.cli import main
+
+    out = tmp_path / "fig5.png"
+    assert main(["place-demo", "--seed", "1", "--out", str(out)]) == 0
+    from PIL import Image
+
+    assert Image.open(out).size[0] > 1000
