@@ -377,43 +377,23 @@ def test_prompt_examples_are_seen_templates():
 
 @pytest.fixture(scope="module")
 def tiny_clip_dir(tmp_path_factory):
-    """A randomly initialised two-layer CLIP with a byte-level tokenizer, saved locally."""
-    import transformers
-    from transformers.models.clip.tokenization_clip import bytes_to_unicode
+    from tiny_clip import build_tiny_clip
 
-    directory = tmp_path_factory.mktemp("tiny_clip")
-    characters = list(bytes_to_unicode().values())
-    vocab = {c: i for i, c in enumerate(characters)}
-    vocab.update({c + "</w>": len(characters) + i for i, c in enumerate(characters)})
-    vocab["<|startoftext|>"], vocab["<|endoftext|>"] = len(vocab), len(vocab) + 1
-    (directory / "vocab.json").write_text(json.dumps(vocab))
-    (directory / "merges.txt").write_text("#version: 0.2\n")
-    transformers.CLIPTokenizer(str(directory / "vocab.json"),
-                               str(directory / "merges.txt")).save_pretrained(directory)
-    config = transformers.CLIPConfig(
-        text_config=dict(vocab_size=len(vocab), hidden_size=32, intermediate_size=64,
-                         num_hidden_layers=2, num_attention_heads=2, max_position_embeddings=64,
-                         bos_token_id=vocab["<|startoftext|>"], eos_token_id=vocab["<|endoftext|>"]),
-        vision_config=dict(hidden_size=32, intermediate_size=64, num_hidden_layers=1,
-                           num_attention_heads=2, image_size=32, patch_size=16),
-        projection_dim=16,
-    )
-    transformers.FlaxCLIPModel(config, seed=0).save_pretrained(directory)
-    return str(directory)
+    return str(build_tiny_clip(tmp_path_factory.mktemp("tiny_clip")))
 
 
-def test_snapping_encoder_can_be_a_clip_text_tower(tiny_clip_dir):
-    clip_snapper = make_snapper(SnapConfig(encoder="clip", model_dir=tiny_clip_dir))
+def test_snapping_encoder_can_be_a_backbone_text_tower(tiny_clip_dir):
+    clip_snapper = make_snapper(SnapConfig(encoder="backbone", source=f"clip:{tiny_clip_dir}"))
     assert clip_snapper.nearest("to the left of").relation == "left"
     assert clip_snapper.nearest("to the top right corner of").relation == "back right"
     parser = OfflineParser(OfflineConfig(relation_source="encoder"), lambda: clip_snapper)
     assert as_pairs(parser.parse("put it behind the mug")) == [("mug", "back")]
 
 
-def test_clip_encoder_needs_a_directory():
+def test_snapping_encoder_choices_are_checked():
     from ocplace.models.parsing.encoder import EncoderUnavailable
 
-    with pytest.raises(EncoderUnavailable, match="model_dir"):
-        make_snapper(SnapConfig(encoder="clip"))
+    with pytest.raises(EncoderUnavailable, match="backbone spec"):
+        make_snapper(SnapConfig(encoder="backbone"))
     with pytest.raises(EncoderUnavailable, match="unknown snapping encoder"):
         make_snapper(SnapConfig(encoder="word2vec"))

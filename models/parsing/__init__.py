@@ -34,7 +34,7 @@ def make_snapper(config: SnapConfig):
     from ocplace.models.parsing.encoder import load_encoder
     from ocplace.models.parsing.snapping import Snapper
 
-    encoder = load_encoder(config.encoder, config.model_dir)
+    encoder = load_encoder(config.encoder, config.source)
     return Snapper(encoder, config.min_similarity, config.min_margin)
 
 

