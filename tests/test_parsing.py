@@ -397,3 +397,35 @@ def test_snapping_encoder_choices_are_checked():
         make_snapper(SnapConfig(encoder="backbone"))
     with pytest.raises(EncoderUnavailable, match="unknown snapping encoder"):
         make_snapper(SnapConfig(encoder="word2vec"))
+
+
+# --- commands --------------------------------------------------------------------------------
+
+
+def _run_command(argv):
+    import argparse
+
+    from ocplace.models.parsing import commands
+
+    parser = argparse.ArgumentParser(prog="ocplace")
+    commands.register(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(argv)
+    return args.func(args)
+
+
+def test_parse_command_prints_tuples(capsys):
+    assert _run_command(["parse", "--json", "next to the cup, on its left side, put it"]) == 0
+    (item,) = json.loads(capsys.readouterr().out)
+    assert (item["reference"], item["relation"], item["provenance"]) == ("cup", "left", "direct")
+    with pytest.raises(ParseError, match="vertical"):
+        _run_command(["parse", "put it under the table"])
+
+
+def test_parse_eval_command_reports_every_set(capsys, tmp_path):
+    names = tmp_path / "names.txt"
+    names.write_text("macaroni and cheese box\nred bowl\nrubber duck\n")
+    assert _run_command(["parse-eval", "--num", "20", "--names", str(names)]) == 0
+    out = capsys.readouterr().out
+    for set_name in ("seen", "unseen", "free-dev", "free-test", "free-blind", "free-all"):
+        assert f"\n{set_name} " in out
+    assert "100.00% (20/20)" in out and "3 object names" in out
