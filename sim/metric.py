@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import operator
 from collections.abc import Sequence
 from typing import Any, NamedTuple
 
@@ -124,7 +123,9 @@ def region_table(table: Table = DEFAULT_TABLE) -> np.ndarray:
         columns, rows = np.nonzero(mask)
         rects[index, 0] = table.cell_bounds(columns.min(), rows.min())[0]
         rects[index, 1] = table.cell_bounds(columns.max(), rows.max())[1]
-    return rects.astype(FLOAT)
+    rects = rects.astype(FLOAT)
+    rects.setflags(write=False)  # cached: shared by every caller
+    return rects
 
 
 def encode_problem(
@@ -428,13 +429,30 @@ def _fold(xp, step, init, count: int):
     return lax.fori_loop(0, count, step, init)
 
 
+def _bit_words(mask, xp):
+    """`(..., n)` bool -> `(..., ceil(n / 32))` uint32: bit `j % 32` of word `j // 32` is `mask[j]`."""
+    n = mask.shape[-1]
+    words = -(-n // 32)
+    padded = xp.concatenate([mask, xp.zeros(mask.shape[:-1] + (words * 32 - n,), bool)], axis=-1)
+    bit_values = np.uint32(1) << np.arange(32, dtype=np.uint32)
+    bits = padded.reshape(padded.shape[:-1] + (words, 32)).astype(np.uint32) * bit_values
+    return xp.sum(bits, axis=-1, dtype=np.uint32)  # distinct powers of two: the sum is their OR
+
+
+def _unpack_bits(words, n: int):
+    """`(..., W)` uint32 -> `(..., n)` bool, the inverse of `_bit_words`."""
+    bits = (words[..., None] >> np.arange(32, dtype=np.uint32)) & np.uint32(1)
+    return bits.reshape(bits.shape[:-2] + (-1,))[..., :n] == 1
+
+
 class GridTerms(NamedTuple):
     """The metric on a grid, factored into per-axis terms (the sampler's hot path).
 
-    A cell passes iff `inside` and every `box_clear(b)` and every `tuple_holds(k)`.
+    A cell passes iff it is inside, every `box_clear(b)` and every `tuple_holds(k)`.
     """
 
-    inside: Any  # (..., nx, ny) bool: the footprint lies inside the table top
+    inside_x: Any  # (..., nx) bool: the footprint lies within the table's x range
+    inside_y: Any  # (..., ny) bool
     overlap_x: Any  # (..., B, nx) bool, False for padded boxes
     overlap_y: Any  # (..., B, ny) bool
     x_terms: _AxisTerms  # fields (..., K, nx)
@@ -442,38 +460,30 @@ class GridTerms(NamedTuple):
     radius_sq_min: Any  # (..., K)
     radius_sq_max: Any
 
+    def inside(self):
+        """`(..., nx, ny)` bool: the footprint lies inside the table top."""
+        return self.inside_x[..., :, None] & self.inside_y[..., None, :]
+
     def box_clear(self, b):
         """`(..., nx, ny)` bool: the footprint overlaps no interior point of box `b` (may be traced)."""
         return ~(self.overlap_x[..., b, :, None] & self.overlap_y[..., b, None, :])
 
-    def boxes_clear(self, xp=np):
-        """`(..., nx, ny)` bool: every `box_clear(b)`, via 32-cell bit masks along y.
+    def fits(self, xp=np):
+        """`(..., nx, ny)` bool: `inside()` and every `box_clear(b)`, through 32-cell bit masks.
 
-        Per column the blocked cells are the OR over overlapping boxes of their y masks, so the
-        per-cell work is one shift, whatever the number of boxes.
+        Per column, the blocked cells along y are an OR of per-box bit masks, built in a loop
+        over boxes (see `_fold`), so the per-cell work is one shift whatever the number of boxes.
         """
-        ny = self.overlap_y.shape[-1]
-        words = -(-ny // 32)
-        padded = xp.concatenate(
-            [self.overlap_y, xp.zeros(self.overlap_y.shape[:-1] + (words * 32 - ny,), bool)], axis=-1
-        )
-        bit_values = (np.uint32(1) << np.arange(32, dtype=np.uint32)).astype(np.uint32)
-        masks = xp.sum(
-            padded.reshape(padded.shape[:-1] + (words, 32)).astype(np.uint32) * bit_values,
-            axis=-1,
-            dtype=np.uint32,
-        )  # (..., B, W): distinct powers of two, so the sum is their OR
-        blocked = functools.reduce(
-            operator.or_,
-            (
-                xp.where(self.overlap_x[..., b, :, None], masks[..., b, None, :], np.uint32(0))
-                for b in range(self.overlap_x.shape[-2])
-            ),
-            xp.zeros(self.overlap_x.shape[:-2] + (self.overlap_x.shape[-1], words), np.uint32),
-        )  # (..., nx, W)
-        shifts = np.arange(32, dtype=np.uint32)
-        cell_bits = (blocked[..., :, :, None] >> shifts) & np.uint32(1)
-        return cell_bits.reshape(cell_bits.shape[:-2] + (words * 32,))[..., :ny] == 0
+        box_words = _bit_words(self.overlap_y, xp)  # (..., B, W)
+        outside_words = _bit_words(~self.inside_y, xp)  # (..., W)
+        everything = np.uint32(0xFFFFFFFF)
+        blocked = xp.where(self.inside_x[..., :, None], outside_words[..., None, :], everything)
+
+        def add_box(b, blocked):
+            return blocked | xp.where(self.overlap_x[..., b, :, None], box_words[..., b, None, :], np.uint32(0))
+
+        blocked = _fold(xp, add_box, blocked, self.overlap_x.shape[-2])  # (..., nx, W)
+        return ~_unpack_bits(blocked, self.inside_y.shape[-1])
 
     def tuple_holds(self, k):
         """`(..., nx, ny)` bool: tuple `k` holds at each cell centre (`k` may be traced)."""
@@ -488,8 +498,8 @@ def grid_terms(problem: PlacementProblem, grid: Grid = DEFAULT_GRID, *, xp=np) -
     geometry = tuple_geometry(problem, grid.table, xp=xp)
     x, y = xp.asarray(grid.centres(0)), xp.asarray(grid.centres(1))
     return GridTerms(
-        inside=_inside_table_axis(x, problem.half_extents, grid.table, 0, xp)[..., :, None]
-        & _inside_table_axis(y, problem.half_extents, grid.table, 1, xp)[..., None, :],
+        inside_x=_inside_table_axis(x, problem.half_extents, grid.table, 0, xp),
+        inside_y=_inside_table_axis(y, problem.half_extents, grid.table, 1, xp),
         overlap_x=_box_overlap_axis(x, problem, 0, xp) & problem.box_mask[..., None],
         overlap_y=_box_overlap_axis(y, problem, 1, xp),
         x_terms=_tuple_axis_terms(x, geometry, 0, xp),
@@ -502,8 +512,7 @@ def grid_terms(problem: PlacementProblem, grid: Grid = DEFAULT_GRID, *, xp=np) -
 def feasible_cells(problem: PlacementProblem, grid: Grid = DEFAULT_GRID, *, xp=np):
     """`(..., nx, ny)` bool: `check_grid(...).success`, computed from `grid_terms`."""
     terms = grid_terms(problem, grid, xp=xp)
-    clear = _fold(xp, lambda b, mask: mask & terms.box_clear(b), terms.inside, terms.overlap_x.shape[-2])
-    return _fold(xp, lambda k, mask: mask & terms.tuple_holds(k), clear, terms.radius_sq_min.shape[-1])
+    return _fold(xp, lambda k, mask: mask & terms.tuple_holds(k), terms.fits(xp), terms.radius_sq_min.shape[-1])
 
 
 def feasible_grid(problem: PlacementProblem, grid: Grid = DEFAULT_GRID) -> np.ndarray:

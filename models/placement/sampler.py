@@ -128,20 +128,19 @@ def scene_density(problem: PlacementProblem, config: SamplerConfig):
     gauss_x = scale[:, None] * jnp.exp(-0.5 * jnp.square((x - mean[:, :1]) / sigma[:, :1]))  # (K, nx)
     gauss_y = jnp.exp(-0.5 * jnp.square((y - mean[:, 1:]) / sigma[:, 1:]))  # (K, ny)
 
-    # One float array carries both results: -inf marks a cell some constraint rules out, else it
+    # One float array carries both results: 0 marks a cell some constraint rules out, else it
     # holds tiny plus the average of the tuples' densities; tiny keeps a feasible cell drawable
     # where every Gaussian underflows (sigmas far below the defaults) and changes no other weight.
     # A loop over tuples, not unrolled code: see metric._fold.
     gauss_x = gauss_x / problem.tuple_mask.sum()
 
-    def add_tuple(k, density):
+    def add_tuple(k, weights):
         gauss = gauss_x[k][:, None] * gauss_y[k][None, :]
-        return jnp.where(terms.tuple_holds(k), density + gauss, -jnp.inf)
+        return jnp.where(terms.tuple_holds(k) & (weights > 0), weights + gauss, FLOAT(0))
 
-    density = jnp.where(terms.inside & terms.boxes_clear(jnp), _TINY, -jnp.inf)
-    density = jax.lax.fori_loop(0, gauss_x.shape[0], add_tuple, density)
-    feasible = density > 0
-    weights = jnp.maximum(density, 0.0)
+    weights = jnp.where(terms.fits(jnp), _TINY, FLOAT(0))
+    weights = jax.lax.fori_loop(0, gauss_x.shape[0], add_tuple, weights)
+    feasible = weights > 0
     return weights, feasible
 
 
