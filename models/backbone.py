@@ -265,6 +265,29 @@ def update_with_params(digest, params) -> None:
         digest.update(array.tobytes())
 
 
+def random_clip_params(shapes, seed: int) -> dict:
+    """Random CLIP weights for the parameter shapes `shapes` (`model.params_shape_tree`), drawn in numpy.
+
+    For tests, benchmarks and from-scratch baselines: transformers' own initialisation runs
+    eagerly (~20 s on CPU even for a tiny model). Kernels are LeCun-normal, layer-norm scales
+    near 1, embeddings and biases N(0, 0.02^2), and the logit scale is CLIP's initial log(1 / 0.07).
+    """
+    import jax
+
+    rng = np.random.default_rng(seed)
+
+    def draw(path, leaf):
+        name = path[-1].key
+        if name == "logit_scale":
+            return np.asarray(np.log(1 / 0.07), np.float32)
+        if name == "scale":
+            return (1.0 + 0.1 * rng.normal(size=leaf.shape)).astype(np.float32)
+        std = 1.0 / np.sqrt(np.prod(leaf.shape[:-1])) if name == "kernel" else 0.02  # 0.02: CLIP's init range
+        return (std * rng.normal(size=leaf.shape)).astype(np.float32)
+
+    return jax.tree_util.tree_map_with_path(draw, shapes)
+
+
 def load_clip_backbone(name_or_dir: str = DEFAULT_CLIP, max_batch: int = 32) -> ClipBackbone:
     """A CLIP checkpoint from a local directory or the Hugging Face hub (cache first).
 

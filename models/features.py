@@ -241,7 +241,7 @@ def load_features(path, expected_fingerprint: str | None = None) -> Features:
 
 
 def _read_metadata(path) -> tuple[FeatureInfo, dict[str, str]]:
-    from safetensors import safe_open
+    from safetensors import SafetensorError, safe_open
 
     try:
         with safe_open(str(path), framework="numpy") as handle:
@@ -249,7 +249,7 @@ def _read_metadata(path) -> tuple[FeatureInfo, dict[str, str]]:
         return FeatureInfo.from_metadata(meta), meta
     except FileNotFoundError as error:
         raise FeaturesError(f"no feature file at {path}; create it with `ocplace featurize`") from error
-    except (OSError, KeyError, ValueError, TypeError) as error:
+    except (SafetensorError, OSError, KeyError, ValueError, TypeError) as error:
         raise FeaturesError(f"{path} is not a readable ocplace feature file ({error}); "
                             "delete it and run `ocplace featurize` again") from error
 

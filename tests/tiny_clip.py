@@ -11,8 +11,9 @@ import json
 import shutil
 from pathlib import Path
 
-import jax
 import numpy as np
+
+from ocplace.models.backbone import random_clip_params
 
 CORPUS = (
     "a photo of a red bowl.", "a photo of a blue mug.", "a photo of a table.", "a photo of a black shoe.",
@@ -96,7 +97,7 @@ def build_tiny_clip(directory: Path, seed: int = 0, weights: str = "flax-msgpack
     config = tiny_config(len(tokenizer), tokenizer.bos_token_id, tokenizer.eos_token_id,
                          image_size=image_size, **config_kwargs)
     model = FlaxCLIPModel(config, _do_init=False)
-    params = random_params(model.params_shape_tree, seed)
+    params = random_clip_params(model.params_shape_tree, seed)
     if weights == "pt-safetensors":
         config.save_pretrained(directory)
         save_as_pytorch_safetensors(params, directory / "model.safetensors")
@@ -105,26 +106,6 @@ def build_tiny_clip(directory: Path, seed: int = 0, weights: str = "flax-msgpack
     CLIPImageProcessor(size={"shortest_edge": image_size},
                        crop_size={"height": image_size, "width": image_size}).save_pretrained(directory)
     return directory
-
-
-def random_params(shapes, seed: int) -> dict:
-    """Random weights of the given shapes, drawn in numpy.
-
-    transformers' own initialisation runs eagerly (~20 s on CPU even for a tiny model) and takes
-    seconds more when jitted; the values only need to be random and well scaled.
-    """
-    rng = np.random.default_rng(seed)
-
-    def draw(path, leaf):
-        name = path[-1].key
-        if name == "logit_scale":
-            return np.asarray(np.log(1 / 0.07), np.float32)
-        if name == "scale":
-            return (1.0 + 0.1 * rng.normal(size=leaf.shape)).astype(np.float32)
-        fan_in = int(np.prod(leaf.shape[:-1])) if name == "kernel" else 50
-        return (rng.normal(size=leaf.shape) / np.sqrt(fan_in)).astype(np.float32)
-
-    return jax.tree_util.tree_map_with_path(draw, shapes)
 
 
 def save_as_pytorch_safetensors(params, path: Path) -> None:

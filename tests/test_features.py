@@ -1,0 +1,188 @@
+"""The feature cache: layout, no-op second run, resume after a crash, invalidation, bad input."""
+
+import numpy as np
+import pytest
+from tiny_clip import build_tiny_clip, write_tokenizer
+
+from ocplace.errors import FeaturesError
+from ocplace.models.backbone import PromptConfig, load_clip_backbone
+from ocplace.models.features import (FeaturizeConfig, SceneExample, featurize, load_features, read_info,
+                                     save_features)
+
+CONFIG = FeaturizeConfig(chunk_scenes=2)
+
+
+@pytest.fixture(scope="module")
+def tokenizer_dir(tmp_path_factory):
+    directory = tmp_path_factory.mktemp("tokenizer")
+    write_tokenizer(directory)
+    return directory
+
+
+@pytest.fixture(scope="module")
+def backbone(tmp_path_factory, tokenizer_dir):
+    return load_clip_backbone(str(build_tiny_clip(tmp_path_factory.mktemp("clip0"), seed=0,
+                                                  tokenizer_dir=tokenizer_dir)), max_batch=8)
+
+
+@pytest.fixture(scope="module")
+def other_backbone(tmp_path_factory, tokenizer_dir):
+    return load_clip_backbone(str(build_tiny_clip(tmp_path_factory.mktemp("clip1"), seed=1,
+                                                  tokenizer_dir=tokenizer_dir)), max_batch=8)
+
+
+def make_examples(count=5, seed=0):
+    rng = np.random.default_rng(seed)
+    examples = []
+    for index in range(count):
+        n = int(rng.integers(1, 6))
+        texts = ("red bowl",) if index % 2 else ("table", "blue mug")
+        targets = np.array([0] if index % 2 else [n, n - 1], np.int32)
+        examples.append(SceneExample(f"train-{index:05d}", rng.integers(0, 256, (n, 24, 24, 3), dtype=np.uint8),
+                                     rng.integers(0, 256, (30, 40, 3), dtype=np.uint8), texts, targets))
+    return examples
+
+
+class Counting:
+    """Wraps a backbone and counts encoded images."""
+
+    def __init__(self, backbone):
+        self.backbone, self.images = backbone, 0
+        self.dim, self.fingerprint, self.logit_scale = backbone.dim, backbone.fingerprint, backbone.logit_scale
+
+    def encode_images(self, images):
+        self.images += len(images)
+        return self.backbone.encode_images(images)
+
+    def encode_texts(self, texts):
+        return self.backbone.encode_texts(texts)
+
+
+def crashing_after(examples, count):
+    for index, example in enumerate(examples):
+        if index == count:
+            raise KeyboardInterrupt
+        yield example
+
+
+def test_layout_matches_the_backbone(tmp_path, backbone):
+    examples = make_examples()
+    features = load_features(featurize(examples, backbone, tmp_path / "f.safetensors", dataset_hash="d1",
+                                       config=CONFIG, progress=False))
+    assert features.visual.shape == (5, 6, 16) and features.text.shape == (5, 2, 16)
+    assert features.scene_ids == tuple(e.scene_id for e in examples)
+    assert features.phrases[0] == ("table", "blue mug")
+    prompt = PromptConfig()
+    for row, example in enumerate(examples):
+        n, num_texts = len(example.crops), len(example.texts)
+        np.testing.assert_array_equal(features.visual_mask[row], np.arange(6) < n + 1)
+        np.testing.assert_array_equal(features.text_mask[row], np.arange(2) < num_texts)
+        np.testing.assert_array_equal(features.targets[row, :num_texts], example.targets)
+        np.testing.assert_allclose(features.visual[row, :n], backbone.encode_images(example.crops), atol=1e-5)
+        np.testing.assert_allclose(features.visual[row, n], backbone.encode_images(example.workspace[None])[0],
+                                   atol=1e-5)
+        assert np.all(features.visual[row, n + 1:] == 0)
+        texts = [prompt.text_for(t) for t in example.texts]
+        np.testing.assert_allclose(features.text[row, :num_texts], backbone.encode_texts(texts), atol=1e-5)
+    assert features.info.backbone_fingerprint == backbone.fingerprint and features.info.dataset_hash == "d1"
+    assert features.info.logit_scale == pytest.approx(backbone.logit_scale)
+
+
+def test_second_run_is_a_no_op(tmp_path, backbone):
+    out = featurize(make_examples(), backbone, tmp_path / "f.safetensors", dataset_hash="d1", config=CONFIG,
+                    progress=False)
+    before = out.stat().st_mtime_ns
+    assert featurize(crashing_after([], 0), backbone, out, dataset_hash="d1", config=CONFIG, progress=False) == out
+    assert out.stat().st_mtime_ns == before
+
+
+def test_resumes_after_a_crash_without_redoing_chunks(tmp_path, backbone):
+    examples = make_examples()
+    counting = Counting(backbone)
+    out = tmp_path / "f.safetensors"
+    with pytest.raises(KeyboardInterrupt):
+        featurize(crashing_after(examples, 3), counting, out, dataset_hash="d1", config=CONFIG, progress=False)
+    assert not out.exists()
+    done = counting.images
+    assert done == sum(len(e.crops) + 1 for e in examples[:2])  # the first chunk of two scenes
+    featurize(examples, counting, out, dataset_hash="d1", config=CONFIG, progress=False)
+    assert counting.images - done == sum(len(e.crops) + 1 for e in examples[2:])
+    assert not list(tmp_path.glob(".f.safetensors.parts-*"))
+    uninterrupted = featurize(examples, backbone, tmp_path / "g.safetensors", dataset_hash="d1", config=CONFIG,
+                              progress=False)
+    resumed, whole = load_features(out), load_features(uninterrupted)
+    for name in ("visual", "visual_mask", "text", "text_mask", "targets"):
+        np.testing.assert_array_equal(getattr(resumed, name), getattr(whole, name))
+
+
+def test_a_new_backbone_or_dataset_invalidates_the_cache(tmp_path, backbone, other_backbone):
+    out = tmp_path / "f.safetensors"
+    featurize(make_examples(), backbone, out, dataset_hash="d1", config=CONFIG, progress=False)
+    first = load_features(out)
+    featurize(make_examples(), other_backbone, out, dataset_hash="d1", config=CONFIG, progress=False)
+    second = load_features(out, expected_fingerprint=other_backbone.fingerprint)
+    assert second.info.backbone_fingerprint == other_backbone.fingerprint != first.info.backbone_fingerprint
+    assert not np.allclose(first.visual, second.visual)
+    with pytest.raises(FeaturesError, match="another backbone"):
+        load_features(out, expected_fingerprint=backbone.fingerprint)
+    featurize(make_examples(count=3, seed=1), other_backbone, out, dataset_hash="d2", config=CONFIG, progress=False)
+    assert read_info(out).dataset_hash == "d2" and load_features(out).num_scenes == 3
+
+
+def test_bad_examples_are_named(tmp_path, backbone):
+    good = make_examples(1)[0]
+    bad = [SceneExample("train-00007", good.crops, good.workspace, ("red bowl",), np.array([9], np.int32)),
+           SceneExample("train-00008", good.crops.astype(np.float32), good.workspace, ("x",), np.array([0], np.int32)),
+           SceneExample("train-00009", good.crops, good.workspace, ("a", "b", "c"), np.zeros(3, np.int32))]
+    for example in bad:
+        with pytest.raises(FeaturesError, match=example.scene_id):
+            featurize([example], backbone, tmp_path / "f.safetensors", dataset_hash="d", progress=False)
+
+
+def test_unreadable_files_are_reported(tmp_path):
+    with pytest.raises(FeaturesError, match="ocplace featurize"):
+        load_features(tmp_path / "missing.safetensors")
+    corrupt = tmp_path / "corrupt.safetensors"
+    corrupt.write_bytes(b"not a safetensors file")
+    with pytest.raises(FeaturesError, match="not a readable"):
+        read_info(corrupt)
+
+
+def test_save_and_load_round_trip(tmp_path, backbone):
+    features = load_features(featurize(make_examples(), backbone, tmp_path / "f.safetensors", dataset_hash="d1",
+                                       config=CONFIG, progress=False))
+    subset = features.subset([4, 1])
+    again = load_features(save_features(subset, tmp_path / "subset.safetensors"))
+    assert again.scene_ids == ("train-00004", "train-00001") and again.info == features.info
+    np.testing.assert_array_equal(again.visual, features.visual[[4, 1]])
+
+
+def test_featurize_command_keys_by_the_split_files(tmp_path, backbone, monkeypatch):
+    import argparse
+    import json
+
+    from ocplace.train import commands
+
+    dataset = tmp_path / "dataset"
+    dataset.mkdir()
+    files = {"train/train-00000/rgb.png": "aa", "train/train-00001/rgb.png": "bb", "seen/seen-00000/rgb.png": "cc"}
+    (dataset / "manifest.json").write_text(json.dumps({"files": files}))
+    read = []
+
+    def reader(dataset_dir, split):  # a generator, like the dataset's: reads only when iterated
+        read.append(split)
+        yield from make_examples(2)
+
+    monkeypatch.setattr("ocplace.models.backbone.load_backbone", lambda spec: backbone)
+    parser = argparse.ArgumentParser()
+    commands._register_featurize(parser.add_subparsers(), reader)
+    out = tmp_path / "train.safetensors"
+    args = parser.parse_args(["featurize", str(dataset), "--backbone", "tiny", "--out", str(out)])
+    assert args.func(args) == 0 and args.func(args) == 0
+    assert read == ["train"]  # the second run found the file up to date and read nothing
+    assert read_info(out).dataset_hash == commands.dataset_hash(dataset, "train")
+    files["seen/seen-00000/rgb.png"] = "dd"  # another split changed: same key
+    (dataset / "manifest.json").write_text(json.dumps({"files": files}))
+    assert read_info(out).dataset_hash == commands.dataset_hash(dataset, "train")
+    with pytest.raises(FeaturesError, match="no scenes in split"):
+        commands.dataset_hash(dataset, "unseen_obj")

@@ -1,0 +1,43 @@
+"""notebooks/01_grounding_logits.ipynb runs end to end on a tiny dataset, backbone and run."""
+
+import dataclasses
+from pathlib import Path
+
+import pytest
+from tiny_clip import build_tiny_clip
+
+NOTEBOOK = Path(__file__).resolve().parents[1] / "notebooks" / "01_grounding_logits.ipynb"
+
+
+@pytest.mark.slow
+def test_grounding_notebook_executes(tmp_path, library, monkeypatch):
+    import nbformat
+    from nbclient import NotebookClient
+
+    from ocplace.models.backbone import load_clip_backbone
+    from ocplace.models.features import featurize, load_features
+    from ocplace.sim.dataset.config import smoke_config as dataset_smoke_config
+    from ocplace.sim.dataset.job import generate_dataset
+    from ocplace.sim.dataset.loader import iter_examples
+    from ocplace.train.commands import dataset_hash
+    from ocplace.train.config import smoke_config
+    from ocplace.train.loop import train
+
+    dataset, features_path, run = tmp_path / "dataset", tmp_path / "seen.safetensors", tmp_path / "run"
+    generate_dataset(dataset, dataset_smoke_config(), splits=["seen"], progress=False)
+    backbone = load_clip_backbone(str(build_tiny_clip(tmp_path / "clip")), max_batch=8)
+    featurize(iter_examples(dataset, "seen"), backbone, features_path, dataset_hash=dataset_hash(dataset, "seen"),
+              progress=False)
+    train(load_features(features_path), run, dataclasses.replace(smoke_config(), steps=100), progress=False)
+
+    for name, value in {"OCPLACE_DATASET": dataset, "OCPLACE_SPLIT": "seen", "OCPLACE_FEATURES": features_path,
+                        "OCPLACE_RUN": run}.items():
+        monkeypatch.setenv(name, str(value))
+    notebook = nbformat.read(NOTEBOOK, as_version=4)
+    NotebookClient(notebook, timeout=600, kernel_name="python3",
+                   resources={"metadata": {"path": str(tmp_path)}}).execute()
+    outputs = [output for cell in notebook.cells if cell.cell_type == "code" for output in cell.outputs]
+    assert not [o for o in outputs if o.output_type == "error"]
+    text = "".join(o.get("text", "") for o in outputs if o.output_type == "stream")
+    assert "with adapters: GroundingAccuracy" in text and "scenes of 'seen'" in text
+    assert sum(o.output_type == "display_data" for o in outputs) >= 4  # P matrices, confusion, bars, sweeps
