@@ -17,7 +17,6 @@ import functools
 import hashlib
 import importlib
 import json
-import logging
 import os
 import socket
 import urllib.parse
@@ -27,8 +26,6 @@ from typing import Protocol, Sequence, runtime_checkable
 import numpy as np
 
 from ocplace.errors import BackboneError, BackboneUnavailable
-
-log = logging.getLogger(__name__)
 
 DEFAULT_CLIP = "openai/clip-vit-base-patch32"
 # kind -> "module:function(argument: str) -> Backbone"; the offline backbone adds its own kind.
@@ -186,7 +183,7 @@ class ClipBackbone:
     def __init__(self, model, params, tokenizer, prep: ImagePreprocessing, source: str, max_batch: int = 32):
         import jax
 
-        self._model, self._params, self._tokenizer = model, params, tokenizer
+        self._model, self._params, self._tokenizer = model, jax.device_put(params), tokenizer
         self.preprocessing, self.source, self.max_batch = prep, source, max_batch
         self.context_length = model.config.text_config.max_position_embeddings
         self._image_fn = jax.jit(self._image_features)
@@ -298,7 +295,12 @@ def load_clip_backbone(name_or_dir: str = DEFAULT_CLIP, max_batch: int = 32) -> 
     """
     local = Path(name_or_dir).expanduser()
     if local.is_dir():
-        return _load_clip(str(local), local_only=True, max_batch=max_batch)
+        try:
+            return _load_clip(str(local), local_only=True, max_batch=max_batch)
+        except OSError as error:
+            raise BackboneError(f"{local} is not a complete CLIP checkpoint ({error}); it needs config.json, "
+                                "weights, tokenizer files and preprocessor_config.json (save_pretrained writes "
+                                "them)") from error
     if _looks_like_path(name_or_dir):
         raise BackboneUnavailable(f"no CLIP directory at {local}. {_how_to_fix()}")
     try:

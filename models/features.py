@@ -84,6 +84,10 @@ class FeaturizeConfig:
     def to_json(self) -> str:
         return json.dumps(dataclasses.asdict(self), sort_keys=True)
 
+    def content_json(self) -> str:
+        """The settings that change the file's content (not `chunk_scenes`)."""
+        return json.dumps({k: v for k, v in dataclasses.asdict(self).items() if k != "chunk_scenes"}, sort_keys=True)
+
 
 @dataclasses.dataclass(frozen=True)
 class FeatureInfo:
@@ -141,7 +145,7 @@ class Features:
 
 
 def features_key(backbone_fingerprint: str, dataset_hash: str, config: FeaturizeConfig) -> str:
-    payload = json.dumps([FORMAT_VERSION, backbone_fingerprint, dataset_hash, config.to_json()])
+    payload = json.dumps([FORMAT_VERSION, backbone_fingerprint, dataset_hash, config.content_json()])
     return hashlib.sha256(payload.encode()).hexdigest()
 
 
@@ -159,10 +163,10 @@ def featurize(examples: Iterable[SceneExample], backbone: Backbone, out_path, *,
     out_path = Path(out_path)
     info = FeatureInfo(features_key(backbone.fingerprint, dataset_hash, config), backbone.fingerprint,
                        dataset_hash, config, float(backbone.logit_scale), int(backbone.dim))
-    if out_path.exists() and read_info(out_path).key == info.key:
+    if _holds_key(out_path, info.key):
         log.info("features up to date: %s", out_path)
         return out_path
-    parts = _parts_dir(out_path, info.key)
+    parts = _parts_dir(out_path, info.key, config.chunk_scenes)
     _remove_stale_parts(out_path, keep=parts)
     parts.mkdir(parents=True, exist_ok=True)
     iterator = iter(examples)
@@ -288,8 +292,18 @@ def _merge(chunk_paths: list[Path], info: FeatureInfo) -> tuple[dict[str, np.nda
     return {name: np.concatenate(parts) for name, parts in arrays.items()}, info, scenes
 
 
-def _parts_dir(out_path: Path, key: str) -> Path:
-    return out_path.with_name(f".{out_path.name}.parts-{key[:16]}")
+def _holds_key(path: Path, key: str) -> bool:
+    if not path.exists():
+        return False
+    try:
+        return read_info(path).key == key
+    except FeaturesError as error:
+        log.warning("rebuilding %s: %s", path, error)
+        return False
+
+
+def _parts_dir(out_path: Path, key: str, chunk_scenes: int) -> Path:
+    return out_path.with_name(f".{out_path.name}.parts-{key[:16]}-{chunk_scenes}")
 
 
 def _remove_stale_parts(out_path: Path, keep: Path) -> None:

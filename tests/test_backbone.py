@@ -125,9 +125,11 @@ def test_offline_mode_is_respected(monkeypatch):
         load_clip_backbone("ocplace-tests/no-such-clip")
 
 
-def test_missing_directory_is_named(tmp_path):
+def test_missing_or_incomplete_directory_is_named(tmp_path):
     with pytest.raises(BackboneUnavailable, match="no CLIP directory"):
         load_clip_backbone(str(tmp_path / "nothing" / "here"))
+    with pytest.raises(BackboneError, match="not a complete CLIP checkpoint"):
+        load_clip_backbone(str(tmp_path))
 
 
 def test_specs(clip_dir, clip):
