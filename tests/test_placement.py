@@ -130,6 +130,16 @@ def test_same_key_same_result_and_another_key_other_samples():
     assert not np.array_equal(first.samples, other.samples)
 
 
+def test_padded_tuples_change_nothing():
+    two = encode([GroundedTuple("left", BOX_B), GroundedTuple("front", BOX_A)])
+    four = encode([GroundedTuple("left", BOX_B), GroundedTuple("front", BOX_A), GroundedTuple("left"),
+                   GroundedTuple("back right", BOX_A)])
+    alone, _ = run([two, two], seed=9)  # the loop stops after 2 tuples
+    mixed, _ = run([two, four], seed=9)  # the loop runs 4 tuples; the first scene pads 2
+    for a, b in zip(alone, mixed):
+        np.testing.assert_array_equal(a[0], b[0])
+
+
 def test_mode_is_the_centre_of_the_heaviest_cell(synthetic_run):
     _, result = synthetic_run
     for heatmap, mode in zip(result.heatmap, result.mode):

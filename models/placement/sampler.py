@@ -116,11 +116,12 @@ def _gaussians(problem: PlacementProblem, config: SamplerConfig):
     return mean, sigma, jnp.where(problem.tuple_mask, scale, 0.0)
 
 
-def scene_density(problem: PlacementProblem, config: SamplerConfig):
+def scene_density(problem: PlacementProblem, config: SamplerConfig, active_tuples=None):
     """One scene's unnormalised weights `(nx, ny)` and feasible cells `(nx, ny)` bool.
 
     The weight of a feasible cell is the average of the tuples' truncated Gaussian densities at
-    its centre.
+    its centre. Tuples from `active_tuples` (a traced int, default K) on must be padding: they
+    always hold, so the loop skips them.
     """
     grid = config.grid
     terms = metric.grid_terms(problem, grid, xp=jnp)
@@ -140,7 +141,8 @@ def scene_density(problem: PlacementProblem, config: SamplerConfig):
         return jnp.where(terms.tuple_holds(k) & (weights > 0), weights + gauss, FLOAT(0))
 
     weights = jnp.where(terms.fits(jnp), _TINY, FLOAT(0))
-    weights = jax.lax.fori_loop(0, gauss_x.shape[0], add_tuple, weights)
+    active_tuples = gauss_x.shape[0] if active_tuples is None else active_tuples
+    weights = jax.lax.fori_loop(0, active_tuples, add_tuple, weights)
     feasible = weights > 0
     return weights, feasible
 
@@ -256,10 +258,10 @@ def _first_argmax(weights):
     return column * weights.shape[1] + jnp.argmax(weights[column])
 
 
-def _sample_scene(key, problem: PlacementProblem, config: SamplerConfig) -> PlacementResult:
+def _sample_scene(key, problem: PlacementProblem, config: SamplerConfig, active_tuples=None) -> PlacementResult:
     grid = config.grid
     nx, ny = grid.shape
-    weights, _ = scene_density(problem, config)
+    weights, _ = scene_density(problem, config, active_tuples)
     total = weights.sum()
     empty = ~(weights.max() > 0)  # weights are positive exactly on feasible cells
     heatmap = weights * jnp.where(empty, 0.0, 1.0 / (total * grid.cell_area))
@@ -292,4 +294,8 @@ def sample_placements(key, problems: PlacementProblem, config: SamplerConfig = S
     """
     problems = metric.as_arrays(problems, jnp)
     keys = jax.random.split(key, problems.relation.shape[0])
-    return jax.lax.map(lambda args: _sample_scene(*args, config), (keys, problems), batch_size=config.scenes_per_step)
+    positions = jnp.arange(1, problems.relation.shape[-1] + 1)
+    active_tuples = jnp.max(jnp.where(problems.tuple_mask, positions, 0))  # padding K beyond this costs nothing
+    return jax.lax.map(
+        lambda args: _sample_scene(*args, config, active_tuples), (keys, problems), batch_size=config.scenes_per_step
+    )
