@@ -80,7 +80,8 @@ def _truncated_density(grounded: GroundedTuple, points: np.ndarray) -> np.ndarra
         (x0, y0), (x1, y1) = metric.region_table()[relations.relation_index(grounded.relation)].astype(float)
         mean = np.array([(x0 + x1) / 2, (y0 + y1) / 2])
         sigma = CONFIG.table_sigma_cells * DEFAULT_TABLE.cell_size
-        mass = np.prod([stats.norm.cdf(h, 0, s) - stats.norm.cdf(-h, 0, s) for h, s in zip([(x1 - x0) / 2, (y1 - y0) / 2], sigma)])
+        half_widths = [(x1 - x0) / 2, (y1 - y0) / 2]
+        mass = np.prod([stats.norm.cdf(h, 0, s) - stats.norm.cdf(-h, 0, s) for h, s in zip(half_widths, sigma)])
     else:
         direction = np.asarray(relations.relation(grounded.relation).direction)
         mean = np.asarray(grounded.reference_box, dtype=float).mean(axis=0) + CONFIG.object_offset * direction
@@ -210,7 +211,8 @@ def test_an_empty_region_is_flagged_by_the_core_and_an_error_from_place():
     assert result.empty.tolist() == [True, True, True, False]
     assert np.isnan(result.samples[:3]).all() and np.isnan(result.mode[:3]).all()
     assert not result.heatmap[:3].any()
-    with pytest.raises(NoFeasiblePlacement, match=r"scene kitchen-7: tuple 1 \('front' part of the table\) does not intersect"):
+    expected = r"scene kitchen-7: tuple 1 \('front' part of the table\) does not intersect"
+    with pytest.raises(NoFeasiblePlacement, match=expected):
         place(jax.random.key(0), disjoint, CONFIG, scene_names=["kitchen-7"])
     assert "does not fit on the table" in explain_empty(too_big, GRID)
     assert "collides with scene object 0" in explain_empty(blocked, GRID)
@@ -288,7 +290,7 @@ def test_fig5_panels_draw_on_any_image(tmp_path):
     chosen = figures.choose_fig5_tuples(np.random.default_rng(0), boxes, HALF, ["mug", "shoe"], GRID)
     assert [len(t) for _, t, _ in chosen] == [1, 1, 2]
     assert chosen[0][1][0].reference_box is None and "mug" in chosen[1][0] + chosen[2][0]
-    panels = [figures.Panel(title, np.ones(GRID.shape), np.zeros((3, 2)), np.zeros(2), refs) for title, _, refs in chosen]
+    panels = [figures.Panel(t, np.ones(GRID.shape), np.zeros((3, 2)), np.zeros(2), refs) for t, _, refs in chosen]
     figures.save_figure(figures.draw_panels(image, Camera(), panels, GRID), tmp_path / "camera.png")
     assert (tmp_path / "camera.png").stat().st_size > 1000
 

@@ -102,7 +102,9 @@ def choose_fig5_tuples(
         return metric.feasible_grid(metric.encode_problem(tuples, boxes, half_extents), grid).any()
 
     table = [[GroundedTuple(name)] for name in rng.permutation(relations.RELATION_NAMES)]
-    pairs = [(int(i), str(r)) for i in rng.permutation(len(boxes)) for r in rng.permutation(relations.OBJECT_RELATION_NAMES)]
+    pairs = [
+        (int(i), str(r)) for i in rng.permutation(len(boxes)) for r in rng.permutation(relations.OBJECT_RELATION_NAMES)
+    ]
     single = [[GroundedTuple(r, boxes[i])] for i, r in pairs]
     double = [
         [GroundedTuple(r1, boxes[i]), GroundedTuple(r2, boxes[j])]

@@ -1,13 +1,13 @@
 """The truncated-Gaussian placement density and its exact sampler (paper III-C, Fig. 5), in JAX.
 
-Per tuple a Gaussian (table: centred on the region, sigma a quarter of a grid cell; object:
+Per tuple a Gaussian (table: centred on the region, sigma a quarter of a 3x3 cell; object:
 centred at c + 0.2 m * direction, sigma 0.05 m) truncated to that tuple's region (normalised
 there); several tuples: the average of these densities, truncated to where every tuple holds;
-then truncated where the held object's footprint leaves the table or overlaps an object. Everything lives on a grid of cells whose centres are
-exactly the oracle's (`ocplace.sim.metric.check_grid`), so the support is the oracle's feasible
-region. Sampling is exact: a categorical draw over cells with integer weights, then uniform
-jitter inside the cell when the whole cell (plus a small margin) is feasible, else the cell
-centre. See docs/placement.md.
+then truncated where the held object's footprint leaves the table or overlaps an object.
+Everything lives on the oracle's grid (`ocplace.sim.metric.feasible_grid`): the support is the
+oracle's feasible region. Sampling is exact: a categorical draw over cells with integer weights,
+then uniform jitter inside the cell when the whole cell (plus a small margin) is feasible, else
+the cell's centre. See docs/placement.md.
 """
 
 from __future__ import annotations
@@ -198,7 +198,8 @@ def sample_cells(bits, weights):
     quantised = jnp.round(weights * (_WEIGHT_SCALE / jnp.where(total > 0, total, 1.0))).astype(jnp.int32)
     quantised = jnp.where(weights > 0, jnp.maximum(quantised, 1), 0)
     cells = jnp.pad(quantised, (0, -quantised.shape[0] % (_BLOCK * _SUPER))).reshape(_BLOCK, -1)
-    blocks = _running_sums(cells.sum(axis=0).reshape(_SUPER, -1))  # (SUPER, num_super); block b: cells b + i * num_blocks
+    # Block b holds cells b + i * num_blocks; super-block s holds blocks s + j * num_super.
+    blocks = _running_sums(cells.sum(axis=0).reshape(_SUPER, -1))  # (SUPER, num_super)
     supers = jnp.cumsum(blocks[-1])
     target = _mul_high(bits, supers[-1].astype(jnp.uint32)).astype(jnp.int32)
     padded = 1 << (supers.shape[0] - 1).bit_length()
@@ -258,31 +259,32 @@ def _first_argmax(weights):
     return column * weights.shape[1] + jnp.argmax(weights[column])
 
 
-def _sample_scene(key, problem: PlacementProblem, config: SamplerConfig, active_tuples=None) -> PlacementResult:
-    grid = config.grid
-    nx, ny = grid.shape
-    weights, _ = scene_density(problem, config, active_tuples)
-    total = weights.sum()
-    empty = ~(weights.max() > 0)  # weights are positive exactly on feasible cells
-    heatmap = weights * jnp.where(empty, 0.0, 1.0 / (total * grid.cell_area))
-    nan = jnp.full((2,), jnp.nan, FLOAT)
-    mode_cell = _first_argmax(weights)
-    mode = jnp.where(empty, nan, jnp.stack([jnp.asarray(grid.centres(0))[mode_cell // ny], jnp.asarray(grid.centres(1))[mode_cell % ny]]))
-
-    bits = jax.random.bits(key, (2, config.num_samples), jnp.uint32)
-    cell = sample_cells(bits[0], weights.reshape(-1))
-    index = (cell // ny, cell % ny)
-    low = jnp.stack([jnp.asarray(grid.edges(a))[index[a]] for a in (0, 1)])  # (2, N)
+def _cell_points(cell, grid: Grid):
+    """Lower corners, upper corners and centres `(2, N)` of flat cell indices `(N,)`."""
+    index = (cell // grid.shape[1], cell % grid.shape[1])
+    low = jnp.stack([jnp.asarray(grid.edges(a))[index[a]] for a in (0, 1)])
     high = jnp.stack([jnp.asarray(grid.edges(a))[index[a] + 1] for a in (0, 1)])
     centre = jnp.stack([jnp.asarray(grid.centres(a))[index[a]] for a in (0, 1)])
+    return low, high, centre
+
+
+def _sample_scene(key, problem: PlacementProblem, config: SamplerConfig, active_tuples=None) -> PlacementResult:
+    grid = config.grid
+    weights, _ = scene_density(problem, config, active_tuples)
+    empty = ~(weights.max() > 0)  # weights are positive exactly on feasible cells
+    heatmap = weights * jnp.where(empty, 0.0, 1.0 / (weights.sum() * grid.cell_area))
+    nan = jnp.full((2, 1), jnp.nan, FLOAT)
+    mode = jnp.where(empty, nan, _cell_points(_first_argmax(weights)[None], grid)[2])[:, 0]
+
+    bits = jax.random.bits(key, (2, config.num_samples), jnp.uint32)
+    low, high, centre = _cell_points(sample_cells(bits[0], weights.reshape(-1)), grid)
     geometry = metric.tuple_geometry(problem, grid.table, xp=jnp)
     whole = cells_fully_feasible(low, high, problem, geometry, grid.table, config.jitter_margin)
     # 16 random bits per axis: the jitter lands on a lattice of 65536 points per cell side.
     halves = jnp.stack([bits[1] & np.uint32(0xFFFF), bits[1] >> np.uint32(16)])
     jitter = (halves.astype(FLOAT) + 0.5) * FLOAT(2.0**-16)
-    samples = jnp.where(whole, low + jitter * (high - low), centre).T
-    samples = jnp.where(empty, nan, samples)
-    return PlacementResult(samples, heatmap, mode, empty)
+    samples = jnp.where(empty, nan, jnp.where(whole, low + jitter * (high - low), centre))
+    return PlacementResult(samples.T, heatmap, mode, empty)
 
 
 @functools.partial(jax.jit, static_argnames="config")

@@ -53,7 +53,8 @@ def random_problems(
     is drawn again at the same level.
     """
     rng = np.random.default_rng(seed)
-    levels = [str(level) for level in rng.choice(LEVELS, size=num_scenes, p=np.asarray(LEVEL_WEIGHTS) / sum(LEVEL_WEIGHTS))]
+    weights = np.asarray(LEVEL_WEIGHTS) / sum(LEVEL_WEIGHTS)
+    levels = [str(level) for level in rng.choice(LEVELS, size=num_scenes, p=weights)]
     problems = []
     for level in levels:
         problem = random_problem(rng, level, max_tuples=max_tuples)
