@@ -38,7 +38,7 @@ def _place_demo(args: argparse.Namespace) -> int:
     half_extents = np.asarray(held.extents[:2], dtype=float) / 2.0
     figure = fig5(jax.random.key(args.seed), scene.rgb, camera, boxes, half_extents,
                   rng=np.random.default_rng(args.seed), names=names,
-                  suptitle=f"seed {args.seed} | held: {held.human_name}")
+                  suptitle=f"seed {args.seed} | held: {held.human_name}", scene=f"seed {args.seed}")
     save_figure(figure, args.out)
     print(f"wrote {args.out}")
     return 0

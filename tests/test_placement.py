@@ -295,23 +295,26 @@ def test_fig5_panels_draw_on_any_image(tmp_path):
     assert (tmp_path / "camera.png").stat().st_size > 1000
 
 
-def test_place_demo_command_is_registered():
+def _demo_parser():
     import argparse
 
     from ocplace.models import placement_commands
 
     parser = argparse.ArgumentParser()
     placement_commands.register(parser.add_subparsers(dest="command"))
-    args = parser.parse_args(["place-demo", "--seed", "3", "--out", "x.png"])
+    return parser
+
+
+def test_place_demo_command_is_registered():
+    args = _demo_parser().parse_args(["place-demo", "--seed", "3", "--out", "x.png"])
     assert (args.seed, args.split, str(args.out)) == (3, "seen", "x.png")
 
 
 @pytest.mark.slow
 def test_place_demo_draws_fig5_on_a_real_scene(tmp_path, library):
-    from ocplace.cli import main
-
-    out = tmp_path / "fig5.png"
-    assert main(["place-demo", "--seed", "1", "--out", str(out)]) == 0
     from PIL import Image
 
+    out = tmp_path / "fig5.png"
+    args = _demo_parser().parse_args(["place-demo", "--seed", "1", "--out", str(out)])
+    assert args.func(args) == 0
     assert Image.open(out).size[0] > 1000

@@ -8,6 +8,7 @@ world points on the table plane z = 0 and returning `(N, 2)` pixels (u right, v 
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import textwrap
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -15,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from ocplace.errors import NoFeasiblePlacement
 from ocplace.sim import metric, relations
 from ocplace.sim.metric import Grid, GroundedTuple
 
@@ -89,17 +91,18 @@ def draw_panels(image: np.ndarray, world_to_pixel, panels: Sequence[Panel], grid
 
 def choose_fig5_tuples(
     rng: np.random.Generator, boxes: np.ndarray, half_extents, names: Sequence[str] | None = None,
-    grid: Grid = metric.DEFAULT_GRID,
+    grid: Grid = metric.DEFAULT_GRID, max_candidates: int = 120, scene: str = "scene",
 ) -> list[tuple[str, list[GroundedTuple], np.ndarray]]:
-    """Three `(title, tuples, reference boxes)` with non-empty feasible regions, one per panel kind.
-
-    Candidates are tried in an order drawn from `rng`; `names` label the objects in titles.
+    """Three `(title, tuples, reference boxes)`, one per panel kind: the candidate of each kind
+    with the largest feasible region, among candidates in an order drawn from `rng` (at most
+    `max_candidates` per kind). `names` label the objects in titles. Raises NoFeasiblePlacement
+    naming `scene` when a kind has no feasible candidate.
     """
     boxes = np.asarray(boxes, dtype=float).reshape(-1, 2, 2)
     names = list(names) if names is not None else [f"object {i}" for i in range(len(boxes))]
 
-    def solvable(tuples):
-        return metric.feasible_grid(metric.encode_problem(tuples, boxes, half_extents), grid).any()
+    def area(tuples):
+        return int(metric.feasible_grid(metric.encode_problem(tuples, boxes, half_extents), grid).sum())
 
     table = [[GroundedTuple(name)] for name in rng.permutation(relations.RELATION_NAMES)]
     pairs = [
@@ -108,15 +111,16 @@ def choose_fig5_tuples(
     single = [[GroundedTuple(r, boxes[i])] for i, r in pairs]
     double = [
         [GroundedTuple(r1, boxes[i]), GroundedTuple(r2, boxes[j])]
-        for i, r1 in pairs
-        for j, r2 in pairs[: 4 * len(boxes)]
-        if i != j
+        for (i, r1), (j, r2) in itertools.product(pairs, repeat=2)
+        if i < j
     ]
+    double = [double[k] for k in rng.permutation(len(double))]
     chosen = []
     for kind, candidates in zip(PANEL_KINDS, (table, single, double)):
-        tuples = next((t for t in candidates if solvable(t)), None)
-        if tuples is None:
-            raise ValueError(f"no {kind} with a feasible placement in this scene")
+        areas = [area(t) for t in candidates[:max_candidates]]
+        if not areas or max(areas) == 0:
+            raise NoFeasiblePlacement(scene, f"no {kind} among {len(areas)} candidates has a feasible placement")
+        tuples = candidates[int(np.argmax(areas))]
         parts, references = [], []
         for grounded in tuples:
             if grounded.reference_box is None:
@@ -130,14 +134,14 @@ def choose_fig5_tuples(
 
 
 def fig5(key, image: np.ndarray, world_to_pixel, boxes: np.ndarray, half_extents, *, rng: np.random.Generator,
-         names: Sequence[str] | None = None, config: Any = None, suptitle: str | None = None):
+         names: Sequence[str] | None = None, config: Any = None, suptitle: str | None = None, scene: str = "scene"):
     """Fig. 5 for one scene: chooses the three panels' tuples, samples them and draws them."""
     import jax
 
     from ocplace.models.placement.sampler import SamplerConfig, sample_placements
 
     config = config or SamplerConfig()
-    chosen = choose_fig5_tuples(rng, boxes, half_extents, names, config.grid)
+    chosen = choose_fig5_tuples(rng, boxes, half_extents, names, config.grid, scene=scene)
     problems = metric.stack_problems([metric.encode_problem(t, boxes, half_extents) for _, t, _ in chosen])
     result = jax.device_get(sample_placements(key, problems, config))
     panels = [
