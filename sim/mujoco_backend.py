@@ -21,7 +21,8 @@ from ocplace.errors import SceneError
 from ocplace.sim.camera import DEFAULT_CAMERA, Camera
 from ocplace.sim.library.types import ObjectAsset
 from ocplace.sim.render import OffscreenCamera
-from ocplace.sim.scene import RenderedScene, SceneObject, SceneSpec, retry_seed, sample_drop_poses
+from ocplace.sim.scene import (RenderedScene, SceneObject, SceneSpec, retry_seed, sample_drop_poses,
+                               settle_until_still)
 from ocplace.sim.workspace import DEFAULT_TABLE, Table
 
 VISIBLE_GROUP = 1
@@ -32,13 +33,19 @@ HIDDEN_GROUP = 5
 @dataclasses.dataclass(frozen=True)
 class PhysicsConfig:
     timestep: float = 0.002
-    settle_linear_speed: float = 0.005  # m/s: below this for every object, the scene is settled
-    settle_angular_speed: float = 0.05  # rad/s
+    # Settled: no point of any object moves faster than this (m/s), net over each check window
+    # (see `settle_until_still`).
+    settle_speed: float = 0.005
     max_settle_time: float = 3.0  # s of simulated time before giving up on settling
-    check_every: int = 10  # steps between settle checks
-    still_checks: int = 3  # consecutive checks below the speeds: a slowly tipping object is not settled
+    check_every: int = 50  # steps per settle window (100 ms: longer than contact jitter periods)
+    # Free-joint damping (N s/m and N m s/rad): negligible on falls, but it stops curved objects
+    # (bowls, plates) rocking or spinning on their hulls for seconds.
+    damping: float = 0.0005
+    still_checks: int = 2  # consecutive still windows: a slowly tipping object is not settled
     max_tilt: float = 0.35  # rad, largest initial tilt of a dropped object
-    friction: tuple[float, float, float] = (0.9, 0.005, 0.0001)
+    # Sliding, torsional and rolling friction. Without rolling friction a ball or a can on its
+    # side rolls until it leaves the table.
+    friction: tuple[float, float, float] = (0.9, 0.005, 0.003)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -84,7 +91,7 @@ def arena_xml(objects: Sequence[ObjectAsset], textures: dict[str, Path], config:
     ET.SubElement(root, "statistic", extent="1.5", center="0 0 0")
     ET.SubElement(visual, "map", znear="0.01", zfar="5")
     default = ET.SubElement(ET.SubElement(root, "default"), "geom", friction=" ".join(map(str, physics.friction)))
-    default.set("condim", "4")
+    default.set("condim", "6")
     asset = ET.SubElement(root, "asset")
     world = ET.SubElement(root, "worldbody")
 
@@ -111,7 +118,7 @@ def arena_xml(objects: Sequence[ObjectAsset], textures: dict[str, Path], config:
                   xyaxes="1 0 0 0 1 0", fovy=f"{camera.fov_y_deg:.6f}")
 
     for index, obj in enumerate(objects):
-        _add_object(asset, world, index, obj)
+        _add_object(asset, world, index, obj, physics.damping)
     ET.indent(root)
     return ET.tostring(root, encoding="unicode")
 
@@ -120,7 +127,7 @@ def _parking_position(index: int) -> tuple[float, float, float]:
     return (20.0 + (index % 10), 20.0 + (index // 10), 1.0)
 
 
-def _add_object(asset: ET.Element, world: ET.Element, index: int, obj: ObjectAsset) -> None:
+def _add_object(asset: ET.Element, world: ET.Element, index: int, obj: ObjectAsset, damping: float) -> None:
     prefix = f"o{index}"
     material = f"{prefix}_mat"
     if obj.texture is not None:
@@ -133,7 +140,7 @@ def _add_object(asset: ET.Element, world: ET.Element, index: int, obj: ObjectAss
     density = obj.mass / max(sum(volumes), 1e-9)
     x, y, z = _parking_position(index)
     body = ET.SubElement(world, "body", name=obj.name, pos=f"{x} {y} {z}", gravcomp="1")
-    ET.SubElement(body, "freejoint", name=f"{obj.name}_joint")
+    ET.SubElement(body, "joint", name=f"{obj.name}_joint", type="free", damping=str(damping))
     ET.SubElement(body, "geom", name=f"{obj.name}_visual", type="mesh", mesh=f"{prefix}_visual",
                   material=material, contype="0", conaffinity="0", density="0", group=str(HIDDEN_GROUP))
     for hull_index, path in enumerate(obj.hulls):
@@ -245,19 +252,9 @@ class MujocoScenes:
         """Steps until every named object is still; returns the number of steps taken."""
         physics = self.config.physics
         names = self._active if names is None else names
-        dof_addresses = [self.model.jnt_dofadr[self.model.body_jntadr[self._body[n]]] for n in names]
-        linear = np.array([[a, a + 1, a + 2] for a in dof_addresses], dtype=int)
-        angular = linear + 3
-        max_steps = int(physics.max_settle_time / physics.timestep)
-        steps = still = 0
-        while steps < max_steps and still < physics.still_checks:
-            mujoco.mj_step(self.model, self.data, nstep=physics.check_every)
-            steps += physics.check_every
-            qvel = self.data.qvel
-            slow = (np.abs(qvel[linear]).max() < physics.settle_linear_speed
-                    and np.abs(qvel[angular]).max() < physics.settle_angular_speed)
-            still = still + 1 if slow else 0
-        return steps
+        radii = np.array([0.5 * np.linalg.norm(self.objects[n].extents) for n in names])
+        return settle_until_still(lambda n: mujoco.mj_step(self.model, self.data, nstep=n),
+                                  lambda: self.poses(names), radii, physics)
 
     # Outputs ---------------------------------------------------------------------------------
     def aabbs(self, names: Sequence[str]) -> np.ndarray:

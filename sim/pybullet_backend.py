@@ -17,7 +17,7 @@ from pybullet_utils import bullet_client
 from ocplace.errors import SceneError
 from ocplace.sim.library.types import ObjectAsset
 from ocplace.sim.mujoco_backend import ArenaConfig, default_config
-from ocplace.sim.scene import SceneObject, SceneSpec, quaternion_to_matrix, sample_drop_poses
+from ocplace.sim.scene import SceneObject, SceneSpec, quaternion_to_matrix, sample_drop_poses, settle_until_still
 
 RENDERERS = ("tiny", "egl")
 
@@ -85,8 +85,9 @@ class PybulletScenes:
         floor_visual = self.client.createVisualShape(pybullet.GEOM_BOX, halfExtents=[3, 3, 0.001],
                                                      rgbaColor=[0.25, 0.25, 0.27, 1])
         self.client.createMultiBody(0, floor, floor_visual, basePosition=[0, 0, -0.75])
-        friction = self.config.physics.friction[0]
-        self.client.changeDynamics(body, -1, lateralFriction=friction)
+        sliding, spinning, rolling = self.config.physics.friction
+        self.client.changeDynamics(body, -1, lateralFriction=sliding, spinningFriction=spinning,
+                                   rollingFriction=rolling)
         return body
 
     def _camera_matrices(self) -> tuple[list[float], list[float]]:
@@ -121,8 +122,9 @@ class PybulletScenes:
             if asset.texture is not None:
                 texture = self.client.loadTexture(str(asset.texture))
                 self.client.changeVisualShape(body, -1, textureUniqueId=texture, rgbaColor=[1, 1, 1, 1])
-            friction = self.config.physics.friction[0]
-            self.client.changeDynamics(body, -1, lateralFriction=friction, mass=0.0)
+            sliding, spinning, rolling = self.config.physics.friction
+            self.client.changeDynamics(body, -1, lateralFriction=sliding, spinningFriction=spinning,
+                                       rollingFriction=rolling, mass=0.0)
             self._bodies[name] = body
         return self._bodies[name]
 
@@ -174,18 +176,13 @@ class PybulletScenes:
         physics = self.config.physics
         names = self._active if names is None else names
         bodies = [self._body(name) for name in names]
-        max_steps = int(physics.max_settle_time / physics.timestep)
-        steps = 0
-        while steps < max_steps:
-            for _ in range(physics.check_every):
+        radii = np.array([0.5 * np.linalg.norm(self.objects[name].extents) for name in names])
+
+        def step(count: int) -> None:
+            for _ in range(count):
                 self.client.stepSimulation()
-            steps += physics.check_every
-            velocities = [self.client.getBaseVelocity(body) for body in bodies]
-            linear = max(np.abs(v[0]).max() for v in velocities)
-            angular = max(np.abs(v[1]).max() for v in velocities)
-            if linear < physics.settle_linear_speed and angular < physics.settle_angular_speed:
-                break
-        return steps
+
+        return settle_until_still(step, lambda: self.poses(names), radii, physics)
 
     def aabbs(self, names: Sequence[str], hull_points: dict[str, np.ndarray]) -> np.ndarray:
         """`(N, 2, 3)` world AABBs from each object's hull points (object frame)."""

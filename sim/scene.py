@@ -149,3 +149,27 @@ def split_pools(library, split: str) -> tuple[list[str], list[str]]:
 def retry_seed(seed: int, attempt: int) -> int:
     """The drop seed of the `attempt`-th retry of a scene whose objects fell off the table."""
     return int(np.random.default_rng([seed, attempt]).integers(2**31 - 1))
+
+
+def settle_until_still(step, poses, radii: np.ndarray, physics) -> int:
+    """Steps a simulation until no object point moves faster than `physics.settle_speed`.
+
+    `step(n)` advances n steps; `poses()` gives `(N, 3)` positions and `(N, 4)` (w, x, y, z)
+    quaternions. Speeds are net motion over each check window (displacement plus rotation angle
+    x bounding radius, divided by the window's duration): resting objects in soft contacts jitter
+    in place with instantaneous speeds of a few mm/s but do not go anywhere. The scene is still
+    after `physics.still_checks` consecutive windows below the speed. Returns the steps taken.
+    """
+    max_steps = int(physics.max_settle_time / physics.timestep)
+    window = physics.check_every * physics.timestep
+    steps = still = 0
+    positions, quaternions = poses()
+    while steps < max_steps and still < physics.still_checks:
+        step(physics.check_every)
+        steps += physics.check_every
+        new_positions, new_quaternions = poses()
+        cosine = np.clip(np.abs(np.sum(new_quaternions * quaternions, axis=1)), 0.0, 1.0)
+        travel = np.linalg.norm(new_positions - positions, axis=1) + 2.0 * np.arccos(cosine) * radii
+        positions, quaternions = new_positions, new_quaternions
+        still = still + 1 if travel.max(initial=0.0) / window < physics.settle_speed else 0
+    return steps

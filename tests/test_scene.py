@@ -45,9 +45,8 @@ def test_same_seed_gives_identical_bytes(library, arena, scenes):
     assert again.segmentation.tobytes() == scenes[1].segmentation.tobytes()
 
 
-def test_a_fresh_arena_renders_the_same_bytes(library, scenes):
-    names = sorted(set(scenes[0].spec.objects) | {scenes[0].spec.held_object})
-    with MujocoScenes.from_library(library, names) as other:
+def test_a_fresh_arena_of_the_same_library_renders_the_same_bytes(library, scenes):
+    with MujocoScenes.from_library(library) as other:
         again = other.build(scenes[0].spec)
     assert again.rgb.tobytes() == scenes[0].rgb.tobytes()
     assert again.segmentation.tobytes() == scenes[0].segmentation.tobytes()
@@ -59,7 +58,17 @@ def test_objects_rest_on_the_table(scenes):
         for obj in scene.objects:
             assert obj.aabb[0, 2] > -0.005, f"{obj.name} sank into the table"
             assert np.all(np.abs(obj.aabb[:, :2].mean(axis=0)) <= half), f"{obj.name} is off the table"
-        assert scene.settle_steps < 1500, "the scene did not settle"
+
+
+def test_settled_objects_stay_put(library, arena):
+    import mujoco
+
+    scene = arena.build(_spec(library, 11))
+    names = scene.spec.objects
+    before, _ = arena.poses(names)
+    mujoco.mj_step(arena.model, arena.data, nstep=100)  # 0.2 s more
+    after, _ = arena.poses(names)
+    assert np.linalg.norm(after - before, axis=1).max() < 0.005
 
 
 def test_resting_objects_touch_something(scenes):
