@@ -32,12 +32,12 @@ HIDDEN_GROUP = 5
 
 @dataclasses.dataclass(frozen=True)
 class PhysicsConfig:
-    timestep: float = 0.002
+    timestep: float = 0.004
     # Settled: no point of any object moves faster than this (m/s), net over each check window
     # (see `settle_until_still`).
     settle_speed: float = 0.005
     max_settle_time: float = 3.0  # s of simulated time before giving up on settling
-    check_every: int = 50  # steps per settle window (100 ms: longer than contact jitter periods)
+    check_every: int = 25  # steps per settle window (100 ms: longer than contact jitter periods)
     # Free-joint damping (N s/m and N m s/rad): negligible on falls, but it stops curved objects
     # (bowls, plates) rocking or spinning on their hulls for seconds.
     damping: float = 0.0005

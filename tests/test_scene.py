@@ -66,7 +66,7 @@ def test_settled_objects_stay_put(library, arena):
     scene = arena.build(_spec(library, 11))
     names = scene.spec.objects
     before, _ = arena.poses(names)
-    mujoco.mj_step(arena.model, arena.data, nstep=100)  # 0.2 s more
+    mujoco.mj_step(arena.model, arena.data, nstep=int(0.2 / arena.config.physics.timestep))
     after, _ = arena.poses(names)
     assert np.linalg.norm(after - before, axis=1).max() < 0.005
 
