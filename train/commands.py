@@ -8,6 +8,7 @@ import hashlib
 import importlib
 import importlib.util
 import json
+import os
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
@@ -85,6 +86,9 @@ def _register_train(subparsers) -> None:
     parser.add_argument("--out", required=True, type=Path, help="run directory")
     parser.add_argument("--val-features", type=Path, help="feature file to report validation accuracy on")
     parser.add_argument("--smoke", action="store_true", help="start from the tiny smoke configuration")
+    parser.add_argument("--cpus", type=int, default=1,
+                        help="CPUs XLA may use (default 1: batch-1 steps are too small to gain from splitting "
+                             "them across cores, and waiting for a busy core stalls every step; 0: all)")
     overrides = parser.add_argument_group("configuration overrides (defaults: the paper's schedule)")
     overrides.add_argument("--steps", type=int)
     overrides.add_argument("--batch-size", type=int)
@@ -110,6 +114,8 @@ def train_config_from_args(args: argparse.Namespace):
 
 
 def run_train(args) -> int:
+    if args.cpus:  # before JAX starts: XLA sizes its thread pool to the CPUs it may run on
+        os.sched_setaffinity(0, sorted(os.sched_getaffinity(0))[:args.cpus])
     from ocplace.models.features import load_features
     from ocplace.train.loop import train
 

@@ -13,7 +13,7 @@ class TrainConfig:
     # The paper's budget: 200K steps at batch 1 on the 2000 training scenes (100 epochs).
     steps: int = 200_000
     batch_size: int = 1
-    # Adam with a linear warm-up from 0 to `learning_rate`, then cosine decay to 0 at `steps`.
+    # Adam (train/optim.py) with a linear warm-up from 0 to `learning_rate`, then cosine decay to 0.
     learning_rate: float = 1e-4
     warmup_steps: int = 1_000
     seed: int = 0  # adapter initialisation and example order

@@ -32,7 +32,7 @@ from ocplace.models.adapters import AdapterConfig, init_adapters
 from ocplace.models.features import Features
 from ocplace.models.grounding import GroundingModel, adapted_logits, grounding_loss
 from ocplace.paths import write_text_atomic
-from ocplace.train import checkpoints
+from ocplace.train import checkpoints, optim
 from ocplace.train.config import TrainConfig
 from ocplace.train.metrics import GroundingAccuracy, MetricsLog, evaluate_features
 
@@ -55,7 +55,7 @@ def learning_rate_schedule(config: TrainConfig) -> optax.Schedule:
 
 
 def make_optimizer(config: TrainConfig) -> optax.GradientTransformation:
-    return optax.adam(learning_rate_schedule(config))
+    return optim.adam(learning_rate_schedule(config))
 
 
 def subset_indices(num_scenes: int, fraction: float, subset_seed: int) -> np.ndarray:
