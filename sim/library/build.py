@@ -1,0 +1,281 @@
+"""Building the object library into the cache: keys, worker pool, textures, manifest."""
+
+from __future__ import annotations
+
+import concurrent.futures
+import dataclasses
+import difflib
+import hashlib
+import json
+import logging
+import multiprocessing
+import os
+import shutil
+from collections import Counter
+from pathlib import Path
+
+from PIL import Image
+from tqdm import tqdm
+
+from ocplace.errors import AssetBuildError, UnknownObject
+from ocplace.paths import atomic_path, write_text_atomic
+from ocplace.sim.library.config import LibraryConfig, default_config
+from ocplace.sim.library.library import Library, load_library
+from ocplace.sim.library.metadata import ObjectSpec, packaged_objects, table_textures
+from ocplace.sim.library.process_object import ObjectResult, build_object
+from ocplace.sim.library.records import (
+    ASSET_FILE,
+    MANIFEST_FILE,
+    MANIFEST_VERSION,
+    OBJECTS_DIRNAME,
+    TEXTURES_DIRNAME,
+    TMP_DIRNAME,
+    asset_from_json,
+    library_root,
+)
+from ocplace.sim.library.sources import SourceFiles, gso_specs, libero_root, pybullet_root, source_files
+
+PROCESSING_VERSION = 1  # bump when processing changes what is written: every object rebuilds
+_KEY_CHARS = 16
+
+log = logging.getLogger(__name__)
+
+
+@dataclasses.dataclass(frozen=True)
+class _Job:
+    spec: ObjectSpec
+    files: SourceFiles | None
+    key: str
+    error: str = ""  # why the sources could not be located
+
+    @property
+    def folder(self) -> str:
+        return f"{OBJECTS_DIRNAME}/{self.spec.name}-{self.key}"
+
+
+def resolve_specs(config: LibraryConfig) -> list[ObjectSpec]:
+    """The packaged objects plus every GSO-layout object, filtered by `config.objects`."""
+    specs = list(packaged_objects())
+    for directory in config.gso_dirs:
+        specs += gso_specs(directory)
+    for label, values in (("name", [s.name for s in specs]), ("human name", [s.human_name for s in specs])):
+        duplicates = sorted(v for v, n in Counter(values).items() if n > 1)
+        if duplicates:
+            raise AssetBuildError(f"two objects share the {label} {', '.join(duplicates)}; rename one")
+    if config.objects is None:
+        return specs
+    known = {s.name for s in specs}
+    for name in config.objects:
+        if name not in known:
+            close = difflib.get_close_matches(name, sorted(known), n=5, cutoff=0.5)
+            raise UnknownObject(f"no object {name!r} to build; close matches: {', '.join(close) or 'none'}")
+    wanted = set(config.objects)
+    return [s for s in specs if s.name in wanted]
+
+
+def _hash_files(digest, paths) -> None:
+    for path in paths:
+        digest.update(path.name.encode())
+        with open(path, "rb") as handle:
+            while chunk := handle.read(1 << 20):
+                digest.update(chunk)
+
+
+def object_key(spec: ObjectSpec, files: SourceFiles, config: LibraryConfig) -> str:
+    """Hash of the input files' bytes, the object's metadata, the settings and the code version."""
+    settings = {
+        "version": PROCESSING_VERSION,
+        "settings": config.processing_settings(),
+        "spec": spec.key_fields(),
+        "source": {
+            "scale": files.scale,
+            "rotation": [round(float(v), 9) for v in files.rotation.ravel()],
+            "rgba": files.rgba,
+            "uv_origin": files.uv_origin,
+        },
+    }
+    digest = hashlib.sha256(json.dumps(settings, sort_keys=True).encode())
+    try:
+        _hash_files(digest, files.input_files())
+    except OSError as error:
+        raise AssetBuildError(f"cannot read {spec.name}'s source files: {error}") from error
+    return digest.hexdigest()[:_KEY_CHARS]
+
+
+def _job(spec: ObjectSpec, config: LibraryConfig) -> _Job:
+    try:
+        files = source_files(spec)
+        return _Job(spec, files, object_key(spec, files, config))
+    except AssetBuildError as error:
+        return _Job(spec, None, "unbuilt", str(error))
+
+
+def _cached(root: Path, job: _Job) -> ObjectResult | None:
+    directory = root / job.folder
+    try:
+        record = json.loads((directory / ASSET_FILE).read_text())
+    except (OSError, ValueError):
+        return None
+    return ObjectResult(job.spec.name, "ok", "", record.get("build_seconds", 0.0), asset_from_json(record, directory))
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def _remove_abandoned_tmp(tmp_root: Path) -> None:
+    """Temp folders of builds that died (their pid is gone); live builds keep theirs."""
+    if not tmp_root.is_dir():
+        return
+    for path in tmp_root.iterdir():
+        parts = path.name.split(".")
+        pid = int(parts[-2]) if len(parts) >= 3 and parts[-2].isdigit() else None
+        if pid is None or not _pid_alive(pid):
+            shutil.rmtree(path, ignore_errors=True)
+
+
+def _worker_init() -> None:
+    os.environ["OMP_NUM_THREADS"] = "1"  # one object per core; coacd's OpenMP would oversubscribe
+
+
+def _run_jobs(jobs: list[_Job], config: LibraryConfig, root: Path, progress: bool) -> list[ObjectResult]:
+    tmp_root = root / TMP_DIRNAME
+    bar = tqdm(total=len(jobs), desc="building objects", unit="obj", disable=not progress)
+    results = []
+    workers = max(1, min(config.workers, len(jobs)))
+    if workers == 1:
+        for job in jobs:
+            bar.set_postfix_str(job.spec.name)
+            results.append(build_object(job.spec, job.files, config, root / job.folder, tmp_root))
+            bar.update()
+    else:
+        context = multiprocessing.get_context("spawn")  # no fork of a possibly threaded parent
+        with concurrent.futures.ProcessPoolExecutor(workers, mp_context=context, initializer=_worker_init) as pool:
+            futures = {
+                pool.submit(build_object, job.spec, job.files, config, root / job.folder, tmp_root): job
+                for job in jobs
+            }
+            for future in concurrent.futures.as_completed(futures):
+                job = futures[future]
+                try:
+                    results.append(future.result())
+                except Exception as error:  # a worker died (e.g. a native crash)
+                    results.append(ObjectResult(job.spec.name, "failed", f"worker died: {error!r}", 0.0, None))
+                bar.set_postfix_str(job.spec.name)
+                bar.update()
+    bar.close()
+    return results
+
+
+def _texture_source(source: str, path: str) -> Path:
+    if source == "libero":
+        return libero_root() / path
+    if source == "pybullet":
+        return pybullet_root() / path
+    raise AssetBuildError(f"unknown texture source {source!r}")
+
+
+def _build_textures(root: Path, max_px: int) -> list[dict]:
+    entries = []
+    for spec in table_textures():
+        source = _texture_source(spec.source, spec.path)
+        digest = hashlib.sha256(f"{PROCESSING_VERSION}:{max_px}".encode())
+        _hash_files(digest, [source])
+        relative = f"{TEXTURES_DIRNAME}/{spec.name}-{digest.hexdigest()[:_KEY_CHARS]}.png"
+        target = root / relative
+        if not target.is_file():
+            with Image.open(source) as image:
+                image = image.convert("RGB")
+                image.thumbnail((max_px, max_px), Image.Resampling.LANCZOS)
+                with atomic_path(target) as tmp:
+                    image.save(tmp, format="PNG")
+        entries.append({"name": spec.name, "split": spec.split, "file": relative})
+    return entries
+
+
+def _manifest_entry(job: _Job, result: ObjectResult) -> dict:
+    spec = job.spec
+    entry = {
+        "name": spec.name,
+        "human_name": spec.human_name,
+        "synonyms": list(spec.synonyms),
+        "category": spec.category,
+        "split": spec.split,
+        "source": f"{spec.source}:{spec.path}",
+        "licence": spec.licence,
+        "status": result.status,
+        "reason": result.reason,
+        "build_seconds": round(result.seconds, 2),
+        "folder": job.folder if result.status == "ok" else None,
+        "extents": None,
+        "hulls": None,
+    }
+    if result.asset is not None:
+        entry["extents"] = [round(e, 4) for e in result.asset.extents]
+        entry["hulls"] = len(result.asset.hulls)
+    return entry
+
+
+def _previous_entries(root: Path) -> list[dict]:
+    try:
+        manifest = json.loads((root / MANIFEST_FILE).read_text())
+    except (OSError, ValueError):
+        return []
+    if manifest.get("version") != MANIFEST_VERSION:
+        return []
+    return [e for e in manifest["objects"] if e["status"] != "ok" or (root / e["folder"] / ASSET_FILE).is_file()]
+
+
+def _remove_unreferenced(root: Path, manifest: dict) -> None:
+    """After a full build: drop folders and textures of older keys."""
+    keep = {e["folder"] for e in manifest["objects"] if e["folder"]} | {t["file"] for t in manifest["textures"]}
+    for sub in (OBJECTS_DIRNAME, TEXTURES_DIRNAME):
+        for path in (root / sub).glob("*") if (root / sub).is_dir() else ():
+            if f"{sub}/{path.name}" not in keep and not path.name.startswith("."):
+                shutil.rmtree(path) if path.is_dir() else path.unlink()
+
+
+def build_library(config: LibraryConfig | None = None, cache: str | Path | None = None, progress: bool = True) -> Library:
+    """Builds what is missing into `<cache>/library`, writes the manifest, returns the library.
+
+    Objects already built with the same key are reused, so a second call is a quick no-op.
+    Objects that fail are logged, marked failed in the manifest and left out of the library.
+    """
+    config = config or default_config()
+    root = library_root(cache)
+    jobs = [_job(spec, config) for spec in resolve_specs(config)]
+    _remove_abandoned_tmp(root / TMP_DIRNAME)
+    results = {}
+    for job in jobs:
+        if job.files is None:
+            results[job.spec.name] = ObjectResult(job.spec.name, "failed", job.error, 0.0, None)
+        elif cached := _cached(root, job):
+            results[job.spec.name] = cached
+    todo = [job for job in jobs if job.spec.name not in results]
+    for result in _run_jobs(todo, config, root, progress):
+        results[result.name] = result
+    for result in results.values():
+        if result.status != "ok":
+            log.warning("skipped %s: %s", result.name, result.reason)
+    entries = [_manifest_entry(job, results[job.spec.name]) for job in jobs]
+    if config.objects is not None:  # a partial build updates the library, keeps the rest
+        built = {e["name"] for e in entries}
+        entries = [e for e in _previous_entries(root) if e["name"] not in built] + entries
+    manifest = {
+        "version": MANIFEST_VERSION,
+        "objects": sorted(entries, key=lambda e: e["name"]),
+        "textures": _build_textures(root, config.texture_px),
+    }
+    text = json.dumps(manifest, indent=1) + "\n"
+    manifest_path = root / MANIFEST_FILE
+    if not manifest_path.is_file() or manifest_path.read_text() != text:
+        write_text_atomic(manifest_path, text)
+    if config.objects is None:
+        _remove_unreferenced(root, manifest)
+    return load_library(cache)

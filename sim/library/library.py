@@ -1,0 +1,100 @@
+"""The built object library, read from the cache."""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import json
+import types
+from collections.abc import Mapping
+from pathlib import Path
+
+from ocplace.errors import LibraryNotBuilt, UnknownObject
+from ocplace.sim.library.records import (
+    ASSET_FILE,
+    MANIFEST_FILE,
+    MANIFEST_VERSION,
+    asset_from_json,
+    library_root,
+)
+from ocplace.sim.library.types import ObjectAsset
+
+BUILD_HINT = "run `ocplace assets build`"
+
+
+@dataclasses.dataclass(frozen=True)
+class TableTexture:
+    name: str
+    path: Path  # PNG, <= 1024 px
+    split: str  # "seen" or "unseen"
+
+
+@dataclasses.dataclass(frozen=True)
+class Library:
+    """Read-only view of a built library: only objects whose build succeeded."""
+
+    objects: Mapping[str, ObjectAsset]
+    textures: Mapping[str, TableTexture]
+    root: Path
+    manifest: Mapping  # the manifest as written, failed objects included
+
+    def get(self, name: str) -> ObjectAsset:
+        """By name ("alphabet_soup") or human name ("alphabet soup can"), case-insensitive."""
+        key = name.strip().lower()
+        if key in self.objects:
+            return self.objects[key]
+        for asset in self.objects.values():
+            if asset.human_name.lower() == key:
+                return asset
+        candidates = list(self.objects) + [a.human_name for a in self.objects.values()]
+        close = difflib.get_close_matches(key, candidates, n=5, cutoff=0.5)
+        hint = f"; close matches: {', '.join(close)}" if close else ""
+        raise UnknownObject(f"no object {name!r} in the library{hint} (see `ocplace assets list`)")
+
+    def names(self, split: str | None = None) -> list[str]:
+        return sorted(n for n, a in self.objects.items() if split is None or a.split == split)
+
+
+def _read_manifest(root: Path) -> dict:
+    path = root / MANIFEST_FILE
+    try:
+        manifest = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise LibraryNotBuilt(f"no object library in {root}; {BUILD_HINT}") from None
+    except (OSError, ValueError) as error:
+        raise LibraryNotBuilt(f"unreadable {path} ({error}); {BUILD_HINT}") from error
+    if manifest.get("version") != MANIFEST_VERSION:
+        raise LibraryNotBuilt(f"{path} is from another ocplace version; {BUILD_HINT}")
+    return manifest
+
+
+def _read_asset(root: Path, entry: dict) -> ObjectAsset:
+    directory = root / entry["folder"]
+    try:
+        return asset_from_json(json.loads((directory / ASSET_FILE).read_text()), directory)
+    except (OSError, ValueError, KeyError) as error:
+        raise LibraryNotBuilt(f"object {entry['name']!r} in {directory} is incomplete ({error}); {BUILD_HINT}") from error
+
+
+def load_library(cache: str | Path | None = None) -> Library:
+    """Reads the library under `<cache>/library` (default cache: `ocplace.paths.cache_dir()`).
+
+    Raises `LibraryNotBuilt` when the manifest or any object it lists as built is missing.
+    """
+    root = library_root(cache)
+    manifest = _read_manifest(root)
+    objects = {
+        entry["name"]: _read_asset(root, entry) for entry in manifest["objects"] if entry["status"] == "ok"
+    }
+    textures = {}
+    for entry in manifest["textures"]:
+        path = root / entry["file"]
+        if not path.is_file():
+            raise LibraryNotBuilt(f"table texture {path} is missing; {BUILD_HINT}")
+        textures[entry["name"]] = TableTexture(entry["name"], path, entry["split"])
+    return Library(
+        objects=types.MappingProxyType(objects),
+        textures=types.MappingProxyType(textures),
+        root=root,
+        manifest=types.MappingProxyType(manifest),
+    )

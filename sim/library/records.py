@@ -1,0 +1,64 @@
+"""The cache layout and the JSON form of its records (per-object `asset.json`, `manifest.json`)."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+from ocplace.sim.library.types import ObjectAsset
+
+LIBRARY_DIRNAME = "library"
+OBJECTS_DIRNAME = "objects"
+TEXTURES_DIRNAME = "textures"
+TMP_DIRNAME = "tmp"
+MANIFEST_FILE = "manifest.json"
+ASSET_FILE = "asset.json"  # written last inside an object's folder: its presence marks it complete
+MANIFEST_VERSION = 1
+
+
+def library_root(cache: str | Path | None = None) -> Path:
+    """`<cache>/library`, with `cache` defaulting to `ocplace.paths.cache_dir()`."""
+    from ocplace.paths import cache_dir
+
+    return Path(cache if cache is not None else cache_dir()).expanduser() / LIBRARY_DIRNAME
+
+
+def asset_to_json(asset: ObjectAsset) -> dict:
+    """Paths relative to the object's folder, so a cache can be moved as a whole."""
+    record = {}
+    for field in dataclasses.fields(asset):
+        value = getattr(asset, field.name)
+        if field.name == "directory":
+            continue
+        if isinstance(value, Path):
+            value = value.relative_to(asset.directory).as_posix()
+        elif field.name == "hulls":
+            value = [p.relative_to(asset.directory).as_posix() for p in value]
+        elif isinstance(value, tuple):
+            value = list(value)
+        record[field.name] = value
+    return record
+
+
+def asset_from_json(record: dict, directory: Path) -> ObjectAsset:
+    def path(value):
+        return None if value is None else directory / value
+
+    return ObjectAsset(
+        name=record["name"],
+        human_name=record["human_name"],
+        synonyms=tuple(record["synonyms"]),
+        category=record["category"],
+        split=record["split"],
+        source=record["source"],
+        licence=record["licence"],
+        directory=directory,
+        visual_mesh=path(record["visual_mesh"]),
+        texture=path(record["texture"]),
+        rgba=tuple(record["rgba"]),
+        hulls=tuple(directory / p for p in record["hulls"]),
+        mjcf=path(record["mjcf"]),
+        urdf=path(record["urdf"]),
+        extents=tuple(record["extents"]),
+        mass=float(record["mass"]),
+    )
