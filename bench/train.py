@@ -62,27 +62,28 @@ def run(args) -> None:
     print(f"D = {args.dim}, {count_parameters(fresh_state()[0]):,} trainable parameters, {args.scenes} scenes, "
           f"batch {args.batch_size}, {args.steps:,} steps in chunks of {args.chunk_steps}")
 
-    fused_s = time_fused(train_chunk, fresh_state, data, indices, args.chunk_steps)
+    fused_s, fused_cpu_s = time_fused(train_chunk, fresh_state, data, indices, args.chunk_steps)
     loop_s = time_loop(train_step, fresh_state, data, indices[:args.loop_steps])
     fused_us, loop_us = fused_s / args.steps * 1e6, loop_s / args.loop_steps * 1e6
-    print(f"lax.scan chunks : {fused_s:7.1f} s for {args.steps:,} steps ({fused_us:.1f} us/step)")
+    print(f"lax.scan chunks : {fused_s:7.1f} s for {args.steps:,} steps ({fused_us:.1f} us/step; "
+          f"{fused_cpu_s:.1f} CPU-seconds)")
     print(f"per-step loop   : {loop_us * args.steps / 1e6:7.1f} s extrapolated from {args.loop_steps:,} steps "
           f"({loop_us:.1f} us/step)")
     print(f"speed-up of the fused loop: {loop_us / fused_us:.2f}x")
 
 
-def time_fused(train_chunk, fresh_state, data, indices, chunk: int) -> float:
-    """Seconds for all of `indices` in chunks, after compiling every chunk length used."""
+def time_fused(train_chunk, fresh_state, data, indices, chunk: int) -> tuple[float, float]:
+    """Wall and CPU seconds for all of `indices` in chunks, after compiling every chunk length used."""
     import jax
 
     for length in {min(chunk, len(indices) - start) for start in range(0, len(indices), chunk)}:
         jax.block_until_ready(train_chunk(fresh_state(), data, indices[:length]))
     state = jax.block_until_ready(fresh_state())
-    start = time.perf_counter()
+    start, start_cpu = time.perf_counter(), time.process_time()
     for begin in range(0, len(indices), chunk):
         state, _ = train_chunk(state, data, indices[begin:begin + chunk])
     jax.block_until_ready(state)
-    return time.perf_counter() - start
+    return time.perf_counter() - start, time.process_time() - start_cpu
 
 
 def time_loop(train_step, fresh_state, data, indices) -> float:
