@@ -279,3 +279,18 @@ def test_zero_shot_evaluation_on_generated_scenes(smoke_run, library, tmp_path):
     assert 0.0 <= grounding["all"] <= 1.0 and 0.0 < grounding["chance"] < 1.0
     assert retrieval["library"]["pool_size"] == len(library.names())
     assert retrieval["library"]["top1"] <= retrieval["library"]["top5"]
+
+
+def test_backbone_path_command_prints_the_recipe_directory(tmp_path, monkeypatch, capsys):
+    import argparse
+
+    from ocplace.train.pretrain import commands
+    from ocplace.train.pretrain.config import recipe_dir
+
+    monkeypatch.setenv("OCPLACE_CACHE", str(tmp_path))
+    parser = argparse.ArgumentParser()
+    commands.register(parser.add_subparsers(dest="command"))
+    args = parser.parse_args(["backbone", "path", "--recipe", "demo"])
+    assert args.func(args) == 0
+    printed = capsys.readouterr().out.strip()
+    assert printed == str(recipe_dir("demo")) and printed.startswith(str(tmp_path / "backbones" / "offline-"))

@@ -194,14 +194,15 @@ def pretrain(config: PretrainConfig, library, out_dir: str | Path | None = None,
                                                  for i in range(0, len(bank.texts), 64)]))
     timings = {"setup_s": time.perf_counter() - began}
 
-    mark = time.perf_counter()
+    mark, cpu_mark = time.perf_counter(), time.process_time()
     images = render_all(library, pool, run_dir, config.render, config.model, progress)
     timings["render_s"] = time.perf_counter() - mark
+    timings["render_cpu_s"] = time.process_time() - cpu_mark
     by_class = [np.flatnonzero(images.labels == k) for k in range(len(bank.class_names))]
     if not len(by_class[bank.table_class]) or not any(len(c) for c in by_class[:-1]):
         raise TrainingError("rendering produced no object crops; check the library with `ocplace scene`")
 
-    mark = time.perf_counter()
+    mark, cpu_mark = time.perf_counter(), time.process_time()
     optim = config.optim
     params = init_params(config.model, jax.random.key(optim.seed))
     state = (params, make_optimizer(optim).init(params))
@@ -238,6 +239,7 @@ def pretrain(config: PretrainConfig, library, out_dir: str | Path | None = None,
                 checkpoints.save_checkpoint(run_dir, done, state, ckpt_meta, optim.keep_checkpoints)
             bar.update(1)
     timings["train_s"] = time.perf_counter() - mark
+    timings["train_cpu_s"] = time.process_time() - cpu_mark
     params = jax.device_get(state[0])
     loss_after = float(probe_loss(config.model, params, *probe_args))
     backbone = OfflineBackbone(config.model, params, text_tower, source=str(out_dir))

@@ -15,12 +15,13 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import logging
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from ocplace.errors import TrainingError
+from ocplace.errors import SceneError, TrainingError
 from ocplace.models.offline_backbone import OfflineConfig, preprocess_images
 from ocplace.paths import atomic_path
 from ocplace.sim.boxes import boxes_from_segmentation, square_crop
@@ -29,6 +30,9 @@ from ocplace.sim.scene import sample_scene_spec, split_pools
 from ocplace.train.pretrain.config import RenderConfig
 
 RENDERS_DIR = "renders"
+MAX_SCENE_DRAWS = 20
+
+log = logging.getLogger(__name__)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -142,16 +146,14 @@ def crops_of_render(rgb: np.ndarray, segmentation: np.ndarray, labels_by_id: dic
 def render_scene(arena, pool: TrainingPool, index: int, config: RenderConfig, model: OfflineConfig) -> RenderedImages:
     """Every image of scene `index`: object crops and the workspace, `renders_per_scene` times."""
     rng = np.random.default_rng([config.seed, index])
-    spec = sample_scene_spec(rng, list(pool.objects), list(pool.textures), num_objects=config.objects_per_scene)
+    spec, rgb, segmentation = _settled_scene(arena, pool, rng, config)
     class_of = {name: k for k, name in enumerate(pool.objects)}
     table_class = len(pool.objects)
     labels_by_id = {i + 1: class_of[name] for i, name in enumerate(spec.objects)}
     images, labels = [], []
     for render in range(config.renders_per_scene):
-        with random_lighting(arena.model, rng, config):
-            if render == 0:
-                rgb, segmentation = _built(arena, spec)
-            else:
+        if render > 0:
+            with random_lighting(arena.model, rng, config):
                 rgb, _, segmentation = arena.render(spec.objects)
         if rng.random() < config.table_jitter:
             rgb = recolour_table(rgb, segmentation, rng)
@@ -162,11 +164,23 @@ def render_scene(arena, pool: TrainingPool, index: int, config: RenderConfig, mo
                           np.full(len(labels), index, np.int32))
 
 
-def _built(arena, spec) -> tuple[np.ndarray, np.ndarray]:
-    scene = arena.build(spec)
-    if scene.spec.objects != spec.objects:
-        raise TrainingError(f"the arena changed the scene's objects: {scene.spec.objects} != {spec.objects}")
-    return scene.rgb, scene.segmentation
+def _settled_scene(arena, pool: TrainingPool, rng: np.random.Generator, config: RenderConfig,
+                   max_draws: int = MAX_SCENE_DRAWS):
+    """`(spec, rgb, segmentation)` of a freshly drawn scene, rendered under random lighting; a scene
+    whose objects keep falling off the table is replaced by the next draw."""
+    for _ in range(max_draws):
+        spec = sample_scene_spec(rng, list(pool.objects), list(pool.textures), num_objects=config.objects_per_scene)
+        with random_lighting(arena.model, rng, config):
+            try:
+                scene = arena.build(spec)
+            except SceneError as error:
+                log.warning("pretraining scene skipped: %s", error)
+                continue
+        if scene.spec.objects != spec.objects:
+            raise TrainingError(f"the arena changed the scene's objects: {scene.spec.objects} != {spec.objects}")
+        return spec, scene.rgb, scene.segmentation
+    raise TrainingError(f"{max_draws} scenes in a row could not be settled on the table; check the library "
+                        "with `ocplace scene`")
 
 
 def chunk_path(run_dir: Path, chunk: int) -> Path:
