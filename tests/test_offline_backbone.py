@@ -238,7 +238,7 @@ def test_a_run_directory_refuses_another_recipe(smoke_run, library):
     from ocplace.train.pretrain.loop import pretrain
 
     other = dataclasses.replace(smoke_config(), optim=dataclasses.replace(smoke_config().optim, seed=1))
-    with pytest.raises(TrainingError, match="another pretraining run"):
+    with pytest.raises(TrainingError, match="holds another run"):
         pretrain(other, library, smoke_run[0].directory, progress=False)
 
 

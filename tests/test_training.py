@@ -103,7 +103,7 @@ def test_same_seed_same_weights_and_resume_equals_uninterrupted(tmp_path, featur
 def test_a_run_directory_refuses_other_settings(tmp_path, features):
     config = dataclasses.replace(short_config(), steps=50, checkpoint_every=50, eval_every=50)
     train(features, tmp_path, config, progress=False)
-    with pytest.raises(TrainingError, match="other settings"):
+    with pytest.raises(TrainingError, match="holds another run"):
         train(features, tmp_path, dataclasses.replace(config, learning_rate=1e-3), progress=False)
 
 

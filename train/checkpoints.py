@@ -17,7 +17,7 @@ from ocplace.errors import TrainingError
 from ocplace.models.adapters import AdapterConfig
 from ocplace.models.backbone import PromptConfig
 from ocplace.models.grounding import GroundingModel
-from ocplace.paths import atomic_path
+from ocplace.paths import atomic_path, write_text_atomic
 
 ADAPTERS_FILE = "adapters.safetensors"
 CHECKPOINT_DIR = "checkpoints"
@@ -113,3 +113,17 @@ def load_adapters(path) -> TrainedAdapters:
     model = GroundingModel(config, params, float(metadata["logit_scale"]))
     return TrainedAdapters(model, metadata["backbone_fingerprint"], PromptConfig.from_json(metadata["prompt"]),
                            metadata["features_key"], int(metadata["steps"]))
+
+
+def claim_run_dir(run_dir: Path, run_meta: dict, filename: str) -> None:
+    """Writes `run_meta` to `run_dir/filename`, or checks that an existing run directory holds this very run."""
+    path = run_dir / filename
+    if path.exists():
+        existing = json.loads(path.read_text())
+        if existing != run_meta:
+            changed = sorted(k for k in run_meta if existing.get(k) != run_meta[k])
+            raise TrainingError(f"{run_dir} holds another run ({', '.join(changed)} differ); pass a new --out "
+                                "directory, or delete the old run to start over")
+        return
+    run_dir.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(path, json.dumps(run_meta, indent=2, sort_keys=True) + "\n")

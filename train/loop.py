@@ -123,7 +123,7 @@ def train(features: Features, run_dir, config: TrainConfig, val_features: Featur
     adapter_config = AdapterConfig(features.dim, config.reduction, config.residual_ratio)
     logit_scale = float(config.logit_scale or features.info.logit_scale)
     run_meta = _run_metadata(config, features, val_features, train_set)
-    _claim_run_dir(run_dir, run_meta)
+    checkpoints.claim_run_dir(run_dir, run_meta, "config.json")
 
     optimizer = make_optimizer(config)
     state = init_state(adapter_config, optimizer, config.seed)
@@ -182,15 +182,3 @@ def _run_metadata(config: TrainConfig, features: Features, val_features: Feature
             "train_scenes": train_set.num_scenes}
 
 
-def _claim_run_dir(run_dir: Path, run_meta: dict) -> None:
-    """Writes `config.json`, or checks that an existing run directory holds this very run."""
-    path = run_dir / "config.json"
-    if path.exists():
-        existing = json.loads(path.read_text())
-        if existing != run_meta:
-            changed = sorted(k for k in run_meta if existing.get(k) != run_meta[k])
-            raise TrainingError(f"{run_dir} holds a run with other settings or features ({', '.join(changed)} "
-                                "differ); pass a new --out directory, or delete the old run to start over")
-        return
-    run_dir.mkdir(parents=True, exist_ok=True)
-    write_text_atomic(path, json.dumps(run_meta, indent=2, sort_keys=True) + "\n")

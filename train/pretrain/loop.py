@@ -187,7 +187,7 @@ def pretrain(config: PretrainConfig, library, out_dir: str | Path | None = None,
         backbone = load_saved_backbone(out_dir)
         summary = json.loads((out_dir / "config.json").read_text())["pretraining"]
         return PretrainResult(out_dir, backbone, summary["probe_loss_before"], summary["probe_loss_after"], {})
-    _claim(run_dir, run_meta)
+    checkpoints.claim_run_dir(run_dir, run_meta, "run.json")
 
     text_tower = FrozenTextTower.load(config.model.text_max_length)
     bank_sentences = jnp.asarray(np.concatenate([text_tower.encode(list(bank.texts[i:i + 64]))
@@ -272,15 +272,3 @@ def _finished_meta(out_dir: Path) -> dict | None:
         return None
 
 
-def _claim(run_dir: Path, run_meta: dict) -> None:
-    """Writes `run.json`, or checks that an existing run directory belongs to this very run."""
-    path = run_dir / "run.json"
-    if path.exists():
-        existing = json.loads(path.read_text())
-        if existing != run_meta:
-            changed = sorted(k for k in run_meta if existing.get(k) != run_meta[k])
-            raise TrainingError(f"{run_dir} belongs to another pretraining run ({', '.join(changed)} differ); "
-                                "pass another --out, or delete that directory to start over")
-        return
-    run_dir.mkdir(parents=True, exist_ok=True)
-    write_text_atomic(path, json.dumps(run_meta, indent=2, sort_keys=True) + "\n")
