@@ -43,6 +43,7 @@ class ObjectSpec:
     texture: str | None = None  # texture file override, relative to the object's folder
     rgba: tuple[float, float, float, float] | None = None  # colour override, untextured
     coacd_threshold: float | None = None  # per-object override of CoacdSettings.threshold
+    single_hull: bool = False  # collide with one convex hull (small objects with fussy detail)
 
     def key_fields(self) -> dict:
         """The fields that define the built object (part of its cache key)."""
@@ -86,6 +87,7 @@ def _object_spec(entry: dict, licences: dict[str, str]) -> ObjectSpec:
         texture=entry.get("texture"),
         rgba=tuple(entry["rgba"]) if entry.get("rgba") else None,
         coacd_threshold=entry.get("coacd_threshold"),
+        single_hull=bool(entry.get("single_hull", False)),
     )
 
 

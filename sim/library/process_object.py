@@ -83,7 +83,7 @@ def _write_object(directory: Path, spec: ObjectSpec, files: SourceFiles, config:
 def _collision_hulls(full, spec: ObjectSpec, config: LibraryConfig) -> list[processing.Hull]:
     """One hull for nearly convex objects (cans, boxes, bottles), coacd pieces otherwise."""
     shape, closed = processing.collision_input(full, config.collision_faces)
-    if processing.is_nearly_convex(shape, config.convex_ratio):
+    if spec.single_hull or processing.is_nearly_convex(shape, config.convex_ratio):
         return processing.convex_hull(shape)
     settings = config.coacd
     if spec.coacd_threshold is not None:
