@@ -48,7 +48,9 @@ def main() -> None:
     began = time.perf_counter()
     result = pretrain(config, library, args.backbone_dir, progress=True)
     report["pretrain_wall_s"] = round(time.perf_counter() - began, 1)
-    report["pretrain_timings_s"] = {k: round(v, 1) for k, v in result.timings.items()}
+    saved = json.loads((result.directory / "config.json").read_text())["pretraining"]
+    report["pretrain_timings_s"] = saved["timings_s"]  # of the run that built it (maybe an earlier one)
+    report["pretrain_resumed"] = saved["resumed"]
     report["load_average_after_pretrain"] = os.getloadavg()
     report["probe_loss"] = [result.probe_loss_before, result.probe_loss_after]
     report["fingerprint"] = result.backbone.fingerprint

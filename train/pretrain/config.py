@@ -21,7 +21,7 @@ from ocplace.models.offline_backbone import OfflineConfig
 class RenderConfig:
     """Scenes of training-split objects on seen table textures, and how crops are cut from them."""
 
-    scenes: int = 1200
+    scenes: int = 800
     objects_per_scene: int = 5  # as in the benchmark: occlusions come with the drops
     renders_per_scene: int = 2  # extra renders of a settled scene under new lighting and table colours
     max_objects: int = 0  # > 0: only the first `max_objects` training objects (smoke tests)
@@ -49,11 +49,11 @@ class RenderConfig:
 
 @dataclasses.dataclass(frozen=True)
 class OptimConfig:
-    steps: int = 1500
+    steps: int = 700
     batch_size: int = 64
     table_share: float = 1 / 16  # share of each batch that is whole-workspace images ("a table")
     learning_rate: float = 1e-3
-    warmup_steps: int = 100
+    warmup_steps: int = 50
     weight_decay: float = 0.05
     max_logit_scale: float = 100.0  # CLIP's clamp on the learned temperature
     rotate: bool = True  # random quarter turns and flips: the camera looks straight down
@@ -103,8 +103,8 @@ def default_config() -> PretrainConfig:
 
 def demo_config() -> PretrainConfig:
     """A few minutes: fewer scenes and steps, same architecture."""
-    return PretrainConfig("demo", render=RenderConfig(scenes=240, renders_per_scene=2),
-                          optim=OptimConfig(steps=300, warmup_steps=30, checkpoint_every=50))
+    return PretrainConfig("demo", render=RenderConfig(scenes=150),
+                          optim=OptimConfig(steps=150, warmup_steps=15, checkpoint_every=50))
 
 
 def smoke_config() -> PretrainConfig:
