@@ -23,3 +23,28 @@ def arena(library):
 
     with MujocoScenes.from_library(library) as scenes:
         yield scenes
+
+
+@pytest.fixture(scope="session")
+def smoke_dataset(tmp_path_factory, library):
+    """The smoke benchmark (12 train scenes, 8 per test split), generated once per test session."""
+    from ocplace.sim.dataset.config import smoke_config
+    from ocplace.sim.dataset.job import generate_dataset
+
+    out = tmp_path_factory.mktemp("smoke_dataset")
+    generate_dataset(out, smoke_config(), progress=False)
+    return out
+
+
+@pytest.fixture(scope="session")
+def tiny_backbone_spec(tmp_path_factory):
+    """`offline:<dir>`: a randomly initialised smoke-size offline backbone saved to disk."""
+    import jax
+
+    from ocplace.models import offline_backbone as ob
+
+    config = ob.smoke_config()
+    params = ob.init_params(config, jax.random.key(0))
+    directory = ob.save_backbone(tmp_path_factory.mktemp("tiny_backbone"), config, params,
+                                 ob.FrozenTextTower.load(config.text_max_length).digest)
+    return f"offline:{directory}"
