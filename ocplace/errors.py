@@ -73,3 +73,25 @@ class FeaturesError(OcplaceError):
 
 class TrainingError(OcplaceError):
     """A training run that cannot start or resume (bad configuration, mismatched checkpoint)."""
+
+
+class PolicyInputError(OcplaceError, ValueError):
+    """Input the placement policy cannot use: mismatched image sizes, bad boxes, a bad camera."""
+
+
+class NoObjectBoxes(PolicyInputError):
+    """The image has no object box, but the instruction refers to an object."""
+
+
+class GroundingUncertain(OcplaceError):
+    """A reference phrase whose best visual token is below the policy's confidence threshold."""
+
+    def __init__(self, phrase: str, candidates: list[tuple[str, float]], threshold: float):
+        super().__init__(phrase, candidates, threshold)
+        self.phrase, self.candidates, self.threshold = phrase, candidates, threshold
+
+    def __str__(self) -> str:
+        best = ", ".join(f"{label} p={probability:.2f}" for label, probability in self.candidates)
+        return (f"cannot ground {self.phrase!r} confidently (best candidates: {best}; threshold "
+                f"{self.threshold:.2f}); the object may not be in the image or not have a box. Rephrase the "
+                "instruction, check the detector's boxes, or lower the threshold (--threshold)")
