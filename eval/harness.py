@@ -1,0 +1,396 @@
+"""Scoring methods on the benchmark's test subsets (paper Table I protocol).
+
+A registered method (`eval/api.py`) is run on every scene of a test subset, in chunks; the harness
+scores what it returns against the ground truth it never showed the method:
+
+- success of the mode: `sim.metric.placement_success` at `MethodOutput.mode` on `record.problem()`;
+- mean success over samples: the same metric averaged over `MethodOutput.samples`;
+- physical success (first K scenes of a subset): metric success AND `sim.physical.physical_check`;
+- parse and grounding correctness, from which each failed scene is attributed to a stage.
+
+A failure (`MethodOutput.failure`, an exception, or malformed output) scores 0 everywhere and is
+listed with its message. Randomness: one jax.random key per (seed, method name, subset), one key per
+chunk folded from it; a chunk whose `run` raises is re-run scene by scene with keys folded from the
+chunk key, so a failing scene does not sink its neighbours and the outcome stays a function of the
+settings.
+"""
+
+from __future__ import annotations
+
+import collections
+import dataclasses
+import time
+import zlib
+from collections.abc import Iterator, Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from ocplace.errors import OcplaceError
+from ocplace.eval.api import LoadContext, Method, MethodOutput, MethodSpec
+from ocplace.sim.dataset.records import SceneRecord
+
+SUBSETS = ("seen", "unseen_obj", "unseen_inst")
+LEVELS = ("table", "1obj", "2obj")
+STAGES = ("failure", "parse", "grounding", "sampling", "placement")
+DEFAULT_PHYSICAL_SCENES = 50
+
+
+class EvaluationError(OcplaceError):
+    """An evaluation that cannot start: unknown method or subset, a missing run directory, bad settings."""
+
+
+@dataclasses.dataclass(frozen=True)
+class EvalSettings:
+    """Everything that decides an evaluation's outcome besides the methods' own runs."""
+
+    backbone: str = "offline"
+    scale: str = "default"
+    parser: str = "offline"
+    num_samples: int = 1024
+    subsets: tuple[str, ...] = SUBSETS
+    limit: int | None = None  # first N scenes per subset; None: all
+    physical_scenes: int | None = DEFAULT_PHYSICAL_SCENES  # first K scenes per subset; None: all, 0: none
+    seed: int = 0
+    chunk_size: int = 32  # scenes per `Method.run` call
+
+    def to_json(self) -> dict:
+        return dataclasses.asdict(self) | {"subsets": list(self.subsets)}
+
+    @classmethod
+    def from_json(cls, fields: dict) -> EvalSettings:
+        return cls(**(fields | {"subsets": tuple(fields["subsets"])}))
+
+
+@dataclasses.dataclass(frozen=True)
+class MethodRun:
+    """One row to evaluate: a method and its trained run directory (None: nothing trained)."""
+
+    spec: MethodSpec
+    run_dir: Path | None = None
+    fraction: float = 1.0
+
+    @property
+    def key(self) -> str:
+        return self.spec.name if self.fraction == 1.0 else f"{self.spec.name}@{self.fraction:g}"
+
+
+@dataclasses.dataclass(frozen=True)
+class PhysicalOutcome:
+    success: bool  # metric success and the drop check
+    dropped: bool  # False: the metric already failed, nothing was dropped
+    held_offset: float | None = None  # m
+    max_disturbance: float | None = None  # m
+
+
+@dataclasses.dataclass(frozen=True)
+class SceneOutcome:
+    """How one method did in one scene. `None` fields: the method does not report that part."""
+
+    id: str
+    level: str
+    success: bool  # success of the mode
+    sample_success: float | None  # mean success over samples; 0.0 on failure
+    mode: tuple[float, float] | None
+    num_samples: int
+    failure: str | None
+    parsed: tuple[tuple[str, str], ...] | None
+    grounded: tuple[int, ...] | None  # object id per parsed tuple (0 = the table, -1 = not a token)
+    parse_ok: bool | None
+    grounding_ok: bool | None
+    program_ok: bool | None  # the grounded problem equals the ground truth's
+    stage: str | None  # where an unsuccessful scene went wrong (STAGES); None on success
+    physical: PhysicalOutcome | None = None
+
+    def to_json(self) -> dict:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_json(cls, fields: dict) -> SceneOutcome:
+        def tuples(value, inner):
+            return None if value is None else tuple(inner(v) for v in value)
+
+        physical = fields.get("physical")
+        return cls(**(fields | {
+            "mode": tuples(fields["mode"], float),
+            "parsed": tuples(fields["parsed"], tuple),
+            "grounded": tuples(fields["grounded"], int),
+            "physical": None if physical is None else PhysicalOutcome(**physical),
+        }))
+
+
+@dataclasses.dataclass(frozen=True)
+class Evaluation:
+    """One method run scored on every subset."""
+
+    key: str
+    method: str
+    label: str
+    fraction: float
+    run_dir: str | None
+    description: dict  # the method's describe(), made JSON-able
+    subsets: dict[str, tuple[SceneOutcome, ...]]
+    wall_s: float
+
+
+# ----------------------------------------------------------------------------- keys and scenes
+
+
+def stable_id(name: str) -> int:
+    return zlib.crc32(name.encode()) & 0x7FFFFFFF
+
+
+def subset_key(seed: int, method: str, subset: str):
+    """The jax.random key of one method on one subset: independent of the other methods and subsets."""
+    import jax
+
+    return jax.random.fold_in(jax.random.fold_in(jax.random.key(seed), stable_id(method)), stable_id(subset))
+
+
+def subset_dirs(dataset_dir: Path, subset: str, limit: int | None) -> list[Path]:
+    from ocplace.sim.dataset.job import scene_dirs
+
+    dirs = scene_dirs(dataset_dir, subset)
+    return dirs if limit is None else dirs[:limit]
+
+
+def redacted(record: SceneRecord) -> SceneRecord:
+    """The record without ground truth (tuples, their token indices, the oracle): what a method sees."""
+    meta = {key: value for key, value in record.meta.items() if key != "oracle"} | {"tuples": []}
+    return dataclasses.replace(record, meta=meta)
+
+
+def chunks(dirs: Sequence[Path], size: int) -> Iterator[tuple[int, list[SceneRecord]]]:
+    from ocplace.sim.dataset.records import read_scene
+
+    for index, start in enumerate(range(0, len(dirs), size)):
+        yield index, [read_scene(d) for d in dirs[start:start + size]]
+
+
+# ----------------------------------------------------------------------------- running a method
+
+
+def _describe_error(error: BaseException) -> str:
+    return f"{type(error).__name__}: {error}"
+
+
+def _checked(outputs, count: int) -> list[MethodOutput]:
+    if not isinstance(outputs, (list, tuple)) or len(outputs) != count:
+        raise ValueError(f"run() returned {type(outputs).__name__} of length "
+                         f"{len(outputs) if hasattr(outputs, '__len__') else '?'} for {count} scenes")
+    return list(outputs)
+
+
+def run_chunk(method: Method, scenes: Sequence[SceneRecord], key) -> list[MethodOutput]:
+    """The method's outputs for `scenes`; an exception is pinned on the scene(s) that raise it."""
+    import jax
+
+    try:
+        return _checked(method.run(scenes, key), len(scenes))
+    except Exception:  # noqa: BLE001  (a method's bug must not end the evaluation)
+        if len(scenes) == 1:
+            raise
+    outputs = []
+    for index, scene in enumerate(scenes):
+        try:
+            outputs.append(_checked(method.run([scene], jax.random.fold_in(key, index)), 1)[0])
+        except Exception as error:  # noqa: BLE001
+            outputs.append(MethodOutput(mode=None, samples=None, failure=_describe_error(error)))
+    return outputs
+
+
+def run_scenes(method: Method, scenes: Sequence[SceneRecord], key) -> list[MethodOutput]:
+    """`run_chunk`, with a single scene's exception turned into a failure."""
+    try:
+        return run_chunk(method, scenes, key)
+    except Exception as error:  # noqa: BLE001
+        return [MethodOutput(mode=None, samples=None, failure=_describe_error(error))]
+
+
+# ----------------------------------------------------------------------------- scoring one scene
+
+
+def reference_key(phrase: str) -> str:
+    """A reference phrase normalised like the parser normalises (lower case, articles dropped)."""
+    from ocplace.models.parsing.text import normalise_reference
+
+    return normalise_reference(phrase.lower().split())
+
+
+def token_object_ids(meta: dict, tokens: Sequence[int]) -> tuple[int, ...]:
+    """Visual-token indices -> object ids, through meta["boxes"] order; token N is the table (0)."""
+    box_ids = [int(box["object_id"]) for box in meta["boxes"]]
+    return tuple(box_ids[t] if 0 <= t < len(box_ids) else 0 if t == len(box_ids) else -1 for t in map(int, tokens))
+
+
+def _same(a, b) -> bool:
+    return collections.Counter(a) == collections.Counter(b)
+
+
+def _stage(output: MethodOutput, parse_ok, grounding_ok, program_ok) -> str:
+    if output.failure is not None or output.mode is None:
+        return "failure"
+    if program_ok:
+        return "sampling"
+    if parse_ok is False:
+        return "parse"
+    if grounding_ok is False or program_ok is False:
+        return "grounding"
+    return "placement"  # the method reports neither parse nor grounding: an end-to-end miss
+
+
+def _valid_points(points, shape_tail: tuple[int, ...]) -> np.ndarray:
+    array = np.asarray(points, dtype=np.float64)
+    if array.shape[-len(shape_tail):] != shape_tail or not np.all(np.isfinite(array)):
+        raise ValueError(f"expected finite points of shape (..., {', '.join(map(str, shape_tail))}), "
+                         f"got shape {array.shape}")
+    return array
+
+
+def score_scene(record: SceneRecord, output: MethodOutput) -> SceneOutcome:
+    """Scores one output against the record's ground truth (no physical check)."""
+    from ocplace.sim.metric import placement_success
+
+    meta = record.meta
+    truth = record.tuples
+    failure = output.failure
+    mode = samples = None
+    try:
+        if output.mode is not None:
+            mode = _valid_points(output.mode, (2,)).reshape(2)
+        if output.samples is not None:
+            samples = _valid_points(output.samples, (2,)).reshape(-1, 2)
+    except ValueError as error:
+        failure = failure or f"malformed output: {error}"
+    if failure is None and mode is None:
+        failure = "no placement and no failure message"
+    problem = record.problem()
+    success = failure is None and bool(placement_success(mode[None], problem)[0])
+    if failure is not None:
+        sample_success = 0.0
+    elif samples is None or len(samples) == 0:
+        sample_success = None
+    else:
+        sample_success = float(np.mean(placement_success(samples, problem)))
+
+    parsed = None if output.parsed is None else tuple((str(r), str(rel)) for r, rel in output.parsed)
+    grounded = None if output.grounded is None else token_object_ids(meta, output.grounded)
+    truth_pairs = [(reference_key(t.reference_name), t.relation) for t in truth]
+    truth_ids = [t.reference_object_id for t in truth]
+    parse_ok = None if parsed is None else _same([(reference_key(r), rel) for r, rel in parsed], truth_pairs)
+    grounding_ok = None if grounded is None else _same(grounded, truth_ids)
+    program_ok = None
+    if parsed is not None and grounded is not None:
+        program_ok = len(parsed) == len(grounded) and _same(
+            zip(grounded, (rel for _, rel in parsed)), zip(truth_ids, (t.relation for t in truth)))
+    return SceneOutcome(
+        id=record.id, level=meta["level"], success=success, sample_success=sample_success,
+        mode=None if mode is None else (float(mode[0]), float(mode[1])),
+        num_samples=0 if samples is None else len(samples), failure=failure,
+        parsed=parsed, grounded=grounded, parse_ok=parse_ok, grounding_ok=grounding_ok, program_ok=program_ok,
+        stage=None if success else _stage(dataclasses.replace(output, failure=failure, mode=mode),
+                                          parse_ok, grounding_ok, program_ok))
+
+
+def physical_outcome(arena, record: SceneRecord, outcome: SceneOutcome) -> PhysicalOutcome:
+    """Physical success = metric success and the drop check; nothing is dropped when the metric failed."""
+    from ocplace.sim.physical import physical_check
+
+    if not outcome.success:
+        return PhysicalOutcome(success=False, dropped=False)
+    result = physical_check(arena, record.meta, np.asarray(outcome.mode))
+    return PhysicalOutcome(bool(result.success), True, float(result.held_offset), float(result.max_disturbance))
+
+
+# ----------------------------------------------------------------------------- a method on the test subsets
+
+
+def load_method(run: MethodRun, settings: EvalSettings) -> Method:
+    return run.spec.load(LoadContext(run_dir=run.run_dir, backbone=settings.backbone, scale=settings.scale,
+                                     parser=settings.parser, num_samples=settings.num_samples))
+
+
+def jsonable(value):
+    """`value` with numpy scalars, arrays, paths and tuples turned into JSON types."""
+    if isinstance(value, Mapping):
+        return {str(k): jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [jsonable(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return jsonable(value.tolist())
+    if isinstance(value, np.generic):
+        return value.item()
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return jsonable(dataclasses.asdict(value))
+    if value is None or isinstance(value, (bool, int, float, str)):
+        return value
+    return str(value)
+
+
+def evaluate_subset(method: Method, name: str, dataset_dir: Path, subset: str, settings: EvalSettings,
+                    arena=None, progress: bool = True) -> tuple[SceneOutcome, ...]:
+    """Every scene of `subset` (up to `settings.limit`), scored; the first K also physically."""
+    import jax
+    from tqdm import tqdm
+
+    dirs = subset_dirs(dataset_dir, subset, settings.limit)
+    physical_limit = len(dirs) if settings.physical_scenes is None else settings.physical_scenes
+    base_key = subset_key(settings.seed, name, subset)
+    outcomes = []
+    bar = tqdm(total=len(dirs), desc=f"{name} {subset}", unit="scene", disable=not progress, leave=False)
+    for chunk_index, records in chunks(dirs, settings.chunk_size):
+        outputs = run_scenes(method, [redacted(r) for r in records], jax.random.fold_in(base_key, chunk_index))
+        for record, output in zip(records, outputs):
+            outcome = score_scene(record, output)
+            if arena is not None and len(outcomes) < physical_limit:
+                outcome = dataclasses.replace(outcome, physical=physical_outcome(arena, record, outcome))
+            outcomes.append(outcome)
+        bar.update(len(records))
+    bar.close()
+    return tuple(outcomes)
+
+
+def evaluate_run(run: MethodRun, dataset_dir: str | Path, settings: EvalSettings, arena=None,
+                 progress: bool = True, method: Method | None = None) -> Evaluation:
+    """Loads the run (unless `method` is given) and scores it on every subset of `settings`."""
+    began = time.perf_counter()
+    method = method or load_method(run, settings)
+    subsets = {subset: evaluate_subset(method, run.spec.name, Path(dataset_dir), subset, settings, arena, progress)
+               for subset in settings.subsets}
+    return Evaluation(key=run.key, method=run.spec.name, label=run.spec.label, fraction=run.fraction,
+                      run_dir=None if run.run_dir is None else str(run.run_dir),
+                      description=jsonable(method.describe()), subsets=subsets,
+                      wall_s=time.perf_counter() - began)
+
+
+# ----------------------------------------------------------------------------- aggregates
+
+
+def _rate(values: list) -> float | None:
+    known = [float(v) for v in values if v is not None]
+    return float(np.mean(known)) if known else None
+
+
+def aggregate(outcomes: Sequence[SceneOutcome]) -> dict:
+    """Rates (0..1) over `outcomes`; a rate is None when no scene reports that part."""
+    physical = [o.physical for o in outcomes if o.physical is not None]
+    stages = collections.Counter(o.stage for o in outcomes if o.stage is not None)
+    return {
+        "scenes": len(outcomes),
+        "success": _rate([o.success for o in outcomes]),
+        "sample_success": _rate([o.sample_success for o in outcomes]),
+        "physical_scenes": len(physical),
+        "physical_success": _rate([p.success for p in physical]),
+        "physical_mode_success": _rate([o.success for o in outcomes if o.physical is not None]),
+        "parse_accuracy": _rate([o.parse_ok for o in outcomes]),
+        "grounding_accuracy": _rate([o.grounding_ok for o in outcomes]),
+        "program_accuracy": _rate([o.program_ok for o in outcomes]),
+        "failures": stages.get("failure", 0),
+        "stages": {stage: stages.get(stage, 0) for stage in STAGES},
+    }
+
+
+def aggregate_subset(outcomes: Sequence[SceneOutcome]) -> dict:
+    """Per level and `overall` (pooled over the subset's scenes, as the paper's Overall column)."""
+    by_level = {level: aggregate([o for o in outcomes if o.level == level]) for level in LEVELS}
+    return by_level | {"overall": aggregate(outcomes)}

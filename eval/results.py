@@ -1,0 +1,210 @@
+"""The results JSON of an evaluation: what was run, on what, by which code, and every scene's outcome.
+
+    {"schema": "ocplace.evaluation/1", "created": ISO time, "command": [...],
+     "environment": {ocplace commit and version, python, jax, jaxlib, flax, mujoco, numpy, platform},
+     "dataset": {"dir", "dataset_hash", "manifest_hash", "counts", "config"},
+     "settings": EvalSettings (backbone spec, scale, parser, samples, subsets, limit, physical, seed, chunk),
+     "evaluations": [{"key", "method", "label", "fraction", "run_dir", "description" (the method's
+                      describe(): configs, seeds, checkpoint hashes, backbone fingerprint, parser),
+                      "wall_s", "subsets": {subset: {"aggregate": {level|overall: rates},
+                                                     "scenes": [SceneOutcome, ...]}}}]}
+
+`rerun` evaluates again from such a file and `compare` lists every difference in outcomes.
+"""
+
+from __future__ import annotations
+
+import datetime
+import hashlib
+import json
+import platform
+import subprocess
+from collections.abc import Mapping, Sequence
+from importlib import metadata
+from pathlib import Path
+
+from ocplace.eval.api import MethodSpec
+from ocplace.eval.harness import (Evaluation, EvaluationError, EvalSettings, MethodRun, SceneOutcome, aggregate_subset,
+                                  evaluate_run)
+from ocplace.paths import write_text_atomic
+
+SCHEMA = "ocplace.evaluation/1"
+PACKAGES = ("jax", "jaxlib", "flax", "optax", "mujoco", "numpy", "transformers")
+# Outcome fields that must agree for a rerun to count as a reproduction (wall times may not).
+COMPARED_FIELDS = ("level", "success", "sample_success", "mode", "num_samples", "failure", "parsed",
+                   "grounded", "parse_ok", "grounding_ok", "program_ok", "stage", "physical")
+
+
+class ResultsError(EvaluationError):
+    """A results file that is missing, corrupt, of another schema, or cannot be re-run."""
+
+
+def git_state() -> dict:
+    """The commit of the ocplace source tree and whether it had uncommitted changes."""
+    import ocplace
+
+    source = Path(ocplace.__file__).resolve().parent.parent
+
+    def git(*args: str) -> str:
+        try:
+            return subprocess.run(["git", *args], cwd=source, capture_output=True, text=True,
+                                  timeout=10).stdout.strip()
+        except (OSError, subprocess.SubprocessError):
+            return ""
+
+    commit = git("rev-parse", "HEAD")
+    return {"commit": commit or None, "dirty": bool(git("status", "--porcelain", "--untracked-files=no"))
+            if commit else None}
+
+
+def environment() -> dict:
+    import ocplace
+
+    versions = {}
+    for package in PACKAGES:
+        try:
+            versions[package] = metadata.version(package)
+        except metadata.PackageNotFoundError:
+            versions[package] = None
+    return {"ocplace": ocplace.__version__, "git": git_state(), "python": platform.python_version(),
+            "platform": platform.platform(), "packages": versions}
+
+
+def dataset_identity(dataset_dir: str | Path) -> dict:
+    """Where the dataset is and hashes that change whenever any of its files does."""
+    dataset_dir = Path(dataset_dir)
+    path = dataset_dir / "manifest.json"
+    try:
+        manifest = json.loads(path.read_text())
+    except (OSError, ValueError) as error:
+        raise ResultsError(f"{path} is missing or corrupt ({error}); generate or complete the dataset with "
+                           f"`ocplace generate --out {dataset_dir}`") from None
+    files_digest = hashlib.sha256(json.dumps(manifest["files"], sort_keys=True).encode()).hexdigest()
+    return {"dir": str(dataset_dir.resolve()), "dataset_hash": files_digest[:16], "manifest_hash": files_digest,
+            "counts": manifest.get("counts"), "config": manifest.get("config")}
+
+
+def evaluation_to_json(evaluation: Evaluation) -> dict:
+    return {
+        "key": evaluation.key, "method": evaluation.method, "label": evaluation.label,
+        "fraction": evaluation.fraction, "run_dir": evaluation.run_dir, "description": evaluation.description,
+        "wall_s": round(evaluation.wall_s, 3),
+        "subsets": {subset: {"aggregate": aggregate_subset(outcomes),
+                             "scenes": [o.to_json() for o in outcomes]}
+                    for subset, outcomes in evaluation.subsets.items()},
+    }
+
+
+def evaluation_from_json(entry: dict) -> Evaluation:
+    return Evaluation(
+        key=entry["key"], method=entry["method"], label=entry["label"], fraction=entry["fraction"],
+        run_dir=entry["run_dir"], description=entry["description"], wall_s=entry["wall_s"],
+        subsets={subset: tuple(SceneOutcome.from_json(s) for s in body["scenes"])
+                 for subset, body in entry["subsets"].items()})
+
+
+def build_results(evaluations: Sequence[Evaluation], dataset_dir: str | Path, settings: EvalSettings,
+                  command: Sequence[str] | None = None) -> dict:
+    return {
+        "schema": SCHEMA,
+        "created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+        "command": list(command) if command is not None else None,
+        "environment": environment(),
+        "dataset": dataset_identity(dataset_dir),
+        "settings": settings.to_json(),
+        "evaluations": [evaluation_to_json(e) for e in evaluations],
+    }
+
+
+def write_results(path: str | Path, results: dict) -> Path:
+    """Writes the JSON atomically (a kill never leaves half a file)."""
+    path = Path(path)
+    write_text_atomic(path, json.dumps(results, indent=1) + "\n")
+    return path
+
+
+def read_results(path: str | Path) -> dict:
+    path = Path(path)
+    try:
+        results = json.loads(path.read_text())
+    except (OSError, ValueError) as error:
+        raise ResultsError(f"{path} is missing or not JSON ({error}); write it with `ocplace evaluate`") from None
+    if not isinstance(results, dict) or results.get("schema") != SCHEMA:
+        raise ResultsError(f"{path} is not an ocplace evaluation ({SCHEMA}); it says "
+                           f"{results.get('schema') if isinstance(results, dict) else type(results).__name__}")
+    return results
+
+
+def evaluations(results: Mapping) -> list[Evaluation]:
+    return [evaluation_from_json(entry) for entry in results["evaluations"]]
+
+
+def settings_of(results: Mapping) -> EvalSettings:
+    return EvalSettings.from_json(results["settings"])
+
+
+# ----------------------------------------------------------------------------- reproducing a results file
+
+
+def runs_of(results: Mapping, specs: Mapping[str, MethodSpec] | None = None) -> list[MethodRun]:
+    """The method runs a results file evaluated, looked up in `specs` (default: the registry)."""
+    if specs is None:
+        from ocplace.eval.registry import method_specs
+
+        specs = method_specs()
+    runs = []
+    for entry in results["evaluations"]:
+        if entry["method"] not in specs:
+            raise ResultsError(f"method {entry['method']!r} of the results is not registered here "
+                               f"(registered: {', '.join(specs) or 'none'})")
+        run_dir = None if entry["run_dir"] is None else Path(entry["run_dir"])
+        if run_dir is not None and not run_dir.exists():
+            raise ResultsError(f"run directory {run_dir} of {entry['key']!r} is gone; train it again with the "
+                               "same settings (runs are deterministic) or restore it")
+        runs.append(MethodRun(specs[entry["method"]], run_dir, entry["fraction"]))
+    return runs
+
+
+def rerun(results: Mapping, specs: Mapping[str, MethodSpec] | None = None, arena=None, progress: bool = True,
+          command: Sequence[str] | None = None) -> dict:
+    """Evaluates again every run of `results` with its settings, on its dataset; returns the new results."""
+    dataset_dir = Path(results["dataset"]["dir"])
+    identity = dataset_identity(dataset_dir)
+    if identity["manifest_hash"] != results["dataset"]["manifest_hash"]:
+        raise ResultsError(f"the dataset in {dataset_dir} changed since the evaluation (manifest hash "
+                           f"{identity['manifest_hash'][:16]} != {results['dataset']['manifest_hash'][:16]})")
+    settings = settings_of(results)
+    fresh = [evaluate_run(run, dataset_dir, settings, arena, progress) for run in runs_of(results, specs)]
+    return build_results(fresh, dataset_dir, settings, command)
+
+
+def compare(expected: Mapping, actual: Mapping) -> list[str]:
+    """Every difference that matters between two results: dataset, settings, methods and outcomes."""
+    differences = []
+    for part in ("dataset_hash", "manifest_hash"):
+        if expected["dataset"][part] != actual["dataset"][part]:
+            differences.append(f"dataset {part}: {expected['dataset'][part]} != {actual['dataset'][part]}")
+    if expected["settings"] != actual["settings"]:
+        differences.append(f"settings: {expected['settings']} != {actual['settings']}")
+    old = {e["key"]: e for e in expected["evaluations"]}
+    new = {e["key"]: e for e in actual["evaluations"]}
+    for key in sorted(old.keys() ^ new.keys()):
+        differences.append(f"{key}: evaluated in only one of the results")
+    for key in [k for k in old if k in new]:
+        if old[key]["description"] != new[key]["description"]:
+            differences.append(f"{key}: describe() differs (configs, checkpoints or backbone)")
+        for subset in sorted(old[key]["subsets"].keys() | new[key]["subsets"].keys()):
+            differences += _compare_scenes(key, subset, old[key]["subsets"].get(subset, {}).get("scenes", []),
+                                           new[key]["subsets"].get(subset, {}).get("scenes", []))
+    return differences
+
+
+def _compare_scenes(key: str, subset: str, expected: list[dict], actual: list[dict]) -> list[str]:
+    differences = []
+    if [s["id"] for s in expected] != [s["id"] for s in actual]:
+        return [f"{key}/{subset}: different scenes ({len(expected)} vs {len(actual)})"]
+    for old, new in zip(expected, actual):
+        for field in COMPARED_FIELDS:
+            if old.get(field) != new.get(field):
+                differences.append(f"{key}/{subset}/{old['id']}: {field} {old.get(field)!r} != {new.get(field)!r}")
+    return differences

@@ -1,0 +1,162 @@
+"""Markdown tables from a results JSON: Table I as the paper lays it out, then the diagnostics.
+
+Table I: one row per method (runs on the whole training set), column groups seen / unseen obj /
+unseen inst, each with Table / 1 Obj / 2 Obj / Overall success of the mode in percent. Markdown has
+one header row, so the group names form the header and the level names the first (bold) row.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+
+from ocplace.eval.harness import LEVELS, STAGES, SUBSETS
+
+SUBSET_TITLES = {"seen": "Seen", "unseen_obj": "Unseen obj", "unseen_inst": "Unseen inst"}
+LEVEL_TITLES = {"table": "Table", "1obj": "1 Obj", "2obj": "2 Obj", "overall": "Overall"}
+MISSING = "–"
+MAX_LISTED_FAILURES = 20
+
+
+def percent(value: float | None, digits: int = 2) -> str:
+    return MISSING if value is None else f"{100 * value:.{digits}f}"
+
+
+def _row(cells: Sequence[str]) -> str:
+    return "| " + " | ".join(cells) + " |"
+
+
+def full_runs(results: Mapping) -> list[dict]:
+    """Evaluations of runs trained on the whole training set (Table I's rows), in results order."""
+    return [e for e in results["evaluations"] if e["fraction"] == 1.0]
+
+
+def _subsets(results: Mapping) -> list[str]:
+    evaluated = results["settings"]["subsets"]
+    return [s for s in SUBSETS if s in evaluated]
+
+
+def level_table(results: Mapping, metric: str, title: str) -> str:
+    """Rows = methods; per subset Table / 1 Obj / 2 Obj / Overall of `metric` (an aggregate rate) in %."""
+    subsets = _subsets(results)
+    columns = [*LEVELS, "overall"]
+    lines = [f"**{title}**", "",
+             _row(["", *[SUBSET_TITLES[s] if i == 0 else "" for s in subsets for i in range(len(columns))]]),
+             _row(["---", *["---:"] * (len(subsets) * len(columns))]),
+             _row(["**Method**", *[f"**{LEVEL_TITLES[c]}**" for _ in subsets for c in columns]])]
+    for entry in full_runs(results):
+        cells = [entry["label"]]
+        for subset in subsets:
+            aggregate = entry["subsets"].get(subset, {}).get("aggregate")
+            cells += [percent(aggregate[c][metric]) if aggregate else MISSING for c in columns]
+        lines.append(_row(cells))
+    return "\n".join(lines)
+
+
+def table_one(results: Mapping) -> str:
+    return level_table(results, "success", "Table I: success rate of the mode (%)")
+
+
+def subset_table(results: Mapping, title: str, columns: Mapping[str, Callable[[dict], str]]) -> str:
+    """Rows = methods; per subset the named columns, each computed from the subset's overall aggregate."""
+    subsets = _subsets(results)
+    lines = [f"**{title}**", "",
+             _row(["", *[SUBSET_TITLES[s] if i == 0 else "" for s in subsets for i in range(len(columns))]]),
+             _row(["---", *["---:"] * (len(subsets) * len(columns))]),
+             _row(["**Method**", *[f"**{name}**" for _ in subsets for name in columns]])]
+    for entry in full_runs(results):
+        cells = [entry["label"]]
+        for subset in subsets:
+            overall = entry["subsets"].get(subset, {}).get("aggregate", {}).get("overall")
+            cells += [cell(overall) if overall else MISSING for cell in columns.values()]
+        lines.append(_row(cells))
+    return "\n".join(lines)
+
+
+def _physical(overall: dict) -> str:
+    if not overall["physical_scenes"]:
+        return MISSING
+    checked = overall["physical_scenes"]
+    return f"{percent(overall['physical_success'], 1)} ({round(overall['physical_success'] * checked)}/{checked})"
+
+
+def physical_table(results: Mapping) -> str:
+    return subset_table(results, "Physical success (%, successes/scenes checked: the first K scenes of a subset), "
+                                 "beside the success of the mode on the same scenes", {
+        "Physical": _physical,
+        "Mode": lambda o: percent(o["physical_mode_success"], 1),
+    })
+
+
+def diagnosis_table(results: Mapping) -> str:
+    return subset_table(results, "Parse, grounding and program accuracy (%, per scene)", {
+        "Parse": lambda o: percent(o["parse_accuracy"], 1),
+        "Grounding": lambda o: percent(o["grounding_accuracy"], 1),
+        "Program": lambda o: percent(o["program_accuracy"], 1),
+    })
+
+
+def stage_table(results: Mapping) -> str:
+    """Unsuccessful scenes by the stage they went wrong at, per method and subset."""
+    lines = ["**Unsuccessful scenes by stage** (failure: the method gave no placement or raised; parse: "
+             "wrong tuples; grounding: right tuples, wrong objects; sampling: right problem, placement "
+             "misses; placement: the method reports no parse or grounding)", "",
+             _row(["Method", "Subset", "Scenes", "Unsuccessful", *STAGES]),
+             _row(["---", "---", *["---:"] * (2 + len(STAGES))])]
+    for entry in full_runs(results):
+        for subset in _subsets(results):
+            overall = entry["subsets"].get(subset, {}).get("aggregate", {}).get("overall")
+            if overall is None:
+                continue
+            lines.append(_row([entry["label"], SUBSET_TITLES[subset], str(overall["scenes"]),
+                               str(sum(overall["stages"].values())),
+                               *[str(overall["stages"][stage]) for stage in STAGES]]))
+    return "\n".join(lines)
+
+
+def failure_list(results: Mapping, limit: int = MAX_LISTED_FAILURES) -> str:
+    """Scenes where a method gave no placement, with its message (the first `limit` per method)."""
+    lines = ["**Method failures**", ""]
+    for entry in results["evaluations"]:
+        failed = [(subset, scene) for subset, body in entry["subsets"].items()
+                  for scene in body["scenes"] if scene["failure"] is not None]
+        if not failed:
+            continue
+        lines.append(f"- {entry['label']} ({entry['key']}): {len(failed)} scenes")
+        lines += [f"  - `{scene['id']}`: {scene['failure']}" for _, scene in failed[:limit]]
+        if len(failed) > limit:
+            lines.append(f"  - ... and {len(failed) - limit} more (see the JSON)")
+    return "\n".join(lines if len(lines) > 2 else [*lines, "none"])
+
+
+def unseen_mean(entry: Mapping) -> float | None:
+    """The 1:1 mean of the unseen_obj and unseen_inst overall success (the paper's Fig. 7 'unseen')."""
+    values = [entry["subsets"].get(s, {}).get("aggregate", {}).get("overall", {}).get("success")
+              for s in ("unseen_obj", "unseen_inst")]
+    return None if None in values else sum(values) / 2
+
+
+def efficiency_table(results: Mapping) -> str:
+    """Overall success on seen and unseen per method and training fraction (empty without fractions)."""
+    fractions = sorted({e["fraction"] for e in results["evaluations"]})
+    if fractions == [1.0]:
+        return ""
+    lines = ["**Sample efficiency: overall success of the mode (%) by share of the training set**", "",
+             _row(["Method", "Fraction", "Seen", "Unseen (mean of obj and inst)"]),
+             _row(["---", "---:", "---:", "---:"])]
+    for entry in sorted(results["evaluations"], key=lambda e: (e["method"], e["fraction"])):
+        seen = entry["subsets"].get("seen", {}).get("aggregate", {}).get("overall", {}).get("success")
+        lines.append(_row([entry["label"], f"{entry['fraction']:g}", percent(seen), percent(unseen_mean(entry))]))
+    return "\n".join(lines)
+
+
+def render(results: Mapping) -> str:
+    """Every table of a results JSON as one markdown document."""
+    settings = results["settings"]
+    header = (f"Dataset {results['dataset']['dataset_hash']} ({results['dataset']['dir']}), backbone "
+              f"`{settings['backbone']}`, parser `{settings['parser']}`, {settings['num_samples']} samples, "
+              f"seed {settings['seed']}; ocplace {(results['environment']['git'].get('commit') or '?')[:12]}.")
+    parts = [header, table_one(results),
+             level_table(results, "sample_success", "Mean success over samples (%)"),
+             physical_table(results), diagnosis_table(results), stage_table(results),
+             efficiency_table(results), failure_list(results)]
+    return "\n\n".join(part for part in parts if part) + "\n"
