@@ -1,0 +1,126 @@
+"""The run directory and chunked training loop shared by the baselines (Raw Image Grids, CLIPort-Place).
+
+    RUN/config.json           the run: method, recipe, fraction, seed, data keys, backbone fingerprint
+    RUN/metrics.jsonl         per chunk of steps: step, loss (chunk mean), learning_rate, elapsed_s
+    RUN/checkpoints/step_*.safetensors   params + optimiser state (the newest `keep` kept)
+    RUN/weights.safetensors   the final parameters; its presence marks the run finished
+
+A rerun with the same directory and settings skips a finished run and resumes an interrupted one
+from its newest checkpoint (`metrics.jsonl` is cut back to it); other settings are refused. Steps
+are functions of (seed, step) alone, so a resumed run ends where an uninterrupted one would.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import jax
+import numpy as np
+import optax
+
+from ocplace.errors import TrainingError
+from ocplace.paths import atomic_path
+from ocplace.train import checkpoints
+from ocplace.train.metrics import MetricsLog
+
+WEIGHTS_FILE = "weights.safetensors"
+RUN_FILE = "config.json"
+
+
+@dataclasses.dataclass(frozen=True)
+class Schedule:
+    """Optimisation budget of a recipe: Adam, linear warm-up then cosine decay to 0."""
+
+    steps: int
+    batch_size: int
+    learning_rate: float
+    warmup_steps: int
+    chunk_steps: int  # steps fused into one jitted lax.scan call
+    checkpoint_every: int  # a multiple of chunk_steps
+    keep_checkpoints: int = 2
+
+    def validate(self) -> None:
+        if min(self.steps, self.batch_size, self.chunk_steps, self.keep_checkpoints) < 1 or \
+                self.checkpoint_every % self.chunk_steps:
+            raise TrainingError(f"invalid schedule {self}: positive sizes, checkpoint_every a multiple of "
+                                "chunk_steps")
+
+    def learning_rate_schedule(self) -> optax.Schedule:
+        return optax.warmup_cosine_decay_schedule(0.0, self.learning_rate, self.warmup_steps,
+                                                  max(self.steps, self.warmup_steps + 1), 0.0)
+
+
+def is_finished(run_dir: Path) -> bool:
+    return (Path(run_dir) / WEIGHTS_FILE).is_file()
+
+
+def run_chunks(run_dir: Path, run_meta: dict, state, chunk: Callable, schedule: Schedule,
+               progress: bool = True, desc: str = "train"):
+    """Runs `chunk(state, start_step, num_steps) -> (state, losses)` up to `schedule.steps`; returns the state.
+
+    `state` is the freshly initialised `(params, opt_state)`: the template a checkpoint is restored into.
+    """
+    from tqdm import tqdm
+
+    schedule.validate()
+    run_dir = Path(run_dir)
+    checkpoints.claim_run_dir(run_dir, run_meta, RUN_FILE)
+    metrics = MetricsLog(run_dir / "metrics.jsonl")
+    start = 0
+    saved = checkpoints.list_checkpoints(run_dir)
+    if saved:
+        state, start, _ = checkpoints.load_checkpoint(saved[-1], state)
+    metrics.truncate_after(start)
+    learning_rate = schedule.learning_rate_schedule()
+    step, began = start, time.perf_counter()
+    with tqdm(total=schedule.steps, initial=start, unit="step", desc=desc, disable=not progress) as bar:
+        while step < schedule.steps:
+            count = min(schedule.chunk_steps, schedule.steps - step)
+            state, losses = chunk(state, step, count)
+            step += count
+            record = {"step": step, "loss": float(np.mean(np.asarray(losses))),
+                      "learning_rate": float(learning_rate(step)), "elapsed_s": round(time.perf_counter() - began, 3)}
+            if step % schedule.checkpoint_every == 0 or step == schedule.steps:
+                checkpoints.save_checkpoint(run_dir, step, state, {"step": str(step)}, schedule.keep_checkpoints)
+            metrics.append(record)
+            bar.update(count)
+            bar.set_postfix(loss=f"{record['loss']:.4f}")
+    return state
+
+
+def save_weights(run_dir: Path, params, metadata: dict[str, str]) -> Path:
+    from safetensors.numpy import save_file
+
+    path = Path(run_dir) / WEIGHTS_FILE
+    with atomic_path(path) as tmp:
+        save_file(checkpoints.flatten_state(params), str(tmp), metadata=metadata)
+    return path
+
+
+def load_weights(run_dir: Path, template) -> tuple[dict, dict[str, str], str]:
+    """`(params, metadata, sha256 of the file)`; `template` is the parameter tree (e.g. from jax.eval_shape)."""
+    from safetensors import safe_open
+    from safetensors.numpy import load_file
+
+    path = Path(run_dir) / WEIGHTS_FILE
+    if not path.is_file():
+        raise TrainingError(f"no trained weights at {path}; train the method first (`ocplace evaluate` "
+                            "trains missing runs)")
+    with safe_open(str(path), framework="numpy") as handle:
+        metadata = handle.metadata() or {}
+    params = checkpoints.unflatten_state(load_file(str(path)), template)
+    return params, metadata, hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def step_keys(seed: int, start: int, count: int):
+    """`(count,)` keys of steps `start ...`: `fold_in(key(seed), step)`, the same whether resumed or not."""
+    return jax.vmap(lambda s: jax.random.fold_in(jax.random.key(seed), s))(np.arange(start, start + count))
+
+
+def read_run(run_dir: Path) -> dict:
+    return json.loads((Path(run_dir) / RUN_FILE).read_text())

@@ -1,0 +1,152 @@
+"""Training Raw Image Grids: cached cell features, then the adapters and positional MLP with Adam.
+
+Cell features of the training split are encoded once per (dataset, backbone, grid) with the
+feature cache of `models/features.py` (chunked, resumable, atomic): a scene's 48 cell crops play
+the part of its object crops, its tuple texts ("to the left of the red bowl") of the phrases, and
+the target is the cell holding the oracle's placement (`meta["oracle"]["placement"]`, the
+deepest point of the feasible region), the same for every tuple. The workspace token the cache
+appends after the crops is not used.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import json
+from collections.abc import Iterator
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+
+from ocplace.errors import TrainingError
+from ocplace.models import features as feature_cache
+from ocplace.models.backbone import Backbone
+from ocplace.models.baselines import grids
+from ocplace.models.baselines.common import camera_from_meta
+from ocplace.paths import cache_dir
+from ocplace.sim.dataset.job import scene_dirs
+from ocplace.sim.dataset.loader import letterbox
+from ocplace.sim.dataset.records import read_scene
+from ocplace.train import baseline_runs, optim
+from ocplace.train.baseline_runs import Schedule
+from ocplace.train.loop import batch_indices, subset_indices
+
+MAX_TUPLES = 2  # the 2obj level has two tuples
+
+
+@dataclasses.dataclass(frozen=True)
+class GridsRecipe:
+    grid: grids.GridConfig
+    schedule: Schedule
+
+
+RECIPES = {
+    # The paper's budget for the adapters: 200K steps at batch 1, warm-up then cosine decay.
+    "default": GridsRecipe(grids.GridConfig(), Schedule(200_000, 1, 1e-4, 1_000, 2_000, 50_000)),
+    "demo": GridsRecipe(grids.GridConfig(), Schedule(4_000, 4, 1e-3, 100, 1_000, 2_000)),
+    "smoke": GridsRecipe(grids.smoke_grid_config(), Schedule(120, 4, 1e-2, 5, 40, 40)),
+}
+
+
+def recipe(scale: str) -> GridsRecipe:
+    if scale not in RECIPES:
+        raise TrainingError(f"unknown scale {scale!r} for Raw Image Grids; choose one of {', '.join(RECIPES)}")
+    return RECIPES[scale]
+
+
+def scene_examples(dataset_dir: Path, split: str, config: grids.GridConfig) -> Iterator[feature_cache.SceneExample]:
+    """The cache's scene examples: cells as crops, tuple texts, the oracle's cell as every tuple's target."""
+    for scene_dir in scene_dirs(dataset_dir, split):
+        record = read_scene(scene_dir)
+        meta = record.meta
+        texts = tuple(grids.tuple_text(t["reference_name"], t["relation"]) for t in meta["tuples"])
+        target = int(grids.cell_of(meta["oracle"]["placement"], config))
+        yield feature_cache.SceneExample(
+            scene_id=record.id, crops=grids.cell_crops(record.rgb, camera_from_meta(meta), config),
+            workspace=letterbox(record.rgb, config.crop_size), texts=texts,
+            targets=np.full(len(texts), target, np.int32))
+
+
+def cell_features(dataset_dir: Path, backbone: Backbone, config: grids.GridConfig, split: str = "train",
+                  progress: bool = True) -> feature_cache.Features:
+    """The split's cell features, from the cache (computed on first use)."""
+    from ocplace.train.commands import dataset_hash
+
+    digest = dataset_hash(dataset_dir, split)
+    path = cache_dir() / "baselines" / f"grids-{digest[:16]}-{split}-{backbone.fingerprint[:16]}.safetensors"
+    featurize_config = feature_cache.FeaturizeConfig(max_objects=config.num_cells, max_tuples=MAX_TUPLES,
+                                                     prompt=grids.PLAIN_PROMPT)
+    feature_cache.featurize(scene_examples(dataset_dir, split, config), backbone, path,
+                            dataset_hash=f"{digest}|grids|{config.to_json()}", config=featurize_config,
+                            total=len(scene_dirs(dataset_dir, split)), progress=progress)
+    return feature_cache.load_features(path, expected_fingerprint=backbone.fingerprint)
+
+
+def training_arrays(features: feature_cache.Features, config: grids.GridConfig) -> tuple[np.ndarray, ...]:
+    """`(cells (S, C, D), text (S, L, D), text_mask (S, L), targets (S,))` from cached features."""
+    return (features.visual[:, :config.num_cells], features.text, features.text_mask, features.targets[:, 0])
+
+
+def train_step(config: grids.GridConfig, schedule: Schedule, logit_scale: float, state, data, indices):
+    params, opt_state = state
+    batch = tuple(array[indices] for array in data)
+    loss, grads = jax.value_and_grad(grids.grid_loss, argnums=1)(config, params, *batch, logit_scale)
+    updates, opt_state = optim.adam(schedule.learning_rate_schedule()).update(grads, opt_state, params)
+    return (optax.apply_updates(params, updates), opt_state), loss
+
+
+@functools.partial(jax.jit, static_argnums=(0, 1, 2), donate_argnums=3)
+def train_chunk(config: grids.GridConfig, schedule: Schedule, logit_scale: float, state, data, indices):
+    """`indices (num_steps, B)`: the steps fused with `lax.scan`; returns `(state, losses)`."""
+    step = functools.partial(train_step, config, schedule, logit_scale)
+    return jax.lax.scan(lambda carry, step_indices: step(carry, data, step_indices), state, indices)
+
+
+def train_grids(dataset_dir: Path, backbone_spec: str, out_dir: Path, scale: str = "default",
+                fraction: float = 1.0, seed: int = 0, progress: bool = True) -> Path:
+    """Trains Raw Image Grids into `out_dir` (skipped when finished, resumed when interrupted)."""
+    from ocplace.models.backbone import load_backbone
+
+    out_dir = Path(out_dir)
+    if baseline_runs.is_finished(out_dir):
+        return out_dir
+    chosen = recipe(scale)
+    backbone = load_backbone(backbone_spec)
+    features = cell_features(Path(dataset_dir), backbone, chosen.grid, progress=progress)
+    subset = features.subset(subset_indices(features.num_scenes, fraction, 0))
+    logit_scale = float(features.info.logit_scale)
+    run_meta = {"method": "grids", "scale": scale, "fraction": fraction, "seed": seed,
+                "grid": json.loads(chosen.grid.to_json()), "schedule": dataclasses.asdict(chosen.schedule),
+                "features_key": features.info.key, "backbone_fingerprint": backbone.fingerprint,
+                "logit_scale": logit_scale, "train_scenes": subset.num_scenes}
+    params = grids.init_grids(chosen.grid, features.dim, jax.random.key(seed))
+    state = (params, optim.adam(chosen.schedule.learning_rate_schedule()).init(params))
+    data = jax.device_put(training_arrays(subset, chosen.grid))
+
+    def chunk(state, start, count):
+        indices = batch_indices(subset.num_scenes, seed, start, count, chosen.schedule.batch_size)
+        return train_chunk(chosen.grid, chosen.schedule, logit_scale, state, data, jnp.asarray(indices))
+
+    state = baseline_runs.run_chunks(out_dir, run_meta, state, chunk, chosen.schedule, progress, "grids")
+    baseline_runs.save_weights(out_dir, state[0], {"run": json.dumps(run_meta, sort_keys=True)})
+    return out_dir
+
+
+def load_params(run_dir: Path) -> tuple[dict, dict, str]:
+    """`(params, run_meta, weights sha256)` of a finished run."""
+    run_meta = baseline_runs.read_run(run_dir)
+    config = grids.GridConfig.from_json(json.dumps(run_meta["grid"]))
+    dim = _feature_dim(run_dir)
+    template = jax.eval_shape(lambda: grids.init_grids(config, dim, jax.random.key(0)))
+    params, _, sha = baseline_runs.load_weights(run_dir, template)
+    return params, run_meta, sha
+
+
+def _feature_dim(run_dir: Path) -> int:
+    from safetensors import safe_open
+
+    with safe_open(str(Path(run_dir) / baseline_runs.WEIGHTS_FILE), framework="numpy") as handle:
+        return int(handle.get_slice("['visual']['up']['kernel']").get_shape()[-1])
