@@ -1,0 +1,460 @@
+"""The end-to-end placement policy: RGB-D + boxes + instruction -> a placement (the API a robot calls).
+
+    policy = PlacementPolicy.from_run(load_backbone("offline"), "runs/ours")  # or adapters=None: zero-shot
+    placement = policy.place(rgb, depth, boxes, "put it to the left of the red bowl.",
+                             held_footprint=(0.03, 0.04), key=jax.random.key(0), camera=camera_json)
+    placement.mode, placement.mode_px   # table-frame metres (x right, y away), and pixels (u, v)
+
+Stages (each a method, so `bench/policy.py` can time them): `prepare` (check the input, cut the
+crops and the workspace image exactly as training did, estimate AABBs from depth when none are
+given), `parse`, `encode` (N + 1 crops and L phrases through the frozen backbone), `ground`
+(adapters + softmax over the N + 1 tokens), `sample` (the truncated-Gaussian sampler, one
+vmapped call for every scene). `place` runs them on one scene and raises typed errors;
+`place_many` runs the same stages on many scenes at once (crops encoded in batches, one sampler
+call) and flags failures per scene instead of raising.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+
+from ocplace.errors import (
+    GroundingUncertain,
+    NoFeasiblePlacement,
+    NoObjectBoxes,
+    OcplaceError,
+    PolicyInputError,
+    TrainingError,
+)
+from ocplace.models.backbone import Backbone, PromptConfig
+from ocplace.models.detection import DetectorConfig, detect_boxes, estimate_aabbs
+from ocplace.models.grounding import GroundingModel
+from ocplace.models.parsing import ParsedTuple, Parser
+from ocplace.models.pinhole import PinholeCamera
+from ocplace.models.placement.sampler import SamplerConfig
+from ocplace.sim import metric
+from ocplace.sim.camera import DEFAULT_CAMERA
+from ocplace.sim.dataset.loader import CROP_SIZE, MAX_BOXES, letterbox
+
+DEFAULT_THRESHOLD = 0.5
+TABLE_LABEL = "the table"
+
+
+@dataclasses.dataclass(frozen=True)
+class SceneInput:
+    """One scene as a robot sees it; see `PlacementPolicy.place` for the fields."""
+
+    rgb: np.ndarray
+    depth: np.ndarray
+    boxes_or_segmentation: np.ndarray | None
+    instruction: str
+    held_footprint: Any
+    camera: Any = DEFAULT_CAMERA
+    object_aabbs: np.ndarray | None = None
+    name: str = "scene"
+
+
+@dataclasses.dataclass(frozen=True)
+class PreparedScene:
+    """A checked scene with the model's inputs cut out of it."""
+
+    name: str
+    instruction: str
+    rgb: np.ndarray  # (H, W, 3) uint8
+    camera: PinholeCamera
+    boxes: np.ndarray  # (N, 4) int32 pixel boxes (u0, v0, u1, v1); box order = visual token order
+    aabbs: np.ndarray  # (N, 2, 2) table-frame x-y AABB per box
+    crops: np.ndarray  # (N, S, S, 3) uint8, as `sim.dataset.loader.example_from_record` cuts them
+    workspace: np.ndarray  # (S, S, 3) uint8 letterboxed image: visual token N, the table
+    half_extents: np.ndarray  # (2,) held object's footprint half-extents, metres
+    flags: tuple[str, ...]  # "boxes_detected", "aabbs_estimated"
+
+
+@dataclasses.dataclass(frozen=True)
+class Tokens:
+    """Backbone features of a batch of scenes, padded."""
+
+    visual: np.ndarray  # (B, T, D): crops in box order, the workspace at index N, zeros after
+    visual_mask: np.ndarray  # (B, T) bool
+    text: np.ndarray  # (B, L, D) one token per parsed tuple
+    text_mask: np.ndarray  # (B, L) bool
+
+
+@dataclasses.dataclass(frozen=True)
+class GroundedReference:
+    phrase: str
+    relation: str  # canonical
+    token: int  # index among the N + 1 visual tokens; N = the table
+    probability: float  # P of that token
+    probabilities: np.ndarray  # (N + 1,) P over the visual tokens
+    box: np.ndarray | None  # (4,) pixel box of the grounded object; None: the table
+    aabb: np.ndarray | None  # (2, 2) its table-frame AABB; None: the table
+
+    @property
+    def is_table(self) -> bool:
+        return self.box is None
+
+
+@dataclasses.dataclass(frozen=True)
+class Placement:
+    """What the policy did in one scene. `error` is set (and `mode` None) when it did not place."""
+
+    name: str
+    instruction: str
+    parsed: tuple[ParsedTuple, ...]
+    references: tuple[GroundedReference, ...]
+    boxes: np.ndarray  # (N, 4) pixel boxes used
+    aabbs: np.ndarray  # (N, 2, 2) table-frame AABBs used for collisions
+    samples: np.ndarray | None  # (num_samples, 2) table-frame metres
+    samples_px: np.ndarray | None  # (num_samples, 2) pixels (u, v)
+    mode: np.ndarray | None  # (2,) the most probable placement, table-frame metres
+    mode_px: np.ndarray | None  # (2,) pixels
+    heatmap: np.ndarray | None  # (nx, ny) density per m^2 on `grid`
+    grid: metric.Grid
+    flags: tuple[str, ...]
+    error: OcplaceError | None = None
+
+    @property
+    def ok(self) -> bool:
+        return self.error is None
+
+    @property
+    def failure(self) -> str | None:
+        return None if self.error is None else f"{type(self.error).__name__}: {self.error}"
+
+    @property
+    def pairs(self) -> tuple[tuple[str, str], ...]:
+        return tuple((t.reference, t.relation) for t in self.parsed)
+
+    @property
+    def tokens(self) -> tuple[int, ...]:
+        return tuple(r.token for r in self.references)
+
+    def summary(self) -> str:
+        lines = [f"{self.name}: {self.instruction!r}",
+                 "  parse: " + ("; ".join(f"<{ref}, {rel}>" for ref, rel in self.pairs) or "-")]
+        for ref in self.references:
+            where = TABLE_LABEL if ref.is_table else f"box {ref.token} {ref.box.tolist()}"
+            lines.append(f"  {ref.phrase!r} -> {where} (p={ref.probability:.3f}), relation {ref.relation}")
+        if self.mode is not None:
+            lines.append(f"  mode: ({self.mode[0]:+.4f}, {self.mode[1]:+.4f}) m = pixel "
+                         f"({self.mode_px[0]:.1f}, {self.mode_px[1]:.1f}); {len(self.samples)} samples")
+        if self.flags:
+            lines.append(f"  flags: {', '.join(self.flags)}")
+        if self.error is not None:
+            lines.append(f"  not placed: {self.failure}")
+        return "\n".join(lines)
+
+
+@dataclasses.dataclass(frozen=True)
+class PlacementPolicy:
+    """Parser + frozen backbone + grounding adapters + sampler."""
+
+    backbone: Backbone
+    grounding: GroundingModel
+    prompt: PromptConfig
+    parser: Parser
+    sampler: SamplerConfig = SamplerConfig()
+    threshold: float = DEFAULT_THRESHOLD  # least max-probability a reference needs to be placed against
+    detector: DetectorConfig = DetectorConfig()
+    crop_size: int = CROP_SIZE
+    min_boxes: int = MAX_BOXES  # tokens and collision boxes are padded to at least this: one compiled shape
+    max_tuples: int = metric.MAX_TUPLES
+    encode_scenes: int = 32  # scenes whose crops are encoded together in `place_many`
+
+    @classmethod
+    def from_run(cls, backbone: Backbone, adapters=None, parser: Parser | str = "offline", **kwargs) -> PlacementPolicy:
+        """A policy from trained adapters (a run directory or adapters file; None: zero-shot grounding).
+
+        Raises TrainingError when the adapters were trained on another backbone's features.
+        """
+        from ocplace.models.parsing import make_parser
+
+        if isinstance(parser, str):
+            parser = make_parser(parser)
+        if adapters is None:
+            return cls(backbone, GroundingModel.zero_shot(backbone.dim, backbone.logit_scale), PromptConfig(),
+                       parser, **kwargs)
+        from ocplace.train.checkpoints import load_adapters
+
+        trained = load_adapters(adapters)
+        if trained.backbone_fingerprint != backbone.fingerprint:
+            raise TrainingError(f"the adapters in {adapters} were trained on features of another backbone "
+                                f"(fingerprint {trained.backbone_fingerprint[:12]}, this one "
+                                f"{backbone.fingerprint[:12]}); pass the backbone they were trained with")
+        return cls(backbone, trained.model, trained.prompt, parser, **kwargs)
+
+    # ------------------------------------------------------------------ public calls
+
+    def place(self, rgb, depth, boxes_or_segmentation, instruction: str, held_footprint, key,
+              camera=DEFAULT_CAMERA, object_aabbs=None) -> Placement:
+        """Places the held object in one scene; raises a typed `OcplaceError` instead of placing blindly.
+
+        Args:
+          rgb: uint8 `(H, W, 3)`.
+          depth: `(H, W)` planar depth, float metres (an integer image is read as millimetres).
+          boxes_or_segmentation: int `(N, 4)` pixel boxes (u0, v0, u1, v1) from any detector, in the
+            order of the visual tokens; or an `(H, W)` segmentation image (0 = background, one id per
+            object; ids with >= 200 pixels get a box); or None: boxes from `models.detection`.
+          instruction: free text, e.g. "put it behind the red bowl and to the left of the mug."
+          held_footprint: `(hx, hy)` half-extents of the held object's x-y footprint, metres.
+          key: a `jax.random` key for the samples.
+          camera: a `PinholeCamera`, a `sim.camera.Camera`, a dict like the dataset's `meta["camera"]`
+            (intrinsics, world_from_camera, width, height) or a path to such a JSON file.
+          object_aabbs: `(N, 2, 2)` table-frame x-y AABBs `[[xmin, ymin], [xmax, ymax]]` per box; None:
+            estimated from depth.
+
+        Raises:
+          PolicyInputError (mismatched sizes, bad boxes or camera), NoObjectBoxes, ParseError,
+          GroundingUncertain, InvalidPlacementProblem, NoFeasiblePlacement.
+        """
+        scene = SceneInput(rgb, depth, boxes_or_segmentation, instruction, held_footprint, camera, object_aabbs)
+        [placement] = self.place_many([scene], key)
+        if placement.error is not None:
+            raise placement.error
+        return placement
+
+    def place_many(self, scenes: Sequence[SceneInput], key, progress: bool = False) -> list[Placement]:
+        """`place` on many scenes: crops encoded in batches, one vmapped sampler call. Never raises an
+        `OcplaceError` for one scene: that scene's Placement carries it (`error`, `failure`)."""
+        prepared = [_attempt(self.prepare, scene) for scene in scenes]
+        parses = [_attempt(self.parse, scene.instruction) if not _failed(p) else p
+                  for scene, p in zip(scenes, prepared)]
+        groundings: list[Any] = [None] * len(scenes)
+        ready = [i for i in range(len(scenes)) if not _failed(prepared[i]) and not _failed(parses[i])]
+        for i in ready:
+            groundings[i] = _attempt(_check_boxes_for, prepared[i], parses[i])
+        ready = [i for i in ready if not _failed(groundings[i])]
+        chunks = [ready[start:start + self.encode_scenes] for start in range(0, len(ready), self.encode_scenes)]
+        for chunk in _progress(chunks, progress, "encode"):
+            tokens = self.encode([prepared[i] for i in chunk], [parses[i] for i in chunk])
+            probabilities = self.ground(tokens)
+            for row, i in enumerate(chunk):
+                groundings[i] = _attempt(self.decide, prepared[i], parses[i], probabilities[row])
+        sampled = [i for i in ready if not _failed(groundings[i])]
+        results = self.sample([prepared[i] for i in sampled], [groundings[i] for i in sampled], key)
+        outcome = dict(zip(sampled, results))
+        return [self._assemble(scene, prepared[i], parses[i], groundings[i], outcome.get(i))
+                for i, scene in enumerate(scenes)]
+
+    # ------------------------------------------------------------------ stages
+
+    def prepare(self, scene: SceneInput) -> PreparedScene:
+        """Checks one scene and cuts its crops and workspace image (224 px, as in training)."""
+        from ocplace.sim.boxes import boxes_from_segmentation, square_crop
+
+        rgb, depth = _check_images(scene.rgb, scene.depth)
+        camera = PinholeCamera.from_any(scene.camera)
+        if (camera.width, camera.height) != (rgb.shape[1], rgb.shape[0]):
+            raise PolicyInputError(f"the camera is {camera.width}x{camera.height} but the images are "
+                                   f"{rgb.shape[1]}x{rgb.shape[0]}; pass the intrinsics of this image")
+        flags, segmentation, object_ids = [], None, None
+        given = scene.boxes_or_segmentation
+        if given is None:
+            boxes = detect_boxes(depth, camera, self.detector)
+            flags.append("boxes_detected")
+        elif np.ndim(given) == 2 and np.shape(given) == rgb.shape[:2] and np.shape(given)[1] != 4:
+            segmentation = np.asarray(given)
+            found = boxes_from_segmentation(segmentation)
+            boxes, object_ids = found.boxes, found.object_ids
+        elif np.ndim(given) == 2 and np.shape(given)[1] == 4 or np.size(given) == 0:
+            boxes = _check_boxes(given, rgb.shape)
+        else:
+            raise PolicyInputError(f"boxes_or_segmentation has shape {np.shape(given)}: pass (N, 4) pixel boxes "
+                                   f"or a segmentation image of the image's size {rgb.shape[:2]}")
+        if scene.object_aabbs is None:
+            aabbs = estimate_aabbs(depth, camera, boxes, segmentation, object_ids, self.detector)
+            flags.append("aabbs_estimated")
+        else:
+            aabbs = _check_aabbs(scene.object_aabbs, len(boxes))
+        half_extents = np.asarray(scene.held_footprint, np.float64).reshape(-1)
+        if half_extents.shape != (2,) or not np.all(np.isfinite(half_extents) & (half_extents >= 0)):
+            raise PolicyInputError(f"held_footprint must be two half-extents (hx, hy) >= 0 in metres, got "
+                                   f"{scene.held_footprint!r}")
+        crops = np.stack([square_crop(rgb, box, size=self.crop_size) for box in boxes]) if len(boxes) else \
+            np.zeros((0, self.crop_size, self.crop_size, 3), np.uint8)
+        return PreparedScene(scene.name, scene.instruction, rgb, camera, boxes, aabbs, crops,
+                             letterbox(rgb, self.crop_size), half_extents, tuple(flags))
+
+    def parse(self, instruction: str) -> tuple[ParsedTuple, ...]:
+        from ocplace.errors import InvalidPlacementProblem
+
+        parsed = tuple(self.parser.parse(instruction))
+        if not 1 <= len(parsed) <= self.max_tuples:
+            raise InvalidPlacementProblem(f"the instruction {instruction!r} gave {len(parsed)} tuples; the policy "
+                                          f"places against 1 to {self.max_tuples}")
+        return parsed
+
+    def encode(self, scenes: Sequence[PreparedScene], parses: Sequence[Sequence[ParsedTuple]]) -> Tokens:
+        """Backbone features of every crop, workspace and phrase of `scenes`, in two backbone calls."""
+        from ocplace.models.features import encode_images_any_size
+
+        images = [crop for scene in scenes for crop in scene.crops] + [scene.workspace for scene in scenes]
+        image_features = encode_images_any_size(self.backbone, images)
+        texts = [self.prompt.text_for(t.reference) for parsed in parses for t in parsed]
+        text_features = self.backbone.encode_texts(texts)
+        count, dim = len(scenes), self.backbone.dim
+        num_tokens = max([self.min_boxes] + [len(scene.boxes) for scene in scenes]) + 1
+        tokens = Tokens(np.zeros((count, num_tokens, dim), np.float32), np.zeros((count, num_tokens), bool),
+                        np.zeros((count, self.max_tuples, dim), np.float32), np.zeros((count, self.max_tuples), bool))
+        crop_row, text_row, workspace_row = 0, 0, len(images) - count
+        for i, (scene, parsed) in enumerate(zip(scenes, parses)):
+            n, num_texts = len(scene.boxes), len(parsed)
+            tokens.visual[i, :n] = image_features[crop_row:crop_row + n]
+            tokens.visual[i, n] = image_features[workspace_row + i]
+            tokens.visual_mask[i, :n + 1] = True
+            tokens.text[i, :num_texts] = text_features[text_row:text_row + num_texts]
+            tokens.text_mask[i, :num_texts] = True
+            crop_row, text_row = crop_row + n, text_row + num_texts
+        return tokens
+
+    def ground(self, tokens: Tokens) -> np.ndarray:
+        """`(B, L, T)` P over the visual tokens per tuple (rows past a scene's tuples are padding)."""
+        return self.grounding.probabilities(tokens.text, tokens.visual, tokens.visual_mask)
+
+    def decide(self, scene: PreparedScene, parsed: Sequence[ParsedTuple], probabilities: np.ndarray
+               ) -> tuple[GroundedReference, ...]:
+        """The grounded reference per tuple; GroundingUncertain when its best token is below the threshold."""
+        num_tokens = len(scene.boxes) + 1
+        references = []
+        for k, item in enumerate(parsed):
+            row = np.asarray(probabilities[k, :num_tokens], np.float64)
+            token = int(np.argmax(row))
+            if row[token] < self.threshold:
+                best = np.argsort(-row, kind="stable")[:3]
+                raise GroundingUncertain(item.reference, [(_token_label(scene, int(t)), float(row[t])) for t in best],
+                                         self.threshold)
+            is_table = token == len(scene.boxes)
+            references.append(GroundedReference(item.reference, item.relation, token, float(row[token]), row,
+                                                None if is_table else scene.boxes[token],
+                                                None if is_table else scene.aabbs[token]))
+        return tuple(references)
+
+    def problem(self, scene: PreparedScene, references: Sequence[GroundedReference]) -> metric.PlacementProblem:
+        tuples = [metric.GroundedTuple(ref.relation, ref.aabb) for ref in references]
+        return metric.encode_problem(tuples, scene.aabbs, scene.half_extents, max_tuples=self.max_tuples,
+                                     max_boxes=max(self.min_boxes, len(scene.aabbs)))
+
+    def sample(self, scenes: Sequence[PreparedScene], references: Sequence[Sequence[GroundedReference]], key
+               ) -> list[Any]:
+        """One sampler call for all scenes: per scene `(samples, heatmap, mode)` or an OcplaceError."""
+        import jax
+
+        from ocplace.models.placement import explain_empty, sample_placements
+
+        problems = [_attempt(self.problem, scene, refs) for scene, refs in zip(scenes, references)]
+        valid = [i for i, p in enumerate(problems) if not _failed(p)]
+        if valid:
+            result = jax.device_get(sample_placements(key, metric.stack_problems([problems[i] for i in valid]),
+                                                      self.sampler))
+            for row, i in enumerate(valid):
+                if result.empty[row]:
+                    problems[i] = NoFeasiblePlacement(scenes[i].name, explain_empty(problems[i], self.sampler.grid))
+                else:
+                    problems[i] = (result.samples[row], result.heatmap[row], result.mode[row])
+        return problems
+
+    # ------------------------------------------------------------------ assembly
+
+    def _assemble(self, scene: SceneInput, prepared, parsed, references, sampled) -> Placement:
+        error = next((x for x in (prepared, parsed, references, sampled) if _failed(x)), None)
+        ok_prepared = not _failed(prepared)
+        boxes = prepared.boxes if ok_prepared else np.zeros((0, 4), np.int32)
+        flags = list(prepared.flags) if ok_prepared else []
+        if ok_prepared and not len(boxes):
+            flags.append("no_boxes")
+        if error is not None:
+            flags.append(_FAILURE_FLAGS.get(type(error).__name__, "failed"))
+        samples = mode = heatmap = samples_px = mode_px = None
+        if error is None:
+            samples, heatmap, mode = (np.asarray(x) for x in sampled)
+            samples_px, mode_px = prepared.camera.table_to_pixel(samples), prepared.camera.table_to_pixel(mode)
+        return Placement(
+            name=scene.name, instruction=scene.instruction,
+            parsed=tuple(parsed) if not _failed(parsed) and parsed is not None else (),
+            references=tuple(references) if isinstance(references, tuple) else (),
+            boxes=boxes, aabbs=prepared.aabbs if ok_prepared else np.zeros((0, 2, 2)),
+            samples=samples, samples_px=samples_px, mode=mode, mode_px=mode_px, heatmap=heatmap,
+            grid=self.sampler.grid, flags=tuple(flags), error=error)
+
+
+_FAILURE_FLAGS = {"GroundingUncertain": "low_confidence", "NoFeasiblePlacement": "empty_region",
+                  "NoObjectBoxes": "no_boxes_for_reference", "ParseError": "parse_failed",
+                  "InvalidPlacementProblem": "invalid_problem"}
+
+
+def _attempt(function: Callable, *args):
+    """`function(*args)`, or the OcplaceError it raised: one scene's failure must not stop a batch."""
+    try:
+        return function(*args)
+    except OcplaceError as error:
+        return error
+
+
+def _failed(value) -> bool:
+    return isinstance(value, OcplaceError)
+
+
+def _progress(items, enabled: bool, desc: str):
+    if not enabled:
+        return items
+    from tqdm import tqdm
+
+    return tqdm(items, desc=desc, unit="chunk")
+
+
+def _check_boxes_for(scene: PreparedScene, parsed: Sequence[ParsedTuple]) -> None:
+    """An image without boxes can still take a table-only instruction; not one about an object."""
+    objects = [t.reference for t in parsed if not t.is_table]
+    if not len(scene.boxes) and objects:
+        raise NoObjectBoxes(f"scene {scene.name} has no object box, but the instruction refers to {objects[0]!r}; "
+                            "pass boxes from a detector, a segmentation image, or check the depth image "
+                            "(the depth detector found nothing above the table)")
+
+
+def _token_label(scene: PreparedScene, token: int) -> str:
+    return TABLE_LABEL if token == len(scene.boxes) else f"box {token} {scene.boxes[token].tolist()}"
+
+
+def _check_images(rgb, depth) -> tuple[np.ndarray, np.ndarray]:
+    rgb, depth = np.asarray(rgb), np.asarray(depth)
+    if rgb.dtype != np.uint8 or rgb.ndim != 3 or rgb.shape[-1] != 3:
+        raise PolicyInputError(f"rgb must be a uint8 (H, W, 3) image, got {rgb.dtype} {rgb.shape}")
+    if depth.ndim != 2:
+        raise PolicyInputError(f"depth must be an (H, W) image, got shape {depth.shape}")
+    if depth.shape != rgb.shape[:2]:
+        raise PolicyInputError(f"rgb is {rgb.shape[1]}x{rgb.shape[0]} but depth is {depth.shape[1]}x{depth.shape[0]}; "
+                               "register the depth image to the colour image first")
+    if np.issubdtype(depth.dtype, np.integer):
+        depth = depth.astype(np.float32) / 1000.0  # millimetres, as depth PNGs store it
+    return np.ascontiguousarray(rgb), depth.astype(np.float32)
+
+
+def _check_boxes(boxes, image_shape) -> np.ndarray:
+    boxes = np.asarray(boxes)
+    if boxes.size == 0:
+        return np.zeros((0, 4), np.int32)
+    if not np.all(np.isfinite(boxes)):
+        raise PolicyInputError("boxes must be finite (u0, v0, u1, v1) pixel coordinates")
+    boxes = np.round(boxes).astype(np.int32).reshape(-1, 4)
+    height, width = image_shape[:2]
+    bad = (boxes[:, 0] >= boxes[:, 2]) | (boxes[:, 1] >= boxes[:, 3]) | (boxes[:, 0] < 0) | (boxes[:, 1] < 0) | \
+        (boxes[:, 2] > width) | (boxes[:, 3] > height)
+    if bad.any():
+        raise PolicyInputError(f"box {int(np.flatnonzero(bad)[0])} {boxes[bad][0].tolist()} is empty or leaves the "
+                               f"{width}x{height} image; boxes are (u0, v0, u1, v1) pixel edges, u0 < u1 <= width")
+    return boxes
+
+
+def _check_aabbs(aabbs, count: int) -> np.ndarray:
+    aabbs = np.asarray(aabbs, np.float64)
+    if aabbs.size == 0 and count == 0:
+        return np.zeros((0, 2, 2))
+    if aabbs.shape != (count, 2, 2) or not np.all(np.isfinite(aabbs)) or np.any(aabbs[:, 0] > aabbs[:, 1]):
+        raise PolicyInputError(f"object_aabbs must be ({count}, 2, 2) finite [[xmin, ymin], [xmax, ymax]] boxes, one "
+                               f"per pixel box, got shape {aabbs.shape}")
+    return aabbs
