@@ -18,6 +18,7 @@ settings.
 from __future__ import annotations
 
 import collections
+import contextlib
 import dataclasses
 import time
 import zlib
@@ -90,7 +91,7 @@ class SceneOutcome:
     id: str
     level: str
     success: bool  # success of the mode
-    sample_success: float | None  # mean success over samples; 0.0 on failure
+    sample_success: float  # mean success over samples; the mode's without samples; 0.0 on failure
     mode: tuple[float, float] | None
     num_samples: int
     failure: str | None
@@ -269,7 +270,7 @@ def score_scene(record: SceneRecord, output: MethodOutput) -> SceneOutcome:
     if failure is not None:
         sample_success = 0.0
     elif samples is None or len(samples) == 0:
-        sample_success = None
+        sample_success = float(success)  # a method without samples: a point mass at its mode
     else:
         sample_success = float(np.mean(placement_success(samples, problem)))
 
@@ -352,9 +353,14 @@ def evaluate_subset(method: Method, name: str, dataset_dir: Path, subset: str, s
 
 def evaluate_run(run: MethodRun, dataset_dir: str | Path, settings: EvalSettings, arena=None,
                  progress: bool = True, method: Method | None = None) -> Evaluation:
-    """Loads the run (unless `method` is given) and scores it on every subset of `settings`."""
+    """Loads the run (unless `method` is given) and scores it on every subset of `settings`.
+
+    The physical check runs for runs on the whole training set only (fractions feed the
+    sample-efficiency curve, which plots the metric).
+    """
     began = time.perf_counter()
     method = method or load_method(run, settings)
+    arena = arena if run.fraction == 1.0 else None
     subsets = {subset: evaluate_subset(method, run.spec.name, Path(dataset_dir), subset, settings, arena, progress)
                for subset in settings.subsets}
     return Evaluation(key=run.key, method=run.spec.name, label=run.spec.label, fraction=run.fraction,
@@ -394,3 +400,16 @@ def aggregate_subset(outcomes: Sequence[SceneOutcome]) -> dict:
     """Per level and `overall` (pooled over the subset's scenes, as the paper's Overall column)."""
     by_level = {level: aggregate([o for o in outcomes if o.level == level]) for level in LEVELS}
     return by_level | {"overall": aggregate(outcomes)}
+
+
+@contextlib.contextmanager
+def physical_arena(settings: EvalSettings, library=None):
+    """The MuJoCo arena for the physical check, or None when `settings` asks for no physical check."""
+    if settings.physical_scenes == 0:
+        yield None
+        return
+    from ocplace.sim.library import load_library
+    from ocplace.sim.mujoco_backend import MujocoScenes
+
+    with MujocoScenes.from_library(library or load_library()) as arena:
+        yield arena

@@ -24,6 +24,7 @@ COMMAND_MODULES = (
     "ocplace.train.commands",
     "ocplace.train.pretrain.commands",
     "ocplace.models.placement_commands",
+    "ocplace.eval.commands",
 )
 
 

@@ -1,0 +1,323 @@
+"""`ocplace reproduce`: the paper's experiments end to end, at three scales.
+
+    library -> dataset -> offline backbone -> training of every registered method (and data
+    fractions) -> evaluation on the test subsets -> results.json, results.md, sample_efficiency.png
+
+Every step skips what is already done: the library, dataset, backbone and training runs cache
+themselves, and each evaluation is stored under OUT/evaluations/ keyed by everything that decides
+its outcome (settings, dataset, the method's describe()). Outputs are written atomically.
+
+    OUT/dataset/                     unless `dataset` points elsewhere
+    OUT/runs/<method>/fraction-<f>/  TrainContext.out_dir of each training run
+    OUT/evaluations/<key>-<hash>.json
+    OUT/results.json, OUT/results.md, OUT/sample_efficiency.png (when fractions were run)
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import time
+import traceback
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+
+from ocplace.eval.api import MethodSpec, TrainContext
+from ocplace.eval.harness import EvalSettings, Evaluation, MethodRun, SUBSETS
+
+# Issue 9: the sample-efficiency study trains these on 25/50/75/100% of the training set.
+FRACTION_METHODS = ("ours", "grids", "no_pretrain", "no_llm")
+FRACTIONS = (0.25, 0.5, 0.75, 1.0)
+
+
+@dataclasses.dataclass(frozen=True)
+class PipelineConfig:
+    scale: str  # "smoke" | "demo" | "default": the dataset size, backbone recipe and method recipes
+    train_scenes: int
+    test_scenes: int  # per test subset
+    physical_scenes: int | None  # first K scenes per subset get the drop check; None: all
+    default_out: Path
+    fractions: tuple[float, ...] = (1.0,)
+    fraction_methods: tuple[str, ...] = FRACTION_METHODS
+    methods: tuple[str, ...] | None = None  # None: every registered method
+    backbone: str | None = None  # a backbone spec to use instead of pretraining the scale's recipe
+    dataset: Path | None = None  # an existing (or wanted) dataset folder instead of OUT/dataset
+    dataset_seed: int = 0
+    seed: int = 0  # training and evaluation
+    num_samples: int = 1024
+    parser: str = "offline"
+    subsets: tuple[str, ...] = SUBSETS
+    workers: int = 0  # dataset generation processes; 0: every CPU
+    progress: bool = True
+
+
+def default_config() -> PipelineConfig:
+    """The paper's protocol: 2000 + 3 x 400 scenes, every fraction, 100 physical drops per subset."""
+    return PipelineConfig("default", 2000, 400, physical_scenes=100, default_out=Path("out/reproduce"),
+                          fractions=FRACTIONS)
+
+
+def demo_config() -> PipelineConfig:
+    """`make demo`: 200 + 3 x 40 scenes and the demo recipes, <= 20 min on 2 cores."""
+    return PipelineConfig("demo", 200, 40, physical_scenes=10, default_out=Path("out/demo"))
+
+
+def smoke_config() -> PipelineConfig:
+    """Tests and CI: the smoke dataset (12 + 3 x 8 scenes) and the smoke recipes."""
+    return PipelineConfig("smoke", 12, 8, physical_scenes=2, default_out=Path("out/smoke"), num_samples=64)
+
+
+SCALES: dict[str, Callable[[], PipelineConfig]] = {"default": default_config, "demo": demo_config,
+                                                   "smoke": smoke_config}
+
+
+@dataclasses.dataclass(frozen=True)
+class Step:
+    name: str
+    wall_s: float
+    detail: str
+
+    def line(self) -> str:
+        return f"[{self.name}] {self.wall_s:7.1f} s  {self.detail}"
+
+
+@dataclasses.dataclass
+class PipelineSummary:
+    out: Path
+    steps: list[Step] = dataclasses.field(default_factory=list)
+    errors: list[dict] = dataclasses.field(default_factory=list)  # {"key", "stage", "message"}
+    results_path: Path | None = None
+    markdown: str = ""
+    figure: Path | None = None
+
+    def report(self) -> str:
+        lines = [step.line() for step in self.steps]
+        lines += [f"ERROR {e['stage']} {e['key']}: {e['message']}" for e in self.errors]
+        lines.append(f"total {sum(s.wall_s for s in self.steps):.1f} s; results in {self.results_path}")
+        return "\n".join(lines)
+
+
+class _Timer:
+    """Records a step's wall time into the summary and prints its line when the step ends."""
+
+    def __init__(self, summary: PipelineSummary, name: str):
+        self.summary, self.name, self.detail = summary, name, ""
+
+    def __enter__(self):
+        self.began = time.perf_counter()
+        return self
+
+    def __exit__(self, *exc):
+        step = Step(self.name, time.perf_counter() - self.began, self.detail if exc[0] is None else "failed")
+        self.summary.steps.append(step)
+        print(step.line(), flush=True)
+
+
+# ----------------------------------------------------------------------------- steps
+
+
+def build_library_step(progress: bool):
+    from ocplace.sim.library import build_library, default_config as library_config
+
+    return build_library(library_config(), progress=progress)
+
+
+def dataset_config(config: PipelineConfig):
+    import dataclasses as dc
+
+    from ocplace.sim.dataset.config import make_config
+
+    return dc.replace(make_config(config.train_scenes, config.test_scenes), seed=config.dataset_seed)
+
+
+def dataset_step(config: PipelineConfig, dataset_dir: Path) -> str:
+    """Generates (or completes) the dataset unless its manifest already records this configuration."""
+    import os
+
+    from ocplace.sim.dataset.generate import describe
+    from ocplace.sim.dataset.job import MANIFEST_FILE, generate_dataset
+
+    wanted = dataset_config(config)
+    manifest_path = dataset_dir / MANIFEST_FILE
+    if manifest_path.exists() and json.loads(manifest_path.read_text()).get("config") == describe(wanted):
+        return f"{dataset_dir}: already complete"
+    manifest = generate_dataset(dataset_dir, wanted, workers=config.workers or os.cpu_count() or 1,
+                                progress=config.progress)
+    return f"{dataset_dir}: {sum(sum(c.values()) for c in manifest['counts'].values())} scenes"
+
+
+def backbone_step(config: PipelineConfig, library) -> str:
+    """The backbone spec: `config.backbone`, or the scale's offline recipe, pretrained if needed."""
+    if config.backbone is not None:
+        return config.backbone
+    from ocplace.train.pretrain.config import recipe_config
+    from ocplace.train.pretrain.loop import pretrain
+
+    result = pretrain(recipe_config(config.scale), library, progress=config.progress)
+    return f"offline:{result.directory}"
+
+
+def selected_specs(config: PipelineConfig, specs: Mapping[str, MethodSpec]) -> list[MethodSpec]:
+    from ocplace.eval.commands import select_specs
+
+    return select_specs("all" if config.methods is None else ",".join(config.methods), dict(specs))
+
+
+def planned_runs(config: PipelineConfig, specs: Sequence[MethodSpec]) -> list[tuple[MethodSpec, float]]:
+    """(method, training fraction) pairs: 1.0 for every method, plus the fractions for issue 9's four."""
+    runs = []
+    for spec in specs:
+        fractions = config.fractions if spec.name in config.fraction_methods and spec.train is not None else (1.0,)
+        runs += [(spec, fraction) for fraction in sorted(set(fractions) | {1.0})]
+    return runs
+
+
+def run_directory(out: Path, name: str, fraction: float) -> Path:
+    return out / "runs" / name / f"fraction-{fraction:.2f}"
+
+
+def train_step(spec: MethodSpec, fraction: float, config: PipelineConfig, dataset_dir: Path, backbone: str,
+               out: Path) -> Path | None:
+    if spec.train is None:
+        return None
+    context = TrainContext(dataset_dir=dataset_dir, backbone=backbone, out_dir=run_directory(out, spec.name, fraction),
+                           scale=config.scale, fraction=fraction, seed=config.seed)
+    return Path(spec.train(context))
+
+
+def evaluation_settings(config: PipelineConfig, backbone: str) -> EvalSettings:
+    return EvalSettings(backbone=backbone, scale=config.scale, parser=config.parser, num_samples=config.num_samples,
+                        subsets=config.subsets, physical_scenes=config.physical_scenes, seed=config.seed)
+
+
+def evaluation_key(run: MethodRun, description: dict, settings: EvalSettings, dataset_hash: str) -> str:
+    """Everything that decides an evaluation's outcome, hashed: a stored evaluation with it is reused."""
+    from ocplace.eval.results import SCHEMA
+
+    fields = {"schema": SCHEMA, "key": run.key, "run_dir": None if run.run_dir is None else str(run.run_dir),
+              "description": description, "settings": settings.to_json(), "dataset": dataset_hash}
+    return hashlib.sha256(json.dumps(fields, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def evaluate_step(run: MethodRun, settings: EvalSettings, dataset_dir: Path, dataset_hash: str, out: Path,
+                  arena_factory: Callable, progress: bool) -> tuple[Evaluation, bool]:
+    """The run's evaluation, from OUT/evaluations/ when an identical one is stored; (evaluation, reused)."""
+    from ocplace.eval.harness import evaluate_run, jsonable, load_method
+    from ocplace.eval.results import evaluation_from_json, evaluation_to_json
+    from ocplace.paths import write_text_atomic
+
+    method = load_method(run, settings)
+    key = evaluation_key(run, jsonable(method.describe()), settings, dataset_hash)
+    path = out / "evaluations" / f"{run.key}-{key}.json"
+    if path.exists():
+        return evaluation_from_json(json.loads(path.read_text())), True
+    arena = arena_factory() if settings.physical_scenes != 0 and run.fraction == 1.0 else None
+    evaluation = evaluate_run(run, dataset_dir, settings, arena, progress, method=method)
+    write_text_atomic(path, json.dumps(evaluation_to_json(evaluation), indent=1))
+    return evaluation, False
+
+
+# ----------------------------------------------------------------------------- the pipeline
+
+
+def run_pipeline(config: PipelineConfig, out: str | Path | None = None,
+                 specs: Mapping[str, MethodSpec] | None = None, command: Sequence[str] | None = None,
+                 library=None) -> PipelineSummary:
+    """Runs (or resumes) every step; a method whose training or evaluation raises is reported, not fatal."""
+    from ocplace.eval.results import build_results, dataset_identity
+    from ocplace.eval.commands import write_outputs
+
+    out = Path(out or config.default_out)
+    out.mkdir(parents=True, exist_ok=True)
+    summary = PipelineSummary(out)
+    if specs is None:
+        from ocplace.eval.registry import method_specs
+
+        specs = method_specs()
+    chosen = selected_specs(config, specs)
+    dataset_dir = Path(config.dataset or out / "dataset")
+
+    with _Timer(summary, "library") as step:
+        library = library or build_library_step(config.progress)
+        step.detail = f"{len(library.names('seen'))} seen + {len(library.names('unseen'))} unseen objects"
+    with _Timer(summary, "dataset") as step:
+        step.detail = dataset_step(config, dataset_dir)
+    with _Timer(summary, "backbone") as step:
+        backbone = backbone_step(config, library)
+        step.detail = backbone
+
+    runs = []
+    for spec, fraction in planned_runs(config, chosen):
+        run = MethodRun(spec, None, fraction)
+        with _Timer(summary, f"train {run.key}") as step:
+            try:
+                runs.append(dataclasses.replace(run, run_dir=train_step(spec, fraction, config, dataset_dir,
+                                                                        backbone, out)))
+                step.detail = str(runs[-1].run_dir or "nothing to train")
+            except Exception as error:  # noqa: BLE001  (one method's failure must not hide the others)
+                summary.errors.append(_error(run.key, "train", error))
+                step.detail = f"FAILED: {type(error).__name__}: {error}"
+
+    settings = evaluation_settings(config, backbone)
+    dataset_hash = dataset_identity(dataset_dir)["dataset_hash"]
+    evaluations, arena = [], _LazyArena(library)
+    try:
+        for run in runs:
+            with _Timer(summary, f"evaluate {run.key}") as step:
+                try:
+                    evaluation, reused = evaluate_step(run, settings, dataset_dir, dataset_hash, out, arena.get,
+                                                       config.progress)
+                    evaluations.append(evaluation)
+                    seen = evaluation.subsets.get("seen")
+                    step.detail = ("stored " if reused else "") + (
+                        f"seen success {sum(o.success for o in seen) / max(len(seen), 1):.1%}" if seen else "")
+                except Exception as error:  # noqa: BLE001
+                    summary.errors.append(_error(run.key, "evaluate", error))
+                    step.detail = f"FAILED: {type(error).__name__}: {error}"
+    finally:
+        arena.close()
+
+    with _Timer(summary, "results") as step:
+        results = build_results(evaluations, dataset_dir, settings, command)
+        results["pipeline"] = {"config": _config_json(config), "steps": [dataclasses.asdict(s) for s in summary.steps],
+                               "errors": summary.errors}
+        summary.results_path = out / "results.json"
+        summary.markdown = write_outputs(results, summary.results_path)
+        if len({e.fraction for e in evaluations}) > 1:
+            from ocplace.eval.efficiency import plot_sample_efficiency
+
+            summary.figure = plot_sample_efficiency(results, out / "sample_efficiency.png")
+        step.detail = f"{summary.results_path}, {summary.results_path.with_suffix('.md')}" + (
+            f", {summary.figure}" if summary.figure else "")
+    return summary
+
+
+class _LazyArena:
+    """Compiles the MuJoCo arena on first use only (all evaluations may be stored already)."""
+
+    def __init__(self, library):
+        self.library, self.arena = library, None
+
+    def get(self):
+        if self.arena is None:
+            from ocplace.sim.mujoco_backend import MujocoScenes
+
+            self.arena = MujocoScenes.from_library(self.library)
+        return self.arena
+
+    def close(self):
+        if self.arena is not None:
+            self.arena.close()
+
+
+def _error(key: str, stage: str, error: Exception) -> dict:
+    print(f"ERROR in step {stage} of {key}:", flush=True)
+    traceback.print_exception(error)
+    return {"key": key, "stage": stage, "message": f"{type(error).__name__}: {error}"}
+
+
+def _config_json(config: PipelineConfig) -> dict:
+    from ocplace.eval.harness import jsonable
+
+    return jsonable(dataclasses.asdict(config))
