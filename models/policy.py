@@ -226,18 +226,18 @@ class PlacementPolicy:
                   for scene, p in zip(scenes, prepared)]
         groundings: list[Any] = [None] * len(scenes)
         ready = [i for i in range(len(scenes)) if not _failed(prepared[i]) and not _failed(parses[i])]
-        for i in ready:
-            groundings[i] = _attempt(_check_boxes_for, prepared[i], parses[i])
-        ready = [i for i in ready if not _failed(groundings[i])]
+        outcome = {i: _attempt(_check_boxes_for, prepared[i], parses[i]) for i in ready}
+        ready = [i for i in ready if not _failed(outcome[i])]
         chunks = [ready[start:start + self.encode_scenes] for start in range(0, len(ready), self.encode_scenes)]
         for chunk in _progress(chunks, progress, "encode"):
             tokens = self.encode([prepared[i] for i in chunk], [parses[i] for i in chunk])
             probabilities = self.ground(tokens)
             for row, i in enumerate(chunk):
-                groundings[i] = _attempt(self.decide, prepared[i], parses[i], probabilities[row])
-        sampled = [i for i in ready if not _failed(groundings[i])]
+                groundings[i] = self.decide(prepared[i], parses[i], probabilities[row])
+                outcome[i] = _attempt(self.check_confidence, prepared[i], groundings[i])
+        sampled = [i for i in ready if not _failed(outcome[i])]
         results = self.sample([prepared[i] for i in sampled], [groundings[i] for i in sampled], key)
-        outcome = dict(zip(sampled, results))
+        outcome.update(zip(sampled, results))
         return [self._assemble(scene, prepared[i], parses[i], groundings[i], outcome.get(i))
                 for i, scene in enumerate(scenes)]
 
@@ -318,21 +318,25 @@ class PlacementPolicy:
 
     def decide(self, scene: PreparedScene, parsed: Sequence[ParsedTuple], probabilities: np.ndarray
                ) -> tuple[GroundedReference, ...]:
-        """The grounded reference per tuple; GroundingUncertain when its best token is below the threshold."""
+        """The grounded reference (argmax token) per tuple, from `(L, T)` probabilities."""
         num_tokens = len(scene.boxes) + 1
         references = []
         for k, item in enumerate(parsed):
             row = np.asarray(probabilities[k, :num_tokens], np.float64)
             token = int(np.argmax(row))
-            if row[token] < self.threshold:
-                best = np.argsort(-row, kind="stable")[:3]
-                raise GroundingUncertain(item.reference, [(_token_label(scene, int(t)), float(row[t])) for t in best],
-                                         self.threshold)
             is_table = token == len(scene.boxes)
             references.append(GroundedReference(item.reference, item.relation, token, float(row[token]), row,
                                                 None if is_table else scene.boxes[token],
                                                 None if is_table else scene.aabbs[token]))
         return tuple(references)
+
+    def check_confidence(self, scene: PreparedScene, references: Sequence[GroundedReference]) -> None:
+        """Raises GroundingUncertain for the first reference whose best token is below the threshold."""
+        for ref in references:
+            if ref.probability < self.threshold:
+                best = np.argsort(-ref.probabilities, kind="stable")[:3]
+                raise GroundingUncertain(ref.phrase, [(_token_label(scene, int(t)), float(ref.probabilities[t]))
+                                                      for t in best], self.threshold)
 
     def problem(self, scene: PreparedScene, references: Sequence[GroundedReference]) -> metric.PlacementProblem:
         tuples = [metric.GroundedTuple(ref.relation, ref.aabb) for ref in references]
@@ -376,7 +380,7 @@ class PlacementPolicy:
         return Placement(
             name=scene.name, instruction=scene.instruction,
             parsed=tuple(parsed) if not _failed(parsed) and parsed is not None else (),
-            references=tuple(references) if isinstance(references, tuple) else (),
+            references=references or (),
             boxes=boxes, aabbs=prepared.aabbs if ok_prepared else np.zeros((0, 2, 2)),
             samples=samples, samples_px=samples_px, mode=mode, mode_px=mode_px, heatmap=heatmap,
             grid=self.sampler.grid, flags=tuple(flags), error=error)

@@ -1,0 +1,176 @@
+"""Table I rows "Ours" and "Ours w/o Adapter": the placement policy as an evaluation method.
+
+"ours" featurizes the training split with the frozen backbone (cached, shared with `ocplace
+featurize`) and trains the CLIP-Adapters on it (`train.loop`); "no_adapter" learns nothing and
+grounds by plain backbone similarity. Both place with `PlacementPolicy.place_many`: one pipeline,
+the robot's (`models/policy.py`), fed with what the harness allows a method to see.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from ocplace.eval.api import LoadContext, MethodOutput, MethodSpec, TrainContext
+from ocplace.sim.dataset.records import SceneRecord
+
+
+def train_recipe(scale: str):
+    """The adapter training configuration of a scale (smoke: seconds; demo: ~1 min; default: the paper's)."""
+    from ocplace.train.config import TrainConfig, default_config, smoke_config
+
+    recipes = {
+        "smoke": smoke_config,
+        # A tenth of the paper's steps at a higher peak rate: the demo dataset is small too.
+        "demo": lambda: TrainConfig(steps=20_000, learning_rate=5e-4, warmup_steps=500, eval_every=10_000,
+                                    checkpoint_every=10_000),
+        "default": default_config,
+    }
+    if scale not in recipes:
+        raise ValueError(f"unknown scale {scale!r}; choose one of {sorted(recipes)}")
+    return recipes[scale]()
+
+
+def features_path(dataset_dir: Path, split: str, backbone) -> Path:
+    """Where `ocplace featurize` caches a split's features, so the two share one file."""
+    from ocplace.paths import cache_dir
+    from ocplace.train.commands import dataset_hash
+
+    digest = dataset_hash(dataset_dir, split)
+    return cache_dir() / "features" / f"{digest[:16]}-{split}-{backbone.fingerprint[:16]}.safetensors"
+
+
+def featurize_split(dataset_dir: Path, split: str, backbone, progress: bool = True) -> Path:
+    """The split's feature file, encoded once per backbone and dataset (a cached no-op afterwards)."""
+    from ocplace.models.features import featurize
+    from ocplace.sim.dataset.job import scene_dirs
+    from ocplace.sim.dataset.loader import iter_examples
+    from ocplace.train.commands import dataset_hash
+
+    return featurize(iter_examples(dataset_dir, split), backbone, features_path(dataset_dir, split, backbone),
+                     dataset_hash=dataset_hash(dataset_dir, split), total=len(scene_dirs(dataset_dir, split)),
+                     progress=progress)
+
+
+def train_ours(ctx: TrainContext) -> Path:
+    """Featurize the training split, then train the adapters into `ctx.out_dir` (resumable)."""
+    from ocplace.models.backbone import load_backbone
+    from ocplace.models.features import load_features
+    from ocplace.train.loop import train
+
+    backbone = load_backbone(ctx.backbone)
+    features = load_features(featurize_split(Path(ctx.dataset_dir), "train", backbone), backbone.fingerprint)
+    config = dataclasses.replace(train_recipe(ctx.scale), fraction=ctx.fraction, seed=ctx.seed)
+    train(features, ctx.out_dir, config)
+    return Path(ctx.out_dir)
+
+
+def scene_input(record: SceneRecord):
+    """What a method may see of a dataset scene, as the policy's input (no tuples, no oracle)."""
+    from ocplace.models.policy import SceneInput
+
+    meta = record.meta
+    boxes = record.boxes
+    aabb_by_id = {obj["object_id"]: obj["aabb"] for obj in meta["objects"]}
+    aabbs = np.array([aabb_by_id[int(i)] for i in boxes.object_ids], np.float64).reshape(-1, 2, 3)[:, :, :2]
+    return SceneInput(record.rgb, record.depth, boxes.boxes, meta["instruction"],
+                      meta["held_object"]["footprint_half_extents"], meta["camera"], aabbs, name=record.id)
+
+
+def output_of(placement) -> MethodOutput:
+    return MethodOutput(
+        mode=None if placement.mode is None else np.asarray(placement.mode, np.float64),
+        samples=None if placement.samples is None else np.asarray(placement.samples, np.float64),
+        parsed=placement.pairs or None,
+        grounded=placement.tokens or None,
+        failure=placement.failure)
+
+
+@dataclasses.dataclass
+class PolicyMethod:
+    """A `Method` around a PlacementPolicy."""
+
+    name: str
+    policy: object  # PlacementPolicy
+    backbone_spec: str
+    adapters_file: Path | None
+
+    def run(self, scenes: Sequence[SceneRecord], key) -> list[MethodOutput]:
+        placements = self.policy.place_many([scene_input(s) for s in scenes], key, progress=len(scenes) > 64)
+        return [output_of(p) for p in placements]
+
+    def describe(self) -> dict:
+        return describe_policy(self.policy, self.name, self.backbone_spec, self.adapters_file)
+
+
+def describe_policy(policy, name: str, backbone_spec: str, adapters_file: Path | None) -> dict:
+    """JSON-able record of everything that decides the policy's placements."""
+    from ocplace.models.parsing import default_config as parsing_config
+    from ocplace.paths import cache_dir
+
+    parser_name = getattr(policy.parser, "name", type(policy.parser).__name__)
+    parsing = dataclasses.asdict(parsing_config())
+    adapters = None
+    if adapters_file is not None:
+        from ocplace.train.checkpoints import load_adapters
+
+        trained = load_adapters(adapters_file)
+        adapters = {"path": str(adapters_file), "sha256": hashlib.sha256(Path(adapters_file).read_bytes()).hexdigest(),
+                    "steps": trained.steps, "features_key": trained.features_key}
+    return json.loads(json.dumps({
+        "method": name,
+        "backbone": {"spec": backbone_spec, "fingerprint": policy.backbone.fingerprint},
+        "adapters": adapters,
+        "grounding": {"adapter_config": dataclasses.asdict(policy.grounding.config),
+                      "logit_scale": float(policy.grounding.logit_scale), "zero_shot": adapters is None},
+        "prompt": dataclasses.asdict(policy.prompt),
+        "parser": {"name": parser_name, "config": parsing,
+                   "cache": str(cache_dir() / parsing["llm"]["cache_subdir"]) if parser_name == "llm" else None},
+        "sampler": dataclasses.asdict(policy.sampler),
+        "threshold": policy.threshold,
+        "policy": {"crop_size": policy.crop_size, "min_boxes": policy.min_boxes, "max_tuples": policy.max_tuples,
+                   "detector": dataclasses.asdict(policy.detector), "boxes": "dataset (from segmentation)",
+                   "aabbs": "dataset (simulator AABBs of boxed objects)"},
+    }, default=_jsonable))
+
+
+def _jsonable(value):
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, (np.floating, np.integer)):
+        return value.item()
+    raise TypeError(f"not JSON-serialisable: {type(value).__name__}")
+
+
+def _policy(ctx: LoadContext, adapters_file: Path | None):
+    from ocplace.models.backbone import load_backbone
+    from ocplace.models.placement.sampler import SamplerConfig
+    from ocplace.models.policy import PlacementPolicy
+
+    return PlacementPolicy.from_run(load_backbone(ctx.backbone), adapters_file, parser=ctx.parser,
+                                    sampler=SamplerConfig(num_samples=ctx.num_samples))
+
+
+def load_ours(ctx: LoadContext) -> PolicyMethod:
+    from ocplace.errors import TrainingError
+    from ocplace.train.checkpoints import ADAPTERS_FILE
+
+    if ctx.run_dir is None or not (Path(ctx.run_dir) / ADAPTERS_FILE).exists():
+        raise TrainingError(f"no trained adapters in {ctx.run_dir}; train the 'ours' method first")
+    adapters_file = Path(ctx.run_dir) / ADAPTERS_FILE
+    return PolicyMethod("ours", _policy(ctx, adapters_file), ctx.backbone, adapters_file)
+
+
+def load_no_adapter(ctx: LoadContext) -> PolicyMethod:
+    return PolicyMethod("no_adapter", _policy(ctx, None), ctx.backbone, None)
+
+
+METHODS = (
+    MethodSpec("ours", "Ours", load=load_ours, train=train_ours),
+    MethodSpec("no_adapter", "Ours w/o Adapter", load=load_no_adapter),
+)
