@@ -104,7 +104,7 @@ class SceneOutcome:
     physical: PhysicalOutcome | None = None
 
     def to_json(self) -> dict:
-        return dataclasses.asdict(self)
+        return jsonable(self)
 
     @classmethod
     def from_json(cls, fields: dict) -> SceneOutcome:

@@ -1,0 +1,240 @@
+"""The evaluation harness: scoring, results JSON, Table I, `ocplace evaluate`, re-running from a JSON."""
+
+import json
+
+import numpy as np
+import pytest
+
+import eval_methods
+from ocplace.eval import harness, registry, results, table
+from ocplace.eval.api import MethodOutput, TrainContext
+from ocplace.eval.harness import EvalSettings, MethodRun
+from ocplace.sim.dataset.job import scene_dirs
+from ocplace.sim.dataset.records import read_scene
+
+SETTINGS = EvalSettings(backbone="none", physical_scenes=0, chunk_size=3, num_samples=16)
+
+
+@pytest.fixture(scope="module")
+def oracle_run(smoke_dataset, tmp_path_factory):
+    spec = eval_methods.SPECS["oracle"]
+    out = tmp_path_factory.mktemp("oracle_run")
+    return MethodRun(spec, spec.train(TrainContext(smoke_dataset, "none", out)))
+
+
+def evaluate(name, dataset, settings=SETTINGS, run_dir=None, arena=None):
+    return harness.evaluate_run(MethodRun(eval_methods.SPECS[name], run_dir), dataset, settings, arena,
+                                progress=False)
+
+
+@pytest.fixture(scope="module")
+def evaluations(smoke_dataset, oracle_run):
+    return [harness.evaluate_run(oracle_run, smoke_dataset, SETTINGS, progress=False),
+            *(evaluate(name, smoke_dataset) for name in ("centre", "failing", "flaky", "random"))]
+
+
+@pytest.fixture(scope="module")
+def results_json(evaluations, smoke_dataset):
+    return results.build_results(evaluations, smoke_dataset, SETTINGS, ["pytest"])
+
+
+def by_key(results_json, key):
+    return next(e for e in results_json["evaluations"] if e["key"] == key)
+
+
+def test_oracle_placement_scores_full_marks(results_json):
+    oracle = by_key(results_json, "oracle")
+    for subset in harness.SUBSETS:
+        for level, row in oracle["subsets"][subset]["aggregate"].items():
+            assert row["scenes"] > 0, (subset, level)
+            assert row["success"] == row["sample_success"] == 1.0, (subset, level)
+            assert row["parse_accuracy"] == row["grounding_accuracy"] == row["program_accuracy"] == 1.0
+            assert row["failures"] == 0 and sum(row["stages"].values()) == 0
+        assert oracle["subsets"][subset]["aggregate"]["overall"]["scenes"] == 8
+
+
+def hand_checked_centre_success(meta) -> bool:
+    """The success metric at (0, 0), written out for the centre placement only."""
+    hx, hy = meta["held_object"]["footprint_half_extents"]
+    for obj in meta["objects"]:
+        (x0, y0, _), (x1, y1, _) = obj["aabb"]
+        if x0 < hx and x1 > -hx and y0 < hy and y1 > -hy:
+            return False
+    for t in meta["tuples"]:
+        if t["reference_object_id"] == 0:
+            if t["relation"] != "middle":
+                return False
+            continue
+        (x0, y0, _), (x1, y1, _) = meta["objects"][t["reference_object_id"] - 1]["aabb"]
+        offset = -np.array([(x0 + x1) / 2, (y0 + y1) / 2])
+        direction = {"left": (-1, 0), "right": (1, 0), "back": (0, 1), "front": (0, -1), "back left": (-1, 1),
+                     "back right": (1, 1), "front left": (-1, -1), "front right": (1, -1)}[t["relation"]]
+        direction = np.array(direction) / np.linalg.norm(direction)
+        distance = np.linalg.norm(offset)
+        if not 0.10 <= distance <= 0.30 or offset @ direction < distance * np.cos(np.pi / 4) - 1e-9:
+            return False
+    return True
+
+
+def test_centre_placement_matches_a_hand_check(results_json, smoke_dataset):
+    centre = by_key(results_json, "centre")
+    checked = 0
+    for subset in harness.SUBSETS:
+        for scene in centre["subsets"][subset]["scenes"]:
+            meta = read_scene(smoke_dataset / subset / scene["id"]).meta
+            assert scene["success"] == hand_checked_centre_success(meta), scene["id"]
+            assert scene["mode"] == [0.0, 0.0] and scene["failure"] is None
+            assert scene["sample_success"] == float(scene["success"])  # no samples: the mode's
+            assert scene["stage"] in (None, "placement")
+            checked += 1
+    assert checked == 24
+
+
+def test_failures_score_zero_and_are_listed(results_json):
+    failing = by_key(results_json, "failing")
+    for subset in harness.SUBSETS:
+        overall = failing["subsets"][subset]["aggregate"]["overall"]
+        assert overall["success"] == overall["sample_success"] == 0.0
+        assert overall["failures"] == overall["stages"]["failure"] == 8
+        assert all(s["failure"] == "no reference found (test method)" for s in failing["subsets"][subset]["scenes"])
+    listed = table.failure_list(results_json)
+    assert "Always fails (failing): 24 scenes" in listed and "`seen-00000`: no reference found" in listed
+
+
+def test_an_exception_fails_only_its_scene(results_json):
+    flaky = by_key(results_json, "flaky")
+    centre = by_key(results_json, "centre")
+    for subset in harness.SUBSETS:
+        for scene, reference in zip(flaky["subsets"][subset]["scenes"], centre["subsets"][subset]["scenes"]):
+            index = int(scene["id"].rsplit("-", 1)[1])
+            if index % 2:
+                assert scene["failure"] == f"RuntimeError: cannot handle {scene['id']}" and not scene["success"]
+                assert scene["stage"] == "failure"
+            else:
+                assert scene["failure"] is None and scene["success"] == reference["success"]
+
+
+def test_methods_never_see_the_ground_truth(smoke_dataset):
+    seen_meta = []
+
+    class Spy(eval_methods.CentreMethod):
+        def run(self, scenes, key):
+            seen_meta.extend(scene.meta for scene in scenes)
+            return super().run(scenes, key)
+
+    harness.evaluate_run(MethodRun(eval_methods.SPECS["centre"]), smoke_dataset,
+                         EvalSettings(subsets=("seen",), physical_scenes=0), progress=False, method=Spy())
+    assert len(seen_meta) == 8
+    assert all(meta["tuples"] == [] and "oracle" not in meta and meta["boxes"] for meta in seen_meta)
+
+
+def test_grounding_and_parse_are_judged_through_box_order(smoke_dataset):
+    record = read_scene(scene_dirs(smoke_dataset, "seen")[0])
+    truth = record.tuples
+    boxes = record.meta["boxes"]
+    assert harness.token_object_ids(record.meta, [len(boxes), 0, len(boxes) + 1]) == (0, boxes[0]["object_id"], -1)
+    mode = np.asarray(record.meta["oracle"]["placement"])
+    right = tuple((t.reference_name.upper(), t.relation) for t in truth)  # case and articles do not matter
+    tokens = tuple(t.token_index for t in truth)
+    good = harness.score_scene(record, MethodOutput(mode, None, right, tokens))
+    assert good.parse_ok and good.grounding_ok and good.program_ok and good.success and good.stage is None
+    wrong_token = tuple((t + 1) % (len(boxes) + 1) for t in tokens)
+    miss = MethodOutput(np.array([9.0, 9.0]), None, right, wrong_token)
+    scored = harness.score_scene(record, miss)
+    assert scored.parse_ok and not scored.grounding_ok and scored.stage == "grounding" and not scored.success
+    wrong_relation = tuple((r, "middle" if rel != "middle" else "left") for r, rel in right)
+    scored = harness.score_scene(record, MethodOutput(np.array([9.0, 9.0]), None, wrong_relation, tokens))
+    assert not scored.parse_ok and scored.grounding_ok and scored.stage == "parse"
+    scored = harness.score_scene(record, MethodOutput(np.array([9.0, 9.0]), None, right, tokens))
+    assert scored.program_ok and scored.stage == "sampling"
+    scored = harness.score_scene(record, MethodOutput(np.array([np.nan, 0.0]), None))
+    assert scored.failure.startswith("malformed output") and scored.stage == "failure"
+
+
+def test_sampling_is_deterministic_and_keyed_per_subset(smoke_dataset):
+    first = evaluate("random", smoke_dataset)
+    again = evaluate("random", smoke_dataset)
+    assert first.subsets == again.subsets
+    modes = {subset: [o.mode for o in outcomes] for subset, outcomes in first.subsets.items()}
+    assert modes["seen"] != modes["unseen_obj"]
+    other_seed = evaluate("random", smoke_dataset, EvalSettings(**(SETTINGS.to_json() | {"seed": 1,
+                                                                                       "subsets": ("seen",)})))
+    assert [o.mode for o in other_seed.subsets["seen"]] != modes["seen"]
+
+
+def test_physical_check_on_the_first_k_scenes(smoke_dataset, oracle_run, arena):
+    settings = EvalSettings(subsets=("seen",), physical_scenes=2, chunk_size=4)
+    evaluation = harness.evaluate_run(oracle_run, smoke_dataset, settings, arena, progress=False)
+    outcomes = evaluation.subsets["seen"]
+    assert [o.physical is not None for o in outcomes] == [True, True] + [False] * 6
+    assert all(o.physical.dropped and o.physical.held_offset is not None for o in outcomes[:2])
+    overall = harness.aggregate_subset(outcomes)["overall"]
+    assert overall["physical_scenes"] == 2 and overall["physical_mode_success"] == 1.0
+    failing = evaluate("failing", smoke_dataset, settings, arena=arena).subsets["seen"]
+    assert failing[0].physical == harness.PhysicalOutcome(success=False, dropped=False)
+
+
+def test_results_json_round_trip(results_json, evaluations, tmp_path):
+    path = results.write_results(tmp_path / "r.json", results_json)
+    loaded = results.read_results(path)
+    assert loaded == json.loads(json.dumps(results_json))
+    assert {"schema", "created", "command", "environment", "dataset", "settings", "evaluations"} <= loaded.keys()
+    assert loaded["dataset"]["dataset_hash"] and len(loaded["dataset"]["manifest_hash"]) == 64
+    assert loaded["environment"]["packages"]["jax"] and loaded["environment"]["packages"]["mujoco"]
+    assert results.evaluations(loaded) == [
+        results.evaluation_from_json(results.evaluation_to_json(e)) for e in evaluations]
+    assert [e.subsets for e in results.evaluations(loaded)] == [e.subsets for e in evaluations]
+    assert results.settings_of(loaded) == SETTINGS
+    (tmp_path / "bad.json").write_text(json.dumps({"schema": "other"}))
+    with pytest.raises(results.ResultsError, match="not an ocplace evaluation"):
+        results.read_results(tmp_path / "bad.json")
+
+
+def test_table_one_layout(results_json):
+    lines = table.table_one(results_json).splitlines()
+    assert lines[2].split("|")[1:-1][1].strip() == "Seen" and "Unseen obj" in lines[2] and "Unseen inst" in lines[2]
+    assert lines[4].count("**Overall**") == 3 and lines[4].count("**1 Obj**") == 3
+    rows = {line.split("|")[1].strip(): [c.strip() for c in line.split("|")[2:-1]] for line in lines[5:]}
+    assert rows["Oracle"] == ["100.00"] * 12 and rows["Always fails"] == ["0.00"] * 12
+    centre = by_key(results_json, "centre")["subsets"]["seen"]["aggregate"]["overall"]["success"]
+    assert rows["Table centre"][3] == f"{100 * centre:.2f}"
+    document = table.render(results_json)
+    for title in ("Table I", "Mean success over samples", "Physical success", "Parse, grounding",
+                  "Unsuccessful scenes by stage", "Method failures"):
+        assert title in document
+
+
+def test_rerun_reproduces_exactly(results_json, oracle_run):
+    fresh = results.rerun(results_json, eval_methods.SPECS, progress=False)
+    assert results.compare(results_json, fresh) == []
+    tampered = json.loads(json.dumps(fresh))
+    scene = by_key(tampered, "random")["subsets"]["seen"]["scenes"][3]
+    scene["mode"][0] += 1e-7
+    assert results.compare(results_json, tampered) == [
+        f"random/seen/{scene['id']}: mode {by_key(results_json, 'random')['subsets']['seen']['scenes'][3]['mode']!r}"
+        f" != {scene['mode']!r}"]
+
+
+def test_cli_evaluate_and_rerun(smoke_dataset, oracle_run, tmp_path, monkeypatch, capsys):
+    from ocplace.cli import main
+
+    monkeypatch.setattr(registry, "METHOD_MODULES", ("eval_methods",))
+    out = tmp_path / "results.json"
+    common = ["--dataset", str(smoke_dataset), "--backbone", "none", "--physical", "0", "--limit", "4",
+              "--no-progress", "--num-samples", "8"]
+    assert main(["evaluate", *common, "--methods", "oracle", "--out", str(out)]) == 2
+    assert "pass --run oracle=RUN_DIR" in capsys.readouterr().err
+    assert main(["evaluate", *common, "--methods", "oracle,nope", "--out", str(out)]) == 2
+    assert "unknown method" in capsys.readouterr().err
+    assert main(["evaluate", *common, "--methods", "all", "--run", f"oracle={oracle_run.run_dir}",
+                 "--subsets", "seen", "unseen_inst", "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "| Oracle | 100.00 | 100.00 | 100.00 | 100.00 |" in printed
+    saved = results.read_results(out)
+    assert [e["key"] for e in saved["evaluations"]] == list(eval_methods.SPECS)
+    assert saved["settings"]["subsets"] == ["seen", "unseen_inst"] and saved["settings"]["limit"] == 4
+    assert saved["command"][:2] == ["ocplace", "evaluate"] or saved["command"][0] == "ocplace"
+    assert out.with_suffix(".md").read_text().startswith("Dataset ")
+    assert main(["evaluate", "--rerun", str(out), "--no-progress"]) == 0
+    assert "reproduced exactly" in capsys.readouterr().out
+    assert results.compare(saved, results.read_results(tmp_path / "results.rerun.json")) == []
