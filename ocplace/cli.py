@@ -25,6 +25,7 @@ COMMAND_MODULES = (
     "ocplace.train.pretrain.commands",
     "ocplace.models.placement_commands",
     "ocplace.eval.commands",
+    "ocplace.models.policy_commands",
 )
 
 
