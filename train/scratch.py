@@ -1,0 +1,244 @@
+"""Training Ours w/o CLIP pre-train: image tower, projections and adapters from random weights.
+
+The training split's crops and workspace images are decoded, cut like the pipeline cuts them
+(`sim.dataset.loader.example_from_record`), resized to the tower's input size and cached once
+as uint8 arrays, with the frozen MiniLM embeddings of the prompted reference phrases
+(`scratch_inputs`). Each step takes `batch_size` scenes (all their visual tokens), applies a
+random symmetry of the square to every image and takes one AdamW step on Ours' grounding
+loss. Example order, symmetries and initial weights are functions of the seed and the step, so
+a resumed run ends with the weights of an uninterrupted one.
+
+Run directory:
+    config.json, metrics.jsonl, checkpoints/     as in train.loop
+    backbone/                                    the trained tower as an offline backbone directory
+    adapters.safetensors                         the trained adapters (train.checkpoints format)
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import hashlib
+import json
+import logging
+import math
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+
+from ocplace.errors import TrainingError
+from ocplace.models import offline_backbone as ob
+from ocplace.models import scratch
+from ocplace.models.backbone import PromptConfig
+from ocplace.paths import atomic_path, cache_dir
+from ocplace.train import checkpoints
+from ocplace.train.loop import batch_indices, subset_indices
+from ocplace.train.metrics import MetricsLog
+
+log = logging.getLogger(__name__)
+
+BACKBONE_DIR = "backbone"
+INPUTS_FORMAT = "ocplace-scratch-inputs-v1"
+MAX_TOKENS = 6  # 5 crops + the workspace
+MAX_TUPLES = 2
+
+
+@dataclasses.dataclass(frozen=True)
+class ScratchTrainConfig:
+    steps: int = 1_200
+    batch_size: int = 16  # scenes per step (each with all its visual tokens)
+    learning_rate: float = 1e-3  # AdamW peak; linear warm-up, cosine decay to 2% (as the backbone pretraining)
+    warmup_steps: int = 100
+    weight_decay: float = 0.05  # matrices only
+    augment: bool = True  # a random symmetry of the square per image
+    seed: int = 0
+    fraction: float = 1.0
+    subset_seed: int = 0
+    log_every: int = 50
+    checkpoint_every: int = 200
+    keep_checkpoints: int = 2
+
+    def validate(self) -> None:
+        if min(self.steps, self.batch_size, self.log_every, self.checkpoint_every) < 1:
+            raise TrainingError("steps, batch_size, log_every and checkpoint_every must be positive")
+        if not 0.0 < self.fraction <= 1.0:
+            raise TrainingError(f"fraction must be in (0, 1], got {self.fraction}")
+
+
+@dataclasses.dataclass(frozen=True)
+class ScratchRecipe:
+    model: scratch.ScratchConfig
+    train: ScratchTrainConfig
+
+    def to_dict(self) -> dict:
+        return {"model": self.model.to_dict(), "train": dataclasses.asdict(self.train)}
+
+
+RECIPES = {
+    "smoke": ScratchRecipe(scratch.smoke_config(), ScratchTrainConfig(
+        steps=30, batch_size=4, learning_rate=3e-3, warmup_steps=3, log_every=10, checkpoint_every=10)),
+    "demo": ScratchRecipe(scratch.demo_config(), ScratchTrainConfig(
+        steps=300, batch_size=16, warmup_steps=30, log_every=25, checkpoint_every=100)),
+    "default": ScratchRecipe(scratch.default_config(), ScratchTrainConfig()),
+}
+
+
+def recipe(scale: str, fraction: float = 1.0, seed: int = 0) -> ScratchRecipe:
+    if scale not in RECIPES:
+        raise TrainingError(f"unknown scale {scale!r}; choose one of {sorted(RECIPES)}")
+    base = RECIPES[scale]
+    return dataclasses.replace(base, train=dataclasses.replace(base.train, fraction=fraction, seed=seed))
+
+
+# ----------------------------------------------------------------------------- cached inputs
+
+
+@dataclasses.dataclass(frozen=True)
+class ScratchInputs:
+    """The training split as the tower sees it; arrays have one row per scene."""
+
+    arrays: dict  # pixels uint8 (n, 6, S, S, 3), visual_mask (n, 6), sentences (n, 2, 384), text_mask, targets
+    scene_ids: tuple[str, ...]
+    key: str
+
+
+def visual_pixels(config: ob.OfflineConfig, crops: np.ndarray, workspace: np.ndarray) -> np.ndarray:
+    """uint8 `(N + 1, S, S, 3)`: the crops then the workspace, preprocessed like `OfflineBackbone.encode_images`."""
+    return ob.preprocess_images(config, np.concatenate([crops, workspace[None]]))
+
+
+def scratch_inputs(dataset_dir: Path, split: str, config: ob.OfflineConfig, prompt: PromptConfig = PromptConfig(),
+                   progress: bool = False) -> ScratchInputs:
+    """The split's preprocessed images and phrase embeddings, built once into the cache."""
+    from safetensors import safe_open
+    from safetensors.numpy import load_file, save_file
+    from tqdm import tqdm
+
+    from ocplace.sim.dataset.loader import iter_examples
+    from ocplace.train.commands import dataset_hash
+
+    text_tower = ob.FrozenTextTower.load(config.text_max_length)
+    digest = dataset_hash(dataset_dir, split)
+    key = hashlib.sha256(json.dumps([INPUTS_FORMAT, digest, config.image_size, config.text_max_length,
+                                     prompt.to_json(), text_tower.digest]).encode()).hexdigest()
+    path = cache_dir() / "scratch" / f"{digest[:16]}-{split}-{config.image_size}px-{key[:12]}.safetensors"
+    if path.exists():
+        with safe_open(str(path), framework="numpy") as handle:
+            scene_ids = tuple(json.loads(handle.metadata()["scene_ids"]))
+        return ScratchInputs(load_file(str(path)), scene_ids, key)
+    rows = []
+    for example in tqdm(iter_examples(dataset_dir, split), desc="crops", unit="scene", disable=not progress):
+        rows.append((example.scene_id, visual_pixels(config, example.crops, example.workspace),
+                     [prompt.text_for(text) for text in example.texts], example.targets))
+    size = config.image_size
+    arrays = {"pixels": np.zeros((len(rows), MAX_TOKENS, size, size, 3), np.uint8),
+              "visual_mask": np.zeros((len(rows), MAX_TOKENS), bool),
+              "sentences": np.zeros((len(rows), MAX_TUPLES, config.text_dim), np.float32),
+              "text_mask": np.zeros((len(rows), MAX_TUPLES), bool),
+              "targets": np.zeros((len(rows), MAX_TUPLES), np.int32)}
+    texts = [text for _, _, scene_texts, _ in rows for text in scene_texts]
+    embeddings = iter(np.concatenate([text_tower.encode(texts[i:i + 64]) for i in range(0, len(texts), 64)]))
+    for row, (_, pixels, scene_texts, targets) in enumerate(rows):
+        arrays["pixels"][row, :len(pixels)] = pixels
+        arrays["visual_mask"][row, :len(pixels)] = True
+        for k in range(len(scene_texts)):
+            arrays["sentences"][row, k] = next(embeddings)
+        arrays["text_mask"][row, :len(scene_texts)] = True
+        arrays["targets"][row, :len(targets)] = targets
+    scene_ids = tuple(scene_id for scene_id, *_ in rows)
+    with atomic_path(path) as tmp:
+        save_file(arrays, str(tmp), metadata={"key": key, "scene_ids": json.dumps(scene_ids)})
+    return ScratchInputs(arrays, scene_ids, key)
+
+
+# ----------------------------------------------------------------------------- the jitted step
+
+
+def make_optimizer(config: ScratchTrainConfig) -> optax.GradientTransformation:
+    schedule = optax.warmup_cosine_decay_schedule(0.0, config.learning_rate, config.warmup_steps,
+                                                  max(config.steps, config.warmup_steps + 1), config.learning_rate * 0.02)
+    decay_mask = functools.partial(jax.tree_util.tree_map, lambda p: p.ndim >= 2)
+    return optax.chain(optax.clip_by_global_norm(1.0),
+                       optax.adamw(schedule, weight_decay=config.weight_decay, mask=decay_mask))
+
+
+@functools.partial(jax.jit, static_argnums=(0, 1), donate_argnums=2)
+def train_step(model: scratch.ScratchConfig, config: ScratchTrainConfig, state, batch, codes):
+    """One AdamW step; returns `(state, loss)`."""
+    params, opt_state = state
+    value, grads = jax.value_and_grad(functools.partial(scratch.loss, model))(params, batch, codes)
+    updates, opt_state = make_optimizer(config).update(grads, opt_state, params)
+    return (optax.apply_updates(params, updates), opt_state), value
+
+
+def step_codes(config: ScratchTrainConfig, step: int) -> np.ndarray:
+    """int32 `(batch_size, 6)` symmetry codes of a step (zeros without augmentation)."""
+    if not config.augment:
+        return np.zeros((config.batch_size, MAX_TOKENS), np.int32)
+    return np.random.default_rng([config.seed, step, 1]).integers(8, size=(config.batch_size, MAX_TOKENS),
+                                                                 dtype=np.int32)
+
+
+def train_on_inputs(arrays: dict, run_dir: Path, recipe_: ScratchRecipe, run_meta: dict, progress: bool = True):
+    """Trains into `run_dir` (resuming from its newest checkpoint); returns the final params."""
+    from tqdm import tqdm
+
+    config, model = recipe_.train, recipe_.model
+    config.validate()
+    checkpoints.claim_run_dir(run_dir, run_meta, "config.json")
+    params = scratch.init_params(model, jax.random.key(config.seed))
+    state = (params, make_optimizer(config).init(params))
+    start = 0
+    saved = checkpoints.list_checkpoints(run_dir)
+    if saved:
+        state, start, _ = checkpoints.load_checkpoint(saved[-1], state)
+    metrics = MetricsLog(run_dir / "metrics.jsonl")
+    metrics.truncate_after(start)
+    num_scenes = len(arrays["pixels"])
+    losses, began = [], time.perf_counter()
+    with tqdm(total=config.steps, initial=start, unit="step", desc="train no_pretrain", disable=not progress) as bar:
+        for step in range(start, config.steps):
+            rows = batch_indices(num_scenes, config.seed, step, 1, config.batch_size)[0]
+            batch = {name: jnp.asarray(array[rows]) for name, array in arrays.items()}
+            state, value = train_step(model, config, state, batch, jnp.asarray(step_codes(config, step)))
+            losses.append(value)
+            done = step + 1
+            if done % config.log_every == 0 or done == config.steps:
+                metrics.append({"step": done, "loss": float(np.mean(np.asarray(losses))),
+                                "logit_scale": float(scratch.logit_scale(model, state[0])),
+                                "elapsed_s": round(time.perf_counter() - began, 3)})
+                losses = []
+            if done % config.checkpoint_every == 0 or done == config.steps:
+                checkpoints.save_checkpoint(run_dir, done, state, {"step_of": str(config.steps)},
+                                            config.keep_checkpoints)
+            bar.update(1)
+    return jax.tree_util.tree_map(np.asarray, state[0])
+
+
+def train_scratch(dataset_dir: Path, run_dir: Path, recipe_: ScratchRecipe, progress: bool = True) -> Path:
+    """Caches the inputs, trains, saves `backbone/` and `adapters.safetensors`; a finished run is kept."""
+    run_dir = Path(run_dir)
+    prompt = PromptConfig()
+    inputs = scratch_inputs(dataset_dir, "train", recipe_.model.backbone, prompt, progress)
+    chosen = subset_indices(len(inputs.scene_ids), recipe_.train.fraction, recipe_.train.subset_seed)
+    run_meta = {"recipe": recipe_.to_dict(), "inputs_key": inputs.key, "train_scenes": int(len(chosen))}
+    if (run_dir / checkpoints.ADAPTERS_FILE).exists() and (run_dir / BACKBONE_DIR / ob.FINGERPRINT_FILE).exists():
+        checkpoints.claim_run_dir(run_dir, run_meta, "config.json")
+        return run_dir
+    arrays = {name: array[chosen] for name, array in inputs.arrays.items()}
+    params = train_on_inputs(arrays, run_dir, recipe_, run_meta, progress)
+    model = recipe_.model
+    text_digest = ob.FrozenTextTower.load(model.backbone.text_max_length).digest
+    backbone_dir = ob.save_backbone(run_dir / BACKBONE_DIR, model.backbone, params["backbone"], text_digest,
+                                    {"trained_by": "ocplace.train.scratch (Ours w/o CLIP pre-train)",
+                                     "recipe": recipe_.to_dict()})
+    fingerprint = (backbone_dir / ob.FINGERPRINT_FILE).read_text().strip()
+    scale = float(np.exp(min(float(params["backbone"]["log_logit_scale"]), math.log(model.max_logit_scale))))
+    checkpoints.save_adapters(run_dir / checkpoints.ADAPTERS_FILE, params["adapters"], model.adapters, scale,
+                              backbone_fingerprint=fingerprint, prompt=prompt, features_key=inputs.key,
+                              steps=recipe_.train.steps, train_config_json=json.dumps(recipe_.to_dict()))
+    return run_dir
