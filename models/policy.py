@@ -353,8 +353,9 @@ class PlacementPolicy:
         problems = [_attempt(self.problem, scene, refs) for scene, refs in zip(scenes, references)]
         valid = [i for i, p in enumerate(problems) if not _failed(p)]
         if valid:
-            result = jax.device_get(sample_placements(key, metric.stack_problems([problems[i] for i in valid]),
-                                                      self.sampler))
+            batch = [problems[i] for i in valid]
+            batch += batch[:1] * (_padded_count(len(batch), self.sampler.scenes_per_step) - len(batch))
+            result = jax.device_get(sample_placements(key, metric.stack_problems(batch), self.sampler))
             for row, i in enumerate(valid):
                 if result.empty[row]:
                     problems[i] = NoFeasiblePlacement(scenes[i].name, explain_empty(problems[i], self.sampler.grid))
@@ -389,6 +390,12 @@ class PlacementPolicy:
 _FAILURE_FLAGS = {"GroundingUncertain": "low_confidence", "NoFeasiblePlacement": "empty_region",
                   "NoObjectBoxes": "no_boxes_for_reference", "ParseError": "parse_failed",
                   "InvalidPlacementProblem": "invalid_problem"}
+
+
+def _padded_count(count: int, step: int) -> int:
+    """One scene stays one (a robot's latency); batches round up to whole sampler steps, so a batched
+    evaluation compiles the sampler for few shapes."""
+    return count if count == 1 else -(-count // step) * step
 
 
 def _attempt(function: Callable, *args):
