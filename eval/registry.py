@@ -6,7 +6,7 @@ import importlib
 
 from ocplace.eval.api import MethodSpec
 
-METHOD_MODULES: tuple[str, ...] = ("ocplace.eval.ours",)
+METHOD_MODULES: tuple[str, ...] = ("ocplace.eval.ours", "ocplace.eval.baselines", "ocplace.eval.ablations")
 
 
 def method_specs() -> dict[str, MethodSpec]:

@@ -1,0 +1,168 @@
+"""The two competing approaches of Table I: Raw Image Grids and CLIPort-Place (docs/baselines.md).
+
+Both read only what eval/api.py allows: RGB-D, `meta["boxes"]` with the AABBs of those objects,
+the camera, the instruction and the held object's footprint; never the tuples or the oracle.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from collections.abc import Sequence
+
+import jax
+import numpy as np
+
+from ocplace.errors import OcplaceError, TrainingError
+from ocplace.eval.api import LoadContext, MethodOutput, MethodSpec, TrainContext
+from ocplace.models.baselines import cliport, grids
+from ocplace.models.baselines.common import camera_from_meta, free_grid
+from ocplace.sim.dataset.records import SceneRecord
+
+SCENES_PER_BATCH = 8  # CLIPort scenes per network call (a fixed shape: one compilation)
+
+
+def _load_backbone(spec: str, run_meta: dict, name: str):
+    from ocplace.models.backbone import load_backbone
+
+    backbone = load_backbone(spec)
+    if backbone.fingerprint != run_meta["backbone_fingerprint"]:
+        raise TrainingError(f"the {name} run was trained with another backbone (fingerprint "
+                            f"{run_meta['backbone_fingerprint'][:12]}, loaded {backbone.fingerprint[:12]}); "
+                            "evaluate with the backbone it was trained with, or retrain")
+    return backbone
+
+
+def _failure(error: Exception) -> MethodOutput:
+    return MethodOutput(mode=None, samples=None, failure=f"{type(error).__name__}: {error}")
+
+
+# ----------------------------------------------------------------------------- Raw Image Grids
+
+
+@dataclasses.dataclass
+class GridsMethod:
+    """Chooses the cell most similar to all tuple texts and samples a collision-free point inside it."""
+
+    backbone: object
+    parser: object
+    params: dict
+    config: grids.GridConfig
+    run_meta: dict
+    weights_sha256: str
+    num_samples: int
+    name: str = "grids"
+
+    def describe(self) -> dict:
+        return {"method": self.name, "run": self.run_meta, "weights_sha256": self.weights_sha256,
+                "backbone_fingerprint": self.backbone.fingerprint, "parser": self.parser.name,
+                "num_samples": self.num_samples}
+
+    def run(self, scenes: Sequence[SceneRecord], key) -> list[MethodOutput]:
+        return [self._place(scene, scene_key) for scene, scene_key in zip(scenes, jax.random.split(key, len(scenes)))]
+
+    def chosen_cell(self, scene: SceneRecord, parsed: Sequence[tuple[str, str]]) -> tuple[int, np.ndarray]:
+        """`(cell, logits (num_cells,))` for one scene and its parse."""
+        crops = grids.cell_crops(scene.rgb, camera_from_meta(scene.meta), self.config)
+        cells = self.backbone.encode_images(crops)
+        text = self.backbone.encode_texts([grids.tuple_text(reference, relation) for reference, relation in parsed])
+        logits = np.asarray(grids.jit_grid_logits(self.config, self.params, cells, text, np.ones(len(text), bool),
+                                                  float(self.run_meta["logit_scale"])))
+        return int(np.argmax(logits)), logits
+
+    def _place(self, scene: SceneRecord, key) -> MethodOutput:
+        try:
+            parsed = tuple((t.reference, t.relation) for t in self.parser.parse(scene.meta["instruction"]))
+            cell, _ = self.chosen_cell(scene, parsed)
+            samples, mode, _ = grids.sample_in_cell(key, free_grid(scene.meta), cell, self.num_samples, self.config)
+        except OcplaceError as error:
+            return _failure(error)
+        return MethodOutput(mode=mode, samples=samples, parsed=parsed, grounded=None)
+
+
+def train_grids(context: TrainContext):
+    from ocplace.train.grids import train_grids as train
+
+    return train(context.dataset_dir, context.backbone, context.out_dir, context.scale, context.fraction, context.seed)
+
+
+def load_grids(context: LoadContext) -> GridsMethod:
+    from ocplace.models.parsing import make_parser
+    from ocplace.train.grids import load_params
+
+    params, run_meta, sha = load_params(context.run_dir)
+    config = grids.GridConfig.from_json(json.dumps(run_meta["grid"]))
+    return GridsMethod(_load_backbone(context.backbone, run_meta, "Raw Image Grids"), make_parser(context.parser),
+                       params, config, run_meta, sha, context.num_samples)
+
+
+# ----------------------------------------------------------------------------- CLIPort-Place
+
+
+@dataclasses.dataclass
+class CliportMethod:
+    """The argmax pixel of the affordance map as the mode; samples drawn from the map."""
+
+    backbone: object
+    params: dict
+    config: cliport.CliportConfig
+    run_meta: dict
+    weights_sha256: str
+    num_samples: int
+    name: str = "cliport"
+
+    def describe(self) -> dict:
+        return {"method": self.name, "run": self.run_meta, "weights_sha256": self.weights_sha256,
+                "backbone_fingerprint": self.backbone.fingerprint, "num_samples": self.num_samples}
+
+    def distributions(self, scenes: Sequence[SceneRecord]) -> np.ndarray:
+        """`(num_scenes, h * w)` pixel distributions (each sums to 1 over the table's pixels)."""
+        out = []
+        for start in range(0, len(scenes), SCENES_PER_BATCH):
+            batch = list(scenes[start:start + SCENES_PER_BATCH])
+            cameras = [camera_from_meta(scene.meta) for scene in batch]
+            images = [cliport.prepare_image(s.rgb, s.depth, c, self.config) for s, c in zip(batch, cameras)]
+            text = self.backbone.encode_texts([scene.meta["instruction"] for scene in batch])
+            masks = {cliport.table_mask(camera, self.config).tobytes() for camera in cameras}
+            if len(masks) != 1:
+                raise TrainingError("CLIPort-Place needs one camera per batch of scenes")
+            pad = SCENES_PER_BATCH - len(batch)
+            rgb = np.stack([i[0] for i in images] + [np.zeros_like(images[0][0])] * pad)
+            height = np.stack([i[1] for i in images] + [np.zeros_like(images[0][1])] * pad)
+            text = np.concatenate([text, np.zeros((pad, text.shape[1]), text.dtype)])
+            mask = cliport.table_mask(cameras[0], self.config)
+            out.append(np.asarray(cliport.jit_distribution(self.config, self.params, rgb, height, text, mask))[:len(batch)])
+        return np.concatenate(out) if out else np.zeros((0, self.config.num_pixels), np.float32)
+
+    def run(self, scenes: Sequence[SceneRecord], key) -> list[MethodOutput]:
+        try:
+            distributions = self.distributions(scenes)
+        except OcplaceError as error:
+            return [_failure(error) for _ in scenes]
+        outputs = []
+        for scene, probabilities, scene_key in zip(scenes, distributions, jax.random.split(key, len(scenes))):
+            mode, samples = cliport.mode_and_samples(scene_key, probabilities, self.num_samples,
+                                                     camera_from_meta(scene.meta), self.config)
+            outputs.append(MethodOutput(mode=mode, samples=samples, parsed=None, grounded=None))
+        return outputs
+
+
+def train_cliport(context: TrainContext):
+    from ocplace.train.cliport import train_cliport as train
+
+    return train(context.dataset_dir, context.backbone, context.out_dir, context.scale, context.fraction, context.seed)
+
+
+def load_cliport(context: LoadContext) -> CliportMethod:
+    from ocplace.train.cliport import load_params
+
+    params, run_meta, sha = load_params(context.run_dir)
+    config = cliport.CliportConfig.from_json(json.dumps(run_meta["network"]))
+    return CliportMethod(_load_backbone(context.backbone, run_meta, "CLIPort-Place"), params, config, run_meta, sha,
+                         context.num_samples)
+
+
+METHODS = (
+    MethodSpec("grids", "Raw Image Grids", load=load_grids, train=train_grids),
+    MethodSpec("cliport", "CLIPort-Place", load=load_cliport, train=train_cliport),
+)

@@ -1,0 +1,187 @@
+"""The baselines of Table I: Raw Image Grids and CLIPort-Place (real jitted JAX, the smoke dataset)."""
+
+import json
+
+import jax
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from ocplace.eval.api import LoadContext, TrainContext
+from ocplace.models.baselines import cliport, grids
+from ocplace.sim.camera import Camera
+from ocplace.sim.dataset.job import scene_dirs
+from ocplace.sim.dataset.records import SceneRecord, read_scene
+from ocplace.sim.workspace import DEFAULT_TABLE
+
+GRID = grids.GridConfig()
+BOUNDS = DEFAULT_TABLE.bounds
+
+
+# ----------------------------------------------------------------------------- grid cells
+
+
+def test_default_grid_is_8_by_6_cells_of_10_cm():
+    assert GRID.num_cells == 48
+    np.testing.assert_allclose(GRID.cell_size, [0.1, 0.1])
+    np.testing.assert_allclose(grids.cell_bounds(0, GRID), [[-0.4, -0.3], [-0.3, -0.2]])
+    np.testing.assert_allclose(grids.cell_bounds(47, GRID), [[0.3, 0.2], [0.4, 0.3]])
+
+
+def test_every_cell_centre_maps_back_to_its_cell():
+    centres = grids.cell_centres(GRID)
+    np.testing.assert_array_equal(grids.cell_of(centres, GRID), np.arange(GRID.num_cells))
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.floats(-0.4, 0.4), st.floats(-0.3, 0.3))
+def test_a_point_lies_in_the_bounds_of_its_cell(x, y):
+    (x0, y0), (x1, y1) = grids.cell_bounds(grids.cell_of([x, y], GRID), GRID)
+    assert x0 - 1e-12 <= x <= x1 + 1e-12 and y0 - 1e-12 <= y <= y1 + 1e-12
+
+
+def test_points_on_the_far_edges_and_off_the_table_are_clipped_into_edge_cells():
+    assert grids.cell_of([0.4, 0.3], GRID) == 47
+    assert grids.cell_of([-1.0, -1.0], GRID) == 0
+    assert grids.cell_of([0.05, -0.25], GRID) == 4 * 6 + 0  # column 4 (x in [0, 0.1]), front row
+
+
+def test_cell_pixel_boxes_tile_the_table_in_the_image():
+    camera = Camera()
+    boxes = grids.cell_pixel_boxes(camera, GRID)
+    table_top_left = camera.table_to_pixel(np.array([BOUNDS[0, 0], BOUNDS[1, 1]]))
+    np.testing.assert_allclose(boxes[grids.cell_of([-0.35, 0.25], GRID), :2], table_top_left)
+    assert np.all(boxes[:, 2] > boxes[:, 0]) and np.all(boxes[:, 3] > boxes[:, 1])
+    # neighbours along x share an edge: cell (ix + 1, iy)'s left is cell (ix, iy)'s right
+    np.testing.assert_allclose(boxes[GRID.rows:, 0], boxes[:-GRID.rows, 2])
+
+
+def test_positional_encoding_is_nerf_features_of_the_scaled_centre():
+    config = grids.GridConfig(num_frequencies=3)
+    points = np.array([[0.0, 0.0], [0.2, -0.15]])
+    encoded = np.asarray(grids.positional_encoding(points, config))
+    assert encoded.shape == (2, 2 + 4 * 3)
+    scaled = points / np.array(DEFAULT_TABLE.half_extents)
+    angles = np.concatenate([scaled[:, None, :] * (2.0**k) * np.pi for k in range(3)], axis=1).reshape(2, -1)
+    np.testing.assert_allclose(encoded, np.concatenate([scaled, np.sin(angles), np.cos(angles)], axis=1), atol=1e-6)
+
+
+def test_positional_encoding_tells_every_cell_apart():
+    encoded = np.asarray(grids.positional_encoding(grids.cell_centres(GRID), GRID))
+    distances = np.linalg.norm(encoded[:, None] - encoded[None], axis=-1)
+    assert np.all(distances[~np.eye(GRID.num_cells, dtype=bool)] > 0.1)
+
+
+def test_tuple_texts_put_the_relation_into_words():
+    assert grids.tuple_text("red bowl", "back") == "behind the red bowl"
+    assert grids.tuple_text("table", "left") == "to the left part of the table"
+
+
+# ----------------------------------------------------------------------------- CLIPort pixels
+
+
+def test_pixel_table_round_trip_over_the_whole_table():
+    camera, config = Camera(), cliport.CliportConfig()
+    mask = cliport.table_mask(camera, config)
+    v, u = np.nonzero(mask)
+    pixels = np.stack([u, v], axis=-1)
+    points = cliport.pixel_to_table(pixels, camera, config)
+    assert np.all((points >= BOUNDS[0]) & (points <= BOUNDS[1]))
+    np.testing.assert_allclose(cliport.table_to_pixel(points, camera, config), pixels, atol=1e-6)
+    np.testing.assert_array_equal(cliport.pixel_to_flat(pixels, config), v * config.width + u)
+    assert 0.9 < mask.mean() < 1.0  # the table nearly fills the image, the border does not
+
+
+def test_cliport_output_is_a_distribution_over_table_pixels_and_its_argmax_round_trips():
+    camera, config = Camera(), cliport.smoke_config()
+    params = cliport.init_network(config, 16, jax.random.key(1))
+    rng = np.random.default_rng(0)
+    rgb = rng.integers(0, 256, (2, config.height, config.width, 3), dtype=np.uint8)
+    height = rng.uniform(0, 0.2, (2, config.height, config.width)).astype(np.float32)
+    text = rng.normal(size=(2, 16)).astype(np.float32)
+    mask = cliport.table_mask(camera, config)
+    probabilities = np.asarray(cliport.jit_distribution(config, params, rgb, height, text, mask))
+    assert probabilities.shape == (2, config.num_pixels)
+    np.testing.assert_allclose(probabilities.sum(axis=-1), 1.0, rtol=1e-5)
+    assert np.all(probabilities[:, ~mask.reshape(-1)] == 0.0)
+    mode, samples = cliport.mode_and_samples(jax.random.key(0), probabilities[0], 32, camera, config)
+    argmax = cliport.flat_to_pixel(int(np.argmax(probabilities[0])), config)
+    np.testing.assert_allclose(cliport.table_to_pixel(mode, camera, config), argmax, atol=1.0)
+    sample_pixels = cliport.pixel_to_flat(cliport.table_to_pixel(samples, camera, config), config)
+    assert np.all(probabilities[0][sample_pixels] > 0)
+
+
+# ----------------------------------------------------------------------------- end to end
+
+
+def _test_scenes(dataset, split="seen"):
+    """Test records without the ground truth, so a method that reads it fails."""
+    records = [read_scene(d) for d in scene_dirs(dataset, split)]
+    return [SceneRecord({k: v for k, v in r.meta.items() if k not in ("tuples", "oracle")}, r.rgb, r.depth,
+                        r.segmentation) for r in records]
+
+
+def _losses(run_dir):
+    return [json.loads(line)["loss"] for line in (run_dir / "metrics.jsonl").read_text().splitlines()]
+
+
+def _on_table(points, margin=1e-6):
+    return np.all((points >= BOUNDS[0] - margin) & (points <= BOUNDS[1] + margin), axis=-1)
+
+
+@pytest.fixture()
+def specs(monkeypatch, tmp_path):
+    from ocplace.eval.baselines import METHODS
+
+    monkeypatch.setenv("OCPLACE_CACHE", str(tmp_path / "cache"))
+    return {spec.name: spec for spec in METHODS}
+
+
+def test_grids_trains_resumes_and_places_in_the_chosen_cell(specs, smoke_dataset, tiny_backbone_spec, tmp_path):
+    spec = specs["grids"]
+    assert spec.label == "Raw Image Grids"
+    run_dir = spec.train(TrainContext(smoke_dataset, tiny_backbone_spec, tmp_path / "grids", scale="smoke"))
+    losses = _losses(run_dir)
+    assert losses[-1] < losses[0]
+    weights = (run_dir / "weights.safetensors").read_bytes()
+    spec.train(TrainContext(smoke_dataset, tiny_backbone_spec, run_dir, scale="smoke"))  # finished: skipped
+    assert (run_dir / "weights.safetensors").read_bytes() == weights and _losses(run_dir) == losses
+
+    half = spec.train(TrainContext(smoke_dataset, tiny_backbone_spec, tmp_path / "half", scale="smoke",
+                                   fraction=0.5))
+    assert json.loads((half / "config.json").read_text())["train_scenes"] == 6
+
+    method = spec.load(LoadContext(run_dir, tiny_backbone_spec, scale="smoke", num_samples=16))
+    scenes = _test_scenes(smoke_dataset)
+    outputs = method.run(scenes, jax.random.key(0))
+    assert len(outputs) == len(scenes)
+    for scene, output in zip(scenes, outputs):
+        assert output.failure is None and output.parsed and output.grounded is None
+        assert output.samples.shape == (16, 2) and _on_table(output.mode) and np.all(_on_table(output.samples))
+        cell, _ = method.chosen_cell(scene, output.parsed)
+        assert np.all(grids.cell_of(output.samples, method.config) == cell)
+    described = method.describe()
+    assert described["weights_sha256"] and described["backbone_fingerprint"] and described["run"]["seed"] == 0
+
+
+def test_cliport_trains_and_places_from_its_pixel_distribution(specs, smoke_dataset, tiny_backbone_spec, tmp_path):
+    spec = specs["cliport"]
+    assert spec.label == "CLIPort-Place"
+    run_dir = spec.train(TrainContext(smoke_dataset, tiny_backbone_spec, tmp_path / "cliport", scale="smoke"))
+    losses = _losses(run_dir)
+    assert losses[-1] < losses[0]
+
+    method = spec.load(LoadContext(run_dir, tiny_backbone_spec, scale="smoke", num_samples=16))
+    scenes = _test_scenes(smoke_dataset, "unseen_inst")
+    outputs = method.run(scenes, jax.random.key(0))
+    assert len(outputs) == len(scenes)
+    distributions = method.distributions(scenes)
+    np.testing.assert_allclose(distributions.sum(axis=-1), 1.0, rtol=1e-5)
+    for scene, output, probabilities in zip(scenes, outputs, distributions):
+        assert output.failure is None and output.parsed is None and output.grounded is None
+        assert output.samples.shape == (16, 2) and _on_table(output.mode) and np.all(_on_table(output.samples))
+        pixel = cliport.table_to_pixel(output.mode, Camera(), method.config)
+        np.testing.assert_allclose(pixel, cliport.flat_to_pixel(int(np.argmax(probabilities)), method.config),
+                                   atol=1.0)
+    assert method.describe()["weights_sha256"]
