@@ -178,12 +178,25 @@ def run_directory(out: Path, name: str, fraction: float) -> Path:
 
 
 def train_step(spec: MethodSpec, fraction: float, config: PipelineConfig, dataset_dir: Path, backbone: str,
-               out: Path) -> Path | None:
+               out: Path) -> tuple[Path | None, bool]:
+    """(run directory, reused). A finished training is recorded beside its run directory and not
+    repeated: a method's own resume may rewrite its files, which would change checkpoint hashes."""
+    from ocplace.eval.harness import jsonable
+    from ocplace.paths import write_text_atomic
+
     if spec.train is None:
-        return None
+        return None, False
     context = TrainContext(dataset_dir=dataset_dir, backbone=backbone, out_dir=run_directory(out, spec.name, fraction),
                            scale=config.scale, fraction=fraction, seed=config.seed)
-    return Path(spec.train(context))
+    record = context.out_dir.with_name(context.out_dir.name + ".done.json")
+    wanted = jsonable(dataclasses.asdict(context))
+    if record.exists():
+        done = json.loads(record.read_text())
+        if done["context"] == wanted and Path(done["run_dir"]).exists():
+            return Path(done["run_dir"]), True
+    run_dir = Path(spec.train(context))
+    write_text_atomic(record, json.dumps({"context": wanted, "run_dir": str(run_dir)}, indent=1))
+    return run_dir, False
 
 
 def evaluation_settings(config: PipelineConfig, backbone: str) -> EvalSettings:
@@ -223,8 +236,12 @@ def evaluate_step(run: MethodRun, settings: EvalSettings, dataset_dir: Path, dat
 
 def run_pipeline(config: PipelineConfig, out: str | Path | None = None,
                  specs: Mapping[str, MethodSpec] | None = None, command: Sequence[str] | None = None,
-                 library=None) -> PipelineSummary:
-    """Runs (or resumes) every step; a method whose training or evaluation raises is reported, not fatal."""
+                 library=None, arena=None) -> PipelineSummary:
+    """Runs (or resumes) every step; a method whose training or evaluation raises is reported, not fatal.
+
+    `specs` defaults to the registry; `library` and `arena` (a compiled MujocoScenes) may be passed in
+    to reuse them.
+    """
     from ocplace.eval.results import build_results, dataset_identity
     from ocplace.eval.commands import write_outputs
 
@@ -252,16 +269,16 @@ def run_pipeline(config: PipelineConfig, out: str | Path | None = None,
         run = MethodRun(spec, None, fraction)
         with _Timer(summary, f"train {run.key}") as step:
             try:
-                runs.append(dataclasses.replace(run, run_dir=train_step(spec, fraction, config, dataset_dir,
-                                                                        backbone, out)))
-                step.detail = str(runs[-1].run_dir or "nothing to train")
+                run_dir, reused = train_step(spec, fraction, config, dataset_dir, backbone, out)
+                runs.append(dataclasses.replace(run, run_dir=run_dir))
+                step.detail = ("done before: " if reused else "") + str(run_dir or "nothing to train")
             except Exception as error:  # noqa: BLE001  (one method's failure must not hide the others)
                 summary.errors.append(_error(run.key, "train", error))
                 step.detail = f"FAILED: {type(error).__name__}: {error}"
 
     settings = evaluation_settings(config, backbone)
     dataset_hash = dataset_identity(dataset_dir)["dataset_hash"]
-    evaluations, arena = [], _LazyArena(library)
+    evaluations, arena = [], _LazyArena(library, arena)
     try:
         for run in runs:
             with _Timer(summary, f"evaluate {run.key}") as step:
@@ -296,18 +313,18 @@ def run_pipeline(config: PipelineConfig, out: str | Path | None = None,
 class _LazyArena:
     """Compiles the MuJoCo arena on first use only (all evaluations may be stored already)."""
 
-    def __init__(self, library):
-        self.library, self.arena = library, None
+    def __init__(self, library, arena=None):
+        self.library, self.arena, self.owned = library, arena, False
 
     def get(self):
         if self.arena is None:
             from ocplace.sim.mujoco_backend import MujocoScenes
 
-            self.arena = MujocoScenes.from_library(self.library)
+            self.arena, self.owned = MujocoScenes.from_library(self.library), True
         return self.arena
 
     def close(self):
-        if self.arena is not None:
+        if self.owned:
             self.arena.close()
 
 

@@ -1,0 +1,78 @@
+"""`ocplace reproduce` at smoke scale: every registered method plus test-local ones, end to end."""
+
+import dataclasses
+import json
+
+import pytest
+
+import eval_methods
+from ocplace.eval import pipeline, registry, results
+
+LOCAL = ("oracle", "failing")
+
+
+@pytest.fixture(scope="module")
+def specs():
+    registered = registry.method_specs()
+    assert not set(LOCAL) & set(registered), "a test-local method name is now registered; rename it here"
+    return registered | {name: eval_methods.SPECS[name] for name in LOCAL}
+
+
+@pytest.fixture(scope="module")
+def config(smoke_dataset, tiny_backbone_spec):
+    return dataclasses.replace(pipeline.smoke_config(), dataset=smoke_dataset, backbone=tiny_backbone_spec,
+                               fractions=(0.5, 1.0), fraction_methods=("oracle",), physical_scenes=1,
+                               progress=False)
+
+
+@pytest.fixture(scope="module")
+def first_run(config, specs, library, arena, tmp_path_factory):
+    out = tmp_path_factory.mktemp("reproduce")
+    return pipeline.run_pipeline(config, out, specs=specs, library=library, arena=arena, command=["pytest"])
+
+
+def test_smoke_pipeline_trains_and_evaluates_every_method(first_run, specs):
+    assert first_run.errors == []
+    saved = results.read_results(first_run.results_path)
+    assert sorted(e["key"] for e in saved["evaluations"]) == sorted([*specs, "oracle@0.5"])
+    for entry in saved["evaluations"]:
+        for subset in ("seen", "unseen_obj", "unseen_inst"):
+            assert entry["subsets"][subset]["aggregate"]["overall"]["scenes"] == 8, (entry["key"], subset)
+        trains = specs[entry["method"]].train is not None
+        assert (entry["run_dir"] is not None) == trains
+        physical = entry["subsets"]["seen"]["aggregate"]["overall"]["physical_scenes"]
+        assert physical == (1 if entry["fraction"] == 1.0 else 0)
+    oracle = next(e for e in saved["evaluations"] if e["key"] == "oracle")
+    assert oracle["subsets"]["unseen_inst"]["aggregate"]["overall"]["success"] == 1.0
+    assert json.loads((first_run.out / "runs/oracle/fraction-0.50/dataset.json").read_text())["fraction"] == 0.5
+    markdown = first_run.results_path.with_suffix(".md").read_text()
+    for name, spec in specs.items():
+        assert f"| {spec.label} |" in markdown, name
+    assert "| Oracle | 100.00 |" in markdown and "Sample efficiency" in markdown
+    assert first_run.figure.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    names = [step.name for step in first_run.steps]
+    assert names[:3] == ["library", "dataset", "backbone"] and names[-1] == "results"
+    assert "already complete" in first_run.steps[1].detail
+
+
+def test_smoke_pipeline_resumes_without_redoing_work(first_run, config, specs, library, arena):
+    again = pipeline.run_pipeline(config, first_run.out, specs=specs, library=library, arena=arena,
+                                  command=["pytest"])
+    assert again.errors == []
+    assert all(step.detail.startswith("stored") for step in again.steps if step.name.startswith("evaluate"))
+    assert all(step.detail.startswith(("done before", "nothing")) for step in again.steps
+               if step.name.startswith("train"))
+    assert results.compare(results.read_results(first_run.results_path),
+                           results.read_results(again.results_path)) == []
+
+
+def test_scale_configs():
+    demo, default = pipeline.demo_config(), pipeline.default_config()
+    assert (default.train_scenes, default.test_scenes, default.fractions) == (2000, 400, (0.25, 0.5, 0.75, 1.0))
+    assert demo.fractions == (1.0,) and str(demo.default_out) == "out/demo"
+    assert str(default.default_out) == "out/reproduce"
+    runs = pipeline.planned_runs(default, list(eval_methods.SPECS.values()))
+    assert [(s.name, f) for s, f in runs] == [("oracle", 1.0), ("centre", 1.0), ("failing", 1.0), ("flaky", 1.0),
+                                               ("random", 1.0)]
+    ours_like = dataclasses.replace(eval_methods.SPECS["oracle"], name="ours")
+    assert [f for _, f in pipeline.planned_runs(default, [ours_like])] == [0.25, 0.5, 0.75, 1.0]
