@@ -1,0 +1,102 @@
+"""Table I's "Ours" and "Ours w/o Adapter" as evaluation methods (eval/ours.py)."""
+
+import dataclasses
+import json
+
+import jax
+import numpy as np
+import pytest
+
+from ocplace.errors import TrainingError
+from ocplace.eval import ours
+from ocplace.eval.api import LoadContext, MethodOutput, TrainContext
+from ocplace.eval.registry import method_specs
+from ocplace.sim.dataset.job import scene_dirs
+from ocplace.sim.dataset.records import SceneRecord, read_scene
+
+
+def _without_ground_truth(record: SceneRecord) -> SceneRecord:
+    """A method must not read tuples, the oracle or token indices: remove them."""
+    meta = {k: v for k, v in record.meta.items() if k not in ("tuples", "oracle")}
+    return dataclasses.replace(record, meta=meta)
+
+
+@pytest.fixture(scope="module")
+def seen_records(smoke_dataset):
+    return [_without_ground_truth(read_scene(d)) for d in scene_dirs(smoke_dataset, "seen")]
+
+
+@pytest.fixture(scope="module")
+def trained_run(smoke_dataset, tiny_backbone_spec, tmp_path_factory):
+    cache = tmp_path_factory.mktemp("ours_cache")
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("OCPLACE_CACHE", str(cache))
+        run = method_specs()["ours"].train(TrainContext(smoke_dataset, tiny_backbone_spec,
+                                                        tmp_path_factory.mktemp("ours") / "run", scale="smoke",
+                                                        fraction=0.5, seed=3))
+        features = sorted((cache / "features").glob("*.safetensors"))
+    return run, features
+
+
+def test_methods_are_registered():
+    specs = method_specs()
+    assert specs["ours"].label == "Ours" and specs["ours"].train is ours.train_ours
+    assert specs["no_adapter"].label == "Ours w/o Adapter" and specs["no_adapter"].train is None
+
+
+def test_recipes_by_scale():
+    assert ours.train_recipe("default").steps == 200_000 and ours.train_recipe("default").batch_size == 1
+    assert ours.train_recipe("smoke").steps < ours.train_recipe("demo").steps < 200_000
+    ours.train_recipe("demo").validate()
+    with pytest.raises(ValueError, match="unknown scale"):
+        ours.train_recipe("huge")
+
+
+def test_ours_trains_at_smoke_scale_and_places_every_scene(trained_run, tiny_backbone_spec, seen_records):
+    run, features = trained_run
+    assert len(features) == 1  # the training split's features, cached where `ocplace featurize` puts them
+    config = json.loads((run / "config.json").read_text())
+    assert config["train_config"]["fraction"] == 0.5 and config["train_config"]["seed"] == 3
+    assert config["train_scenes"] == 6  # half of the 12 smoke training scenes
+
+    method = method_specs()["ours"].load(LoadContext(run, tiny_backbone_spec, scale="smoke", num_samples=64))
+    outputs = method.run(seen_records, jax.random.key(0))
+    assert len(outputs) == len(seen_records)
+    for record, output in zip(seen_records, outputs):
+        assert isinstance(output, MethodOutput)
+        assert output.parsed and len(output.grounded) == len(output.parsed)
+        num_tokens = len(record.meta["boxes"]) + 1
+        assert all(0 <= token < num_tokens for token in output.grounded)
+        # A random tiny backbone is unsure of everything: the default threshold refuses to place blindly.
+        assert (output.mode is None) == (output.failure is not None)
+        if output.mode is None:
+            assert "GroundingUncertain" in output.failure and output.samples is None
+        else:
+            assert output.samples.shape == (64, 2)
+
+    description = method.describe()
+    text = json.dumps(description)
+    assert description["adapters"]["steps"] == 300 and len(description["adapters"]["sha256"]) == 64
+    assert description["backbone"]["fingerprint"] and description["parser"]["name"] == "offline"
+    assert description["threshold"] == method.policy.threshold and "sampler" in text
+
+
+def test_no_adapter_places_with_zero_threshold(tiny_backbone_spec, seen_records):
+    method = method_specs()["no_adapter"].load(LoadContext(None, tiny_backbone_spec, scale="smoke", num_samples=64))
+    method.policy = dataclasses.replace(method.policy, threshold=0.0)
+    outputs = method.run(seen_records[:4], jax.random.key(0))
+    assert len(outputs) == 4
+    assert any(o.mode is not None for o in outputs)
+    for output in outputs:
+        if output.mode is not None:
+            assert np.all(np.abs(output.mode) <= [0.4, 0.3])
+        else:  # a wrong grounding may leave no feasible region; it is reported, not placed
+            assert "NoFeasiblePlacement" in output.failure or "InvalidPlacementProblem" in output.failure
+    description = method.describe()
+    assert description["adapters"] is None and description["grounding"]["zero_shot"]
+    json.dumps(description)
+
+
+def test_ours_without_a_run_says_to_train_first(tiny_backbone_spec, tmp_path):
+    with pytest.raises(TrainingError, match="train the 'ours' method first"):
+        method_specs()["ours"].load(LoadContext(tmp_path, tiny_backbone_spec))
