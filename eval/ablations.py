@@ -14,7 +14,6 @@ Ours' policy (parser, grounding, sampler) on that tower and those adapters.
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import json
 from collections.abc import Sequence
 from pathlib import Path
@@ -108,7 +107,7 @@ class GtRefMethod:
         return json.loads(json.dumps({
             "method": self.name,
             "backbone": {"spec": self.backbone_spec, "fingerprint": self.policy.backbone.fingerprint},
-            "model": {"path": str(Path(self.run_dir) / "model.safetensors"), "sha256": self.trained.sha256,
+            "model": {"path": str(Path(self.run_dir) / "model.safetensors"), "weights_sha256": self.trained.sha256,
                       "config": dataclasses.asdict(model.config), "logit_scale": float(model.logit_scale),
                       "train_config": self.trained.train_config, "seed": self.trained.train_config["seed"]},
             "references": "top-L visual tokens by adapted similarity to the sentence; L from meta['level'] "
@@ -156,11 +155,11 @@ class ScratchMethod(PolicyMethod):
 
     def describe(self) -> dict:
         described = describe_policy(self.policy, self.name, self.backbone_spec, self.adapters_file)
-        from ocplace.models.offline_backbone import WEIGHTS_FILE
-        from ocplace.train.scratch import BACKBONE_DIR
+        from ocplace.train.gtref import params_sha256
 
         described["from_scratch"] = json.loads((Path(self.run_dir) / "config.json").read_text())
-        described["backbone"]["weights_sha256"] = weights_sha256(Path(self.run_dir) / BACKBONE_DIR / WEIGHTS_FILE)
+        described["backbone"]["weights_sha256"] = params_sha256(self.policy.backbone.params)
+        described["adapters"]["weights_sha256"] = params_sha256(self.policy.grounding.params)
         return described
 
 
@@ -187,10 +186,6 @@ def _jsonable(value):
     if isinstance(value, (np.floating, np.integer)):
         return value.item()
     raise TypeError(f"not JSON-serialisable: {type(value).__name__}")
-
-
-def weights_sha256(path: Path) -> str:
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
 METHODS = (

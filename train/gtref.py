@@ -275,7 +275,7 @@ class TrainedGtRef:
     model: GtRefModel
     backbone_fingerprint: str
     train_config: dict
-    sha256: str  # of the model file
+    sha256: str  # of the weights (`params_sha256`)
 
 
 def load_model(run_dir: Path) -> TrainedGtRef:
@@ -292,4 +292,14 @@ def load_model(run_dir: Path) -> TrainedGtRef:
     template = jax.eval_shape(lambda: init_params(config, jax.random.key(0)))
     params = checkpoints.unflatten_state(load_file(str(path)), template)
     return TrainedGtRef(GtRefModel(config, params, float(metadata["logit_scale"])), metadata["backbone_fingerprint"],
-                        json.loads(metadata["train_config"]), hashlib.sha256(path.read_bytes()).hexdigest())
+                        json.loads(metadata["train_config"]), params_sha256(params))
+
+
+def params_sha256(params) -> str:
+    """sha256 over every weight's path, dtype, shape and bytes: a file's hash would not do, because
+    safetensors writes its metadata in no fixed order."""
+    from ocplace.models.backbone import update_with_params
+
+    digest = hashlib.sha256()
+    update_with_params(digest, params)
+    return digest.hexdigest()

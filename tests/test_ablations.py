@@ -1,0 +1,204 @@
+"""Ablations of Table I: Ours w/o LLM (GT-ref#) and Ours w/o CLIP pre-train, on the smoke benchmark."""
+
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from safetensors.numpy import load_file
+
+from ocplace.eval.api import LoadContext, TrainContext
+from ocplace.eval.harness import redacted
+from ocplace.models import gtref
+from ocplace.sim.dataset.job import scene_dirs
+from ocplace.sim.dataset.records import read_scene
+from ocplace.sim.relations import RELATION_NAMES
+from ocplace.sim.workspace import DEFAULT_TABLE
+from ocplace.train.metrics import MetricsLog
+
+MIDDLE = RELATION_NAMES.index("middle")
+
+
+@pytest.fixture(scope="module")
+def isolated_cache(smoke_dataset, tmp_path_factory):
+    """Feature and crop caches in a temporary directory (the library stays where the session built it)."""
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("OCPLACE_CACHE", str(tmp_path_factory.mktemp("ablations_cache")))
+        yield
+
+
+@pytest.fixture(scope="module")
+def specs():
+    from ocplace.eval.ablations import METHODS
+
+    return {spec.name: spec for spec in METHODS}
+
+
+@pytest.fixture(scope="module")
+def runs(isolated_cache, specs, smoke_dataset, tiny_backbone_spec, tmp_path_factory):
+    """Both methods trained at smoke scale: {name: run directory}."""
+    return {name: spec.train(TrainContext(smoke_dataset, tiny_backbone_spec, tmp_path_factory.mktemp(name),
+                                          scale="smoke"))
+            for name, spec in specs.items()}
+
+
+@pytest.fixture(scope="module")
+def scenes(smoke_dataset):
+    return [redacted(read_scene(d)) for d in scene_dirs(smoke_dataset, "seen")]
+
+
+@pytest.fixture(scope="module")
+def methods(runs, specs, tiny_backbone_spec):
+    return {name: specs[name].load(LoadContext(runs[name], tiny_backbone_spec, scale="smoke", num_samples=32))
+            for name in specs}
+
+
+# ----------------------------------------------------------------------------- GT-ref# pieces
+
+
+def test_select_references_takes_top_l_and_never_a_padded_token():
+    rng = np.random.default_rng(0)
+    mask = np.array([[True] * 6, [True, True, False, False, False, False], [True] + [False] * 5])
+    logits = jnp.where(mask, jnp.asarray(rng.normal(size=(3, 6)), jnp.float32), -jnp.inf)
+    indices, chosen = gtref.select_references(logits, jnp.array([2, 2, 2]))
+    indices, chosen = np.asarray(indices), np.asarray(chosen)
+    assert indices.shape == (3, 2) and chosen.tolist() == [[True, True], [True, True], [True, False]]
+    assert set(indices[0]) == set(np.argsort(-np.asarray(logits[0]))[:2])
+    assert all(mask[row, indices[row][chosen[row]]].all() for row in range(3))
+    _, one = gtref.select_references(logits, jnp.array([1, 1, 1]))
+    assert np.asarray(one).tolist() == [[True, False]] * 3
+
+
+def test_relation_head_shapes_and_middle_only_for_the_table():
+    config = gtref.GtRefConfig(dim=16, hidden=8)
+    params = gtref.init_params(config, jax.random.key(0))
+    rng = np.random.default_rng(1)
+    visual = jnp.asarray(rng.normal(size=(2, 6, 16)), jnp.float32)
+    mask = jnp.array([[True] * 4 + [False] * 2, [True] * 6])
+
+    @jax.jit
+    def relation_logits(params, visual, mask):
+        visual_star, sentence_star = gtref.adapted_tokens(config, params, visual, jnp.ones((2, 16)))
+        return gtref.relation_logits(config, params, visual_star, sentence_star, mask)
+
+    logits = np.asarray(relation_logits(params, visual, mask))
+    assert logits.shape == (2, 6, len(RELATION_NAMES))
+    assert np.isfinite(logits[0, 3]).all() and np.isfinite(logits[1, 5]).all()  # the table tokens
+    assert np.isneginf(logits[0, :3, MIDDLE]).all() and np.isneginf(logits[1, :5, MIDDLE]).all()
+    model = gtref.GtRefModel(config, params, 10.0)
+    prediction = model.predict(visual, mask, np.ones((2, 16)), np.array([1, 2]))
+    assert prediction.references.shape == prediction.relations.shape == (2, 2)
+    assert prediction.reference_mask.tolist() == [[True, False], [True, True]]
+    np.testing.assert_allclose(prediction.token_probabilities.sum(-1), 1.0, rtol=1e-5)
+    assert prediction.token_probabilities[0, 4:].max() == 0.0
+
+
+def test_reference_loss_is_ours_with_the_sentence_for_every_tuple():
+    config = gtref.GtRefConfig(dim=8, hidden=4)
+    params = gtref.init_params(config, jax.random.key(2))
+    rng = np.random.default_rng(3)
+    batch = {"visual": jnp.asarray(rng.normal(size=(3, 6, 8)), jnp.float32), "visual_mask": jnp.ones((3, 6), bool),
+             "sentence": jnp.asarray(rng.normal(size=(3, 8)), jnp.float32),
+             "targets": jnp.array([[0, 0], [1, 2], [5, 0]]), "target_mask": jnp.array([[1, 0], [1, 1], [1, 0]], bool),
+             "relations": jnp.array([[0, 0], [1, 2], [4, 0]])}
+    reference, relation = jax.jit(gtref.loss_terms, static_argnums=0)(config, params, batch, 10.0)
+
+    @jax.jit
+    def log_probabilities(params, batch):
+        visual_star, sentence_star = gtref.adapted_tokens(config, params, batch["visual"], batch["sentence"])
+        return jax.nn.log_softmax(gtref.token_logits(visual_star, sentence_star, batch["visual_mask"], 10.0))
+
+    log_p = np.asarray(log_probabilities(params, batch))
+    expected = -np.mean([log_p[0, 0], log_p[1, 1], log_p[1, 2], log_p[2, 5]])
+    np.testing.assert_allclose(float(reference), expected, rtol=1e-5)
+    assert np.isfinite(float(relation)) and float(relation) > 0
+
+
+# ----------------------------------------------------------------------------- training
+
+
+@pytest.mark.parametrize("name", ["no_llm", "no_pretrain"])
+def test_training_at_smoke_scale_lowers_the_loss(runs, name):
+    records = MetricsLog(runs[name] / "metrics.jsonl").records()
+    assert len(records) >= 3 and records[-1]["loss"] < records[0]["loss"]
+    config = json.loads((runs[name] / "config.json").read_text())
+    assert config["train_scenes"] == 12
+
+
+def test_training_is_deterministic_and_idempotent(runs, specs, smoke_dataset, tiny_backbone_spec, tmp_path):
+    from ocplace.train.gtref import load_model
+
+    again = specs["no_llm"].train(TrainContext(smoke_dataset, tiny_backbone_spec, tmp_path / "again", scale="smoke"))
+    assert load_model(again).sha256 == load_model(runs["no_llm"]).sha256
+    model_file = runs["no_llm"] / "model.safetensors"
+    before = model_file.stat().st_mtime_ns
+    assert specs["no_llm"].train(TrainContext(smoke_dataset, tiny_backbone_spec, runs["no_llm"], scale="smoke")) \
+        == runs["no_llm"]
+    assert model_file.stat().st_mtime_ns == before
+
+
+def test_from_scratch_tower_is_deterministic(runs, specs, smoke_dataset, tiny_backbone_spec, tmp_path):
+    again = specs["no_pretrain"].train(TrainContext(smoke_dataset, tiny_backbone_spec, tmp_path / "again",
+                                                    scale="smoke"))
+    read = lambda run: (run / "backbone" / "fingerprint.txt").read_text()  # noqa: E731
+    assert read(again) == read(runs["no_pretrain"])
+    first, second = (load_file(str(run / "adapters.safetensors")) for run in (runs["no_pretrain"], again))
+    assert first.keys() == second.keys() and all(np.array_equal(first[k], second[k]) for k in first)
+
+
+def test_fraction_trains_on_a_nested_subset(specs, isolated_cache, smoke_dataset, tiny_backbone_spec, tmp_path):
+    run = specs["no_llm"].train(TrainContext(smoke_dataset, tiny_backbone_spec, tmp_path / "half", scale="smoke",
+                                             fraction=0.5))
+    assert json.loads((run / "config.json").read_text())["train_scenes"] == 6
+
+
+# ----------------------------------------------------------------------------- the methods
+
+
+@pytest.mark.parametrize("name", ["no_llm", "no_pretrain"])
+def test_method_places_every_scene_on_the_table(methods, scenes, name):
+    outputs = methods[name].run(scenes, jax.random.key(0))
+    assert len(outputs) == len(scenes)
+    low, high = np.asarray(DEFAULT_TABLE.bounds[0]), np.asarray(DEFAULT_TABLE.bounds[1])
+    placed = [o for o in outputs if o.failure is None]
+    assert placed, [o.failure for o in outputs]
+    for output, scene in zip(outputs, scenes):
+        if output.failure is not None:
+            assert output.mode is None
+            continue
+        assert output.samples.shape == (32, 2)
+        assert np.all((output.mode >= low) & (output.mode <= high))
+        assert np.all((output.samples >= low) & (output.samples <= high))
+        assert output.grounded is not None
+        assert all(0 <= t <= len(scene.meta["boxes"]) for t in output.grounded)
+        if name == "no_llm":
+            assert output.parsed is None
+            assert len(output.grounded) == (2 if scene.meta["level"] == "2obj" else 1)
+        else:
+            assert len(output.parsed) == len(output.grounded)
+
+
+@pytest.mark.parametrize("name", ["no_llm", "no_pretrain"])
+def test_method_is_deterministic_for_a_key(methods, scenes, name):
+    first, second = (methods[name].run(scenes, jax.random.key(7)) for _ in range(2))
+    for a, b in zip(first, second):
+        assert a.failure == b.failure and a.grounded == b.grounded and a.parsed == b.parsed
+        if a.mode is not None:
+            np.testing.assert_array_equal(a.mode, b.mode)
+            np.testing.assert_array_equal(a.samples, b.samples)
+
+
+@pytest.mark.parametrize("name", ["no_llm", "no_pretrain"])
+def test_describe_is_json_with_weights_and_backbone(methods, name):
+    described = json.loads(json.dumps(methods[name].describe()))
+    assert len(described["backbone"]["fingerprint"]) == 64
+    text = json.dumps(described)
+    assert '"seed": 0' in text and "sha256" in text
+
+
+def test_methods_are_registered():
+    from ocplace.eval.registry import method_specs
+
+    specs = method_specs()
+    assert specs["no_llm"].label == "Ours w/o LLM" and specs["no_pretrain"].label == "Ours w/o CLIP pre-train"
