@@ -95,14 +95,15 @@ def test_pixel_table_round_trip_over_the_whole_table():
 
 def test_cliport_output_is_a_distribution_over_table_pixels_and_its_argmax_round_trips():
     camera, config = Camera(), cliport.smoke_config()
-    params = cliport.init_network(config, 16, jax.random.key(1))
+    batch, dim = 8, 32  # the shapes the end-to-end test uses: one compilation for both
+    params = cliport.init_network(config, dim, jax.random.key(1))
     rng = np.random.default_rng(0)
-    rgb = rng.integers(0, 256, (2, config.height, config.width, 3), dtype=np.uint8)
-    height = rng.uniform(0, 0.2, (2, config.height, config.width)).astype(np.float32)
-    text = rng.normal(size=(2, 16)).astype(np.float32)
+    rgb = rng.integers(0, 256, (batch, config.height, config.width, 3), dtype=np.uint8)
+    height = rng.uniform(0, 0.2, (batch, config.height, config.width)).astype(np.float16)
+    text = rng.normal(size=(batch, dim)).astype(np.float32)
     mask = cliport.table_mask(camera, config)
     probabilities = np.asarray(cliport.jit_distribution(config, params, rgb, height, text, mask))
-    assert probabilities.shape == (2, config.num_pixels)
+    assert probabilities.shape == (batch, config.num_pixels)
     np.testing.assert_allclose(probabilities.sum(axis=-1), 1.0, rtol=1e-5)
     assert np.all(probabilities[:, ~mask.reshape(-1)] == 0.0)
     mode, samples = cliport.mode_and_samples(jax.random.key(0), probabilities[0], 32, camera, config)
