@@ -22,6 +22,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                           help="comma-separated method names, or `all` (every registered method)")
     evaluate.add_argument("--run", action="append", default=[], metavar="METHOD=RUN_DIR",
                           help="trained run directory of a method that learns (repeatable)")
+    evaluate.add_argument("--runs-from", type=Path, metavar="OUT",
+                          help="take missing run directories from a pipeline output: OUT/runs/METHOD/fraction-1.00")
     evaluate.add_argument("--backbone", default="offline", help="backbone spec (default: offline)")
     evaluate.add_argument("--out", type=Path, help="results JSON (the markdown goes beside it, .md)")
     evaluate.add_argument("--subsets", nargs="+", choices=SUBSET_CHOICES, default=list(SUBSET_CHOICES))
@@ -90,8 +92,9 @@ def physical_setting(value: int | None, default: int | None) -> int | None:
     return None if value < 0 else value
 
 
-def method_runs(specs: list, runs: dict[str, Path]) -> list:
+def method_runs(specs: list, runs: dict[str, Path], runs_from: Path | None = None) -> list:
     from ocplace.eval.harness import EvaluationError, MethodRun
+    from ocplace.eval.pipeline import run_directory
 
     unused = set(runs) - {spec.name for spec in specs}
     if unused:
@@ -99,6 +102,8 @@ def method_runs(specs: list, runs: dict[str, Path]) -> list:
     selected = []
     for spec in specs:
         run_dir = runs.get(spec.name)
+        if run_dir is None and runs_from is not None and spec.train is not None:
+            run_dir = run_directory(runs_from, spec.name, 1.0)
         if spec.train is not None and run_dir is None:
             raise EvaluationError(f"method {spec.name!r} learns: pass --run {spec.name}=RUN_DIR (a run directory "
                                   "from its training, e.g. `ocplace reproduce` writes them under OUT/runs)")
@@ -138,7 +143,7 @@ def _evaluate(args: argparse.Namespace) -> int:
                             num_samples=args.num_samples, subsets=tuple(args.subsets), limit=args.limit,
                             physical_scenes=physical_setting(args.physical, DEFAULT_PHYSICAL_SCENES),
                             seed=args.seed, chunk_size=args.chunk_size)
-    runs = method_runs(select_specs(args.methods, method_specs()), parse_runs(args.run))
+    runs = method_runs(select_specs(args.methods, method_specs()), parse_runs(args.run), args.runs_from)
     with physical_arena(settings) as arena:
         evaluations = [evaluate_run(run, args.dataset, settings, arena, progress=not args.no_progress)
                        for run in runs]

@@ -235,6 +235,11 @@ def test_cli_evaluate_and_rerun(smoke_dataset, oracle_run, tmp_path, monkeypatch
     assert saved["settings"]["subsets"] == ["seen", "unseen_inst"] and saved["settings"]["limit"] == 4
     assert saved["command"][:2] == ["ocplace", "evaluate"] or saved["command"][0] == "ocplace"
     assert out.with_suffix(".md").read_text().startswith("Dataset ")
+    pipeline_out = tmp_path / "reproduce"
+    eval_methods.train_oracle(TrainContext(smoke_dataset, "none", pipeline_out / "runs/oracle/fraction-1.00"))
+    assert main(["evaluate", *common, "--methods", "oracle", "--runs-from", str(pipeline_out), "--subsets", "seen",
+                 "--out", str(tmp_path / "from_runs.json")]) == 0
+    assert "| Oracle | 100.00 | 100.00 | 100.00 | 100.00 |" in capsys.readouterr().out
     assert main(["evaluate", "--rerun", str(out), "--no-progress"]) == 0
     assert "reproduced exactly" in capsys.readouterr().out
     assert results.compare(saved, results.read_results(tmp_path / "results.rerun.json")) == []
