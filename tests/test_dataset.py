@@ -164,3 +164,26 @@ def test_a_folder_of_another_dataset_is_refused(tmp_path, library):
     (tmp_path / "full" / "notes.txt").write_text("mine")
     with pytest.raises(DatasetError, match="not empty"):
         generate_dataset(tmp_path / "full", config, progress=False)
+
+
+def test_a_scene_whose_objects_keep_falling_off_is_resampled(library, monkeypatch):
+    from ocplace.errors import SceneError
+    from ocplace.sim.dataset.generate import SceneGenerator
+    from ocplace.sim.mujoco_backend import MujocoScenes
+
+    generator = SceneGenerator(library, smoke_config())
+    original, calls = MujocoScenes.build, []
+
+    def failing_first(self, spec, *args, **kwargs):
+        calls.append(spec)
+        if len(calls) == 1:
+            raise SceneError(f"objects of scene {spec} fell off the table 5 times in a row")
+        return original(self, spec, *args, **kwargs)
+
+    monkeypatch.setattr(MujocoScenes, "build", failing_first)
+    try:
+        meta = json.loads(generator.make("train", 0, "1obj")["scene.json"])
+    finally:
+        generator.close()
+    assert meta["resamples"]["scenes"] >= 1
+    assert meta["spec"]["objects"] != list(calls[0].objects) or meta["spec"]["seed"] != calls[0].seed

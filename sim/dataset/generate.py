@@ -11,6 +11,7 @@ import json
 
 import numpy as np
 
+from ocplace.errors import SceneError
 from ocplace.sim import relations
 from ocplace.sim.boxes import boxes_from_segmentation
 from ocplace.sim.dataset.config import LEVEL_REFERENCES, SPLIT_NAMES, DatasetConfig, SplitConfig
@@ -70,7 +71,11 @@ class SceneGenerator:
         resamples = {"scenes": 0, "relations": 0}
         for _ in range(self.config.max_scene_attempts):
             spec = sample_scene_spec(rng, objects, texture_pool or textures)
-            scene = self.arena.build(spec)
+            try:
+                scene = self.arena.build(spec)
+            except SceneError:  # objects kept rolling off the table: draw another set of objects
+                resamples["scenes"] += 1
+                continue
             chosen = self._choose_tuples(rng, scene, level, resamples)
             if chosen is not None:
                 tuples, feasible = chosen
