@@ -59,7 +59,7 @@ def test_ours_trains_at_smoke_scale_and_places_every_scene(trained_run, tiny_bac
     assert config["train_config"]["fraction"] == 0.5 and config["train_config"]["seed"] == 3
     assert config["train_scenes"] == 6  # half of the 12 smoke training scenes
 
-    method = method_specs()["ours"].load(LoadContext(run, tiny_backbone_spec, scale="smoke", num_samples=64))
+    method = method_specs()["ours"].load(LoadContext(run, tiny_backbone_spec, scale="smoke", num_samples=128))
     outputs = method.run(seen_records, jax.random.key(0))
     assert len(outputs) == len(seen_records)
     for record, output in zip(seen_records, outputs):
@@ -72,7 +72,7 @@ def test_ours_trains_at_smoke_scale_and_places_every_scene(trained_run, tiny_bac
         if output.mode is None:
             assert "GroundingUncertain" in output.failure and output.samples is None
         else:
-            assert output.samples.shape == (64, 2)
+            assert output.samples.shape == (128, 2)
 
     description = method.describe()
     text = json.dumps(description)
@@ -82,7 +82,7 @@ def test_ours_trains_at_smoke_scale_and_places_every_scene(trained_run, tiny_bac
 
 
 def test_no_adapter_places_with_zero_threshold(tiny_backbone_spec, seen_records):
-    method = method_specs()["no_adapter"].load(LoadContext(None, tiny_backbone_spec, scale="smoke", num_samples=64))
+    method = method_specs()["no_adapter"].load(LoadContext(None, tiny_backbone_spec, scale="smoke", num_samples=128))
     method.policy = dataclasses.replace(method.policy, threshold=0.0)
     outputs = method.run(seen_records[:4], jax.random.key(0))
     assert len(outputs) == 4
