@@ -149,6 +149,13 @@ def test_grids_trains_resumes_and_places_in_the_chosen_cell(specs, smoke_dataset
     spec.train(TrainContext(smoke_dataset, tiny_backbone_spec, run_dir, scale="smoke"))  # finished: skipped
     assert (run_dir / "weights.safetensors").read_bytes() == weights and _losses(run_dir) == losses
 
+    resumed = tmp_path / "resumed"  # an interrupted run: no weights, newest checkpoint lost
+    spec.train(TrainContext(smoke_dataset, tiny_backbone_spec, resumed, scale="smoke"))
+    (resumed / "weights.safetensors").unlink()
+    sorted((resumed / "checkpoints").glob("step_*"))[-1].unlink()
+    spec.train(TrainContext(smoke_dataset, tiny_backbone_spec, resumed, scale="smoke"))
+    assert (resumed / "weights.safetensors").read_bytes() == weights and _losses(resumed) == losses
+
     half = spec.train(TrainContext(smoke_dataset, tiny_backbone_spec, tmp_path / "half", scale="smoke",
                                    fraction=0.5))
     assert json.loads((half / "config.json").read_text())["train_scenes"] == 6

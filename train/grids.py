@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import hashlib
 import json
 from collections.abc import Iterator
 from pathlib import Path
@@ -76,7 +77,8 @@ def cell_features(dataset_dir: Path, backbone: Backbone, config: grids.GridConfi
     from ocplace.train.commands import dataset_hash
 
     digest = dataset_hash(dataset_dir, split)
-    path = cache_dir() / "baselines" / f"grids-{digest[:16]}-{split}-{backbone.fingerprint[:16]}.safetensors"
+    grid_key = hashlib.sha256(config.to_json().encode()).hexdigest()
+    path = cache_dir() / "baselines" / f"grids-{digest[:16]}-{split}-{backbone.fingerprint[:16]}-{grid_key[:8]}.safetensors"
     featurize_config = feature_cache.FeaturizeConfig(max_objects=config.num_cells, max_tuples=MAX_TUPLES,
                                                      prompt=grids.PLAIN_PROMPT)
     feature_cache.featurize(scene_examples(dataset_dir, split, config), backbone, path,
