@@ -207,6 +207,7 @@ def train_on_arrays(arrays: dict[str, np.ndarray], run_dir: Path, config: GtRefT
     from tqdm import tqdm
 
     config.validate()
+    run_dir = Path(run_dir)
     checkpoints.claim_run_dir(run_dir, run_meta, "config.json")
     num_scenes = len(arrays["visual"])
     model_config = config.model_config(arrays["visual"].shape[-1])

@@ -189,6 +189,7 @@ def train_on_inputs(arrays: dict, run_dir: Path, recipe_: ScratchRecipe, run_met
 
     config, model = recipe_.train, recipe_.model
     config.validate()
+    run_dir = Path(run_dir)
     checkpoints.claim_run_dir(run_dir, run_meta, "config.json")
     params = scratch.init_params(model, jax.random.key(config.seed))
     state = (params, make_optimizer(config).init(params))
