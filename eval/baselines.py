@@ -123,15 +123,13 @@ class CliportMethod:
             cameras = [camera_from_meta(scene.meta) for scene in batch]
             images = [cliport.prepare_image(s.rgb, s.depth, c, self.config) for s, c in zip(batch, cameras)]
             text = self.backbone.encode_texts([scene.meta["instruction"] for scene in batch])
-            masks = {cliport.table_mask(camera, self.config).tobytes() for camera in cameras}
-            if len(masks) != 1:
-                raise TrainingError("CLIPort-Place needs one camera per batch of scenes")
             pad = SCENES_PER_BATCH - len(batch)
             rgb = np.stack([i[0] for i in images] + [np.zeros_like(images[0][0])] * pad)
             height = np.stack([i[1] for i in images] + [np.zeros_like(images[0][1])] * pad)
             text = np.concatenate([text, np.zeros((pad, text.shape[1]), text.dtype)])
-            mask = cliport.table_mask(cameras[0], self.config)
-            out.append(np.asarray(cliport.jit_distribution(self.config, self.params, rgb, height, text, mask))[:len(batch)])
+            mask = np.stack([cliport.table_mask(camera, self.config) for camera in cameras + cameras[:1] * pad])
+            probabilities = cliport.jit_distribution(self.config, self.params, rgb, height, text, mask)
+            out.append(np.asarray(probabilities)[:len(batch)])
         return np.concatenate(out) if out else np.zeros((0, self.config.num_pixels), np.float32)
 
     def run(self, scenes: Sequence[SceneRecord], key) -> list[MethodOutput]:

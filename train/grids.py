@@ -78,7 +78,8 @@ def cell_features(dataset_dir: Path, backbone: Backbone, config: grids.GridConfi
 
     digest = dataset_hash(dataset_dir, split)
     grid_key = hashlib.sha256(config.to_json().encode()).hexdigest()
-    path = cache_dir() / "baselines" / f"grids-{digest[:16]}-{split}-{backbone.fingerprint[:16]}-{grid_key[:8]}.safetensors"
+    name = f"grids-{digest[:16]}-{split}-{backbone.fingerprint[:16]}-{grid_key[:8]}.safetensors"
+    path = cache_dir() / "baselines" / name
     featurize_config = feature_cache.FeaturizeConfig(max_objects=config.num_cells, max_tuples=MAX_TUPLES,
                                                      prompt=grids.PLAIN_PROMPT)
     feature_cache.featurize(scene_examples(dataset_dir, split, config), backbone, path,

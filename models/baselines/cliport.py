@@ -161,9 +161,9 @@ def network_input(rgb, height, config: CliportConfig):
 
 
 def pixel_logits(config: CliportConfig, params, rgb, height, text, mask):
-    """`(B, h * w)` flat logits, -inf off the table (`mask (h, w)` bool)."""
+    """`(B, h * w)` flat logits, -inf off the table (`mask (h, w)` or `(B, h, w)` bool)."""
     logits = AttentionNet(config).apply({"params": params}, network_input(rgb, height, config), text)
-    return jnp.where(mask.reshape(-1), logits.reshape(logits.shape[0], -1), -jnp.inf)
+    return jnp.where(mask.reshape(*mask.shape[:-2], -1), logits.reshape(logits.shape[0], -1), -jnp.inf)
 
 
 def pixel_loss(config: CliportConfig, params, rgb, height, text, mask, targets):
