@@ -125,8 +125,12 @@ def write_outputs(results: dict, out: Path) -> str:
     return markdown
 
 
-def _command() -> list[str]:
-    return ["ocplace", *sys.argv[1:]]
+def _command(args: argparse.Namespace) -> dict:
+    """The command line as typed (`argv`) and as parsed (`arguments`: exact even when called in-process)."""
+    arguments = {key: value for key, value in vars(args).items() if key != "func"}
+    return {"argv": ["ocplace", *sys.argv[1:]],
+            "arguments": {key: value if isinstance(value, (bool, int, float, str, type(None))) else str(value)
+                          for key, value in arguments.items()}}
 
 
 def _evaluate(args: argparse.Namespace) -> int:
@@ -147,7 +151,7 @@ def _evaluate(args: argparse.Namespace) -> int:
     with physical_arena(settings) as arena:
         evaluations = [evaluate_run(run, args.dataset, settings, arena, progress=not args.no_progress)
                        for run in runs]
-    markdown = write_outputs(build_results(evaluations, args.dataset, settings, _command()), args.out)
+    markdown = write_outputs(build_results(evaluations, args.dataset, settings, _command(args)), args.out)
     print(markdown)
     print(f"wrote {args.out} and {args.out.with_suffix('.md')}")
     return 0
@@ -159,7 +163,7 @@ def _rerun(args: argparse.Namespace) -> int:
 
     original = read_results(args.rerun)
     with physical_arena(settings_of(original)) as arena:
-        fresh = rerun(original, arena=arena, progress=not args.no_progress, command=_command())
+        fresh = rerun(original, arena=arena, progress=not args.no_progress, command=_command(args))
     out = args.out or args.rerun.with_name(args.rerun.stem + ".rerun.json")
     write_outputs(fresh, out)
     differences = compare(original, fresh)
@@ -188,7 +192,7 @@ def _reproduce(args: argparse.Namespace) -> int:
     if args.physical is not None:
         changes["physical_scenes"] = physical_setting(args.physical, config.physical_scenes)
     config = dataclasses.replace(config, **changes)
-    summary = run_pipeline(config, args.out or config.default_out, command=_command())
+    summary = run_pipeline(config, args.out or config.default_out, command=_command(args))
     print(summary.markdown)
     print(summary.report())
     return 1 if summary.errors else 0

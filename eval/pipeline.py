@@ -235,7 +235,7 @@ def evaluate_step(run: MethodRun, settings: EvalSettings, dataset_dir: Path, dat
 
 
 def run_pipeline(config: PipelineConfig, out: str | Path | None = None,
-                 specs: Mapping[str, MethodSpec] | None = None, command: Sequence[str] | None = None,
+                 specs: Mapping[str, MethodSpec] | None = None, command=None,
                  library=None, arena=None) -> PipelineSummary:
     """Runs (or resumes) every step; a method whose training or evaluation raises is reported, not fatal.
 

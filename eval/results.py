@@ -1,6 +1,7 @@
 """The results JSON of an evaluation: what was run, on what, by which code, and every scene's outcome.
 
-    {"schema": "ocplace.evaluation/1", "created": ISO time, "command": [...],
+    {"schema": "ocplace.evaluation/1", "created": ISO time,
+     "command": {"argv": [...], "arguments": {parsed options}} from the CLI (any JSON from Python),
      "environment": {ocplace commit and version, python, jax, jaxlib, flax, mujoco, numpy, platform},
      "dataset": {"dir", "dataset_hash", "manifest_hash", "counts", "config"},
      "settings": EvalSettings (backbone spec, scale, parser, samples, subsets, limit, physical, seed, chunk),
@@ -25,7 +26,7 @@ from pathlib import Path
 
 from ocplace.eval.api import MethodSpec
 from ocplace.eval.harness import (Evaluation, EvaluationError, EvalSettings, MethodRun, SceneOutcome, aggregate_subset,
-                                  evaluate_run)
+                                  evaluate_run, jsonable)
 from ocplace.paths import write_text_atomic
 
 SCHEMA = "ocplace.evaluation/1"
@@ -104,11 +105,11 @@ def evaluation_from_json(entry: dict) -> Evaluation:
 
 
 def build_results(evaluations: Sequence[Evaluation], dataset_dir: str | Path, settings: EvalSettings,
-                  command: Sequence[str] | None = None) -> dict:
+                  command=None) -> dict:
     return {
         "schema": SCHEMA,
         "created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-        "command": list(command) if command is not None else None,
+        "command": jsonable(command),
         "environment": environment(),
         "dataset": dataset_identity(dataset_dir),
         "settings": settings.to_json(),
@@ -166,7 +167,7 @@ def runs_of(results: Mapping, specs: Mapping[str, MethodSpec] | None = None) -> 
 
 
 def rerun(results: Mapping, specs: Mapping[str, MethodSpec] | None = None, arena=None, progress: bool = True,
-          command: Sequence[str] | None = None) -> dict:
+          command=None) -> dict:
     """Evaluates again every run of `results` with its settings, on its dataset; returns the new results."""
     dataset_dir = Path(results["dataset"]["dir"])
     identity = dataset_identity(dataset_dir)

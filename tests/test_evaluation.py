@@ -233,7 +233,7 @@ def test_cli_evaluate_and_rerun(smoke_dataset, oracle_run, tmp_path, monkeypatch
     saved = results.read_results(out)
     assert [e["key"] for e in saved["evaluations"]] == list(eval_methods.SPECS)
     assert saved["settings"]["subsets"] == ["seen", "unseen_inst"] and saved["settings"]["limit"] == 4
-    assert saved["command"][:2] == ["ocplace", "evaluate"] or saved["command"][0] == "ocplace"
+    assert saved["command"]["arguments"]["methods"] == "all" and saved["command"]["argv"][0] == "ocplace"
     assert out.with_suffix(".md").read_text().startswith("Dataset ")
     pipeline_out = tmp_path / "reproduce"
     eval_methods.train_oracle(TrainContext(smoke_dataset, "none", pipeline_out / "runs/oracle/fraction-1.00"))

@@ -90,7 +90,7 @@ def test_reproduce_smoke_from_nothing_with_every_registered_method(tmp_path, cap
     printed = capsys.readouterr().out
     saved = results.read_results(tmp_path / "results.json")
     assert [e["key"] for e in saved["evaluations"]] == list(registered)
-    assert saved["pipeline"]["errors"] == [] and saved["command"][:2] == ["ocplace", "reproduce"]
+    assert saved["pipeline"]["errors"] == [] and saved["command"]["arguments"]["scale"] == "smoke"
     for spec in registered.values():
         assert f"| {spec.label} |" in printed
     for entry in saved["evaluations"]:
