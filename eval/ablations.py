@@ -28,12 +28,18 @@ from ocplace.sim.dataset.records import SceneRecord
 # ----------------------------------------------------------------------------- Ours w/o LLM (GT-ref#)
 
 
+def load_backbone_spec(spec: str):
+    """`models.backbone.load_backbone`, also taking a bare kind such as "offline" (the harness's default)."""
+    from ocplace.models.backbone import BACKBONE_LOADERS, load_backbone
+
+    return load_backbone(f"{spec}:" if spec in BACKBONE_LOADERS else spec)
+
+
 def train_no_llm(ctx: TrainContext) -> Path:
     """Featurize the training split (shared cache) and its sentences, then train GT-ref# (idempotent)."""
-    from ocplace.models.backbone import load_backbone
     from ocplace.train.gtref import recipe, train_gtref
 
-    return train_gtref(Path(ctx.dataset_dir), load_backbone(ctx.backbone), Path(ctx.out_dir),
+    return train_gtref(Path(ctx.dataset_dir), load_backbone_spec(ctx.backbone), Path(ctx.out_dir),
                        recipe(ctx.scale, ctx.fraction, ctx.seed), progress=False)
 
 
@@ -119,7 +125,7 @@ class GtRefMethod:
 
 
 def load_no_llm(ctx: LoadContext) -> GtRefMethod:
-    from ocplace.models.backbone import PromptConfig, load_backbone
+    from ocplace.models.backbone import PromptConfig
     from ocplace.models.grounding import GroundingModel
     from ocplace.models.placement.sampler import SamplerConfig
     from ocplace.models.policy import PlacementPolicy
@@ -128,7 +134,7 @@ def load_no_llm(ctx: LoadContext) -> GtRefMethod:
     if ctx.run_dir is None:
         raise TrainingError("no_llm needs a run directory; train it first")
     trained = load_model(ctx.run_dir)
-    backbone = load_backbone(ctx.backbone)
+    backbone = load_backbone_spec(ctx.backbone)
     if trained.backbone_fingerprint != backbone.fingerprint:
         raise TrainingError(f"the GT-ref# model in {ctx.run_dir} was trained on another backbone (fingerprint "
                             f"{trained.backbone_fingerprint[:12]}, {ctx.backbone} is {backbone.fingerprint[:12]})")
