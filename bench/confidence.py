@@ -38,14 +38,13 @@ def main() -> None:
     args = parser.parse_args()
 
     from ocplace.eval.ours import scene_input
-    from ocplace.models.backbone import load_backbone
     from ocplace.models.placement.sampler import SamplerConfig
-    from ocplace.models.policy import PlacementPolicy
+    from ocplace.models.policy import PlacementPolicy, load_backbone_spec
     from ocplace.sim.dataset.job import scene_dirs
     from ocplace.sim.dataset.records import read_scene
 
     records = [read_scene(d) for d in scene_dirs(args.dataset, args.split)]
-    policy = PlacementPolicy.from_run(load_backbone(args.backbone), args.adapters, threshold=0.0,
+    policy = PlacementPolicy.from_run(load_backbone_spec(args.backbone), args.adapters, threshold=0.0,
                                       sampler=SamplerConfig(num_samples=16))
     scenes = [scene_input(r) for r in records]
     names = sorted({obj["human_name"] for r in records for obj in r.meta["objects"]})

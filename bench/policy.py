@@ -27,7 +27,7 @@ import numpy as np
 
 from ocplace.models.backbone import ClipBackbone, ImagePreprocessing, random_clip_params
 from ocplace.models.placement.sampler import SamplerConfig
-from ocplace.models.policy import PlacementPolicy
+from ocplace.models.policy import PlacementPolicy, load_backbone_spec
 
 VIT_B32 = dict(
     text_config=dict(hidden_size=512, intermediate_size=2048, num_hidden_layers=12, num_attention_heads=8,
@@ -138,7 +138,6 @@ def main() -> None:
     parser.add_argument("--offline", help="offline backbone spec (default: random weights, default architecture)")
     args = parser.parse_args()
 
-    from ocplace.models.backbone import load_backbone
     from ocplace.models.parsing import make_parser
 
     tiny = args.size == "tiny"
@@ -150,7 +149,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         backbones = {
             "offline" + ("" if args.offline else " (random weights)"):
-                load_backbone(args.offline) if args.offline else random_offline_backbone(tiny),
+                load_backbone_spec(args.offline) if args.offline else random_offline_backbone(tiny),
             ("tiny CLIP" if tiny else "ViT-B/32 CLIP") + " (random weights)":
                 random_clip_backbone(TINY_CLIP if tiny else VIT_B32, Path(tmp)),
         }

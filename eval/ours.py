@@ -59,11 +59,11 @@ def featurize_split(dataset_dir: Path, split: str, backbone, progress: bool = Tr
 
 def train_ours(ctx: TrainContext) -> Path:
     """Featurize the training split, then train the adapters into `ctx.out_dir` (resumable)."""
-    from ocplace.models.backbone import load_backbone
     from ocplace.models.features import load_features
+    from ocplace.models.policy import load_backbone_spec
     from ocplace.train.loop import train
 
-    backbone = load_backbone(ctx.backbone)
+    backbone = load_backbone_spec(ctx.backbone)
     features = load_features(featurize_split(Path(ctx.dataset_dir), "train", backbone), backbone.fingerprint)
     config = dataclasses.replace(train_recipe(ctx.scale), fraction=ctx.fraction, seed=ctx.seed)
     train(features, ctx.out_dir, config)
@@ -148,11 +148,10 @@ def _jsonable(value):
 
 
 def _policy(ctx: LoadContext, adapters_file: Path | None):
-    from ocplace.models.backbone import load_backbone
     from ocplace.models.placement.sampler import SamplerConfig
-    from ocplace.models.policy import PlacementPolicy
+    from ocplace.models.policy import PlacementPolicy, load_backbone_spec
 
-    return PlacementPolicy.from_run(load_backbone(ctx.backbone), adapters_file, parser=ctx.parser,
+    return PlacementPolicy.from_run(load_backbone_spec(ctx.backbone), adapters_file, parser=ctx.parser,
                                     sampler=SamplerConfig(num_samples=ctx.num_samples))
 
 

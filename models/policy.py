@@ -44,6 +44,13 @@ DEFAULT_THRESHOLD = 0.5
 TABLE_LABEL = "the table"
 
 
+def load_backbone_spec(spec: str) -> Backbone:
+    """`models.backbone.load_backbone`, also accepting a bare kind such as "offline" (= "offline:")."""
+    from ocplace.models.backbone import BACKBONE_LOADERS, load_backbone
+
+    return load_backbone(f"{spec}:" if spec in BACKBONE_LOADERS else spec)
+
+
 @dataclasses.dataclass(frozen=True)
 class SceneInput:
     """One scene as a robot sees it; see `PlacementPolicy.place` for the fields."""

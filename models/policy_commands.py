@@ -45,11 +45,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run_place(args: argparse.Namespace) -> int:
     import jax
 
-    from ocplace.models.backbone import load_backbone
     from ocplace.models.pinhole import PinholeCamera
     from ocplace.models.placement.figures import save_figure
     from ocplace.models.placement.sampler import SamplerConfig
-    from ocplace.models.policy import PlacementPolicy
+    from ocplace.models.policy import PlacementPolicy, load_backbone_spec
     from ocplace.models.policy_figure import placement_figure
 
     scene, record = _scene(args)
@@ -58,7 +57,7 @@ def run_place(args: argparse.Namespace) -> int:
         kwargs["threshold"] = args.threshold
     if args.adapters is None:
         print("no --adapters given: zero-shot grounding (plain backbone similarity, 'Ours w/o Adapter')")
-    policy = PlacementPolicy.from_run(load_backbone(args.backbone), args.adapters, parser=args.parser, **kwargs)
+    policy = PlacementPolicy.from_run(load_backbone_spec(args.backbone), args.adapters, parser=args.parser, **kwargs)
     [placement] = policy.place_many([scene], jax.random.key(args.seed))
     print(placement.summary())
     if record is not None:
