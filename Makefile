@@ -1,9 +1,10 @@
 # Two commands on a fresh machine: `make demo` and `make test`. Both set everything up first.
+# `make reproduce` runs the paper-scale protocol (hours on 2 cores).
 VENV ?= .venv
 GL = $$(cat $(VENV)/mujoco-gl 2>/dev/null || echo egl)
 RUN = MUJOCO_GL=$(GL) PYOPENGL_PLATFORM=$(GL) $(VENV)/bin/
 
-.PHONY: setup library demo test test-all bench clean
+.PHONY: setup library demo reproduce test test-all bench clean
 
 setup: $(VENV)/.setup-done
 
@@ -14,7 +15,10 @@ library: setup
 	$(RUN)ocplace assets build
 
 demo: library
-	$(RUN)ocplace demo --out out/demo
+	$(RUN)ocplace reproduce --scale demo --out out/demo
+
+reproduce: library
+	$(RUN)ocplace reproduce --scale default --out out/reproduce
 
 test: library
 	$(RUN)python -m pytest
