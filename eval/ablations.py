@@ -22,7 +22,7 @@ import numpy as np
 
 from ocplace.errors import OcplaceError, TrainingError
 from ocplace.eval.api import LoadContext, MethodOutput, MethodSpec, TrainContext
-from ocplace.eval.ours import PolicyMethod, describe_policy, output_of, scene_input
+from ocplace.eval.ours import PolicyMethod, describe_policy, scene_input
 from ocplace.sim.dataset.records import SceneRecord
 
 # ----------------------------------------------------------------------------- Ours w/o LLM (GT-ref#)

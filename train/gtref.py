@@ -19,7 +19,6 @@ import dataclasses
 import functools
 import hashlib
 import json
-import logging
 import time
 from pathlib import Path
 
@@ -37,8 +36,6 @@ from ocplace.sim.relations import relation_index
 from ocplace.train import checkpoints
 from ocplace.train.loop import batch_indices, subset_indices
 from ocplace.train.metrics import MetricsLog
-
-log = logging.getLogger(__name__)
 
 MODEL_FILE = "model.safetensors"
 SENTENCES_FORMAT = "ocplace-gtref-sentences-v1"

@@ -20,7 +20,6 @@ import dataclasses
 import functools
 import hashlib
 import json
-import logging
 import math
 import time
 from pathlib import Path
@@ -38,8 +37,6 @@ from ocplace.paths import atomic_path, cache_dir
 from ocplace.train import checkpoints
 from ocplace.train.loop import batch_indices, subset_indices
 from ocplace.train.metrics import MetricsLog
-
-log = logging.getLogger(__name__)
 
 BACKBONE_DIR = "backbone"
 INPUTS_FORMAT = "ocplace-scratch-inputs-v1"
@@ -160,7 +157,8 @@ def scratch_inputs(dataset_dir: Path, split: str, config: ob.OfflineConfig, prom
 
 def make_optimizer(config: ScratchTrainConfig) -> optax.GradientTransformation:
     schedule = optax.warmup_cosine_decay_schedule(0.0, config.learning_rate, config.warmup_steps,
-                                                  max(config.steps, config.warmup_steps + 1), config.learning_rate * 0.02)
+                                                  max(config.steps, config.warmup_steps + 1),
+                                                  config.learning_rate * 0.02)
     decay_mask = functools.partial(jax.tree_util.tree_map, lambda p: p.ndim >= 2)
     return optax.chain(optax.clip_by_global_norm(1.0),
                        optax.adamw(schedule, weight_decay=config.weight_decay, mask=decay_mask))
