@@ -25,7 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from ocplace.models.adapters import AdapterConfig, ClipAdapter, blend
+from ocplace.models.adapters import ClipAdapter, blend
 from ocplace.models.backbone import PromptConfig
 from ocplace.models.grounding import l2_normalize
 from ocplace.sim import language, metric, relations
@@ -162,10 +162,6 @@ class GridsModel(nn.Module):
         mean = jnp.sum(jnp.where(text_mask[..., None], sims, 0.0), axis=-2) / jnp.maximum(
             jnp.sum(text_mask, axis=-1, keepdims=True), 1)
         return logit_scale * mean
-
-
-def adapter_config(config: GridConfig, dim: int) -> AdapterConfig:
-    return AdapterConfig(dim, config.reduction, config.residual_ratio)
 
 
 @functools.partial(jax.jit, static_argnums=(0, 1))
