@@ -24,6 +24,7 @@ import time
 import zlib
 from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -228,8 +229,8 @@ def _same(a, b) -> bool:
     return collections.Counter(a) == collections.Counter(b)
 
 
-def _stage(output: MethodOutput, parse_ok, grounding_ok, program_ok) -> str:
-    if output.failure is not None or output.mode is None:
+def _stage(failure: str | None, parse_ok, grounding_ok, program_ok) -> str:
+    if failure is not None:
         return "failure"
     if program_ok:
         return "sampling"
@@ -240,31 +241,41 @@ def _stage(output: MethodOutput, parse_ok, grounding_ok, program_ok) -> str:
     return "placement"  # the method reports neither parse nor grounding: an end-to-end miss
 
 
-def _valid_points(points, shape_tail: tuple[int, ...]) -> np.ndarray:
+class _Interpreted(NamedTuple):
+    mode: np.ndarray | None  # (2,)
+    samples: np.ndarray | None  # (num_samples, 2)
+    parsed: tuple[tuple[str, str], ...] | None
+    tokens: tuple[int, ...] | None
+    failure: str | None
+
+
+def _points(points, rows: bool) -> np.ndarray:
     array = np.asarray(points, dtype=np.float64)
-    if array.shape[-len(shape_tail):] != shape_tail or not np.all(np.isfinite(array)):
-        raise ValueError(f"expected finite points of shape (..., {', '.join(map(str, shape_tail))}), "
-                         f"got shape {array.shape}")
+    if array.shape[-1:] != (2,) or (array.ndim != 2 if rows else array.ndim != 1) or not np.all(np.isfinite(array)):
+        raise ValueError(f"expected finite {'(num_samples, 2)' if rows else '(2,)'} points, got shape {array.shape}")
     return array
+
+
+def interpret(output: MethodOutput) -> _Interpreted:
+    """The output's parts as plain arrays and tuples; anything malformed makes it a failure."""
+    try:
+        return _Interpreted(
+            mode=None if output.mode is None else _points(output.mode, rows=False),
+            samples=None if output.samples is None else _points(output.samples, rows=True),
+            parsed=None if output.parsed is None else tuple((str(r), str(rel)) for r, rel in output.parsed),
+            tokens=None if output.grounded is None else tuple(int(t) for t in output.grounded),
+            failure=output.failure if output.failure is not None or output.mode is not None
+            else "no placement and no failure message")
+    except (TypeError, ValueError) as error:
+        return _Interpreted(None, None, None, None, output.failure or f"malformed output: {error}")
 
 
 def score_scene(record: SceneRecord, output: MethodOutput) -> SceneOutcome:
     """Scores one output against the record's ground truth (no physical check)."""
     from ocplace.sim.metric import placement_success
 
-    meta = record.meta
-    truth = record.tuples
-    failure = output.failure
-    mode = samples = None
-    try:
-        if output.mode is not None:
-            mode = _valid_points(output.mode, (2,)).reshape(2)
-        if output.samples is not None:
-            samples = _valid_points(output.samples, (2,)).reshape(-1, 2)
-    except ValueError as error:
-        failure = failure or f"malformed output: {error}"
-    if failure is None and mode is None:
-        failure = "no placement and no failure message"
+    meta, truth = record.meta, record.tuples
+    mode, samples, parsed, tokens, failure = interpret(output)
     problem = record.problem()
     success = failure is None and bool(placement_success(mode[None], problem)[0])
     if failure is not None:
@@ -274,8 +285,7 @@ def score_scene(record: SceneRecord, output: MethodOutput) -> SceneOutcome:
     else:
         sample_success = float(np.mean(placement_success(samples, problem)))
 
-    parsed = None if output.parsed is None else tuple((str(r), str(rel)) for r, rel in output.parsed)
-    grounded = None if output.grounded is None else token_object_ids(meta, output.grounded)
+    grounded = None if tokens is None else token_object_ids(meta, tokens)
     truth_pairs = [(reference_key(t.reference_name), t.relation) for t in truth]
     truth_ids = [t.reference_object_id for t in truth]
     parse_ok = None if parsed is None else _same([(reference_key(r), rel) for r, rel in parsed], truth_pairs)
@@ -289,8 +299,7 @@ def score_scene(record: SceneRecord, output: MethodOutput) -> SceneOutcome:
         mode=None if mode is None else (float(mode[0]), float(mode[1])),
         num_samples=0 if samples is None else len(samples), failure=failure,
         parsed=parsed, grounded=grounded, parse_ok=parse_ok, grounding_ok=grounding_ok, program_ok=program_ok,
-        stage=None if success else _stage(dataclasses.replace(output, failure=failure, mode=mode),
-                                          parse_ok, grounding_ok, program_ok))
+        stage=None if success else _stage(failure, parse_ok, grounding_ok, program_ok))
 
 
 def physical_outcome(arena, record: SceneRecord, outcome: SceneOutcome) -> PhysicalOutcome:

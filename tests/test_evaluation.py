@@ -147,8 +147,13 @@ def test_grounding_and_parse_are_judged_through_box_order(smoke_dataset):
     assert not scored.parse_ok and scored.grounding_ok and scored.stage == "parse"
     scored = harness.score_scene(record, MethodOutput(np.array([9.0, 9.0]), None, right, tokens))
     assert scored.program_ok and scored.stage == "sampling"
-    scored = harness.score_scene(record, MethodOutput(np.array([np.nan, 0.0]), None))
-    assert scored.failure.startswith("malformed output") and scored.stage == "failure"
+    for malformed in (MethodOutput(np.array([np.nan, 0.0]), None), MethodOutput(np.zeros((1, 2)), None),
+                      MethodOutput(mode, np.zeros(3)), MethodOutput(mode, None, parsed=("a",)),
+                      MethodOutput(mode, None, grounded=(object(),))):
+        scored = harness.score_scene(record, malformed)
+        assert scored.failure.startswith("malformed output") and scored.stage == "failure" and not scored.success
+    scored = harness.score_scene(record, MethodOutput(None, None))
+    assert scored.failure == "no placement and no failure message" and scored.sample_success == 0.0
 
 
 def test_sampling_is_deterministic_and_keyed_per_subset(smoke_dataset):
