@@ -10,7 +10,6 @@ the seed and the step), so over the epochs the network sees the whole region, no
 from __future__ import annotations
 
 import dataclasses
-import functools
 import hashlib
 import json
 from pathlib import Path
@@ -44,9 +43,9 @@ class CliportRecipe:
 
 
 RECIPES = {
-    # ~1 s per step of 8 on 2 shared CPU cores: about 25 min, 6 epochs of 2000 scenes.
-    "default": CliportRecipe(cliport.CliportConfig(), Schedule(1_500, 8, 1e-3, 50, 50, 250)),
-    "demo": CliportRecipe(cliport.CliportConfig(), Schedule(120, 8, 1e-3, 10, 40, 40)),
+    # 0.6-1.3 s per step of 8 on 2 CPU cores: 10-20 min, 4 epochs of 2000 scenes (docs/baselines.md).
+    "default": CliportRecipe(cliport.CliportConfig(), Schedule(1_000, 8, 1e-3, 50, 50, 250)),
+    "demo": CliportRecipe(cliport.CliportConfig(), Schedule(100, 8, 1e-3, 10, 50, 50)),
     "smoke": CliportRecipe(cliport.smoke_config(), Schedule(60, 4, 3e-3, 5, 20, 20), num_targets=4),
 }
 
@@ -117,11 +116,20 @@ def train_step(config: cliport.CliportConfig, schedule: Schedule, state, data, m
     return (optax.apply_updates(params, updates), opt_state), loss
 
 
-@functools.partial(jax.jit, static_argnums=(0, 1), donate_argnums=2)
+jit_train_step = jax.jit(train_step, static_argnums=(0, 1), donate_argnums=2)
+
+
 def train_chunk(config: cliport.CliportConfig, schedule: Schedule, state, data, mask, indices, keys):
-    """`indices (num_steps, B)` and `keys (num_steps,)`: steps fused with `lax.scan`; returns `(state, losses)`."""
-    step = functools.partial(train_step, config, schedule)
-    return jax.lax.scan(lambda carry, xs: step(carry, data, mask, *xs), state, (indices, keys))
+    """`indices (num_steps, B)` and `keys (num_steps,)`: one jitted call per step; returns `(state, losses)`.
+
+    Not a `lax.scan` like the adapters' loop: XLA:CPU runs convolutions inside a loop body with a
+    slow generic kernel (measured 70 CPU-s per step instead of 0.8).
+    """
+    losses = []
+    for step_indices, key in zip(indices, keys):
+        state, loss = jit_train_step(config, schedule, state, data, mask, step_indices, key)
+        losses.append(loss)
+    return state, jnp.stack(losses)
 
 
 def train_cliport(dataset_dir: Path, backbone_spec: str, out_dir: Path, scale: str = "default",
