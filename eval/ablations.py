@@ -28,15 +28,9 @@ from ocplace.sim.dataset.records import SceneRecord
 # ----------------------------------------------------------------------------- Ours w/o LLM (GT-ref#)
 
 
-def load_backbone_spec(spec: str):
-    """`models.backbone.load_backbone`, also taking a bare kind such as "offline" (the harness's default)."""
-    from ocplace.models.backbone import BACKBONE_LOADERS, load_backbone
-
-    return load_backbone(f"{spec}:" if spec in BACKBONE_LOADERS else spec)
-
-
 def train_no_llm(ctx: TrainContext) -> Path:
     """Featurize the training split (shared cache) and its sentences, then train GT-ref# (idempotent)."""
+    from ocplace.models.policy import load_backbone_spec
     from ocplace.train.gtref import recipe, train_gtref
 
     return train_gtref(Path(ctx.dataset_dir), load_backbone_spec(ctx.backbone), Path(ctx.out_dir),
@@ -128,7 +122,7 @@ def load_no_llm(ctx: LoadContext) -> GtRefMethod:
     from ocplace.models.backbone import PromptConfig
     from ocplace.models.grounding import GroundingModel
     from ocplace.models.placement.sampler import SamplerConfig
-    from ocplace.models.policy import PlacementPolicy
+    from ocplace.models.policy import PlacementPolicy, load_backbone_spec
     from ocplace.train.gtref import load_model
 
     if ctx.run_dir is None:
