@@ -46,7 +46,7 @@ MAX_TUPLES = 2
 
 @dataclasses.dataclass(frozen=True)
 class ScratchTrainConfig:
-    steps: int = 1_200
+    steps: int = 2_400
     batch_size: int = 16  # scenes per step (each with all its visual tokens)
     learning_rate: float = 1e-3  # AdamW peak; linear warm-up, cosine decay to 2% (as the backbone pretraining)
     warmup_steps: int = 100
@@ -79,7 +79,7 @@ RECIPES = {
     "smoke": ScratchRecipe(scratch.smoke_config(), ScratchTrainConfig(
         steps=30, batch_size=4, learning_rate=3e-3, warmup_steps=3, log_every=10, checkpoint_every=10)),
     "demo": ScratchRecipe(scratch.demo_config(), ScratchTrainConfig(
-        steps=300, batch_size=16, warmup_steps=30, log_every=25, checkpoint_every=100)),
+        steps=1_000, batch_size=16, warmup_steps=50, log_every=50, checkpoint_every=250)),
     "default": ScratchRecipe(scratch.default_config(), ScratchTrainConfig()),
 }
 
