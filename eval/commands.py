@@ -53,6 +53,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     reproduce.add_argument("--backbone", help="use this backbone spec instead of pretraining the offline one")
     reproduce.add_argument("--methods", default="all", help="comma-separated method names, or `all`")
     reproduce.add_argument("--workers", type=int, help="dataset generation processes (default: all CPUs)")
+    reproduce.add_argument("--dataset", type=Path,
+                           help="dataset folder to use, or to generate into (default: OUT/dataset)")
+    reproduce.add_argument("--fractions", type=_fraction, nargs="+", metavar="F",
+                           help="training-set fractions of the sample-efficiency study (default: the scale's)")
     reproduce.add_argument("--physical", type=int, default=None, metavar="K",
                            help="physical check on the first K scenes per subset (default: the scale's)")
     reproduce.add_argument("--no-progress", action="store_true")
@@ -84,6 +88,13 @@ def select_specs(names: str, specs: dict) -> list:
     if unknown or not wanted:
         raise EvaluationError(f"unknown method(s) {unknown or names!r}; registered: {', '.join(specs) or 'none'}")
     return [specs[n] for n in wanted]
+
+
+def _fraction(text: str) -> float:
+    value = float(text)
+    if not 0.0 < value <= 1.0:
+        raise argparse.ArgumentTypeError(f"a training-set fraction lies in (0, 1], got {text}")
+    return value
 
 
 def physical_setting(value: int | None, default: int | None) -> int | None:
@@ -189,6 +200,10 @@ def _reproduce(args: argparse.Namespace) -> int:
         changes["methods"] = tuple(n.strip() for n in args.methods.split(",") if n.strip())
     if args.workers:
         changes["workers"] = args.workers
+    if args.dataset:
+        changes["dataset"] = args.dataset
+    if args.fractions:
+        changes["fractions"] = tuple(sorted(set(args.fractions)))
     if args.physical is not None:
         changes["physical_scenes"] = physical_setting(args.physical, config.physical_scenes)
     config = dataclasses.replace(config, **changes)

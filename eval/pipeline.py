@@ -11,6 +11,7 @@ its outcome (settings, dataset, the method's describe()). Outputs are written at
     OUT/runs/<method>/fraction-<f>/  TrainContext.out_dir of each training run
     OUT/evaluations/<key>-<hash>.json
     OUT/results.json, OUT/results.md, OUT/sample_efficiency.png (when fractions were run)
+    OUT/placement.png                Ours on the first `seen` test scene (when Ours was trained)
 """
 
 from __future__ import annotations
@@ -90,6 +91,7 @@ class PipelineSummary:
     results_path: Path | None = None
     markdown: str = ""
     figure: Path | None = None
+    placement_figure: Path | None = None
 
     def report(self) -> str:
         lines = [step.line() for step in self.steps]
@@ -204,6 +206,24 @@ def evaluation_settings(config: PipelineConfig, backbone: str) -> EvalSettings:
                         subsets=config.subsets, physical_scenes=config.physical_scenes, seed=config.seed)
 
 
+def placement_figure_step(run_dir: Path, config: PipelineConfig, dataset_dir: Path, backbone: str,
+                          path: Path) -> str:
+    """Draws Ours on the first `seen` test scene: what a user looks at first."""
+    import jax
+
+    from ocplace.eval.ours import scene_input
+    from ocplace.models.policy import PlacementPolicy, load_backbone_spec
+    from ocplace.models.policy_figure import save_placement
+    from ocplace.sim.dataset.job import scene_dirs
+    from ocplace.sim.dataset.records import read_scene
+
+    scene_dir = scene_dirs(dataset_dir, "seen")[0]
+    policy = PlacementPolicy.from_run(load_backbone_spec(backbone), run_dir, parser=config.parser)
+    placement = save_placement(policy, scene_input(read_scene(scene_dir)), jax.random.key(config.seed), path)
+    print(placement.summary(), flush=True)
+    return f"{path} ({scene_dir.name}, {'placed' if placement.error is None else placement.failure})"
+
+
 def evaluation_key(run: MethodRun, description: dict, settings: EvalSettings, dataset_hash: str) -> str:
     """Everything that decides an evaluation's outcome, hashed: a stored evaluation with it is reused."""
     from ocplace.eval.results import SCHEMA
@@ -307,6 +327,16 @@ def run_pipeline(config: PipelineConfig, out: str | Path | None = None,
             summary.figure = plot_sample_efficiency(results, out / "sample_efficiency.png")
         step.detail = f"{summary.results_path}, {summary.results_path.with_suffix('.md')}" + (
             f", {summary.figure}" if summary.figure else "")
+    ours = [run for run in runs if run.spec.name == "ours" and run.fraction == 1.0 and run.run_dir is not None]
+    if ours and "seen" in config.subsets:
+        with _Timer(summary, "figure") as step:
+            try:
+                step.detail = placement_figure_step(ours[0].run_dir, config, dataset_dir, backbone,
+                                                    out / "placement.png")
+                summary.placement_figure = out / "placement.png"
+            except Exception as error:  # noqa: BLE001  (the results are written already)
+                summary.errors.append(_error("ours", "figure", error))
+                step.detail = f"FAILED: {type(error).__name__}: {error}"
     return summary
 
 

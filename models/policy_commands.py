@@ -45,11 +45,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run_place(args: argparse.Namespace) -> int:
     import jax
 
-    from ocplace.models.pinhole import PinholeCamera
-    from ocplace.models.placement.figures import save_figure
     from ocplace.models.placement.sampler import SamplerConfig
     from ocplace.models.policy import PlacementPolicy, load_backbone_spec
-    from ocplace.models.policy_figure import placement_figure
+    from ocplace.models.policy_figure import save_placement
 
     scene, record = _scene(args)
     kwargs = {"sampler": SamplerConfig(num_samples=args.samples)}
@@ -58,11 +56,10 @@ def run_place(args: argparse.Namespace) -> int:
     if args.adapters is None:
         print("no --adapters given: zero-shot grounding (plain backbone similarity, 'Ours w/o Adapter')")
     policy = PlacementPolicy.from_run(load_backbone_spec(args.backbone), args.adapters, parser=args.parser, **kwargs)
-    [placement] = policy.place_many([scene], jax.random.key(args.seed))
+    placement = save_placement(policy, scene, jax.random.key(args.seed), args.out)
     print(placement.summary())
     if record is not None:
         _compare_with_truth(placement, record)
-    save_figure(placement_figure(placement, scene.rgb, PinholeCamera.from_any(scene.camera)), args.out)
     print(f"wrote {args.out}")
     return 0 if placement.error is None else 2
 

@@ -50,3 +50,13 @@ def _rectangle(axis, box, colour: str, width: float, style: str) -> None:
     u0, v0, u1, v1 = (float(x) - 0.5 for x in box)  # pixel edges: pixel centres sit at integers
     axis.add_patch(Rectangle((u0, v0), u1 - u0, v1 - v0, fill=False, edgecolor=colour, linewidth=width,
                              linestyle=style))
+
+
+def save_placement(policy, scene, key, path) -> object:
+    """Places the held object in `scene` (a `models.policy.SceneInput`) and saves the figure to `path`."""
+    from ocplace.models.pinhole import PinholeCamera
+    from ocplace.models.placement.figures import save_figure
+
+    [placement] = policy.place_many([scene], key)
+    save_figure(placement_figure(placement, scene.rgb, PinholeCamera.from_any(scene.camera)), path)
+    return placement

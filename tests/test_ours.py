@@ -100,3 +100,13 @@ def test_no_adapter_places_with_zero_threshold(tiny_backbone_spec, seen_records)
 def test_ours_without_a_run_says_to_train_first(tiny_backbone_spec, tmp_path):
     with pytest.raises(TrainingError, match="train the 'ours' method first"):
         method_specs()["ours"].load(LoadContext(tmp_path, tiny_backbone_spec))
+
+
+def test_pipeline_draws_ours_on_the_first_seen_scene(trained_run, smoke_dataset, tiny_backbone_spec, tmp_path):
+    from ocplace.eval import pipeline
+
+    path = tmp_path / "placement.png"
+    detail = pipeline.placement_figure_step(trained_run[0], pipeline.smoke_config(), smoke_dataset,
+                                            tiny_backbone_spec, path)
+    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert detail.startswith(f"{path} (seen-00000, ")

@@ -96,3 +96,13 @@ def test_reproduce_smoke_from_nothing_with_every_registered_method(tmp_path, cap
     for entry in saved["evaluations"]:
         assert entry["description"], entry["key"]
         assert all(entry["subsets"][s]["aggregate"]["overall"]["scenes"] == 8 for s in pipeline.SUBSETS)
+
+
+def test_reproduce_options_reach_the_config(tmp_path):
+    from ocplace.cli import build_parser
+
+    args = build_parser().parse_args(["reproduce", "--scale", "default", "--dataset", str(tmp_path),
+                                      "--fractions", "1", "0.5", "1"])
+    assert args.dataset == tmp_path and args.fractions == [1.0, 0.5, 1.0]
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["reproduce", "--fractions", "0"])
