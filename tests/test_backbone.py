@@ -56,6 +56,21 @@ def test_batch_of_eight_equals_eight_singles(clip):
     np.testing.assert_allclose(batched_texts, singles_texts, atol=1e-5)
 
 
+def test_texts_padded_to_a_bucket_equal_texts_padded_to_the_context_length(clip):
+    texts = ["a photo of a red bowl.", "to the left of the light brown boot with golden laces"]
+    full = clip._tokenizer(texts, padding="max_length", max_length=clip.context_length, truncation=True,
+                           return_tensors="np")
+    reference = np.asarray(clip._text_fn(clip._params, full["input_ids"].astype(np.int32),
+                                         full["attention_mask"].astype(np.int32)))
+    np.testing.assert_allclose(clip.encode_texts(texts), reference, atol=1e-5)
+
+
+def test_bucket_sizes():
+    sizes = [backbone_module.bucket_size(count, 32) for count in range(1, 40)]
+    assert sizes[:12] == [1, 2, 3, 4, 6, 6, 8, 8, 12, 12, 12, 12] and sizes[-1] == 32
+    assert all(count <= size <= max(count * 3 // 2, 2) for count, size in enumerate(sizes[:31], start=1))
+
+
 def test_more_images_than_one_batch(clip_dir):
     small_batches = load_clip_backbone(str(clip_dir), max_batch=4)
     images = random_images(11, seed=2)
