@@ -46,7 +46,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "reproduce", help="the whole pipeline: library, dataset, backbone, training, evaluation, tables",
         description="Builds the object library, generates the dataset, pretrains the offline backbone, "
                     "trains every registered method (and, at the default scale, the data fractions), "
-                    "evaluates them and writes results.json, results.md and the sample-efficiency figure. "
+                    "evaluates them and writes results.json, results.md and the paper's figures (OUT/figures). "
                     "Every step skips what is already done: rerun to resume.")
     reproduce.add_argument("--scale", choices=("smoke", "demo", "default"), default="demo")
     reproduce.add_argument("--out", type=Path, help="output folder (default: out/demo, out/reproduce, out/smoke)")
@@ -61,6 +61,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                            help="physical check on the first K scenes per subset (default: the scale's)")
     reproduce.add_argument("--no-progress", action="store_true")
     reproduce.set_defaults(func=_reproduce)
+
+    figures = subparsers.add_parser(
+        "figures", help="the paper's Fig. 5, 6 and 7 from a results JSON",
+        description="Draws Fig. 5 (placement densities on the first `seen` scene), Fig. 6 (each method's "
+                    "placement in chosen test scenes; needs Ours and CLIPort-Place evaluated) and Fig. 7 "
+                    "(sample efficiency; needs several training fractions) as PNGs.")
+    figures.add_argument("results", type=Path, help="results JSON of `ocplace evaluate` or `ocplace reproduce`")
+    figures.add_argument("--dataset", type=Path, help="the evaluated dataset (default: the one the results name)")
+    figures.add_argument("--out", type=Path, default=Path("figures"), help="output folder (default: ./figures)")
+    figures.add_argument("--seed", type=int, default=0, help="seed of Fig. 5's relations and samples")
+    figures.set_defaults(func=_figures)
 
 
 def parse_runs(items: list[str]) -> dict[str, Path]:
@@ -211,3 +222,12 @@ def _reproduce(args: argparse.Namespace) -> int:
     print(summary.markdown)
     print(summary.report())
     return 1 if summary.errors else 0
+
+
+def _figures(args: argparse.Namespace) -> int:
+    from ocplace.eval.figures import write_figures
+    from ocplace.eval.results import read_results
+
+    for path in write_figures(read_results(args.results), args.out, args.dataset, args.seed):
+        print(f"wrote {path}")
+    return 0

@@ -1,7 +1,7 @@
 """`ocplace reproduce`: the paper's experiments end to end, at three scales.
 
     library -> dataset -> offline backbone -> training of every registered method (and data
-    fractions) -> evaluation on the test subsets -> results.json, results.md, sample_efficiency.png
+    fractions) -> evaluation on the test subsets -> results.json, results.md, the paper's figures
 
 Every step skips what is already done: the library, dataset, backbone and training runs cache
 themselves, and each evaluation is stored under OUT/evaluations/ keyed by everything that decides
@@ -10,7 +10,8 @@ its outcome (settings, dataset, the method's describe()). Outputs are written at
     OUT/dataset/                     unless `dataset` points elsewhere
     OUT/runs/<method>/fraction-<f>/  TrainContext.out_dir of each training run
     OUT/evaluations/<key>-<hash>.json
-    OUT/results.json, OUT/results.md, OUT/sample_efficiency.png (when fractions were run)
+    OUT/results.json, OUT/results.md
+    OUT/figures/                     Fig. 5, Fig. 6 (with Ours and CLIPort-Place), Fig. 7 (with fractions)
     OUT/placement.png                Ours on the first `seen` test scene (when Ours was trained)
 """
 
@@ -90,7 +91,7 @@ class PipelineSummary:
     errors: list[dict] = dataclasses.field(default_factory=list)  # {"key", "stage", "message"}
     results_path: Path | None = None
     markdown: str = ""
-    figure: Path | None = None
+    figures: list[Path] = dataclasses.field(default_factory=list)
     placement_figure: Path | None = None
 
     def report(self) -> str:
@@ -321,12 +322,17 @@ def run_pipeline(config: PipelineConfig, out: str | Path | None = None,
                                "errors": summary.errors}
         summary.results_path = out / "results.json"
         summary.markdown = write_outputs(results, summary.results_path)
-        if len({e.fraction for e in evaluations}) > 1:
-            from ocplace.eval.efficiency import plot_sample_efficiency
+        step.detail = f"{summary.results_path}, {summary.results_path.with_suffix('.md')}"
+    if evaluations:
+        with _Timer(summary, "paper figures") as step:
+            try:
+                from ocplace.eval.figures import write_figures
 
-            summary.figure = plot_sample_efficiency(results, out / "sample_efficiency.png")
-        step.detail = f"{summary.results_path}, {summary.results_path.with_suffix('.md')}" + (
-            f", {summary.figure}" if summary.figure else "")
+                summary.figures = write_figures(results, out / "figures", dataset_dir, config.seed)
+                step.detail = ", ".join(str(path) for path in summary.figures)
+            except Exception as error:  # noqa: BLE001  (the results are written already)
+                summary.errors.append(_error("figures", "figures", error))
+                step.detail = f"FAILED: {type(error).__name__}: {error}"
     ours = [run for run in runs if run.spec.name == "ours" and run.fraction == 1.0 and run.run_dir is not None]
     if ours and "seen" in config.subsets:
         with _Timer(summary, "figure") as step:

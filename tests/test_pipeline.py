@@ -11,9 +11,11 @@ import json
 import pytest
 
 import eval_methods
-from ocplace.eval import pipeline, registry, results
+from ocplace.eval import figures, pipeline, registry, results
+from ocplace.errors import OcplaceError
 
 LOCAL = ("oracle", "centre", "failing")
+PNG = b"\x89PNG\r\n\x1a\n"
 
 
 @pytest.fixture(scope="module")
@@ -52,9 +54,11 @@ def test_smoke_pipeline_trains_and_evaluates_every_method(first_run, specs):
     for name, spec in specs.items():
         assert f"| {spec.label} |" in markdown, name
     assert "| Oracle | 100.00 |" in markdown and "Sample efficiency" in markdown
-    assert first_run.figure.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # Fig. 5 and Fig. 7 (two fractions of the oracle); no Fig. 6 without Ours and CLIPort-Place.
+    assert [path.name for path in first_run.figures] == [figures.FIG5, figures.FIG7]
+    assert all(path.read_bytes()[:8] == PNG for path in first_run.figures)
     names = [step.name for step in first_run.steps]
-    assert names[:3] == ["library", "dataset", "backbone"] and names[-1] == "results"
+    assert names[:3] == ["library", "dataset", "backbone"] and names[-2:] == ["results", "paper figures"]
     assert "already complete" in first_run.steps[1].detail
 
 
@@ -67,6 +71,34 @@ def test_smoke_pipeline_resumes_without_redoing_work(first_run, config, specs, l
                if step.name.startswith("train"))
     assert results.compare(results.read_results(first_run.results_path),
                            results.read_results(again.results_path)) == []
+
+
+def test_fig6_cases_prefer_scenes_where_the_methods_disagree(first_run, tmp_path):
+    saved = results.read_results(first_run.results_path)
+    cases = figures.choose_cases(saved, methods=("oracle", "centre"))
+    outcomes = {(e["method"], s): {o["id"]: o for o in e["subsets"][s]["scenes"]}
+                for e in saved["evaluations"] if e["fraction"] == 1.0 for s in pipeline.SUBSETS}
+    for subset in pipeline.SUBSETS:
+        oracle, centre = outcomes["oracle", subset], outcomes["centre", subset]
+        chosen = [scene_id for s, scene_id in cases if s == subset]
+        levels = [oracle[scene_id]["level"] for scene_id in chosen]
+        assert levels == [level for level in figures.CASE_LEVELS if any(o["level"] == level for o in oracle.values())]
+        for scene_id, level in zip(chosen, levels):
+            disagreeing = [i for i, o in oracle.items() if o["level"] == level and o["success"] != centre[i]["success"]]
+            assert scene_id == (disagreeing or [i for i, o in oracle.items() if o["level"] == level])[0]
+    path = figures.plot_cases(saved, tmp_path / "cases.png", methods=("oracle", "centre"))
+    assert path.read_bytes()[:8] == PNG
+    with pytest.raises(OcplaceError, match="no full-data evaluation of \\['cliport'\\]"):
+        figures.choose_cases(saved, methods=("oracle", "cliport"))
+
+
+def test_figures_command_writes_what_the_results_allow(first_run, tmp_path, capsys):
+    from ocplace.cli import main
+
+    assert main(["figures", str(first_run.results_path), "--out", str(tmp_path)]) == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == [figures.FIG5, figures.FIG7]
+    assert main(["figures", str(tmp_path / "missing.json"), "--out", str(tmp_path)]) == 2
+    assert "missing or not JSON" in capsys.readouterr().err
 
 
 def test_scale_configs():

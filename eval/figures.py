@@ -1,0 +1,142 @@
+"""The paper's figures from a results JSON and its dataset: Fig. 5 (placement densities), Fig. 6
+(cases: where each method put the held object) and Fig. 7 (sample efficiency).
+
+Fig. 6 needs no model: the results store every scene's mode per method, so it draws those over
+the scene with the ground-truth references and the oracle's feasible region.
+"""
+
+from __future__ import annotations
+
+import textwrap
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from ocplace.eval.harness import EvaluationError
+
+FIG5, FIG6, FIG7 = "fig5_placement_distributions.png", "fig6_cases.png", "fig7_sample_efficiency.png"
+CASE_METHODS = ("ours", "cliport")
+CASE_LEVELS = ("1obj", "2obj")
+METHOD_COLOURS = ("deepskyblue", "orange", "magenta", "lime", "red", "yellow")
+
+
+def _outcomes_by_scene(entry: Mapping, subset: str) -> dict[str, dict]:
+    return {scene["id"]: scene for scene in entry["subsets"].get(subset, {}).get("scenes", [])}
+
+
+def choose_cases(results: Mapping, methods: Sequence[str] = CASE_METHODS,
+                 levels: Sequence[str] = CASE_LEVELS) -> list[tuple[str, str]]:
+    """`(subset, scene id)` per evaluated subset and level: the first scene where the methods'
+    successes differ, else the first scene of that level. Full-data runs only."""
+    entries = {e["method"]: e for e in results["evaluations"] if e["fraction"] == 1.0}
+    missing = [m for m in methods if m not in entries]
+    if missing:
+        raise EvaluationError(f"the results hold no full-data evaluation of {missing}; evaluate them first "
+                              f"(evaluated: {', '.join(entries) or 'none'})")
+    cases = []
+    for subset in results["settings"]["subsets"]:
+        outcomes = [_outcomes_by_scene(entries[m], subset) for m in methods]
+        ids = [scene_id for scene_id in outcomes[0] if all(scene_id in o for o in outcomes[1:])]
+        for level in levels:
+            of_level = [i for i in ids if outcomes[0][i]["level"] == level]
+            disagree = [i for i in of_level if len({o[i]["success"] for o in outcomes}) > 1]
+            if of_level:
+                cases.append((subset, (disagree or of_level)[0]))
+    return cases
+
+
+def _draw_case(axis, record, outcomes: Sequence[tuple[str, dict]]) -> None:
+    from matplotlib.patches import Rectangle
+
+    from ocplace.models.pinhole import PinholeCamera
+    from ocplace.sim.dataset.show import feasible_overlay
+
+    meta = record.meta
+    axis.imshow(feasible_overlay(record))
+    references = {t.reference_object_id for t in record.tuples}
+    for object_id, (u0, v0, u1, v1) in zip(record.boxes.object_ids, record.boxes.boxes, strict=True):
+        if object_id in references:
+            axis.add_patch(Rectangle((u0 - 0.5, v0 - 0.5), u1 - u0, v1 - v0, fill=False, edgecolor="white",
+                                     linewidth=1.5))
+    camera = PinholeCamera.from_json(meta["camera"])
+    for k, (label, outcome) in enumerate(outcomes):
+        colour = METHOD_COLOURS[k % len(METHOD_COLOURS)]
+        verdict = "success" if outcome["success"] else (outcome["failure"] and "not placed") or "failure"
+        if outcome["mode"] is not None:
+            u, v = camera.table_to_pixel(np.asarray(outcome["mode"]))
+            axis.scatter([u], [v], s=90, marker="o" if outcome["success"] else "X", color=colour,
+                         edgecolors="black", linewidths=0.8, zorder=3)
+        axis.text(6, 18 + 20 * k, f"{label}: {verdict}", color=colour, fontsize=7,
+                  bbox={"facecolor": "black", "alpha": 0.6, "pad": 1})
+    axis.set_title(f"{meta['id']} ({meta['level']})\n" + "\n".join(textwrap.wrap(meta["instruction"], 48)),
+                   fontsize=7)
+    axis.set_axis_off()
+
+
+def plot_cases(results: Mapping, path: str | Path, dataset_dir: str | Path | None = None,
+               methods: Sequence[str] = CASE_METHODS, cases: Sequence[tuple[str, str]] | None = None) -> Path:
+    """Fig. 6: one panel per case, each method's mode (o success, X failure) over the scene with its
+    feasible region (green) and ground-truth references (white boxes). A PNG at `path`."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from ocplace.models.placement.figures import save_figure
+    from ocplace.sim.dataset.records import read_scene
+
+    dataset_dir = Path(dataset_dir or results["dataset"]["dir"])
+    cases = list(cases or choose_cases(results, methods))
+    if not cases:
+        raise EvaluationError("no scene to draw: the results hold no scene of the chosen levels")
+    entries = {e["method"]: e for e in results["evaluations"] if e["fraction"] == 1.0}
+    columns = min(len(cases), 3)
+    rows = -(-len(cases) // columns)
+    figure, axes = plt.subplots(rows, columns, figsize=(4.4 * columns, 3.9 * rows), squeeze=False)
+    for axis in axes.flat[len(cases):]:
+        axis.set_axis_off()
+    for axis, (subset, scene_id) in zip(axes.flat, cases):
+        record = read_scene(dataset_dir / subset / scene_id)
+        outcomes = [(entries[m]["label"], _outcomes_by_scene(entries[m], subset)[scene_id]) for m in methods]
+        _draw_case(axis, record, outcomes)
+    figure.tight_layout()
+    return save_figure(figure, path, dpi=120)
+
+
+def plot_fig5(dataset_dir: str | Path, path: str | Path, seed: int = 0, subset: str = "seen") -> Path:
+    """Fig. 5 on the first scene of a test subset: a table region, one object relation, a composition."""
+    import jax
+
+    from ocplace.models.pinhole import PinholeCamera
+    from ocplace.models.placement.figures import fig5, save_figure
+    from ocplace.sim.dataset.job import scene_dirs
+    from ocplace.sim.dataset.records import read_scene
+
+    record = read_scene(scene_dirs(Path(dataset_dir), subset)[0])
+    meta = record.meta
+    boxes = np.array([obj["aabb"] for obj in meta["objects"]], dtype=float)[:, :, :2]
+    held = meta["held_object"]
+    figure = fig5(jax.random.key(seed), record.rgb, PinholeCamera.from_json(meta["camera"]), boxes,
+                  held["footprint_half_extents"], rng=np.random.default_rng(seed),
+                  names=[obj["human_name"] for obj in meta["objects"]],
+                  suptitle=f"{record.id} | held: {held['human_name']}", scene=record.id)
+    return save_figure(figure, path)
+
+
+def write_figures(results: Mapping, out_dir: str | Path, dataset_dir: str | Path | None = None,
+                  seed: int = 0) -> list[Path]:
+    """Every paper figure the results allow: Fig. 5 always, Fig. 6 with Ours and CLIPort-Place
+    evaluated, Fig. 7 with more than one training fraction."""
+    from ocplace.eval.efficiency import efficiency_curves, plot_sample_efficiency
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    dataset_dir = Path(dataset_dir or results["dataset"]["dir"])
+    written = [plot_fig5(dataset_dir, out_dir / FIG5, seed)]
+    full = {e["method"] for e in results["evaluations"] if e["fraction"] == 1.0}
+    if set(CASE_METHODS) <= full:
+        written.append(plot_cases(results, out_dir / FIG6, dataset_dir))
+    if efficiency_curves(results):
+        written.append(plot_sample_efficiency(results, out_dir / FIG7))
+    return written
