@@ -7,6 +7,7 @@ method registered at the time (their smoke trainings take minutes on a shared 2-
 
 import dataclasses
 import json
+from pathlib import Path
 
 import pytest
 
@@ -16,6 +17,7 @@ from ocplace.errors import OcplaceError
 
 LOCAL = ("oracle", "centre", "failing")
 PNG = b"\x89PNG\r\n\x1a\n"
+NOTEBOOK = Path(__file__).resolve().parents[1] / "notebooks" / "02_results.ipynb"
 
 
 @pytest.fixture(scope="module")
@@ -99,6 +101,25 @@ def test_figures_command_writes_what_the_results_allow(first_run, tmp_path, caps
     assert sorted(p.name for p in tmp_path.iterdir()) == [figures.FIG5, figures.FIG7]
     assert main(["figures", str(tmp_path / "missing.json"), "--out", str(tmp_path)]) == 2
     assert "missing or not JSON" in capsys.readouterr().err
+
+
+def test_results_notebook_executes_on_the_smoke_results(first_run, tmp_path, monkeypatch):
+    import nbformat
+    from nbclient import NotebookClient
+
+    notebook = nbformat.read(NOTEBOOK, as_version=4)
+    monkeypatch.setenv("OCPLACE_RESULTS", str(first_run.results_path))
+    NotebookClient(notebook, timeout=600, kernel_name="python3",
+                   resources={"metadata": {"path": str(tmp_path)}}).execute()
+    outputs = [output for cell in notebook.cells if cell.cell_type == "code" for output in cell.outputs]
+    assert not [o for o in outputs if o.output_type == "error"]
+    text = "".join(o.get("text", "") for o in outputs if o.output_type == "stream")
+    assert "4 evaluations (3 on the whole training set)" in text
+    markdown = "".join(o["data"].get("text/markdown", "") for o in outputs if o.output_type == "display_data")
+    assert "Table I: success rate of the mode" in markdown and "| Oracle | 100.00 |" in markdown
+    images = [o for o in outputs if o.output_type == "display_data" and "image/png" in o["data"]]
+    assert len(images) == 4  # success bars, stages, Fig. 7, Fig. 6
+    assert (tmp_path / "cases.png").read_bytes()[:8] == PNG
 
 
 def test_scale_configs():
