@@ -7,8 +7,10 @@ the camera, the instruction and the held object's footprint; never the tuples or
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import json
 from collections.abc import Sequence
+from pathlib import Path
 
 import jax
 import numpy as np
@@ -17,6 +19,7 @@ from ocplace.errors import OcplaceError, TrainingError
 from ocplace.eval.api import LoadContext, MethodOutput, MethodSpec, TrainContext
 from ocplace.models.baselines import cliport, grids
 from ocplace.models.baselines.common import camera_from_meta, free_grid
+from ocplace.paths import atomic_path, cache_dir
 from ocplace.sim.dataset.records import SceneRecord
 
 SCENES_PER_BATCH = 8  # CLIPort scenes per network call (a fixed shape: one compilation)
@@ -51,6 +54,7 @@ class GridsMethod:
     run_meta: dict
     weights_sha256: str
     num_samples: int
+    cells_cache: Path | None = None  # encoded cells per image, by content: evaluations of several runs share them
     name: str = "grids"
 
     def describe(self) -> dict:
@@ -63,12 +67,30 @@ class GridsMethod:
 
     def chosen_cell(self, scene: SceneRecord, parsed: Sequence[tuple[str, str]]) -> tuple[int, np.ndarray]:
         """`(cell, logits (num_cells,))` for one scene and its parse."""
-        crops = grids.cell_crops(scene.rgb, camera_from_meta(scene.meta), self.config)
-        cells = self.backbone.encode_images(crops)
+        cells = self.encoded_cells(scene)
         text = self.backbone.encode_texts([grids.tuple_text(reference, relation) for reference, relation in parsed])
         logits = np.asarray(grids.jit_grid_logits(self.config, self.params, cells, text, np.ones(len(text), bool),
                                                   float(self.run_meta["logit_scale"])))
         return int(np.argmax(logits)), logits
+
+    def encoded_cells(self, scene: SceneRecord) -> np.ndarray:
+        """`(num_cells, D)` backbone features of the scene's cells, read from `cells_cache` when there."""
+        def encode():
+            crops = grids.cell_crops(scene.rgb, camera_from_meta(scene.meta), self.config)
+            return np.asarray(self.backbone.encode_images(crops))
+
+        if self.cells_cache is None:
+            return encode()
+        image_key = scene.rgb.tobytes() + json.dumps(scene.meta["camera"], sort_keys=True).encode()
+        path = self.cells_cache / f"{hashlib.sha256(image_key).hexdigest()[:32]}.npy"
+        try:
+            return np.load(path)
+        except (OSError, ValueError):  # not cached yet, or a damaged file: encode (again)
+            cells = encode()
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with atomic_path(path) as tmp, open(tmp, "wb") as file:
+            np.save(file, cells)
+        return cells
 
     def _place(self, scene: SceneRecord, key) -> MethodOutput:
         try:
@@ -92,8 +114,11 @@ def load_grids(context: LoadContext) -> GridsMethod:
 
     params, run_meta, sha = load_params(context.run_dir)
     config = grids.GridConfig.from_json(json.dumps(run_meta["grid"]))
-    return GridsMethod(_load_backbone(context.backbone, run_meta, "Raw Image Grids"), make_parser(context.parser),
-                       params, config, run_meta, sha, context.num_samples)
+    backbone = _load_backbone(context.backbone, run_meta, "Raw Image Grids")
+    grid_key = hashlib.sha256(config.to_json().encode()).hexdigest()[:12]
+    cells_cache = cache_dir() / "baselines" / f"test-cells-{backbone.fingerprint[:16]}-{grid_key}"
+    return GridsMethod(backbone, make_parser(context.parser), params, config, run_meta, sha, context.num_samples,
+                       cells_cache)
 
 
 # ----------------------------------------------------------------------------- CLIPort-Place

@@ -1,5 +1,6 @@
 """The baselines of Table I: Raw Image Grids and CLIPort-Place (real jitted JAX, the smoke dataset)."""
 
+import dataclasses
 import json
 
 import jax
@@ -172,6 +173,18 @@ def test_grids_trains_resumes_and_places_in_the_chosen_cell(specs, smoke_dataset
         assert np.all(grids.cell_of(output.samples, method.config) == cell)
     described = method.describe()
     assert described["weights_sha256"] and described["backbone_fingerprint"] and described["run"]["seed"] == 0
+
+    # The test-time cell features were cached by image content; a second run (another fraction's
+    # evaluation) reads them and places exactly as before, and a damaged file is encoded again.
+    cached = sorted(method.cells_cache.glob("*.npy"))
+    assert method.cells_cache.is_relative_to(tmp_path / "cache") and len(cached) == len(scenes)
+    cached[0].write_bytes(b"damaged")
+    again = spec.load(LoadContext(run_dir, tiny_backbone_spec, scale="smoke", num_samples=16))
+    assert again.cells_cache == method.cells_cache
+    for first, second in zip(outputs, again.run(scenes, jax.random.key(0))):
+        assert np.array_equal(first.mode, second.mode) and np.array_equal(first.samples, second.samples)
+    uncached = dataclasses.replace(again, cells_cache=None)
+    assert np.array_equal(uncached.encoded_cells(scenes[0]), again.encoded_cells(scenes[0]))
 
 
 def test_cliport_trains_and_places_from_its_pixel_distribution(specs, smoke_dataset, tiny_backbone_spec, tmp_path):
