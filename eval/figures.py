@@ -62,7 +62,7 @@ def _draw_case(axis, record, outcomes: Sequence[tuple[str, dict]]) -> None:
     camera = PinholeCamera.from_json(meta["camera"])
     for k, (label, outcome) in enumerate(outcomes):
         colour = METHOD_COLOURS[k % len(METHOD_COLOURS)]
-        verdict = "success" if outcome["success"] else (outcome["failure"] and "not placed") or "failure"
+        verdict = "success" if outcome["success"] else ("not placed" if outcome["failure"] else "failure")
         if outcome["mode"] is not None:
             u, v = camera.table_to_pixel(np.asarray(outcome["mode"]))
             axis.scatter([u], [v], s=90, marker="o" if outcome["success"] else "X", color=colour,
