@@ -10,7 +10,7 @@ its outcome (settings, dataset, the method's describe()). Outputs are written at
     OUT/dataset/                     unless `dataset` points elsewhere
     OUT/runs/<method>/fraction-<f>/  TrainContext.out_dir of each training run
     OUT/evaluations/<key>-<hash>.json
-    OUT/results.json, OUT/results.md
+    OUT/results.json, OUT/results.md, OUT/results.summary.json (no per-scene outcomes but failures)
     OUT/figures/                     Fig. 5, Fig. 6 (with Ours and CLIPort-Place), Fig. 7 (with fractions)
     OUT/placement.png                Ours on the first `seen` test scene (when Ours was trained)
 """
@@ -31,6 +31,7 @@ from ocplace.eval.harness import EvalSettings, Evaluation, MethodRun, SUBSETS
 # Issue 9: the sample-efficiency study trains these on 25/50/75/100% of the training set.
 FRACTION_METHODS = ("ours", "grids", "no_pretrain", "no_llm")
 FRACTIONS = (0.25, 0.5, 0.75, 1.0)
+SUMMARY_FILE = "results.summary.json"  # aggregates and failed scenes only: small enough to commit
 
 
 @dataclasses.dataclass(frozen=True)
@@ -263,7 +264,7 @@ def run_pipeline(config: PipelineConfig, out: str | Path | None = None,
     `specs` defaults to the registry; `library` and `arena` (a compiled MujocoScenes) may be passed in
     to reuse them.
     """
-    from ocplace.eval.results import build_results, dataset_identity
+    from ocplace.eval.results import build_results, dataset_identity, summarise, write_results
     from ocplace.eval.commands import write_outputs
 
     out = Path(out or config.default_out)
@@ -322,7 +323,8 @@ def run_pipeline(config: PipelineConfig, out: str | Path | None = None,
                                "errors": summary.errors}
         summary.results_path = out / "results.json"
         summary.markdown = write_outputs(results, summary.results_path)
-        step.detail = f"{summary.results_path}, {summary.results_path.with_suffix('.md')}"
+        write_results(out / SUMMARY_FILE, summarise(results))
+        step.detail = f"{summary.results_path}, {summary.results_path.with_suffix('.md')}, {out / SUMMARY_FILE}"
     if evaluations:
         with _Timer(summary, "paper figures") as step:
             try:

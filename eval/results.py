@@ -10,7 +10,8 @@
                       "wall_s", "subsets": {subset: {"aggregate": {level|overall: rates},
                                                      "scenes": [SceneOutcome, ...]}}}]}
 
-`rerun` evaluates again from such a file and `compare` lists every difference in outcomes.
+`rerun` evaluates again from such a file and `compare` lists every difference in outcomes;
+`summarise` keeps the aggregates and only the failed scenes (`"summary": true`).
 """
 
 from __future__ import annotations
@@ -117,6 +118,17 @@ def build_results(evaluations: Sequence[Evaluation], dataset_dir: str | Path, se
     }
 
 
+def summarise(results: Mapping) -> dict:
+    """The results without per-scene outcomes except the scenes a method failed on: every table of
+    `eval.table.render` comes out the same, in a file small enough to keep beside the tables."""
+    def failures_only(body: Mapping) -> dict:
+        return {**body, "scenes": [scene for scene in body["scenes"] if scene["failure"] is not None]}
+
+    evaluations = [{**entry, "subsets": {subset: failures_only(body) for subset, body in entry["subsets"].items()}}
+                   for entry in results["evaluations"]]
+    return {**results, "summary": True, "evaluations": evaluations}
+
+
 def write_results(path: str | Path, results: dict) -> Path:
     """Writes the JSON atomically (a kill never leaves half a file)."""
     path = Path(path)
@@ -169,6 +181,9 @@ def runs_of(results: Mapping, specs: Mapping[str, MethodSpec] | None = None) -> 
 def rerun(results: Mapping, specs: Mapping[str, MethodSpec] | None = None, arena=None, progress: bool = True,
           command=None) -> dict:
     """Evaluates again every run of `results` with its settings, on its dataset; returns the new results."""
+    if results.get("summary"):
+        raise ResultsError("these results are a summary without per-scene outcomes; rerun from the full "
+                           "results.json it was made from")
     dataset_dir = Path(results["dataset"]["dir"])
     identity = dataset_identity(dataset_dir)
     if identity["manifest_hash"] != results["dataset"]["manifest_hash"]:

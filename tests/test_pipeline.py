@@ -75,6 +75,21 @@ def test_smoke_pipeline_resumes_without_redoing_work(first_run, config, specs, l
                            results.read_results(again.results_path)) == []
 
 
+def test_summary_keeps_every_table_and_only_the_failed_scenes(first_run):
+    from ocplace.eval.table import render
+
+    full = results.read_results(first_run.results_path)
+    summary = results.read_results(first_run.out / pipeline.SUMMARY_FILE)
+    assert summary["summary"] is True and render(summary) == render(full)
+    for entry, kept in zip(full["evaluations"], summary["evaluations"], strict=True):
+        for subset, body in entry["subsets"].items():
+            assert kept["subsets"][subset]["aggregate"] == body["aggregate"]
+            assert kept["subsets"][subset]["scenes"] == [s for s in body["scenes"] if s["failure"] is not None]
+    assert any(kept["subsets"]["seen"]["scenes"] for kept in summary["evaluations"])  # the failing method's
+    with pytest.raises(OcplaceError, match="summary without per-scene outcomes"):
+        results.rerun(summary)
+
+
 def test_fig6_cases_prefer_scenes_where_the_methods_disagree(first_run, tmp_path):
     saved = results.read_results(first_run.results_path)
     cases = figures.choose_cases(saved, methods=("oracle", "centre"))
