@@ -10,7 +10,7 @@ its outcome (settings, dataset, the method's describe()). Outputs are written at
     OUT/dataset/                     unless `dataset` points elsewhere
     OUT/runs/<method>/fraction-<f>/  TrainContext.out_dir of each training run
     OUT/evaluations/<key>-<hash>.json
-    OUT/results.json, OUT/results.md, OUT/results.summary.json (no per-scene outcomes but failures)
+    OUT/results.json, OUT/results.md, OUT/results.summary.json (no per-scene outcomes)
     OUT/figures/                     Fig. 5, Fig. 6 (with Ours and CLIPort-Place), Fig. 7 (with fractions)
     OUT/placement.png                Ours on the first `seen` test scene (when Ours was trained)
 """
@@ -31,7 +31,7 @@ from ocplace.eval.harness import EvalSettings, Evaluation, MethodRun, SUBSETS
 # Issue 9: the sample-efficiency study trains these on 25/50/75/100% of the training set.
 FRACTION_METHODS = ("ours", "grids", "no_pretrain", "no_llm")
 FRACTIONS = (0.25, 0.5, 0.75, 1.0)
-SUMMARY_FILE = "results.summary.json"  # aggregates and failed scenes only: small enough to commit
+SUMMARY_FILE = "results.summary.json"  # aggregates, no per-scene outcomes: small enough to commit
 
 
 @dataclasses.dataclass(frozen=True)

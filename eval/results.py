@@ -11,7 +11,7 @@
                                                      "scenes": [SceneOutcome, ...]}}}]}
 
 `rerun` evaluates again from such a file and `compare` lists every difference in outcomes;
-`summarise` keeps the aggregates and only the failed scenes (`"summary": true`).
+`summarise` keeps the aggregates and counts of the scenes (`"summary": true`).
 """
 
 from __future__ import annotations
@@ -119,12 +119,13 @@ def build_results(evaluations: Sequence[Evaluation], dataset_dir: str | Path, se
 
 
 def summarise(results: Mapping) -> dict:
-    """The results without per-scene outcomes except the scenes a method failed on: every table of
-    `eval.table.render` comes out the same, in a file small enough to keep beside the tables."""
-    def failures_only(body: Mapping) -> dict:
-        return {**body, "scenes": [scene for scene in body["scenes"] if scene["failure"] is not None]}
+    """The results without per-scene outcomes, small enough to keep beside the tables: every table of
+    `eval.table.render` comes out the same, except that failures are counted, not listed."""
+    def counts_only(body: Mapping) -> dict:
+        return {"aggregate": body["aggregate"], "scenes": [], "omitted_scenes": len(body["scenes"]),
+                "failed_scenes": sum(scene["failure"] is not None for scene in body["scenes"])}
 
-    evaluations = [{**entry, "subsets": {subset: failures_only(body) for subset, body in entry["subsets"].items()}}
+    evaluations = [{**entry, "subsets": {subset: counts_only(body) for subset, body in entry["subsets"].items()}}
                    for entry in results["evaluations"]]
     return {**results, "summary": True, "evaluations": evaluations}
 

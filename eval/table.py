@@ -119,6 +119,9 @@ def failure_list(results: Mapping, limit: int = MAX_LISTED_FAILURES) -> str:
     for entry in results["evaluations"]:
         failed = [(subset, scene) for subset, body in entry["subsets"].items()
                   for scene in body["scenes"] if scene["failure"] is not None]
+        counted = sum(body.get("failed_scenes", 0) for body in entry["subsets"].values())  # a summary's
+        if counted:
+            lines.append(f"- {entry['label']} ({entry['key']}): {counted} scenes (listed in the full results JSON)")
         if not failed:
             continue
         lines.append(f"- {entry['label']} ({entry['key']}): {len(failed)} scenes")
