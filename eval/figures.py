@@ -127,7 +127,7 @@ def plot_fig5(dataset_dir: str | Path, path: str | Path, seed: int = 0, subset: 
 def write_figures(results: Mapping, out_dir: str | Path, dataset_dir: str | Path | None = None,
                   seed: int = 0) -> list[Path]:
     """Every paper figure the results allow: Fig. 5 always, Fig. 6 with Ours and CLIPort-Place
-    evaluated, Fig. 7 with more than one training fraction."""
+    evaluated (and per-scene outcomes, which a summary lacks), Fig. 7 with several training fractions."""
     from ocplace.eval.efficiency import efficiency_curves, plot_sample_efficiency
 
     out_dir = Path(out_dir)
@@ -135,7 +135,7 @@ def write_figures(results: Mapping, out_dir: str | Path, dataset_dir: str | Path
     dataset_dir = Path(dataset_dir or results["dataset"]["dir"])
     written = [plot_fig5(dataset_dir, out_dir / FIG5, seed)]
     full = {e["method"] for e in results["evaluations"] if e["fraction"] == 1.0}
-    if set(CASE_METHODS) <= full:
+    if set(CASE_METHODS) <= full and not results.get("summary"):
         written.append(plot_cases(results, out_dir / FIG6, dataset_dir))
     if efficiency_curves(results):
         written.append(plot_sample_efficiency(results, out_dir / FIG7))

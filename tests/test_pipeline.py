@@ -118,6 +118,10 @@ def test_figures_command_writes_what_the_results_allow(first_run, tmp_path, caps
 
     assert main(["figures", str(first_run.results_path), "--out", str(tmp_path)]) == 0
     assert sorted(p.name for p in tmp_path.iterdir()) == [figures.FIG5, figures.FIG7]
+    summary = results.summarise(results.read_results(first_run.results_path))
+    full_data = [e for e in summary["evaluations"] if e["fraction"] == 1.0]
+    summary["evaluations"] += [dict(e, method=name) for e, name in zip(full_data, figures.CASE_METHODS)]
+    assert [p.name for p in figures.write_figures(summary, tmp_path / "from_summary")] == [figures.FIG5, figures.FIG7]
     assert main(["figures", str(tmp_path / "missing.json"), "--out", str(tmp_path)]) == 2
     assert "missing or not JSON" in capsys.readouterr().err
 
