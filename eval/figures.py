@@ -14,11 +14,16 @@ from pathlib import Path
 import numpy as np
 
 from ocplace.eval.harness import EvaluationError
+from ocplace.eval.table import full_runs
 
 FIG5, FIG6, FIG7 = "fig5_placement_distributions.png", "fig6_cases.png", "fig7_sample_efficiency.png"
 CASE_METHODS = ("ours", "cliport")
 CASE_LEVELS = ("1obj", "2obj")
 METHOD_COLOURS = ("deepskyblue", "orange", "magenta", "lime", "red", "yellow")
+
+
+def _full_runs_by_method(results: Mapping) -> dict[str, dict]:
+    return {entry["method"]: entry for entry in full_runs(results)}
 
 
 def _outcomes_by_scene(entry: Mapping, subset: str) -> dict[str, dict]:
@@ -29,7 +34,7 @@ def choose_cases(results: Mapping, methods: Sequence[str] = CASE_METHODS,
                  levels: Sequence[str] = CASE_LEVELS) -> list[tuple[str, str]]:
     """`(subset, scene id)` per evaluated subset and level: the first scene where the methods'
     successes differ, else the first scene of that level. Full-data runs only."""
-    entries = {e["method"]: e for e in results["evaluations"] if e["fraction"] == 1.0}
+    entries = _full_runs_by_method(results)
     missing = [m for m in methods if m not in entries]
     if missing:
         raise EvaluationError(f"the results hold no full-data evaluation of {missing}; evaluate them first "
@@ -90,7 +95,7 @@ def plot_cases(results: Mapping, path: str | Path, dataset_dir: str | Path | Non
     cases = list(cases or choose_cases(results, methods))
     if not cases:
         raise EvaluationError("no scene to draw: the results hold no scene of the chosen levels")
-    entries = {e["method"]: e for e in results["evaluations"] if e["fraction"] == 1.0}
+    entries = _full_runs_by_method(results)
     columns = min(len(cases), 3)
     rows = -(-len(cases) // columns)
     figure, axes = plt.subplots(rows, columns, figsize=(4.4 * columns, 3.9 * rows), squeeze=False)
@@ -134,8 +139,7 @@ def write_figures(results: Mapping, out_dir: str | Path, dataset_dir: str | Path
     out_dir.mkdir(parents=True, exist_ok=True)
     dataset_dir = Path(dataset_dir or results["dataset"]["dir"])
     written = [plot_fig5(dataset_dir, out_dir / FIG5, seed)]
-    full = {e["method"] for e in results["evaluations"] if e["fraction"] == 1.0}
-    if set(CASE_METHODS) <= full and not results.get("summary"):
+    if set(CASE_METHODS) <= _full_runs_by_method(results).keys() and not results.get("summary"):
         written.append(plot_cases(results, out_dir / FIG6, dataset_dir))
     if efficiency_curves(results):
         written.append(plot_sample_efficiency(results, out_dir / FIG7))
