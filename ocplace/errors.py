@@ -67,6 +67,10 @@ class BackboneUnavailable(BackboneError):
     """A backbone checkpoint that is neither local nor downloadable (for example: no network)."""
 
 
+class WeightsError(OcplaceError):
+    """A weight file that cannot be read safely or does not fit the model (unsafe pickle, bad layout)."""
+
+
 class FeaturesError(OcplaceError):
     """A feature file that is missing, corrupt, or does not match the data or backbone asked for."""
 

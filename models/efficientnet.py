@@ -1,0 +1,283 @@
+"""EfficientNet-Lite (Tan & Le 2019, the Lite variants of TF's `efficientnet/lite`) in Flax linen, NHWC.
+
+Lite differs from EfficientNet-B*: ReLU6 instead of swish, no squeeze-excite, and a stem (32) and
+head (1280) whose widths do not scale with the width multiplier; the first and last stages do not
+scale with the depth multiplier either. Convolutions pad like TF's "SAME" (the extra row and column
+go after), so ImageNet weights converted from TF (and the PyTorch port) give the same logits.
+
+Variables are the usual Flax two collections (the model always runs in inference mode):
+    params        trainable: conv kernels `(k, k, in, out)`, depthwise kernels `(k, k, C)`,
+                  batch-norm `scale` and `bias`, the classifier `kernel (1280, 1000)` and `bias`
+    batch_stats   batch-norm running `mean` and `var`, never updated here (fine-tuning keeps the
+                  ImageNet statistics: the trunk is used frozen or nearly so)
+Top-level names run in forward order: `stem`, `blocks_00` ... `blocks_NN`, `head`, `classifier`
+(`block_names(variant)`), so an optax mask can freeze a prefix (`trainable_mask`).
+
+Input: uint8 pixels `(B, H, W, 3)` in RGB, normalised as the TF Lite models were trained,
+`(x - 127) / 128` (the PyTorch port's README shows ImageNet mean/std, but its weights are converted
+from TF, and the TF Lite builder uses mean 127, std 128).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+
+from ocplace.errors import BackboneError
+
+BN_EPSILON = 1e-3
+STEM_WIDTH = 32
+HEAD_WIDTH = 1280
+NUM_CLASSES = 1000
+PIXEL_MEAN = 127.0
+PIXEL_STD = 128.0
+
+
+@dataclasses.dataclass(frozen=True)
+class Stage:
+    """A run of `repeats` MBConv blocks; only the first one strides and changes width."""
+
+    repeats: int
+    kernel: int
+    stride: int
+    expand: int
+    out: int
+
+
+# EfficientNet-Lite0 (efficientnet_lite_builder.py), before width and depth scaling.
+BASE_STAGES = (
+    Stage(1, 3, 1, 1, 16),
+    Stage(2, 3, 2, 6, 24),
+    Stage(2, 5, 2, 6, 40),
+    Stage(3, 3, 2, 6, 80),
+    Stage(3, 5, 1, 6, 112),
+    Stage(4, 5, 2, 6, 192),
+    Stage(1, 3, 1, 6, 320),
+)
+
+
+@dataclasses.dataclass(frozen=True)
+class BlockConfig:
+    """One MBConv block after scaling."""
+
+    kernel: int
+    stride: int
+    expand: int
+    inp: int
+    out: int
+
+    @property
+    def hidden(self) -> int:
+        return self.inp * self.expand
+
+    @property
+    def residual(self) -> bool:
+        return self.stride == 1 and self.inp == self.out
+
+
+@dataclasses.dataclass(frozen=True)
+class LiteConfig:
+    """A Lite variant: width and depth multipliers and its training resolution."""
+
+    name: str
+    width: float
+    depth: float
+    resolution: int
+
+    @functools.cached_property
+    def blocks(self) -> tuple[BlockConfig, ...]:
+        blocks, inp = [], STEM_WIDTH
+        for index, stage in enumerate(BASE_STAGES):
+            fixed = index in (0, len(BASE_STAGES) - 1)  # Lite keeps the first and last stage's depth
+            repeats = stage.repeats if fixed else math.ceil(self.depth * stage.repeats)
+            out = round_filters(stage.out, self.width)
+            for repeat in range(repeats):
+                blocks.append(BlockConfig(stage.kernel, stage.stride if repeat == 0 else 1, stage.expand, inp, out))
+                inp = out
+        return tuple(blocks)
+
+
+VARIANTS = {
+    "lite0": LiteConfig("lite0", 1.0, 1.0, 224),
+    "lite1": LiteConfig("lite1", 1.0, 1.1, 240),
+    "lite2": LiteConfig("lite2", 1.1, 1.2, 260),
+}
+
+
+def round_filters(filters: int, width: float, divisor: int = 8) -> int:
+    """TF's channel rounding: scale, round to a multiple of `divisor`, never more than 10% down."""
+    scaled = filters * width
+    rounded = max(divisor, int(scaled + divisor / 2) // divisor * divisor)
+    return int(rounded + divisor if rounded < 0.9 * scaled else rounded)
+
+
+def config(variant: str) -> LiteConfig:
+    try:
+        return VARIANTS[variant]
+    except KeyError:
+        raise BackboneError(f"unknown EfficientNet variant {variant!r}; use one of {sorted(VARIANTS)}") from None
+
+
+def block_names(variant: str = "lite0") -> tuple[str, ...]:
+    """Top-level parameter names in forward order: `stem`, `blocks_00`, ..., `head`, `classifier`."""
+    count = len(config(variant).blocks)
+    return ("stem", *(f"blocks_{i:02d}" for i in range(count)), "head", "classifier")
+
+
+def trainable_mask(params: dict, frozen: int) -> dict:
+    """A pytree of bools over `params` (the `params` collection): False for the first `frozen`
+    top-level entries of `block_names` order, True after. For `optax.masked` / `multi_transform`."""
+    frozen_names = set(_ordered(params)[:frozen])
+    return {name: jax.tree_util.tree_map(lambda _: name not in frozen_names, subtree)
+            for name, subtree in params.items()}
+
+
+def _ordered(params: dict) -> list[str]:
+    rank = {"stem": (0, 0), "head": (2, 0), "classifier": (3, 0)}
+    return sorted(params, key=lambda name: rank.get(name, (1, int(name.rsplit("_", 1)[-1]))))
+
+
+# ----------------------------------------------------------------------------- layers
+
+
+def same_pads(size: int, kernel: int, stride: int) -> tuple[int, int]:
+    """TF "SAME" padding of one axis: output `ceil(size / stride)`, the odd pixel padded after."""
+    out = -(-size // stride)
+    total = max((out - 1) * stride + kernel - size, 0)
+    return total // 2, total - total // 2
+
+
+def depthwise_conv(x: jax.Array, kernel: jax.Array, stride: int) -> jax.Array:
+    """Depthwise "SAME" convolution of `x (B, H, W, C)` with `kernel (k, k, C)`.
+
+    A sum of k*k shifted, strided slices times per-channel weights: XLA:CPU runs
+    `conv_general_dilated` with `feature_group_count=C` about 6x slower than this.
+    """
+    k = kernel.shape[0]
+    (top, bottom), (left, right) = same_pads(x.shape[1], k, stride), same_pads(x.shape[2], k, stride)
+    padded = jnp.pad(x, ((0, 0), (top, bottom), (left, right), (0, 0)))
+    out_h, out_w = -(-x.shape[1] // stride), -(-x.shape[2] // stride)
+    total = None
+    for i in range(k):
+        for j in range(k):
+            window = padded[:, i:i + stride * (out_h - 1) + 1:stride, j:j + stride * (out_w - 1) + 1:stride, :]
+            term = window * kernel[i, j]
+            total = term if total is None else total + term
+    return total
+
+
+class DepthwiseConv(nn.Module):
+    """Depthwise convolution without bias; parameter `kernel (k, k, C)`."""
+
+    kernel_size: int
+    stride: int
+
+    @nn.compact
+    def __call__(self, x):
+        kernel = self.param("kernel", nn.initializers.lecun_normal(in_axis=(0, 1), out_axis=2),
+                            (self.kernel_size, self.kernel_size, x.shape[-1]))
+        return depthwise_conv(x, kernel, self.stride)
+
+
+def _conv(features: int, kernel: int = 1, stride: int = 1, name: str | None = None) -> nn.Conv:
+    return nn.Conv(features, (kernel, kernel), (stride, stride), padding="SAME", use_bias=False, name=name)
+
+
+def _bn(name: str) -> nn.BatchNorm:
+    return nn.BatchNorm(use_running_average=True, epsilon=BN_EPSILON, name=name)
+
+
+class MBConv(nn.Module):
+    """Inverted residual: 1x1 expand, depthwise k x k, 1x1 project (linear), identity skip."""
+
+    block: BlockConfig
+
+    @nn.compact
+    def __call__(self, x):
+        b = self.block
+        y = x
+        if b.expand != 1:
+            y = nn.relu6(_bn("expand_bn")(_conv(b.hidden, name="expand_conv")(y)))
+        y = nn.relu6(_bn("depthwise_bn")(DepthwiseConv(b.kernel, b.stride, name="depthwise_conv")(y)))
+        y = _bn("project_bn")(_conv(b.out, name="project_conv")(y))
+        return x + y if b.residual else y
+
+
+class ConvBN(nn.Module):
+    """Convolution, batch norm, ReLU6 (the stem and the head)."""
+
+    features: int
+    kernel: int
+    stride: int
+
+    @nn.compact
+    def __call__(self, x):
+        return nn.relu6(_bn("bn")(_conv(self.features, self.kernel, self.stride, name="conv")(x)))
+
+
+class EfficientNetLite(nn.Module):
+    """Pixels `(B, H, W, 3)` uint8 -> pooled features `(B, 1280)`, or logits `(B, 1000)`."""
+
+    config: LiteConfig
+
+    @nn.compact
+    def __call__(self, pixels, classify: bool = True):
+        x = normalise(pixels)
+        x = ConvBN(STEM_WIDTH, 3, 2, name="stem")(x)
+        for index, block in enumerate(self.config.blocks):
+            x = MBConv(block, name=f"blocks_{index:02d}")(x)
+        x = ConvBN(HEAD_WIDTH, 1, 1, name="head")(x)
+        pooled = x.mean(axis=(1, 2))
+        # The classifier is always created, so one variables tree serves `features` and `logits`.
+        logits = nn.Dense(NUM_CLASSES, name="classifier")(pooled)
+        return logits if classify else pooled
+
+
+def normalise(pixels: jax.Array) -> jax.Array:
+    """uint8 (or 0..255 float) pixels `(B, H, W, 3)` -> float32 `(x - 127) / 128`."""
+    return (jnp.asarray(pixels, jnp.float32) - PIXEL_MEAN) / PIXEL_STD
+
+
+# ----------------------------------------------------------------------------- pure functions
+
+
+@functools.lru_cache(maxsize=None)
+def module(variant: str = "lite0") -> EfficientNetLite:
+    return EfficientNetLite(config(variant))
+
+
+@functools.partial(jax.jit, static_argnames=("variant",))
+def features(params: dict, pixels: jax.Array, variant: str = "lite0") -> jax.Array:
+    """Globally average-pooled head features `(B, 1280)` of pixels `(B, H, W, 3)`.
+
+    `params` is the variables dict `{"params": ..., "batch_stats": ...}` (`load_pretrained`).
+    """
+    return module(variant).apply(params, pixels, classify=False)
+
+
+@functools.partial(jax.jit, static_argnames=("variant",))
+def logits(params: dict, pixels: jax.Array, variant: str = "lite0") -> jax.Array:
+    """ImageNet-1k logits `(B, 1000)` of pixels `(B, H, W, 3)`."""
+    return module(variant).apply(params, pixels, classify=True)
+
+
+def variable_shapes(variant: str = "lite0", image_size: int | None = None) -> dict:
+    """The variables tree as `jax.ShapeDtypeStruct` leaves (nothing is computed)."""
+    size = image_size or config(variant).resolution
+    pixels = jax.ShapeDtypeStruct((1, size, size, 3), jnp.uint8)
+    return jax.eval_shape(module(variant).init, jax.random.key(0), pixels)
+
+
+def init(key: jax.Array, variant: str = "lite0") -> dict:
+    """Randomly initialised variables (ImageNet weights: `imagenet_weights.load_pretrained`)."""
+    return module(variant).init(key, jnp.zeros((1, 32, 32, 3), jnp.uint8))
+
+
+def count_params(tree: dict) -> int:
+    return sum(math.prod(leaf.shape) for leaf in jax.tree_util.tree_leaves(tree))
+
