@@ -138,8 +138,9 @@ def trainable_mask(params: dict, frozen: int) -> dict:
 
 
 def _ordered(params: dict) -> list[str]:
-    rank = {"stem": (0, 0), "head": (2, 0), "classifier": (3, 0)}
-    return sorted(params, key=lambda name: rank.get(name, (1, int(name.rsplit("_", 1)[-1]))))
+    """The top-level names of `params` in forward order (`blocks_NN` sort by their zero-padded index)."""
+    rank = {"stem": 0, "head": 2, "classifier": 3}
+    return sorted(params, key=lambda name: (rank.get(name, 1), name))
 
 
 # ----------------------------------------------------------------------------- layers
