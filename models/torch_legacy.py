@@ -130,7 +130,12 @@ def read_legacy(path: str | os.PathLike) -> dict[str, np.ndarray]:
 
 
 def load_legacy(file: BinaryIO) -> dict[str, np.ndarray]:
-    """As `read_legacy`, from an open binary file positioned at the start."""
+    """As `read_legacy`, from an open, seekable binary file positioned at its start."""
+    start = file.tell()
+    if file.read(4) == b"PK\x03\x04":
+        raise WeightsError("the weight file is a zip archive (torch.save of torch >= 1.6), not the legacy format "
+                           "this reader handles; re-save it with `torch.save(..., _use_new_zipfile_serialization=False)`")
+    file.seek(start)
     storages: dict[str, _Storage] = {}
     _check_header(file, storages)
     state = _unpickle(file, storages)

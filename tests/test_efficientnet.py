@@ -89,6 +89,13 @@ def test_reader_refuses_a_truncated_file(tmp_path):
         read_legacy(path)
 
 
+def test_reader_names_the_zip_format(tmp_path):
+    path = tmp_path / "new.pth"
+    path.write_bytes(b"PK\x03\x04" + bytes(60))
+    with pytest.raises(WeightsError, match="zip archive"):
+        read_legacy(path)
+
+
 class _Exploit:
     def __init__(self, canary):
         self.canary = canary
@@ -207,6 +214,19 @@ def test_conversion_is_cached_and_rebuilt_when_the_source_changes(cache, lite0, 
     np.testing.assert_allclose(rebuilt["params"]["classifier"]["bias"], lite0["params"]["classifier"]["bias"] + 1.0)
     iw.load_pretrained("lite0", source=changed)
     assert calls == [1]
+
+
+def test_a_damaged_or_outdated_cache_file_is_rebuilt(cache, lite0, monkeypatch):
+    calls = []
+    convert = iw.convert
+    monkeypatch.setattr(iw, "convert", lambda *args: calls.append(1) or convert(*args))
+    cached = cache / "weights" / f"efficientnet-lite0-{iw.sha256(iw.source_file('lite0'))[:12]}.safetensors"
+    cached.write_bytes(b"not a safetensors file")
+    rebuilt = iw.load_pretrained("lite0")
+    monkeypatch.setattr(iw, "FORMAT", "ocplace-efficientnet-v0")
+    iw.load_pretrained("lite0")
+    assert calls == [1, 1]
+    np.testing.assert_array_equal(rebuilt["batch_stats"]["head"]["bn"]["var"], lite0["batch_stats"]["head"]["bn"]["var"])
 
 
 def test_missing_weights_package_names_the_pip_line(monkeypatch):
