@@ -37,11 +37,14 @@ IGNORED_SUFFIX = ".num_batches_tracked"
 
 
 def load_pretrained(variant: str = "lite0", source: str | os.PathLike | None = None) -> dict:
-    """ImageNet variables `{"params": ..., "batch_stats": ...}` for `efficientnet.features`/`logits`.
+    """ImageNet variables `{"params": ..., "batch_stats": ...}` (NumPy leaves) for `efficientnet.features`
+    and `efficientnet.logits`.
 
     `source`: a legacy `torch.save` state dict; by default the one the variant's pip package ships.
     """
     source = Path(source) if source is not None else source_file(variant)
+    if not source.is_file():
+        raise WeightsError(f"no weight file at {source}; pass the path of a legacy torch.save state dict")
     digest = sha256(source)
     target = cache_dir() / WEIGHTS_DIR / f"efficientnet-{variant}-{digest[:12]}.safetensors"
     cached = _read_cache(target, variant) if target.is_file() else None
