@@ -5,9 +5,9 @@ pretrained backbone and the same architecture at random initialisation on benchm
 (`ocplace backbone eval`). Writes a JSON report with the timings and the machine's load average,
 which matters: the 30-minute budget is for 2 otherwise idle cores.
 
-Usage: `python bench/offline_backbone.py --data DIR [--recipe default] [--splits seen unseen_obj]
-[--out report.json]`. The dataset comes from `ocplace generate --out DIR --split seen` (and
-`--split unseen_obj`).
+Usage: `python bench/offline_backbone.py --data DIR [--recipe default] [--splits seen unseen_obj
+unseen_cat] [--out report.json]`. The dataset comes from `ocplace generate --out DIR --split seen` (and
+`--split unseen_obj`, `--split unseen_cat`).
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ def main() -> None:
     parser.add_argument("--data", type=Path, required=True)
     parser.add_argument("--recipe", default="default", choices=("default", "demo", "smoke"))
     parser.add_argument("--backbone-dir", type=Path, help="pretrain into this directory (default: the cache)")
-    parser.add_argument("--splits", nargs="+", default=["seen", "unseen_obj"])
+    parser.add_argument("--splits", nargs="+", default=["seen", "unseen_obj", "unseen_cat"])
     parser.add_argument("--limit", type=int)
     parser.add_argument("--out", type=Path, default=Path("offline_backbone_report.json"))
     args = parser.parse_args()

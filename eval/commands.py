@@ -6,13 +6,14 @@ import argparse
 import sys
 from pathlib import Path
 
-SUBSET_CHOICES = ("seen", "unseen_obj", "unseen_inst")
+from ocplace.sim.dataset.config import TEST_SUBSETS
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     evaluate = subparsers.add_parser(
         "evaluate", help="score methods on the test subsets: results JSON + Table I markdown",
-        description="Runs each method on the test subsets (seen, unseen_obj, unseen_inst) of a dataset and "
+        description="Runs each method on the test subsets (the paper's seen, unseen_obj, unseen_inst, and our "
+                    "unseen_cat) of a dataset and "
                     "scores it with the benchmark's success metric (mode and mean over samples), the "
                     "physical drop check on the first K scenes per subset, and parse and grounding "
                     "accuracy. Writes RESULTS.json and RESULTS.md (the tables) and prints the tables. "
@@ -26,7 +27,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                           help="take missing run directories from a pipeline output: OUT/runs/METHOD/fraction-1.00")
     evaluate.add_argument("--backbone", default="offline", help="backbone spec (default: offline)")
     evaluate.add_argument("--out", type=Path, help="results JSON (the markdown goes beside it, .md)")
-    evaluate.add_argument("--subsets", nargs="+", choices=SUBSET_CHOICES, default=list(SUBSET_CHOICES))
+    evaluate.add_argument("--subsets", nargs="+", choices=TEST_SUBSETS, default=list(TEST_SUBSETS))
     evaluate.add_argument("--limit", type=int, help="first N scenes of each subset")
     evaluate.add_argument("--physical", type=int, default=None, metavar="K",
                           help="physical check on the first K scenes of each subset (default 50; 0: none; "

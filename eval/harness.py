@@ -30,9 +30,10 @@ import numpy as np
 
 from ocplace.errors import OcplaceError
 from ocplace.eval.api import LoadContext, Method, MethodOutput, MethodSpec
+from ocplace.sim.dataset.config import TEST_SUBSETS
 from ocplace.sim.dataset.records import SceneRecord
 
-SUBSETS = ("seen", "unseen_obj", "unseen_inst")
+SUBSETS = TEST_SUBSETS  # the paper's three, then ours (unseen_cat)
 LEVELS = ("table", "1obj", "2obj")
 STAGES = ("failure", "parse", "grounding", "sampling", "placement")
 DEFAULT_PHYSICAL_SCENES = 50

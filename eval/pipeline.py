@@ -279,7 +279,7 @@ def run_pipeline(config: PipelineConfig, out: str | Path | None = None,
 
     with _Timer(summary, "library") as step:
         library = library or build_library_step(config.progress)
-        step.detail = f"{len(library.names('seen'))} seen + {len(library.names('unseen'))} unseen objects"
+        step.detail = library.summary()
     with _Timer(summary, "dataset") as step:
         step.detail = dataset_step(config, dataset_dir)
     with _Timer(summary, "backbone") as step:

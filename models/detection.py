@@ -18,6 +18,7 @@ import numpy as np
 
 from ocplace.errors import PolicyInputError
 from ocplace.models.pinhole import PinholeCamera
+from ocplace.sim.dataset.config import TEST_SUBSETS
 
 
 @dataclasses.dataclass(frozen=True)
@@ -163,7 +164,7 @@ def box_recall(records: Iterable, config: DetectorConfig = DetectorConfig(), iou
     return Recall(matched, total, detections, scenes, iou_threshold)
 
 
-def dataset_box_recall(dataset_dir, splits: Iterable[str] = ("seen", "unseen_obj", "unseen_inst"),
+def dataset_box_recall(dataset_dir, splits: Iterable[str] = TEST_SUBSETS,
                        config: DetectorConfig = DetectorConfig(), iou_threshold: float = 0.5) -> dict[str, Recall]:
     """`box_recall` per split of a dataset directory."""
     from ocplace.sim.dataset.job import scene_dirs

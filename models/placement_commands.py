@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from ocplace.sim.splits import LIBRARY_SPLITS
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     demo = subparsers.add_parser(
@@ -13,7 +15,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "the top-down image: a table region, one object relation and a two-relation "
                     "composition, with 1024 samples each (300 drawn) and the mode.")
     demo.add_argument("--seed", type=int, default=0, help="scene seed; also picks the relations")
-    demo.add_argument("--split", choices=("seen", "unseen"), default="seen",
+    demo.add_argument("--split", choices=LIBRARY_SPLITS, default="seen",
                       help="object and table-texture split to draw from")
     demo.add_argument("--out", type=Path, default=Path("place_demo.png"), help="PNG to write")
     demo.set_defaults(func=_place_demo)

@@ -21,16 +21,16 @@ def run_demo(args: argparse.Namespace) -> int:
     from ocplace.sim.figures import labelled_scene, save_png
     from ocplace.sim.library import build_library, default_config
     from ocplace.sim.mujoco_backend import MujocoScenes
+    from ocplace.sim.splits import LIBRARY_SPLITS
 
     library = build_library(default_config())
-    print(f"object library: {len(library.names('seen'))} seen + {len(library.names('unseen'))} unseen objects, "
-          f"{len(library.textures)} table textures")
+    print(f"object library: {library.summary()}")
     with MujocoScenes.from_library(library) as arena:
-        for split in ("seen", "unseen"):
+        for split in LIBRARY_SPLITS:
             scene = render_sampled_scene(library, arena, args.seed, split)
             held = library.get(scene.spec.held_object).human_name
             title = f"{split} objects and table | held object: {held}"
             path = save_png(args.out / f"scene_{split}.png", labelled_scene(scene, library, title))
             names = ", ".join(library.get(obj.name).human_name for obj in scene.objects)
-            print(f"{split:>6} scene: {names} -> {path}")
+            print(f"{split:>10} scene: {names} -> {path}")
     return 0

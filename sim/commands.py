@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from ocplace.sim.splits import LIBRARY_SPLITS
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     scene = subparsers.add_parser(
@@ -12,7 +14,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Samples a scene from the object library, settles it in MuJoCo and saves "
                     "RGB with labelled boxes, depth and segmentation side by side.")
     scene.add_argument("--seed", type=int, default=0, help="scene seed (same seed, same picture)")
-    scene.add_argument("--split", choices=("seen", "unseen"), default="seen",
+    scene.add_argument("--split", choices=LIBRARY_SPLITS, default="seen",
                        help="object and table-texture split to draw from")
     scene.add_argument("--out", type=Path, default=Path("scene.png"), help="PNG to write")
     scene.set_defaults(func=_scene)

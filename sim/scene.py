@@ -11,6 +11,7 @@ import dataclasses
 import numpy as np
 
 from ocplace.errors import SceneError
+from ocplace.sim.splits import LIBRARY_SPLITS
 
 NUM_SCENE_OBJECTS = 5
 
@@ -139,10 +140,14 @@ def sample_drop_poses(
 
 
 def split_pools(library, split: str) -> tuple[list[str], list[str]]:
-    """Object names and table texture names of a library split ("seen" or "unseen")."""
-    if split not in ("seen", "unseen"):
-        raise SceneError(f"unknown split {split!r}; choose 'seen' or 'unseen'")
-    textures = sorted(name for name, texture in library.textures.items() if texture.split == split)
+    """Object names of a library split and the table textures that go with them.
+
+    Textures are only seen or unseen: the unseen_cat objects lie on the unseen textures.
+    """
+    if split not in LIBRARY_SPLITS:
+        raise SceneError(f"unknown split {split!r}; choose one of {LIBRARY_SPLITS}")
+    texture_split = "seen" if split == "seen" else "unseen"
+    textures = sorted(name for name, texture in library.textures.items() if texture.split == texture_split)
     return library.names(split), textures
 
 

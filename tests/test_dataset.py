@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from ocplace.errors import DatasetConfigError, DatasetError
-from ocplace.sim.dataset.config import SplitConfig, make_config, smoke_config
+from ocplace.sim.dataset.config import SPLIT_NAMES, SplitConfig, make_config, smoke_config
 from ocplace.sim.dataset.job import MANIFEST_FILE, generate_dataset, verify_dataset
 from ocplace.sim.dataset.loader import batches, iter_examples
 from ocplace.sim.dataset.records import read_scene
@@ -43,7 +43,7 @@ def test_counts_and_levels_follow_the_config(dataset):
 
 
 def test_ground_truth_matches_instruction_and_boxes(dataset, library):
-    for split in ("train", "unseen_obj", "unseen_inst"):
+    for split in ("train", "unseen_obj", "unseen_inst", "unseen_cat"):
         for record in _records(dataset, split):
             meta, tuples, boxes = record.meta, record.tuples, record.boxes
             assert len(tuples) == {"table": 1, "1obj": 1, "2obj": 2}[meta["level"]]
@@ -57,14 +57,14 @@ def test_ground_truth_matches_instruction_and_boxes(dataset, library):
                     assert boxes.object_ids[t.token_index] == t.reference_object_id
                     obj = meta["objects"][t.reference_object_id - 1]
                     assert obj["human_name"] == t.reference_name
-            wanted = "unseen" if split == "unseen_obj" else "seen"
+            wanted = {"unseen_obj": "unseen", "unseen_cat": "unseen_cat"}.get(split, "seen")
             assert all(library.get(obj["name"]).split == wanted for obj in meta["objects"])
-            assert library.textures[meta["table_texture"]].split == wanted
+            assert library.textures[meta["table_texture"]].split == ("seen" if wanted == "seen" else "unseen")
             assert meta["instruction_style"] == ("unseen" if split == "unseen_inst" else "seen")
 
 
 def test_oracle_placements_pass_the_metric(dataset):
-    for split in ("train", "seen", "unseen_obj", "unseen_inst"):
+    for split in SPLIT_NAMES:
         for record in _records(dataset, split):
             placement = np.asarray([record.meta["oracle"]["placement"]])
             assert placement_success(placement, record.problem()).all(), record.id

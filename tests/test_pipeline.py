@@ -43,7 +43,7 @@ def test_smoke_pipeline_trains_and_evaluates_every_method(first_run, specs):
     saved = results.read_results(first_run.results_path)
     assert sorted(e["key"] for e in saved["evaluations"]) == sorted([*specs, "oracle@0.5"])
     for entry in saved["evaluations"]:
-        for subset in ("seen", "unseen_obj", "unseen_inst"):
+        for subset in pipeline.SUBSETS:
             assert entry["subsets"][subset]["aggregate"]["overall"]["scenes"] == 8, (entry["key"], subset)
         trains = specs[entry["method"]].train is not None
         assert (entry["run_dir"] is not None) == trains

@@ -7,7 +7,9 @@ import dataclasses
 import os
 from pathlib import Path
 
-SPLIT_CHOICES = ("all", "train", "seen", "unseen_obj", "unseen_inst")
+from ocplace.sim.dataset.config import SPLIT_NAMES
+
+SPLIT_CHOICES = ("all", *SPLIT_NAMES)
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -15,7 +17,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "generate", help="generate the benchmark dataset (resumable)",
         description="Drops objects in MuJoCo, renders them and writes scenes with instructions and "
                     "ground truth. Defaults are the paper's: train 2000 scenes (450 table, 450 1obj, "
-                    "1100 2obj) and three test subsets of 400 (90/90/220). Rerun to resume.")
+                    "1100 2obj) and four test subsets of 400 (90/90/220): the paper's seen, unseen_obj, unseen_inst "
+                    "and unseen_cat (objects of categories absent from training). Rerun to resume.")
     generate.add_argument("--out", type=Path, required=True, help="dataset folder")
     generate.add_argument("--split", choices=SPLIT_CHOICES, default="all")
     generate.add_argument("--workers", type=int, default=os.cpu_count() or 1)
@@ -93,7 +96,6 @@ def _show(args: argparse.Namespace) -> int:
 
 def _check(args: argparse.Namespace) -> int:
     from ocplace.sim.dataset.check import check_oracle
-    from ocplace.sim.dataset.config import SPLIT_NAMES
     from ocplace.sim.library import load_library
 
     splits = [s for s in SPLIT_NAMES if (args.dir / s).is_dir()] if args.split == "all" else [args.split]

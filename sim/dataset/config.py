@@ -5,18 +5,23 @@ from __future__ import annotations
 import dataclasses
 
 from ocplace.errors import DatasetConfigError
+from ocplace.sim.splits import LIBRARY_SPLITS, TEXTURE_SPLITS
 
 LEVELS = ("table", "1obj", "2obj")
 LEVEL_REFERENCES = {"table": 0, "1obj": 1, "2obj": 2}  # object references per instruction
-SPLIT_NAMES = ("train", "seen", "unseen_obj", "unseen_inst")
+PAPER_SUBSETS = ("seen", "unseen_obj", "unseen_inst")  # Table I's three test subsets
+# Ours, not the paper's: objects of categories no training object belongs to (docs/dataset.md).
+TEST_SUBSETS = (*PAPER_SUBSETS, "unseen_cat")
+# The position of a split here seeds its scenes: new splits go at the end, so old ones keep theirs.
+SPLIT_NAMES = ("train", *TEST_SUBSETS)
 
 
 @dataclasses.dataclass(frozen=True)
 class SplitConfig:
     name: str
     levels: tuple[tuple[str, int], ...]  # (level, number of scenes)
-    objects: str  # library split the scene and held objects come from: "seen" or "unseen"
-    textures: str  # table texture split
+    objects: str  # library split the scene and held objects come from (LIBRARY_SPLITS)
+    textures: str  # table texture split (TEXTURE_SPLITS)
     instructions: str  # instruction style: "seen" or "unseen"
 
     @property
@@ -55,14 +60,15 @@ class DatasetConfig:
                     raise DatasetConfigError(f"{split.name}/{level}: negative scene count {count}")
             if split.num_scenes == 0:
                 raise DatasetConfigError(f"split {split.name!r} has zero scenes")
-            if split.objects not in ("seen", "unseen") or split.textures not in ("seen", "unseen"):
-                raise DatasetConfigError(f"{split.name}: object and texture splits are 'seen' or 'unseen'")
+            if split.objects not in LIBRARY_SPLITS or split.textures not in TEXTURE_SPLITS:
+                raise DatasetConfigError(f"{split.name}: object splits are {LIBRARY_SPLITS}, texture splits "
+                                         f"{TEXTURE_SPLITS}")
             if split.instructions not in ("seen", "unseen"):
                 raise DatasetConfigError(f"{split.name}: instruction style is 'seen' or 'unseen'")
 
 
 def make_config(train: int = 2000, test: int = 400, seed: int = 0) -> DatasetConfig:
-    """The paper's layout with `train` training scenes and `test` scenes per test subset."""
+    """The paper's layout with `train` training scenes and `test` scenes per test subset (unseen_cat too)."""
     table = round(train * 450 / 2000)
     train_levels = (("table", table), ("1obj", table), ("2obj", train - 2 * table))
     return DatasetConfig(
@@ -71,13 +77,15 @@ def make_config(train: int = 2000, test: int = 400, seed: int = 0) -> DatasetCon
             SplitConfig("seen", _test_levels(test), "seen", "seen", "seen"),
             SplitConfig("unseen_obj", _test_levels(test), "unseen", "unseen", "seen"),
             SplitConfig("unseen_inst", _test_levels(test), "seen", "seen", "unseen"),
+            SplitConfig("unseen_cat", _test_levels(test), "unseen_cat", "unseen", "seen"),
         ),
         seed=seed,
     )
 
 
 def default_config() -> DatasetConfig:
-    """The paper's: 2000 training scenes (450/450/1100), three test subsets of 400 (90/90/220)."""
+    """The paper's: 2000 training scenes (450/450/1100), test subsets of 400 (90/90/220): the paper's three
+    and unseen_cat."""
     return make_config()
 
 

@@ -6,6 +6,8 @@ import argparse
 import dataclasses
 from pathlib import Path
 
+from ocplace.sim.splits import LIBRARY_SPLITS
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     assets = subparsers.add_parser("assets", help="build or list the object library",
@@ -20,7 +22,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     build.add_argument("--smoke", action="store_true", help="a handful of objects with fast settings")
     build.set_defaults(func=_build)
     listing = actions.add_parser("list", help="show the objects of the built library")
-    listing.add_argument("--split", choices=("seen", "unseen"))
+    listing.add_argument("--split", choices=LIBRARY_SPLITS)
     listing.set_defaults(func=_list)
 
 
@@ -39,8 +41,7 @@ def _build(args: argparse.Namespace) -> int:
         config = dataclasses.replace(config, gso_dirs=tuple(str(d) for d in args.gso))
     library = build_library(config)
     failed = [entry["name"] for entry in library.manifest["objects"] if entry["status"] != "ok"]
-    print(f"object library: {len(library.names('seen'))} seen + {len(library.names('unseen'))} unseen objects, "
-          f"{len(library.textures)} table textures" + (f"; failed: {', '.join(failed)}" if failed else ""))
+    print(f"object library: {library.summary()}" + (f"; failed: {', '.join(failed)}" if failed else ""))
     return 0
 
 
@@ -48,11 +49,11 @@ def _list(args: argparse.Namespace) -> int:
     from ocplace.sim.library import load_library
 
     library = load_library()
-    print(f"{'name':28} {'human name':28} {'split':7} {'extents (m)':22} hulls")
+    print(f"{'name':28} {'human name':28} {'split':10} {'extents (m)':22} hulls")
     for name in library.names(args.split):
         obj = library.get(name)
         extents = " x ".join(f"{e:.3f}" for e in obj.extents)
-        print(f"{name:28} {obj.human_name:28} {obj.split:7} {extents:22} {len(obj.hulls)}")
+        print(f"{name:28} {obj.human_name:28} {obj.split:10} {extents:22} {len(obj.hulls)}")
     for entry in library.manifest["objects"]:
         if entry["status"] != "ok":
             print(f"{entry['name']:28} FAILED: {entry.get('reason', '')}")

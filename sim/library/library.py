@@ -10,6 +10,7 @@ from collections.abc import Mapping
 from pathlib import Path
 
 from ocplace.errors import LibraryNotBuilt, UnknownObject
+from ocplace.sim.splits import LIBRARY_SPLITS
 from ocplace.sim.library.records import (
     ASSET_FILE,
     MANIFEST_FILE,
@@ -26,7 +27,7 @@ BUILD_HINT = "run `ocplace assets build`"
 class TableTexture:
     name: str
     path: Path  # PNG, <= 1024 px
-    split: str  # "seen" or "unseen"
+    split: str  # "seen" or "unseen" (table textures have no unseen_cat split)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -53,6 +54,11 @@ class Library:
 
     def names(self, split: str | None = None) -> list[str]:
         return sorted(n for n, a in self.objects.items() if split is None or a.split == split)
+
+    def summary(self) -> str:
+        """`"30 seen + 13 unseen + 10 unseen_cat objects, 6 table textures"`."""
+        counts = " + ".join(f"{len(self.names(split))} {split}" for split in LIBRARY_SPLITS)
+        return f"{counts} objects, {len(self.textures)} table textures"
 
 
 def _read_manifest(root: Path) -> dict:

@@ -15,7 +15,10 @@ import json
 import re
 from importlib import resources
 
-SPLITS = ("seen", "unseen")
+from ocplace.errors import AssetBuildError
+from ocplace.sim.splits import LIBRARY_SPLITS
+
+CLIPORT_SPLITS = ("seen", "unseen")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -33,9 +36,9 @@ class ObjectSpec:
     human_name: str
     synonyms: tuple[str, ...]
     category: str
-    split: str
-    source: str  # "libero", "pybullet" or "gso"
-    path: str  # libero/pybullet: relative to the package's root; gso: absolute directory
+    split: str  # one of LIBRARY_SPLITS
+    source: str  # "libero", "pybullet", "robosuite" or "gso"
+    path: str  # libero/pybullet/robosuite: relative to the source's root; gso: absolute directory
     licence: str
     scale: tuple[float, float, float] | None = None
     rotate: tuple[tuple[str, float], ...] = ()
@@ -71,6 +74,9 @@ def _as_scale(value) -> tuple[float, float, float] | None:
 
 
 def _object_spec(entry: dict, licences: dict[str, str]) -> ObjectSpec:
+    if entry["split"] not in LIBRARY_SPLITS:
+        raise AssetBuildError(f"objects.json: {entry['name']} has split {entry['split']!r}; use one of "
+                              f"{LIBRARY_SPLITS}")
     folder = f"{entry['source']}:{entry['path'].split('/')[0]}"
     return ObjectSpec(
         name=entry["name"],
@@ -128,7 +134,7 @@ def gso_identity(directory_name: str, pbtxt_name: str | None) -> dict:
     directory named after a CLIPort object gets CLIPort's split.
     """
     cliport = cliport_gso()
-    by_slug = {slug(n): (n, split) for split in SPLITS for n in cliport[split]}
+    by_slug = {slug(n): (n, split) for split in CLIPORT_SPLITS for n in cliport[split]}
     name = slug(directory_name)
     if name in by_slug:
         human, split = by_slug[name]

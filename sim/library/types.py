@@ -17,8 +17,8 @@ class ObjectAsset:
     name: str  # stable identifier, e.g. "alphabet_soup"
     human_name: str  # what instructions call it, e.g. "alphabet soup can"
     synonyms: tuple[str, ...]
-    category: str  # e.g. "can", "bowl", "toy"
-    split: str  # "seen" or "unseen"
+    category: str  # the category noun people use, e.g. "can", "bowl", "teddy bear"
+    split: str  # "seen", "unseen" or "unseen_cat" (metadata.LIBRARY_SPLITS)
     source: str  # e.g. "libero:stable_hope_objects", "pybullet_data", "gso:/path"
     licence: str
     directory: Path  # cache folder holding every file below

@@ -6,7 +6,7 @@ import argparse
 import json
 from pathlib import Path
 
-SPLITS = ("seen", "unseen_obj", "unseen_inst")
+from ocplace.sim.dataset.config import TEST_SUBSETS as SPLITS
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:

@@ -1,0 +1,102 @@
+"""The unseen_cat test subset: objects of categories that no training object belongs to."""
+
+import subprocess
+import zipfile
+
+import mujoco
+import pytest
+
+from ocplace.errors import MissingAssetPackage
+from ocplace.sim.dataset.config import TEST_SUBSETS, smoke_config
+from ocplace.sim.dataset.job import scene_dirs
+from ocplace.sim.dataset.records import read_scene
+from ocplace.sim.library import robosuite_assets
+from ocplace.sim.library.metadata import packaged_objects
+from ocplace.train.pretrain.render import training_pool
+
+
+def _specs(split):
+    return [spec for spec in packaged_objects() if spec.split == split]
+
+
+def _head_noun(text):
+    return text.split()[-1]
+
+
+def test_unseen_cat_categories_are_disjoint_from_seen_ones():
+    seen = {spec.category for spec in _specs("seen")}
+    unseen_cat = _specs("unseen_cat")
+    categories = {spec.category for spec in unseen_cat}
+    assert len(unseen_cat) >= 8 and len(categories) >= 6  # enough for varied 5-object scenes
+    assert not categories & seen
+    # Also by head noun ("wooden tray" is a tray): no unseen_cat name or category ends in a seen one.
+    seen_nouns = {_head_noun(category) for category in seen}
+    for spec in unseen_cat:
+        assert _head_noun(spec.category) not in seen_nouns, spec.name
+        assert _head_noun(spec.human_name) not in seen_nouns, spec.name
+    # The unseen_obj subset keeps only categories that training has.
+    assert {spec.category for spec in _specs("unseen")} <= seen
+
+
+def test_library_holds_every_unseen_cat_object_as_a_loadable_model(library):
+    wanted = {spec.name for spec in _specs("unseen_cat")}
+    assert set(library.names("unseen_cat")) == wanted
+    for name in wanted:
+        asset = library.get(name)
+        model = mujoco.MjModel.from_xml_path(str(asset.mjcf))
+        assert model.ngeom >= len(asset.hulls), name
+        assert 0.005 <= max(asset.extents) <= 0.35, (name, asset.extents)
+    assert library.get("lemon").source.startswith("robosuite:") and library.get("lemon").texture is not None
+
+
+def test_unseen_cat_scenes_hold_only_unseen_cat_objects(smoke_dataset, library):
+    assert "unseen_cat" in TEST_SUBSETS
+    dirs = scene_dirs(smoke_dataset, "unseen_cat")
+    assert len(dirs) == smoke_config().split("unseen_cat").num_scenes == 8
+    for directory in dirs:
+        meta = read_scene(directory).meta
+        names = [obj["name"] for obj in meta["objects"]] + [meta["held_object"]["name"]]
+        assert all(library.get(name).split == "unseen_cat" for name in names), names
+        assert library.textures[meta["table_texture"]].split == "unseen"
+        assert meta["instruction_style"] == "seen"
+
+
+def test_pretraining_pool_never_holds_unseen_cat_objects(library):
+    pool = training_pool(library)
+    assert library.names("unseen_cat")
+    assert not set(pool.objects) & set(library.names("unseen_cat"))
+    assert all(library.get(name).split == "seen" for name in pool.objects)
+
+
+# ----------------------------------------------------------------------------- robosuite's files
+
+
+def _fake_wheel(path):
+    with zipfile.ZipFile(path, "w") as archive:
+        archive.writestr("robosuite/models/assets/objects/lemon.xml", '<texture file="../textures/lemon.png"/>')
+        archive.writestr("robosuite/models/assets/objects/meshes/lemon.obj", "v 0 0 0\n")
+        archive.writestr("robosuite/models/assets/textures/lemon.png", b"png")
+        archive.writestr("robosuite/models/assets/textures/brick.png", b"unused")
+        archive.writestr("robosuite/models/robots/arm.xml", "<robot/>")
+        archive.writestr("robosuite-1.5.2.dist-info/licenses/LICENSE", "MIT License")
+
+
+def test_robosuite_objects_come_from_a_wheel_in_the_sources_folder(tmp_path, monkeypatch):
+    monkeypatch.setenv("OCPLACE_CACHE", str(tmp_path))
+    (tmp_path / "sources").mkdir()
+    _fake_wheel(tmp_path / "sources" / robosuite_assets.WHEEL_NAME)
+    root = robosuite_assets.robosuite_root()
+    kept = sorted(str(p.relative_to(root)) for p in root.rglob("*") if p.is_file())
+    assert kept == ["LICENSE", "objects/lemon.xml", "objects/meshes/lemon.obj", "textures/lemon.png"]
+    assert robosuite_assets.robosuite_root() == root  # second call: no extraction
+
+
+def test_robosuite_download_failure_says_what_to_do(tmp_path, monkeypatch):
+    monkeypatch.setenv("OCPLACE_CACHE", str(tmp_path))
+
+    def offline(*args, **kwargs):
+        raise subprocess.CalledProcessError(1, args[0], stderr="ERROR: No matching distribution found")
+
+    monkeypatch.setattr(robosuite_assets.subprocess, "run", offline)
+    with pytest.raises(MissingAssetPackage, match="pip download --no-deps robosuite==1.5.2"):
+        robosuite_assets.robosuite_root()
