@@ -1,11 +1,14 @@
 """Rendering the pretraining images: crops of training-split objects in settled MuJoCo scenes.
 
-Scenes are drawn from the training split's objects and the seen table textures only; the arena
-is compiled with nothing else, so unseen objects and textures cannot appear. Crops are cut the
-way the pipeline cuts them (`square_crop` at the benchmark loader's size), half of them with the
-pipeline's padding and the rest with jittered padding and box position, then put through the
-backbone's own preprocessing. Each settled scene is rendered again under new lighting, and
-renders may recolour the table, so the towers do not learn the three seen tables by heart.
+Scenes are drawn from the training split's objects, named primitives (`sim.primitives`) and the
+seen table textures only; the arena is compiled with nothing else, so unseen objects and textures
+cannot appear. Crops are cut the way the pipeline cuts them (`square_crop` at the benchmark
+loader's size), half of them with the pipeline's padding and the rest with jittered padding and
+box position, then put through the backbone's own preprocessing. Each settled scene is rendered
+again under new lighting, and renders may recolour the table, so the towers do not learn the three
+seen tables by heart. Primitives are painted a colour term per scene; some objects of each render
+also give a second crop with the object recoloured to a colour term (`train.pretrain.colours`),
+labelled with its own class (`train.pretrain.classes`).
 
 Chunks of scenes are written to `<run>/renders/chunk_*.npz` as they finish: a rerun renders only
 the missing chunks. Scene `i` is a pure function of `(seed, i)`.
@@ -16,6 +19,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import logging
+from collections.abc import Sequence
 from pathlib import Path
 
 import cv2
@@ -23,13 +27,18 @@ import numpy as np
 
 from ocplace.errors import SceneError, TrainingError
 from ocplace.models.offline_backbone import OfflineConfig, preprocess_images
-from ocplace.paths import atomic_path
+from ocplace.paths import atomic_path, cache_dir
 from ocplace.sim.boxes import boxes_from_segmentation, square_crop
 from ocplace.sim.dataset.loader import letterbox
-from ocplace.sim.scene import sample_scene_spec, split_pools
+from ocplace.sim.primitives import Primitive, primitive_asset, primitive_set
+from ocplace.sim.scene import SceneSpec, sample_scene_spec, split_pools
+from ocplace.train.pretrain.captions import PRIMITIVE, RECOLOURED
+from ocplace.train.pretrain.classes import PretrainClasses, pretraining_classes
+from ocplace.train.pretrain.colours import COLOUR_TERMS, hsv_to_rgb, recolour_objects, sample_hsv
 from ocplace.train.pretrain.config import RenderConfig
 
 RENDERS_DIR = "renders"
+PRIMITIVES_DIR = "primitives"  # under the cache: generated meshes, rewritten whenever an arena is built
 MAX_SCENE_DRAWS = 20
 
 log = logging.getLogger(__name__)
@@ -59,12 +68,20 @@ def training_pool(library, max_objects: int = 0) -> TrainingPool:
     return TrainingPool(tuple(objects), tuple(textures))
 
 
-def training_arena(library, pool: TrainingPool):
-    """A MuJoCo arena compiled with the pool's objects and textures and nothing else."""
+def scene_primitives(config: RenderConfig) -> tuple[Primitive, ...]:
+    """The primitives a recipe drops into its scenes (none when `primitives_per_scene` is 0)."""
+    if config.primitives_per_scene == 0:
+        return ()
+    return primitive_set(config.primitive_shapes, config.primitive_widths)
+
+
+def training_arena(library, pool: TrainingPool, primitives: Sequence[Primitive] = ()):
+    """A MuJoCo arena compiled with the pool's objects and textures, `primitives` and nothing else."""
     from ocplace.sim.mujoco_backend import MujocoScenes
 
-    return MujocoScenes([library.get(name) for name in pool.objects],
-                        {name: library.textures[name].path for name in pool.textures})
+    objects = [library.get(name) for name in pool.objects]
+    objects += [primitive_asset(primitive, cache_dir() / PRIMITIVES_DIR) for primitive in primitives]
+    return MujocoScenes(objects, {name: library.textures[name].path for name in pool.textures})
 
 
 @dataclasses.dataclass(frozen=True)
@@ -130,10 +147,12 @@ def jittered_box(box: np.ndarray, rng: np.random.Generator, shift: float) -> np.
 
 def crops_of_render(rgb: np.ndarray, segmentation: np.ndarray, labels_by_id: dict[int, int],
                     rng: np.random.Generator, config: RenderConfig) -> tuple[list[np.ndarray], list[int]]:
-    """One crop per object with a box (`crop_size` px), cut like the pipeline or with jitter."""
+    """One crop per object of `labels_by_id` with a box (`crop_size` px), cut like the pipeline or with jitter."""
     boxes = boxes_from_segmentation(segmentation)
     crops, labels = [], []
     for object_id, box in zip(boxes.object_ids, boxes.boxes, strict=True):
+        if int(object_id) not in labels_by_id:
+            continue
         if rng.random() < config.canonical_share:
             crops.append(square_crop(rgb, box, config.padding, size=config.crop_size))
         else:
@@ -143,13 +162,52 @@ def crops_of_render(rgb: np.ndarray, segmentation: np.ndarray, labels_by_id: dic
     return crops, labels
 
 
-def render_scene(arena, pool: TrainingPool, index: int, config: RenderConfig, model: OfflineConfig) -> RenderedImages:
-    """Every image of scene `index`: object crops and the workspace, `renders_per_scene` times."""
+def recoloured_crops(rgb: np.ndarray, segmentation: np.ndarray, names: Sequence[str], classes: PretrainClasses,
+                     rng: np.random.Generator, config: RenderConfig) -> tuple[list[np.ndarray], list[int]]:
+    """Crops of the objects drawn for recolouring (each with `recolour_share`), recoloured to one
+    of their colour terms, labelled with the (object, colour) class."""
+    recolourable = set(classes.bodies(RECOLOURED))
+    targets = {}
+    for object_id, name in enumerate(names, start=1):
+        colours = classes.colours_of(name) if name in recolourable else ()
+        if colours and rng.random() < config.recolour_share:
+            targets[object_id] = colours[rng.integers(len(colours))]
+    if not targets:
+        return [], []
+    recoloured = recolour_objects(rgb, segmentation, targets, rng)
+    labels_by_id = {i: classes.label(names[i - 1], colour) for i, colour in targets.items()}
+    return crops_of_render(recoloured, segmentation, labels_by_id, rng, config)
+
+
+def with_primitives(spec: SceneSpec, classes: PretrainClasses, rng: np.random.Generator,
+                    config: RenderConfig) -> tuple[SceneSpec, dict[str, str]]:
+    """`spec` with `primitives_per_scene` distinct primitives dropped after its objects, and the
+    colour term each is painted in."""
+    bodies = classes.bodies(PRIMITIVE)
+    chosen = [bodies[i] for i in rng.choice(len(bodies), size=config.primitives_per_scene, replace=False)]
+    painted = {}
+    for body in chosen:
+        colours = classes.colours_of(body)
+        painted[body] = colours[rng.integers(len(colours))]
+    return dataclasses.replace(spec, objects=spec.objects + tuple(chosen)), painted
+
+
+def paint(model, painted: dict[str, str], rng: np.random.Generator) -> None:
+    """Sets the material colour of each primitive to a colour drawn in its colour term."""
+    for body, colour in painted.items():
+        material = model.geom_matid[model.geom(f"{body}_visual").id]
+        model.mat_rgba[material, :3] = hsv_to_rgb(sample_hsv(COLOUR_TERMS[colour], rng))
+
+
+def render_scene(arena, pool: TrainingPool, classes: PretrainClasses, index: int, config: RenderConfig,
+                 model: OfflineConfig) -> RenderedImages:
+    """Every image of scene `index`: object and primitive crops, the workspace and recoloured
+    crops, `renders_per_scene` times."""
     rng = np.random.default_rng([config.seed, index])
-    spec, rgb, segmentation = _settled_scene(arena, pool, rng, config)
-    class_of = {name: k for k, name in enumerate(pool.objects)}
-    table_class = len(pool.objects)
-    labels_by_id = {i + 1: class_of[name] for i, name in enumerate(spec.objects)}
+    # Primitives and recolouring draw from their own stream: without them a scene is what it was.
+    extra = np.random.default_rng([config.seed, index, 1])
+    spec, painted, rgb, segmentation = _settled_scene(arena, pool, classes, rng, extra, config)
+    labels_by_id = {i + 1: classes.label(name, painted.get(name, "")) for i, name in enumerate(spec.objects)}
     images, labels = [], []
     for render in range(config.renders_per_scene):
         if render > 0:
@@ -159,17 +217,25 @@ def render_scene(arena, pool: TrainingPool, index: int, config: RenderConfig, mo
             rgb = recolour_table(rgb, segmentation, rng)
         crops, crop_labels = crops_of_render(rgb, segmentation, labels_by_id, rng, config)
         images += crops + [letterbox(rgb, config.crop_size)]
-        labels += crop_labels + [table_class]
+        labels += crop_labels + [classes.table]
+        crops, crop_labels = recoloured_crops(rgb, segmentation, spec.objects, classes, extra, config)
+        images += crops
+        labels += crop_labels
     return RenderedImages(preprocess_images(model, np.stack(images)), np.array(labels, np.int32),
                           np.full(len(labels), index, np.int32))
 
 
-def _settled_scene(arena, pool: TrainingPool, rng: np.random.Generator, config: RenderConfig,
-                   max_draws: int = MAX_SCENE_DRAWS):
-    """`(spec, rgb, segmentation)` of a freshly drawn scene, rendered under random lighting; a scene
-    whose objects keep falling off the table is replaced by the next draw."""
+def _settled_scene(arena, pool: TrainingPool, classes: PretrainClasses, rng: np.random.Generator,
+                   extra: np.random.Generator, config: RenderConfig, max_draws: int = MAX_SCENE_DRAWS):
+    """`(spec, painted, rgb, segmentation)` of a freshly drawn scene (`painted`: the colour term of
+    each primitive), rendered under random lighting; a scene whose objects keep falling off the
+    table is replaced by the next draw."""
     for _ in range(max_draws):
         spec = sample_scene_spec(rng, list(pool.objects), list(pool.textures), num_objects=config.objects_per_scene)
+        painted = {}
+        if config.primitives_per_scene:
+            spec, painted = with_primitives(spec, classes, extra, config)
+            paint(arena.model, painted, extra)
         with random_lighting(arena.model, rng, config):
             try:
                 scene = arena.build(spec)
@@ -178,7 +244,7 @@ def _settled_scene(arena, pool: TrainingPool, rng: np.random.Generator, config: 
                 continue
         if scene.spec.objects != spec.objects:
             raise TrainingError(f"the arena changed the scene's objects: {scene.spec.objects} != {spec.objects}")
-        return spec, scene.rgb, scene.segmentation
+        return spec, painted, scene.rgb, scene.segmentation
     raise TrainingError(f"{max_draws} scenes in a row could not be settled on the table; check the library "
                         "with `ocplace scene`")
 
@@ -196,14 +262,15 @@ def render_all(library, pool: TrainingPool, run_dir: Path, config: RenderConfig,
     missing = [c for c in range(num_chunks) if not chunk_path(run_dir, c).exists()]
     done_scenes = config.scenes - sum(_chunk_scenes(c, config) for c in missing)
     if missing:
-        arena = training_arena(library, pool)
+        classes = pretraining_classes(library, pool.objects, config)
+        arena = training_arena(library, pool, scene_primitives(config))
         try:
             with tqdm(total=config.scenes, initial=done_scenes, unit="scene", desc="render",
                       disable=not progress) as bar:
                 for chunk in missing:
                     parts = []
                     for index in _chunk_scenes_range(chunk, config):
-                        parts.append(render_scene(arena, pool, index, config, model))
+                        parts.append(render_scene(arena, pool, classes, index, config, model))
                         bar.update(1)
                     RenderedImages.concatenate(parts).save(chunk_path(run_dir, chunk))
         finally:
