@@ -15,11 +15,14 @@ from pathlib import Path
 from ocplace.errors import TrainingError
 from ocplace.models import offline_backbone
 from ocplace.models.offline_backbone import OfflineConfig
+from ocplace.sim.primitives import SHAPES, SIZES
+from ocplace.train.pretrain.colours import BASIC_COLOURS, COLOUR_TERMS
 
 
 @dataclasses.dataclass(frozen=True)
 class RenderConfig:
-    """Scenes of training-split objects on seen table textures, and how crops are cut from them."""
+    """Scenes of training-split objects and named primitives on seen table textures, how crops are
+    cut from them, and how objects are recoloured."""
 
     scenes: int = 800
     objects_per_scene: int = 5  # as in the benchmark: occlusions come with the drops
@@ -33,6 +36,13 @@ class RenderConfig:
     light_range: tuple[float, float] = (0.55, 1.25)  # scale of the headlight and the top light
     light_tilt: float = 0.6  # largest tilt (rad) of the top light away from its default direction
     table_jitter: float = 0.5  # probability that a render recolours the table pixels
+    # Probability that an object of a render also gives a crop recoloured to one of `colours`
+    # (its own class: "a blue bowl"); its plain crop is kept.
+    recolour_share: float = 0.3
+    colours: tuple[str, ...] = BASIC_COLOURS  # colour terms of recoloured objects and of primitives
+    primitives_per_scene: int = 2  # named primitives dropped with the objects; 0: no primitive classes
+    primitive_shapes: tuple[str, ...] = SHAPES
+    primitive_widths: tuple[float, ...] = (0.05, 0.075, 0.10)  # m, small, medium and large primitives
     chunk_scenes: int = 50  # scenes per resumable render chunk
     seed: int = 0
 
@@ -42,8 +52,15 @@ class RenderConfig:
             problems.append("scenes, renders_per_scene and chunk_scenes must be positive")
         if self.objects_per_scene < 1:
             problems.append("objects_per_scene must be positive")
-        if not 0.0 <= self.canonical_share <= 1.0 or not 0.0 <= self.table_jitter <= 1.0:
-            problems.append("canonical_share and table_jitter are probabilities")
+        if not all(0.0 <= p <= 1.0 for p in (self.canonical_share, self.table_jitter, self.recolour_share)):
+            problems.append("canonical_share, table_jitter and recolour_share are probabilities")
+        if not self.colours or not set(self.colours) <= set(COLOUR_TERMS):
+            problems.append(f"colours must be among {', '.join(COLOUR_TERMS)}")
+        if self.primitives_per_scene < 0 or not set(self.primitive_shapes) <= set(SHAPES):
+            problems.append(f"primitives_per_scene must be >= 0 and primitive_shapes among {', '.join(SHAPES)}")
+        if len(self.primitive_widths) != len(SIZES) or list(self.primitive_widths) != sorted(self.primitive_widths) \
+                or min(self.primitive_widths) <= 0:
+            problems.append(f"primitive_widths: {len(SIZES)} increasing positive widths ({', '.join(SIZES)})")
         return problems
 
 
@@ -111,7 +128,11 @@ def smoke_config() -> PretrainConfig:
     """Seconds: a tiny tower, four objects, two scenes, a few steps."""
     return PretrainConfig(
         "smoke", model=offline_backbone.smoke_config(),
-        render=RenderConfig(scenes=2, objects_per_scene=3, renders_per_scene=2, max_objects=4, chunk_scenes=1),
+        # No primitives: the smoke run's scenes hold library objects only (a test checks every
+        # scene it builds against the pool); `tests/test_pretrain_data.py` turns them on.
+        render=RenderConfig(scenes=2, objects_per_scene=3, renders_per_scene=2, max_objects=4, chunk_scenes=1,
+                            recolour_share=0.5, colours=("red", "green", "blue", "white"), primitives_per_scene=0,
+                            primitive_shapes=("box", "cylinder", "ring")),
         optim=OptimConfig(steps=12, batch_size=16, table_share=0.125, learning_rate=3e-3, warmup_steps=2,
                           checkpoint_every=4))
 
