@@ -1,0 +1,291 @@
+"""Pretraining data: recoloured objects, named primitives, their classes and captions, the unseen rule.
+
+Renders are real MuJoCo scenes of the smoke recipe's pool, with primitives turned on.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import cv2
+import numpy as np
+import pytest
+
+from ocplace.sim.boxes import boxes_from_segmentation
+from ocplace.sim.primitives import PRIMITIVE_SPLIT, SHAPES, primitive_set, shape_mesh
+from ocplace.train.pretrain.captions import (
+    OBJECT,
+    PRIMITIVE,
+    RECOLOURED,
+    TABLE,
+    ObjectDescription,
+    build_caption_bank,
+    recoloured,
+    with_colour,
+)
+from ocplace.train.pretrain.classes import caption_bank, mentions, pretraining_classes, unseen_names
+from ocplace.train.pretrain.colours import COLOUR_TERMS, recolour_objects
+from ocplace.train.pretrain.config import default_config, smoke_config
+from ocplace.train.pretrain.render import (
+    paint,
+    render_scene,
+    scene_primitives,
+    training_arena,
+    training_pool,
+    with_primitives,
+)
+
+# The smoke recipe with primitives on and every object recoloured, so each scene shows both.
+RENDER = dataclasses.replace(smoke_config().render, primitives_per_scene=2, recolour_share=1.0)
+MODEL = smoke_config().model
+
+
+@pytest.fixture(scope="module")
+def setup(library):
+    """`(pool, classes, arena)` of the smoke pool with primitives."""
+    pool = training_pool(library, RENDER.max_objects)
+    classes = pretraining_classes(library, pool.objects, RENDER)
+    with training_arena(library, pool, scene_primitives(RENDER)) as arena:
+        yield pool, classes, arena
+
+
+@pytest.fixture(scope="module")
+def scene(setup):
+    """A settled smoke scene with its primitives painted: `(spec, painted, rgb, segmentation)`."""
+    pool, classes, arena = setup
+    from ocplace.sim.scene import sample_scene_spec
+
+    rng = np.random.default_rng(3)
+    spec = sample_scene_spec(rng, list(pool.objects), list(pool.textures), num_objects=RENDER.objects_per_scene)
+    spec, painted = with_primitives(spec, classes, rng, RENDER)
+    paint(arena.model, painted, rng)
+    built = arena.build(spec)
+    return built.spec, painted, built.rgb, built.segmentation
+
+
+def _hsv(rgb: np.ndarray) -> np.ndarray:
+    return cv2.cvtColor(rgb, cv2.COLOR_RGB2HSV).astype(np.float64)
+
+
+def _hue_distance(hue: np.ndarray, low: float, high: float) -> np.ndarray:
+    """Distance (OpenCV hue units, on the 180 circle) of each hue from the range [low, high]."""
+    centre, half = (low + high) / 2, (high - low) / 2
+    offset = np.abs((hue - centre + 90) % 180 - 90)
+    return np.maximum(offset - half, 0)
+
+
+# ----------------------------------------------------------------------------- recolouring
+
+
+@pytest.mark.parametrize("colour", ["blue", "red", "yellow", "white", "black", "grey"])
+def test_recolouring_moves_the_object_to_its_colour_and_nothing_else(scene, colour):
+    _, _, rgb, segmentation = scene
+    target = int(np.bincount(segmentation[segmentation > 0]).argmax())  # the most visible object
+    mask = segmentation == target
+    out = recolour_objects(rgb, segmentation, {target: colour}, np.random.default_rng(0))
+    assert out.dtype == np.uint8 and out.shape == rgb.shape
+    assert np.array_equal(out[~mask], rgb[~mask])
+    hsv, term = _hsv(out)[mask], COLOUR_TERMS[colour]
+    if term.hue is not None:
+        assert np.median(_hue_distance(hsv[:, 0], *term.hue)) <= 2
+        assert np.median(hsv[:, 1]) >= term.saturation[0] - 5
+    else:
+        assert np.median(hsv[:, 1]) <= term.saturation[1] + 5
+        low, high = term.value
+        assert 0.45 * low - 5 <= np.median(hsv[:, 2]) <= high + 5
+
+
+def test_recolouring_keeps_the_shading(scene):
+    _, _, rgb, segmentation = scene
+    target = int(np.bincount(segmentation[segmentation > 0]).argmax())
+    mask = segmentation == target
+    before = _hsv(rgb)[mask][:, 2]
+    after = _hsv(recolour_objects(rgb, segmentation, {target: "green"}, np.random.default_rng(0)))[mask][:, 2]
+    if before.std() > 3:  # a textured or shaded object: its value pattern survives
+        assert np.corrcoef(before, after)[0, 1] > 0.8
+
+
+def test_recoloured_crops_get_the_class_of_their_colour(setup):
+    pool, classes, arena = setup
+    images = render_scene(arena, pool, classes, 0, RENDER, MODEL)
+    bank = caption_bank(classes)
+    kinds = [bank.kinds[k] for k in images.labels]
+    assert kinds.count(RECOLOURED) == kinds.count(OBJECT) > 0  # recolour_share 1: every crop twice
+    assert kinds.count(TABLE) == RENDER.renders_per_scene
+    for label in images.labels[np.array(kinds) == RECOLOURED]:
+        body, colour = bank.class_names[label].split(":")
+        assert body in pool.objects and colour in RENDER.colours
+        assert f"something {colour}" in [bank.texts[i] for i in bank.own[label]]
+
+
+# ----------------------------------------------------------------------------- primitives
+
+
+@pytest.mark.parametrize("shape", SHAPES)
+def test_primitive_meshes_rest_on_the_table_frame(shape):
+    mesh = shape_mesh(shape, 0.08)
+    low, high = mesh.bounds
+    assert abs(low[2]) < 1e-9 and np.allclose((low[:2] + high[:2]) / 2, 0, atol=1e-9)
+    assert max(mesh.extents[:2]) == pytest.approx(0.08, rel=0.25) and mesh.is_watertight
+
+
+def test_primitives_settle_on_the_table_with_boxes_in_their_colour(setup, scene):
+    pool, classes, _ = setup
+    spec, painted, _, segmentation = scene
+    assert len(painted) == RENDER.primitives_per_scene and spec.objects[-len(painted):] == tuple(painted)
+    boxes = boxes_from_segmentation(segmentation)
+    hsv = _hsv(scene[2])
+    for body, colour in painted.items():
+        object_id = spec.objects.index(body) + 1
+        assert object_id in boxes.object_ids, f"{body} has no box"
+        pixels, term = hsv[segmentation == object_id], COLOUR_TERMS[colour]
+        if term.hue is not None:  # lit material colour: hue kept, shading varies
+            assert np.median(_hue_distance(pixels[:, 0], *term.hue)) <= 6, (body, colour)
+        else:
+            assert np.median(pixels[:, 1]) <= 40, (body, colour)
+
+
+def test_scenes_hold_primitives_with_their_classes(setup):
+    pool, classes, arena = setup
+    images = render_scene(arena, pool, classes, 1, RENDER, MODEL)
+    bank = caption_bank(classes)
+    primitive_labels = [k for k in images.labels if bank.kinds[k] == PRIMITIVE]
+    assert primitive_labels
+    for label in primitive_labels:
+        body, colour = bank.class_names[label].split(":")
+        assert body in {p.name for p in scene_primitives(RENDER)} and colour in RENDER.colours
+
+
+# ----------------------------------------------------------------------------- captions
+
+
+def test_every_class_has_captions_that_describe_it(library):
+    config = default_config().render
+    classes = pretraining_classes(library, training_pool(library).objects, config)
+    bank = caption_bank(classes)
+    assert bank.kinds.count(OBJECT) == len(classes.objects) and bank.table_class == len(classes.objects)
+    assert len(bank.class_names) == len(classes.objects) + 1 + len(classes.extras)
+    for k, own in enumerate(bank.own):
+        assert len(own) >= 4 and bank.applies[own, k].all()
+    index = {name: k for k, name in enumerate(bank.class_names)}
+    text = {caption: i for i, caption in enumerate(bank.texts)}
+
+    def described_by(caption):
+        return {bank.class_names[k] for k in np.flatnonzero(bank.applies[text[caption]])}
+
+    assert {"white_bowl", "white_bowl:blue", "red_bowl", "red_bowl:blue"} <= described_by("a bowl")
+    assert {"white_bowl:blue", "red_bowl:blue"} <= described_by("a blue bowl")
+    assert not described_by("a blue bowl") & {"white_bowl", "red_bowl"}
+    assert "red_bowl:blue" not in described_by("a red bowl") and "white_bowl:red" in described_by("a red bowl")
+    blue = described_by("something blue")
+    assert {"blue_ketchup", "ketchup:blue", "primitive_cylinder_small:blue", "primitive_ring_large:blue"} <= blue
+    assert not any(name.endswith(":red") for name in blue)
+    assert described_by("a small blue cylinder") == {"primitive_cylinder_small:blue"}
+    assert described_by("a blue cylinder") == {f"primitive_cylinder_{s}:blue" for s in ("small", "medium", "large")}
+    assert len(described_by("a cylinder")) == 3 * len(config.colours)
+    large_red_ring = [bank.texts[i] for i in bank.own[index["primitive_ring_large:red"]]]
+    assert {"a large red ring", "a red ring", "a ring", "something red"} <= set(large_red_ring)
+    # An object without a colour word gets one; names without a colour word still apply.
+    basket = [bank.texts[i] for i in bank.own[index["basket:green"]]]
+    assert {"a green wicker basket", "a green basket", "a wicker basket", "something green"} <= set(basket)
+
+
+def test_colour_words_are_rewritten_not_stacked():
+    assert with_colour("black and white bowl", "blue") == "blue bowl"
+    assert with_colour("red ketchup bottle", "green") == "green ketchup bottle"
+    assert with_colour("orange juice carton", "blue") == "blue orange juice carton"  # juice, not a colour
+    bowl = recoloured(ObjectDescription("akita_black_bowl", "black patterned bowl", ("black and white bowl",), "bowl"),
+                      "pink")
+    assert bowl.colours == ("pink",) and bowl.kind == RECOLOURED and bowl.name == "akita_black_bowl:pink"
+
+
+def test_a_bank_without_extras_keeps_the_old_layout():
+    bowl = ObjectDescription("white_bowl", "white bowl", (), "bowl")
+    bank = build_caption_bank([bowl])
+    assert bank.class_names == ("white_bowl", "table") and bank.kinds == (OBJECT, TABLE) and bank.table_class == 1
+    extra = build_caption_bank([bowl], extras=[recoloured(bowl, "blue")])
+    assert extra.class_names == ("white_bowl", "table", "white_bowl:blue") and extra.table_class == 1
+
+
+# ----------------------------------------------------------------------------- determinism
+
+
+def test_a_scene_is_a_function_of_the_seed_and_its_index(setup):
+    pool, classes, arena = setup
+    first = render_scene(arena, pool, classes, 2, RENDER, MODEL)
+    render_scene(arena, pool, classes, 3, RENDER, MODEL)  # other scenes in between change nothing
+    again = render_scene(arena, pool, classes, 2, RENDER, MODEL)
+    assert all(np.array_equal(getattr(first, f), getattr(again, f)) for f in ("images", "labels", "scenes"))
+    other = render_scene(arena, pool, classes, 2, dataclasses.replace(RENDER, seed=1), MODEL)
+    assert not (len(other.labels) == len(first.labels) and np.array_equal(other.images, first.images))
+
+
+# ----------------------------------------------------------------------------- the unseen rule
+
+
+def _phrases_of_unseen_textures(library):
+    return [name.replace("_", " ") for name, texture in library.textures.items() if texture.split != "seen"]
+
+
+def test_no_class_or_caption_names_an_unseen_object_or_texture(library):
+    config = default_config().render
+    pool = training_pool(library)
+    classes = pretraining_classes(library, pool.objects, config)
+    bank = caption_bank(classes)
+    forbidden = unseen_names(library) + tuple(_phrases_of_unseen_textures(library))
+    assert "yellow bowl" in forbidden and "red basket" in forbidden
+    assert not [(c, n) for c in bank.texts for n in forbidden if mentions(c, n)]
+    seen, primitives = set(library.names("seen")), {p.name for p in scene_primitives(config)}
+    assert {extra.body for extra in classes.extras} <= seen | primitives
+    assert not {name.split(":")[0] for name in bank.class_names} - seen - primitives - {"table"}
+    # Recolourings that would be unseen objects are left out, not just renamed.
+    assert "white_bowl:yellow" not in bank.class_names and "basket:red" not in bank.class_names
+    assert "white_bowl:blue" in bank.class_names
+
+
+def test_any_non_seen_split_blocks_its_names(library):
+    """An object of another split (unseen_cat, ...) called "blue cylinder" removes the blue cylinders."""
+    asset = library.get(library.names("seen")[0])
+    intruder = dataclasses.replace(asset, name="intruder", human_name="blue cylinder", synonyms=(), split="unseen_cat")
+    patched = dataclasses.replace(library, objects={**library.objects, "intruder": intruder})
+    classes = pretraining_classes(patched, training_pool(library, 2).objects, RENDER)
+    names = {extra.description.name for extra in classes.extras}
+    assert "primitive_cylinder_small:red" in names
+    assert not [name for name in names if name.startswith("primitive_cylinder") and name.endswith(":blue")]
+
+
+def test_the_pretraining_arena_holds_seen_objects_and_primitives_only(library, setup):
+    pool, _, arena = setup
+    seen_textures = {name for name, texture in library.textures.items() if texture.split == "seen"}
+    primitives = {p.name for p in primitive_set(RENDER.primitive_shapes, RENDER.primitive_widths)}
+    for name, asset in arena.objects.items():
+        if asset.split == PRIMITIVE_SPLIT:
+            assert name in primitives
+        else:
+            assert name in pool.objects and library.get(name).split == "seen"
+    assert primitives <= set(arena.objects)
+    materials = [arena.model.material(i).name for i in range(arena.model.nmat)]
+    assert {m.removeprefix("table_") for m in materials if m.startswith("table_")} == set(pool.textures)
+    assert set(pool.textures) <= seen_textures
+
+
+def test_rendering_builds_only_seen_objects_and_primitives(library, tmp_path):
+    from ocplace.sim.mujoco_backend import MujocoScenes
+    from ocplace.train.pretrain.render import render_all
+
+    built = []
+    original = MujocoScenes.build
+
+    def recording_build(self, spec, *args, **kwargs):
+        built.append(spec)
+        return original(self, spec, *args, **kwargs)
+
+    pool = training_pool(library, RENDER.max_objects)
+    allowed = set(pool.objects) | {p.name for p in scene_primitives(RENDER)}
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(MujocoScenes, "build", recording_build)
+        images = render_all(library, pool, tmp_path, RENDER, MODEL, progress=False)
+    assert len(built) == RENDER.scenes and len(images.labels) == len(images.images)
+    for spec in built:
+        assert set(spec.objects) <= allowed and library.textures[spec.table_texture].split == "seen"
+        assert len(set(spec.objects) - set(pool.objects)) == RENDER.primitives_per_scene
