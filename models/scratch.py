@@ -1,9 +1,13 @@
-"""Ours w/o CLIP pre-train: the offline backbone's architecture at random initialisation, trained
-with the CLIP-Adapters end to end on the grounding loss of the training split alone.
+"""Ours w/o CLIP pre-train: Ours' backbone architecture at random initialisation, trained with the
+CLIP-Adapters end to end on the grounding loss of the training split alone.
 
-Trained: the compact ViT image tower, its projection, the text projection, the temperature and
-both adapters. Frozen: the MiniLM sentence encoder under the text projection (the offline
-backbone locks it too), so the ablation removes vision-language pretraining, not language.
+The analogue of the paper's ablation: no ImageNet weights and no contrastive pretraining, the
+same EfficientNet-Lite trunk, input size and trained part as Ours (`default_config`). Trained: the
+trunk's blocks after `frozen_blocks` (Ours fine-tunes the same ones), its projection, the text
+projection, the temperature and both adapters. Frozen: the trunk's first blocks at their random
+initialisation (training the whole trunk from scratch costs ~3x more on a CPU) and the MiniLM
+sentence encoder under the text projection (the offline backbone locks it too), so the ablation
+removes pretraining, not language.
 Once trained, the tower is an ordinary `OfflineBackbone` and the adapters an ordinary
 `GroundingModel`: grounding at test time is Ours' code path on these weights.
 """
@@ -40,20 +44,22 @@ class ScratchConfig:
         return cls(**{**fields, "backbone": ob.OfflineConfig.from_dict(fields["backbone"])})
 
 
+def from_random(backbone: ob.OfflineConfig) -> ob.OfflineConfig:
+    """`backbone`'s architecture with nothing pretrained."""
+    return dataclasses.replace(backbone, trunk_init="random")
+
+
 def default_config() -> ScratchConfig:
-    """48 px, patch 8 (36 patches), width 128, 4 layers, D = 128: 0.9M parameters with the adapters."""
-    return ScratchConfig(ob.OfflineConfig(image_size=48, patch_size=8, width=128, layers=4, heads=4, mlp_dim=512,
-                                          embed_dim=128))
+    """Ours' backbone (`offline_backbone.default_config`) from random weights."""
+    return ScratchConfig(from_random(ob.default_config()))
 
 
 def demo_config() -> ScratchConfig:
-    return ScratchConfig(ob.OfflineConfig(image_size=32, patch_size=8, width=64, layers=2, heads=2, mlp_dim=256,
-                                          embed_dim=64))
+    return default_config()
 
 
 def smoke_config() -> ScratchConfig:
-    return ScratchConfig(ob.OfflineConfig(image_size=16, patch_size=8, width=32, layers=1, heads=2, mlp_dim=64,
-                                          embed_dim=32))
+    return ScratchConfig(from_random(ob.smoke_config()))
 
 
 def init_params(config: ScratchConfig, key) -> dict:
@@ -61,6 +67,12 @@ def init_params(config: ScratchConfig, key) -> dict:
     backbone_key, adapter_key = jax.random.split(key)
     return {"backbone": ob.init_params(config.backbone, backbone_key),
             "adapters": init_adapters(config.adapters, adapter_key)}
+
+
+def trainable_mask(config: ScratchConfig, params: dict) -> dict:
+    """Bools over `params`: the backbone's `ob.trainable_mask`, every adapter weight."""
+    return {"backbone": ob.trainable_mask(config.backbone, params["backbone"]),
+            "adapters": jax.tree_util.tree_map(lambda _: True, params["adapters"])}
 
 
 def dihedral(pixels, codes):

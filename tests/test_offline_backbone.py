@@ -13,6 +13,7 @@ import pytest
 
 from ocplace.errors import BackboneError, BackboneUnavailable, TrainingError
 from ocplace.models.backbone import Backbone, PromptConfig, load_backbone
+from ocplace.models import offline_backbone as ob
 from ocplace.models.offline_backbone import (
     FINGERPRINT_FILE,
     WEIGHTS_FILE,
@@ -210,9 +211,29 @@ def test_text_tower_stays_frozen(smoke_run):
 
     checkpoint = load_file(str(list_checkpoints(result.directory / "run")[-1]))
     trained = {key: value for key, value in checkpoint.items() if key.startswith("[0]")}
-    own = jax.tree_util.tree_leaves(result.backbone.params)
-    assert len(trained) == len(own) and sum(v.size for v in trained.values()) == sum(v.size for v in own)
+    config = result.backbone.config
+    own, _ = ob.split_trainable(ob.trainable_mask(config, result.backbone.params), result.backbone.params)
+    assert len(trained) == len(own) and sum(v.size for v in trained.values()) == sum(v.size for v in own.values())
     assert not [key for key in checkpoint if "word_embeddings" in key]
+
+
+def test_pretraining_changes_only_the_trainable_part(smoke_run):
+    """The ImageNet trunk's frozen blocks, its batch-norm statistics and its classifier are the
+    packaged weights bit for bit after pretraining; every trainable leaf moved."""
+    from ocplace.models.imagenet_weights import load_pretrained
+
+    result = smoke_run[0]
+    config, params = result.backbone.config, result.backbone.params
+    assert config.trunk_init == "imagenet" and config.frozen_blocks > 0
+    mask = ob.trainable_mask(config, params)
+    imagenet = ob.flatten_params({"vision": load_pretrained(config.trunk)})
+    trainable, frozen = ob.split_trainable(mask, params)
+    frozen_trunk = {k: v for k, v in frozen.items() if k.startswith("vision/")}
+    assert any("blocks_00" in k for k in frozen_trunk) and any("batch_stats" in k for k in frozen_trunk)
+    assert all(np.array_equal(value, imagenet[key]) for key, value in frozen_trunk.items())
+    tuned = {k: v for k, v in trainable.items() if k.startswith("vision/")}
+    assert tuned and not any("classifier" in k for k in tuned)
+    assert all(not np.array_equal(value, imagenet[key]) for key, value in tuned.items())
 
 
 def test_pretraining_resumes_to_the_same_weights(smoke_run, library, tmp_path):

@@ -46,10 +46,10 @@ MAX_TUPLES = 2
 
 @dataclasses.dataclass(frozen=True)
 class ScratchTrainConfig:
-    steps: int = 2_400
-    batch_size: int = 16  # scenes per step (each with all its visual tokens)
+    steps: int = 600  # 28,800 crops through the trunk: ~10 min on 2 cores at 128 px
+    batch_size: int = 8  # scenes per step (each with all its visual tokens)
     learning_rate: float = 1e-3  # AdamW peak; linear warm-up, cosine decay to 2% (as the backbone pretraining)
-    warmup_steps: int = 100
+    warmup_steps: int = 50
     weight_decay: float = 0.05  # matrices only
     augment: bool = True  # a random symmetry of the square per image
     seed: int = 0
@@ -79,7 +79,7 @@ RECIPES = {
     "smoke": ScratchRecipe(scratch.smoke_config(), ScratchTrainConfig(
         steps=30, batch_size=4, learning_rate=3e-3, warmup_steps=3, log_every=10, checkpoint_every=10)),
     "demo": ScratchRecipe(scratch.demo_config(), ScratchTrainConfig(
-        steps=1_000, batch_size=16, warmup_steps=50, log_every=50, checkpoint_every=250)),
+        steps=150, batch_size=8, warmup_steps=15, log_every=25, checkpoint_every=50)),
     "default": ScratchRecipe(scratch.default_config(), ScratchTrainConfig()),
 }
 
@@ -165,12 +165,16 @@ def make_optimizer(config: ScratchTrainConfig) -> optax.GradientTransformation:
 
 
 @functools.partial(jax.jit, static_argnums=(0, 1), donate_argnums=2)
-def train_step(model: scratch.ScratchConfig, config: ScratchTrainConfig, state, batch, codes):
-    """One AdamW step; returns `(state, loss)`."""
-    params, opt_state = state
-    value, grads = jax.value_and_grad(functools.partial(scratch.loss, model))(params, batch, codes)
-    updates, opt_state = make_optimizer(config).update(grads, opt_state, params)
-    return (optax.apply_updates(params, updates), opt_state), value
+def train_step(model: scratch.ScratchConfig, config: ScratchTrainConfig, state, frozen, batch, codes):
+    """One AdamW step on the trainable half of the parameters (`ob.split_trainable`); returns `(state, loss)`."""
+    trainable, opt_state = state
+
+    def loss_fn(trainable):
+        return scratch.loss(model, ob.join_params(trainable, frozen), batch, codes)
+
+    value, grads = jax.value_and_grad(loss_fn)(trainable)
+    updates, opt_state = make_optimizer(config).update(grads, opt_state, trainable)
+    return (optax.apply_updates(trainable, updates), opt_state), value
 
 
 def step_codes(config: ScratchTrainConfig, step: int) -> np.ndarray:
@@ -190,7 +194,8 @@ def train_on_inputs(arrays: dict, run_dir: Path, recipe_: ScratchRecipe, run_met
     run_dir = Path(run_dir)
     checkpoints.claim_run_dir(run_dir, run_meta, "config.json")
     params = scratch.init_params(model, jax.random.key(config.seed))
-    state = (params, make_optimizer(config).init(params))
+    trainable, frozen = ob.split_trainable(scratch.trainable_mask(model, params), params)
+    state = (trainable, make_optimizer(config).init(trainable))
     start = 0
     saved = checkpoints.list_checkpoints(run_dir)
     if saved:
@@ -203,19 +208,19 @@ def train_on_inputs(arrays: dict, run_dir: Path, recipe_: ScratchRecipe, run_met
         for step in range(start, config.steps):
             rows = batch_indices(num_scenes, config.seed, step, 1, config.batch_size)[0]
             batch = {name: jnp.asarray(array[rows]) for name, array in arrays.items()}
-            state, value = train_step(model, config, state, batch, jnp.asarray(step_codes(config, step)))
+            state, value = train_step(model, config, state, frozen, batch, jnp.asarray(step_codes(config, step)))
             losses.append(value)
             done = step + 1
             if done % config.log_every == 0 or done == config.steps:
                 metrics.append({"step": done, "loss": float(np.mean(np.asarray(losses))),
-                                "logit_scale": float(scratch.logit_scale(model, state[0])),
+                                "logit_scale": float(scratch.logit_scale(model, ob.join_params(state[0], frozen))),
                                 "elapsed_s": round(time.perf_counter() - began, 3)})
                 losses = []
             if done % config.checkpoint_every == 0 or done == config.steps:
                 checkpoints.save_checkpoint(run_dir, done, state, {"step_of": str(config.steps)},
                                             config.keep_checkpoints)
             bar.update(1)
-    return jax.tree_util.tree_map(np.asarray, state[0])
+    return jax.tree_util.tree_map(np.asarray, ob.join_params(state[0], frozen))
 
 
 def train_scratch(dataset_dir: Path, run_dir: Path, recipe_: ScratchRecipe, progress: bool = True) -> Path:

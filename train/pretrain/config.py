@@ -91,7 +91,7 @@ class OptimConfig:
 @dataclasses.dataclass(frozen=True)
 class PretrainConfig:
     recipe: str
-    model: OfflineConfig = OfflineConfig()
+    model: OfflineConfig = offline_backbone.default_config()
     render: RenderConfig = RenderConfig()
     optim: OptimConfig = OptimConfig()
 

@@ -35,8 +35,11 @@ from ocplace.models.offline_backbone import (
     OfflineConfig,
     image_embeddings,
     init_params,
+    join_params,
     load_saved_backbone,
+    split_trainable,
     text_embeddings,
+    trainable_mask,
 )
 from ocplace.paths import write_text_atomic
 from ocplace.train import checkpoints
@@ -95,21 +98,26 @@ def batch_loss(model: OfflineConfig, params, pixels, sentences, positives):
 
 @functools.lru_cache(maxsize=4)
 def make_train_step(model: OfflineConfig, optim: OptimConfig):
-    """Jitted `step(state, batch arrays, bank) -> (state, loss)` with state `(params, opt_state)`.
+    """Jitted `step(state, frozen, batch arrays, bank) -> (state, loss)` with state
+    `(trainable, opt_state)`; `trainable` and `frozen` are the flat halves of `split_trainable`.
 
-    Cached per configuration, so runs in one process (a resumed run, tests) compile it once.
+    Gradients are taken for the trainable half only, so no backward pass runs through a frozen
+    trunk prefix. Cached per configuration: runs in one process (a resumed run, tests) compile once.
     """
     optimizer = make_optimizer(optim)
     max_log_scale = math.log(optim.max_logit_scale)
 
-    def step(state, pixels, factors, captions, positives, bank_sentences):
-        params, opt_state = state
-        loss, grads = jax.value_and_grad(functools.partial(batch_loss, model))(
-            params, colour_jitter(pixels, factors), bank_sentences[captions], positives)
-        updates, opt_state = optimizer.update(grads, opt_state, params)
-        params = optax.apply_updates(params, updates)
-        params = {**params, "log_logit_scale": jnp.minimum(params["log_logit_scale"], max_log_scale)}
-        return (params, opt_state), loss
+    def loss_fn(trainable, frozen, pixels, sentences, positives):
+        return batch_loss(model, join_params(trainable, frozen), pixels, sentences, positives)
+
+    def step(state, frozen, pixels, factors, captions, positives, bank_sentences):
+        trainable, opt_state = state
+        loss, grads = jax.value_and_grad(loss_fn)(
+            trainable, frozen, colour_jitter(pixels, factors), bank_sentences[captions], positives)
+        updates, opt_state = optimizer.update(grads, opt_state, trainable)
+        trainable = optax.apply_updates(trainable, updates)
+        trainable = {**trainable, "log_logit_scale": jnp.minimum(trainable["log_logit_scale"], max_log_scale)}
+        return (trainable, opt_state), loss
 
     return jax.jit(step)
 
@@ -205,7 +213,8 @@ def pretrain(config: PretrainConfig, library, out_dir: str | Path | None = None,
     mark, cpu_mark = time.perf_counter(), time.process_time()
     optim = config.optim
     params = init_params(config.model, jax.random.key(optim.seed))
-    state = (params, make_optimizer(optim).init(params))
+    trainable, frozen = split_trainable(trainable_mask(config.model, params), params)
+    state = (trainable, make_optimizer(optim).init(trainable))
     probe = probe_batch(images, by_class, bank, optim)
     probe_args = (probe.pixels, bank_sentences[probe.captions], probe.positives)
     loss_before = float(probe_loss(config.model, params, *probe_args))
@@ -224,7 +233,7 @@ def pretrain(config: PretrainConfig, library, out_dir: str | Path | None = None,
     with tqdm(total=optim.steps, initial=start, unit="step", desc="pretrain", disable=not progress) as bar:
         for step in range(start, last):
             batch = sample_batch(images, by_class, bank, optim, step_rng(optim.seed, step))
-            state, loss = train_step(state, batch.pixels, batch.factors, batch.captions, batch.positives,
+            state, loss = train_step(state, frozen, batch.pixels, batch.factors, batch.captions, batch.positives,
                                      bank_sentences)
             recent.append(loss)
             done = step + 1
@@ -240,7 +249,7 @@ def pretrain(config: PretrainConfig, library, out_dir: str | Path | None = None,
             bar.update(1)
     timings["train_s"] = time.perf_counter() - mark
     timings["train_cpu_s"] = time.process_time() - cpu_mark
-    params = jax.device_get(state[0])
+    params = join_params(jax.device_get(state[0]), frozen)
     loss_after = float(probe_loss(config.model, params, *probe_args))
     backbone = OfflineBackbone(config.model, params, text_tower, source=str(out_dir))
     if last < optim.steps:
