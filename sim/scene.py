@@ -60,10 +60,11 @@ def sample_scene_spec(
     num_objects: int = NUM_SCENE_OBJECTS,
 ) -> SceneSpec:
     """Draws distinct scene objects, a held object not among them, a texture and a drop seed."""
+    needed = num_objects + 1 if held_pool is None else num_objects  # the held one from the same pool
     held_pool = object_pool if held_pool is None else held_pool
-    if len(object_pool) < num_objects or not textures:
+    if len(object_pool) < needed or not textures:
         raise SceneError(
-            f"need at least {num_objects} objects and one texture, got {len(object_pool)} objects "
+            f"need at least {needed} objects and one texture, got {len(object_pool)} objects "
             f"and {len(textures)} textures; build the library with `ocplace assets build`"
         )
     chosen = rng.choice(len(object_pool), size=num_objects, replace=False)

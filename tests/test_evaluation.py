@@ -87,7 +87,7 @@ def test_centre_placement_matches_a_hand_check(results_json, smoke_dataset):
             assert scene["sample_success"] == float(scene["success"])  # no samples: the mode's
             assert scene["stage"] in (None, "placement")
             checked += 1
-    assert checked == 24
+    assert checked == 8 * len(harness.SUBSETS)
 
 
 def test_failures_score_zero_and_are_listed(results_json):
@@ -98,7 +98,7 @@ def test_failures_score_zero_and_are_listed(results_json):
         assert overall["failures"] == overall["stages"]["failure"] == 8
         assert all(s["failure"] == "no reference found (test method)" for s in failing["subsets"][subset]["scenes"])
     listed = table.failure_list(results_json)
-    assert "Always fails (failing): 24 scenes" in listed and "`seen-00000`: no reference found" in listed
+    assert f"Always fails (failing): {8 * len(harness.SUBSETS)} scenes" in listed and "`seen-00000`: no reference found" in listed
 
 
 def test_an_exception_fails_only_its_scene(results_json):
@@ -197,10 +197,11 @@ def test_results_json_round_trip(results_json, evaluations, tmp_path):
 
 def test_table_one_layout(results_json):
     lines = table.table_one(results_json).splitlines()
-    assert lines[2].split("|")[1:-1][1].strip() == "Seen" and "Unseen obj" in lines[2] and "Unseen inst" in lines[2]
-    assert lines[4].count("**Overall**") == 3 and lines[4].count("**1 Obj**") == 3
+    groups = [cell.strip() for cell in lines[2].split("|")[1:-1] if cell.strip()]
+    assert groups == ["Seen", "Unseen obj", "Unseen inst", "Unseen cat (ours, not in the paper)"]  # the paper's first
+    assert lines[4].count("**Overall**") == 4 and lines[4].count("**1 Obj**") == 4
     rows = {line.split("|")[1].strip(): [c.strip() for c in line.split("|")[2:-1]] for line in lines[5:]}
-    assert rows["Oracle"] == ["100.00"] * 12 and rows["Always fails"] == ["0.00"] * 12
+    assert rows["Oracle"] == ["100.00"] * 16 and rows["Always fails"] == ["0.00"] * 16
     centre = by_key(results_json, "centre")["subsets"]["seen"]["aggregate"]["overall"]["success"]
     assert rows["Table centre"][3] == f"{100 * centre:.2f}"
     document = table.render(results_json)

@@ -4,14 +4,17 @@ import subprocess
 import zipfile
 
 import mujoco
+import numpy as np
 import pytest
 
-from ocplace.errors import MissingAssetPackage
+from ocplace.errors import MissingAssetPackage, SceneError
+from ocplace.eval import table
 from ocplace.sim.dataset.config import TEST_SUBSETS, smoke_config
 from ocplace.sim.dataset.job import scene_dirs
 from ocplace.sim.dataset.records import read_scene
 from ocplace.sim.library import robosuite_assets
 from ocplace.sim.library.metadata import packaged_objects
+from ocplace.sim.scene import sample_scene_spec
 from ocplace.train.pretrain.render import training_pool
 
 
@@ -61,11 +64,29 @@ def test_unseen_cat_scenes_hold_only_unseen_cat_objects(smoke_dataset, library):
         assert meta["instruction_style"] == "seen"
 
 
+def test_a_small_pool_is_used_whole_and_a_too_small_one_refused():
+    pool = [f"object_{k}" for k in range(6)]  # the least a scene and its held object need
+    for seed in range(5):
+        spec = sample_scene_spec(np.random.default_rng(seed), pool, ["table"])
+        assert sorted((*spec.objects, spec.held_object)) == pool
+    with pytest.raises(SceneError, match="need at least 6 objects"):
+        sample_scene_spec(np.random.default_rng(0), pool[:5], ["table"])
+
+
 def test_pretraining_pool_never_holds_unseen_cat_objects(library):
     pool = training_pool(library)
     assert library.names("unseen_cat")
     assert not set(pool.objects) & set(library.names("unseen_cat"))
     assert all(library.get(name).split == "seen" for name in pool.objects)
+
+
+def test_table_one_keeps_the_papers_unseen_mean():
+    def subset(success):
+        return {"aggregate": {"overall": {"success": success}}}
+
+    entry = {"subsets": {"seen": subset(0.9), "unseen_obj": subset(0.6), "unseen_inst": subset(0.8),
+                         "unseen_cat": subset(0.0)}}
+    assert table.unseen_mean(entry) == pytest.approx(0.7)  # unseen_cat is reported, never averaged in
 
 
 # ----------------------------------------------------------------------------- robosuite's files
