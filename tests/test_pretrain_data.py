@@ -289,3 +289,10 @@ def test_rendering_builds_only_seen_objects_and_primitives(library, tmp_path):
     for spec in built:
         assert set(spec.objects) <= allowed and library.textures[spec.table_texture].split == "seen"
         assert len(set(spec.objects) - set(pool.objects)) == RENDER.primitives_per_scene
+
+
+def test_render_knobs_are_validated():
+    assert not RENDER.validate() and not default_config().render.validate()
+    for bad in ({"colours": ("teal",)}, {"primitives_per_scene": 10}, {"recolour_share": 1.5},
+                {"primitive_widths": (0.1, 0.05, 0.2)}, {"primitive_shapes": ("star",)}):
+        assert dataclasses.replace(RENDER, **bad).validate(), bad

@@ -56,8 +56,10 @@ class RenderConfig:
             problems.append("canonical_share, table_jitter and recolour_share are probabilities")
         if not self.colours or not set(self.colours) <= set(COLOUR_TERMS):
             problems.append(f"colours must be among {', '.join(COLOUR_TERMS)}")
-        if self.primitives_per_scene < 0 or not set(self.primitive_shapes) <= set(SHAPES):
-            problems.append(f"primitives_per_scene must be >= 0 and primitive_shapes among {', '.join(SHAPES)}")
+        if not 0 <= self.primitives_per_scene <= len(SIZES) * len(self.primitive_shapes) \
+                or not set(self.primitive_shapes) <= set(SHAPES):
+            problems.append(f"primitives_per_scene must be in [0, {len(SIZES)} x the number of primitive_shapes] "
+                            f"and primitive_shapes among {', '.join(SHAPES)}")
         if len(self.primitive_widths) != len(SIZES) or list(self.primitive_widths) != sorted(self.primitive_widths) \
                 or min(self.primitive_widths) <= 0:
             problems.append(f"primitive_widths: {len(SIZES)} increasing positive widths ({', '.join(SIZES)})")

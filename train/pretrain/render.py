@@ -184,6 +184,9 @@ def with_primitives(spec: SceneSpec, classes: PretrainClasses, rng: np.random.Ge
     """`spec` with `primitives_per_scene` distinct primitives dropped after its objects, and the
     colour term each is painted in."""
     bodies = classes.bodies(PRIMITIVE)
+    if len(bodies) < config.primitives_per_scene:
+        raise TrainingError(f"{config.primitives_per_scene} primitives per scene, but only {len(bodies)} primitives "
+                            "have a class; lower primitives_per_scene or add primitive_shapes")
     chosen = [bodies[i] for i in rng.choice(len(bodies), size=config.primitives_per_scene, replace=False)]
     painted = {}
     for body in chosen:
