@@ -71,6 +71,8 @@ class OptimConfig:
     steps: int = 700
     batch_size: int = 64
     table_share: float = 1 / 16  # share of each batch that is whole-workspace images ("a table")
+    # how the other images divide among the kinds of class (renormalised over the kinds rendered)
+    kind_shares: tuple[tuple[str, float], ...] = (("object", 0.5), ("recoloured", 0.25), ("primitive", 0.25))
     learning_rate: float = 1e-3
     warmup_steps: int = 50
     weight_decay: float = 0.05
@@ -87,6 +89,9 @@ class OptimConfig:
             problems.append("steps, checkpoint_every and keep_checkpoints must be positive, batch_size >= 2")
         if not 0.0 <= self.table_share < 1.0:
             problems.append("table_share must be in [0, 1)")
+        if not self.kind_shares or any(share < 0 for _, share in self.kind_shares) or \
+                not any(kind == "object" and share > 0 for kind, share in self.kind_shares):
+            problems.append("kind_shares needs a positive share for 'object' and no negative share")
         return problems
 
 
@@ -108,8 +113,9 @@ class PretrainConfig:
     @classmethod
     def from_dict(cls, fields: dict) -> PretrainConfig:
         render = {k: tuple(v) if isinstance(v, list) else v for k, v in fields["render"].items()}
+        optim = {k: tuple(tuple(pair) for pair in v) if k == "kind_shares" else v for k, v in fields["optim"].items()}
         return cls(fields["recipe"], OfflineConfig.from_dict(fields["model"]), RenderConfig(**render),
-                   OptimConfig(**fields["optim"]))
+                   OptimConfig(**optim))
 
     def key(self) -> str:
         """12 hex digits that change with any setting."""

@@ -44,7 +44,8 @@ from ocplace.models.offline_backbone import (
 from ocplace.paths import write_text_atomic
 from ocplace.train import checkpoints
 from ocplace.train.metrics import MetricsLog
-from ocplace.train.pretrain.captions import CaptionBank, ObjectDescription, build_caption_bank
+from ocplace.train.pretrain.captions import CaptionBank
+from ocplace.train.pretrain.classes import caption_bank, pretraining_classes
 from ocplace.train.pretrain.config import OptimConfig, PretrainConfig, output_dir
 from ocplace.train.pretrain.loss import contrastive_loss
 from ocplace.train.pretrain.render import RenderedImages, TrainingPool, render_all, training_pool
@@ -139,13 +140,14 @@ class Batch:
 
 def sample_batch(images: RenderedImages, by_class: list[np.ndarray], bank: CaptionBank, optim: OptimConfig,
                  rng: np.random.Generator, augment: bool = True) -> Batch:
-    """Object classes drawn uniformly (so rarely visible objects are not starved), plus a share of
-    workspace images; one caption per image. Augmentation: quarter turns, flips, colour factors."""
+    """A kind of class per image (`optim.kind_shares`: real objects, recoloured ones, primitives),
+    then a class of that kind uniformly (so rarely visible objects are not starved), plus a share
+    of workspace images; one caption per image. Augmentation: quarter turns, flips, colour factors."""
     table = bank.table_class
     num_table = min(max(round(optim.batch_size * optim.table_share), 1 if optim.table_share else 0),
                     optim.batch_size - 1)
-    present = [k for k in range(table) if len(by_class[k])]
-    classes = np.concatenate([rng.choice(present, size=optim.batch_size - num_table), np.full(num_table, table)])
+    classes = np.concatenate([sample_classes(by_class, bank, optim, rng, optim.batch_size - num_table),
+                              np.full(num_table, table)])
     indices = np.array([by_class[k][rng.integers(len(by_class[k]))] for k in classes])
     pixels = images.images[indices]
     factors = np.ones((len(indices), 3), np.float32)
@@ -160,6 +162,18 @@ def sample_batch(images: RenderedImages, by_class: list[np.ndarray], bank: Capti
     captions = bank.sample(rng, labels)
     positives = bank.applies[captions][:, labels].T
     return Batch(np.ascontiguousarray(pixels), factors, labels, captions, positives)
+
+
+def sample_classes(by_class: list[np.ndarray], bank: CaptionBank, optim: OptimConfig, rng: np.random.Generator,
+                   count: int) -> np.ndarray:
+    """int `(count,)` non-table classes with images: a kind by its share (renormalised over the kinds
+    present), then a class of that kind uniformly."""
+    present = {kind: [k for k, own in enumerate(bank.kinds) if own == kind and len(by_class[k])]
+               for kind, _ in optim.kind_shares}
+    kinds = [kind for kind, _ in optim.kind_shares if present[kind]]
+    shares = np.array([share for kind, share in optim.kind_shares if present[kind]], np.float64)
+    drawn = rng.choice(len(kinds), size=count, p=shares / shares.sum())
+    return np.array([rng.choice(present[kinds[d]]) for d in drawn])
 
 
 def step_rng(seed: int, step: int) -> np.random.Generator:
@@ -187,8 +201,7 @@ def pretrain(config: PretrainConfig, library, out_dir: str | Path | None = None,
     out_dir = Path(out_dir) if out_dir is not None else output_dir(config)
     run_dir = out_dir / RUN_DIR
     pool = training_pool(library, config.render.max_objects)
-    objects = [ObjectDescription.of(library.get(name)) for name in pool.objects]
-    bank = build_caption_bank(objects)
+    bank = caption_bank(pretraining_classes(library, pool.objects, config.render))
     run_meta = _run_metadata(config, pool, bank)
     if (out_dir / FINGERPRINT_FILE).exists() and _finished_meta(out_dir) == run_meta:
         log.info("the offline backbone of recipe %r is already built in %s", config.recipe, out_dir)
@@ -207,7 +220,7 @@ def pretrain(config: PretrainConfig, library, out_dir: str | Path | None = None,
     timings["render_s"] = time.perf_counter() - mark
     timings["render_cpu_s"] = time.process_time() - cpu_mark
     by_class = [np.flatnonzero(images.labels == k) for k in range(len(bank.class_names))]
-    if not len(by_class[bank.table_class]) or not any(len(c) for c in by_class[:-1]):
+    if not len(by_class[bank.table_class]) or not any(len(c) for c in by_class[:bank.table_class]):
         raise TrainingError("rendering produced no object crops; check the library with `ocplace scene`")
 
     mark, cpu_mark = time.perf_counter(), time.process_time()
