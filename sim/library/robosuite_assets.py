@@ -41,7 +41,7 @@ def robosuite_root() -> Path:
     if wheel.is_file():
         _extract(wheel, root)
         return root
-    with tempfile.TemporaryDirectory(dir=root.parent) as download:
+    with tempfile.TemporaryDirectory(prefix=".download.", dir=root.parent) as download:
         _extract(_download(Path(download), root.parent), root)
     return root
 
@@ -52,10 +52,11 @@ def _download(directory: Path, sources: Path) -> Path:
     try:
         subprocess.run(command, check=True, capture_output=True, text=True, timeout=_DOWNLOAD_TIMEOUT_S)
     except (OSError, subprocess.SubprocessError) as error:
-        detail = getattr(error, "stderr", None) or str(error)
+        lines = (getattr(error, "stderr", None) or str(error)).strip().splitlines()
+        reason = lines[-1] if lines else type(error).__name__
         raise MissingAssetPackage(
             f"robosuite's object meshes are not in {sources} and `pip download robosuite=={ROBOSUITE_VERSION}` "
-            f"failed ({detail.strip().splitlines()[-1] if detail.strip() else error}); where PyPI is reachable run "
+            f"failed ({reason}); where PyPI is reachable run "
             f"`python -m pip download --no-deps robosuite=={ROBOSUITE_VERSION} -d {sources}`, then rerun "
             "`ocplace assets build`") from error
     return directory / WHEEL_NAME
