@@ -14,6 +14,7 @@ from ocplace.sim.dataset.job import scene_dirs
 from ocplace.sim.dataset.records import read_scene
 from ocplace.sim.library import robosuite_assets
 from ocplace.sim.library.metadata import packaged_objects
+from ocplace.sim.primitives import SHAPES
 from ocplace.sim.scene import sample_scene_spec
 from ocplace.train.pretrain.render import training_pool
 
@@ -39,6 +40,8 @@ def test_unseen_cat_categories_are_disjoint_from_seen_ones():
         assert _head_noun(spec.human_name) not in seen_nouns, spec.name
     # The unseen_obj subset keeps only categories that training has.
     assert {spec.category for spec in _specs("unseen")} <= seen
+    # Pretraining also shows named primitive shapes: none is an unseen_cat category either.
+    assert not {_head_noun(category) for category in categories} & set(SHAPES)
 
 
 def test_library_holds_every_unseen_cat_object_as_a_loadable_model(library):
