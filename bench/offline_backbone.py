@@ -5,14 +5,17 @@ pretrained backbone and the same architecture at random initialisation on benchm
 (`ocplace backbone eval`). Writes a JSON report with the timings and the machine's load average,
 which matters: the 30-minute budget is for 2 otherwise idle cores.
 
-Usage: `python bench/offline_backbone.py --data DIR [--recipe default] [--splits seen unseen_obj
-unseen_cat] [--out report.json]`. The dataset comes from `ocplace generate --out DIR --split seen` (and
+Usage: `python bench/offline_backbone.py --data DIR [--recipe default] [--variant chosen] [--splits
+seen unseen_obj unseen_cat] [--out report.json]`. `--variant` changes the recipe for comparisons:
+`vit` is the first offline backbone (a ViT from scratch, no attribute data), `no-attributes` the
+chosen trunk without recoloured objects and primitives, `chosen` the recipe as it is. The dataset comes from `ocplace generate --out DIR --split seen` (and
 `--split unseen_obj`, `--split unseen_cat`).
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import datetime
 import json
 import os
@@ -22,7 +25,7 @@ from pathlib import Path
 import jax
 
 import ocplace  # noqa: F401  (sets the headless OpenGL default before MuJoCo loads)
-from ocplace.models.offline_backbone import OfflineBackbone, init_params
+from ocplace.models.offline_backbone import OfflineBackbone, init_params, vit_config
 from ocplace.sim.library import load_library
 from ocplace.train.pretrain.commands import format_report
 from ocplace.train.pretrain.config import recipe_config
@@ -30,10 +33,21 @@ from ocplace.train.pretrain.evaluate import evaluate_split
 from ocplace.train.pretrain.loop import pretrain
 
 
+def variant_config(config, variant: str):
+    """The recipe `config` changed as `variant` says (see the module docstring)."""
+    no_attributes = dataclasses.replace(config.render, recolour_share=0.0, primitives_per_scene=0)
+    if variant == "vit":
+        return dataclasses.replace(config, model=vit_config(), render=no_attributes)
+    if variant == "no-attributes":
+        return dataclasses.replace(config, render=no_attributes)
+    return config
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", type=Path, required=True)
     parser.add_argument("--recipe", default="default", choices=("default", "demo", "smoke"))
+    parser.add_argument("--variant", default="chosen", choices=("chosen", "no-attributes", "vit"))
     parser.add_argument("--backbone-dir", type=Path, help="pretrain into this directory (default: the cache)")
     parser.add_argument("--splits", nargs="+", default=["seen", "unseen_obj", "unseen_cat"])
     parser.add_argument("--limit", type=int)
@@ -41,8 +55,8 @@ def main() -> None:
     args = parser.parse_args()
 
     library = load_library()
-    config = recipe_config(args.recipe)
-    report = {"recipe": args.recipe, "key": config.key(), "cpu_count": os.cpu_count(),
+    config = variant_config(recipe_config(args.recipe), args.variant)
+    report = {"recipe": args.recipe, "variant": args.variant, "key": config.key(), "cpu_count": os.cpu_count(),
               "started": datetime.datetime.now().astimezone().isoformat(timespec="seconds"),
               "load_average_before": os.getloadavg()}
     began = time.perf_counter()
