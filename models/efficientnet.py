@@ -189,23 +189,26 @@ def _conv(features: int, kernel: int = 1, stride: int = 1, name: str | None = No
     return nn.Conv(features, (kernel, kernel), (stride, stride), padding="SAME", use_bias=False, name=name)
 
 
-def _bn(name: str) -> nn.BatchNorm:
-    return nn.BatchNorm(use_running_average=True, epsilon=BN_EPSILON, name=name)
+def _bn(name: str, calibrate: bool = False) -> nn.BatchNorm:
+    """Inference-mode batch norm; `calibrate`: normalise by the batch's own statistics and store
+    exactly them as the running ones (momentum 0)."""
+    return nn.BatchNorm(use_running_average=not calibrate, momentum=0.0, epsilon=BN_EPSILON, name=name)
 
 
 class MBConv(nn.Module):
     """Inverted residual: 1x1 expand, depthwise k x k, 1x1 project (linear), identity skip."""
 
     block: BlockConfig
+    calibrate: bool = False
 
     @nn.compact
     def __call__(self, x):
-        b = self.block
+        b, calibrate = self.block, self.calibrate
         y = x
         if b.expand != 1:
-            y = nn.relu6(_bn("expand_bn")(_conv(b.hidden, name="expand_conv")(y)))
-        y = nn.relu6(_bn("depthwise_bn")(DepthwiseConv(b.kernel, b.stride, name="depthwise_conv")(y)))
-        y = _bn("project_bn")(_conv(b.out, name="project_conv")(y))
+            y = nn.relu6(_bn("expand_bn", calibrate)(_conv(b.hidden, name="expand_conv")(y)))
+        y = nn.relu6(_bn("depthwise_bn", calibrate)(DepthwiseConv(b.kernel, b.stride, name="depthwise_conv")(y)))
+        y = _bn("project_bn", calibrate)(_conv(b.out, name="project_conv")(y))
         return x + y if b.residual else y
 
 
@@ -215,24 +218,26 @@ class ConvBN(nn.Module):
     features: int
     kernel: int
     stride: int
+    calibrate: bool = False
 
     @nn.compact
     def __call__(self, x):
-        return nn.relu6(_bn("bn")(_conv(self.features, self.kernel, self.stride, name="conv")(x)))
+        return nn.relu6(_bn("bn", self.calibrate)(_conv(self.features, self.kernel, self.stride, name="conv")(x)))
 
 
 class EfficientNetLite(nn.Module):
     """Pixels `(B, H, W, 3)` uint8 -> pooled features `(B, 1280)`, or logits `(B, 1000)`."""
 
     config: LiteConfig
+    calibrate: bool = False  # see `calibrate_batch_stats`
 
     @nn.compact
     def __call__(self, pixels, classify: bool = True):
         x = normalise(pixels)
-        x = ConvBN(STEM_WIDTH, 3, 2, name="stem")(x)
+        x = ConvBN(STEM_WIDTH, 3, 2, self.calibrate, name="stem")(x)
         for index, block in enumerate(self.config.blocks):
-            x = MBConv(block, name=f"blocks_{index:02d}")(x)
-        x = ConvBN(HEAD_WIDTH, 1, 1, name="head")(x)
+            x = MBConv(block, self.calibrate, name=f"blocks_{index:02d}")(x)
+        x = ConvBN(HEAD_WIDTH, 1, 1, self.calibrate, name="head")(x)
         pooled = x.mean(axis=(1, 2))
         # The classifier is always created, so one variables tree serves `features` and `logits`.
         logits = nn.Dense(NUM_CLASSES, name="classifier")(pooled)
@@ -265,6 +270,19 @@ def features(params: dict, pixels: jax.Array, variant: str = "lite0") -> jax.Arr
 def logits(params: dict, pixels: jax.Array, variant: str = "lite0") -> jax.Array:
     """ImageNet-1k logits `(B, 1000)` of pixels `(B, H, W, 3)`."""
     return module(variant).apply(params, pixels, classify=True)
+
+
+def calibrate_batch_stats(variables: dict, pixels, variant: str = "lite0") -> dict:
+    """`variables` with every batch-norm statistic set to the mean and variance its layer sees on
+    `pixels (B, H, W, 3)`, layer after layer (each normalised by its own new statistics).
+
+    A randomly initialised trunk with mean-0 / variance-1 statistics blows its activations up
+    block after block until every ReLU6 saturates and the pooled features are constant; this
+    data-dependent initialisation keeps them normalised, as training-mode batch norm would.
+    """
+    _, updated = EfficientNetLite(config(variant), calibrate=True).apply(
+        variables, pixels, classify=False, mutable=["batch_stats"])
+    return {**variables, "batch_stats": updated["batch_stats"]}
 
 
 def variable_shapes(variant: str = "lite0", image_size: int | None = None) -> dict:

@@ -19,7 +19,9 @@ import math
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
+from ocplace.models import efficientnet
 from ocplace.models import offline_backbone as ob
 from ocplace.models.adapters import AdapterConfig, apply_adapters, init_adapters
 from ocplace.models.grounding import cosine_logits, grounding_loss
@@ -67,6 +69,20 @@ def init_params(config: ScratchConfig, key) -> dict:
     backbone_key, adapter_key = jax.random.split(key)
     return {"backbone": ob.init_params(config.backbone, backbone_key),
             "adapters": init_adapters(config.adapters, adapter_key)}
+
+
+CALIBRATION_IMAGES = 256
+
+
+def calibrate(config: ScratchConfig, backbone: dict, arrays: dict) -> dict:
+    """Backbone params whose random EfficientNet trunk has its batch-norm statistics measured on the
+    first `CALIBRATION_IMAGES` real visual tokens of the training inputs (`arrays["pixels"]
+    (n, T, S, S, 3)`, `arrays["visual_mask"] (n, T)`); other backbones unchanged."""
+    if config.backbone.is_vit or config.backbone.trunk_init != "random":
+        return backbone
+    pixels = np.asarray(arrays["pixels"])[np.asarray(arrays["visual_mask"], bool)][:CALIBRATION_IMAGES]
+    vision = efficientnet.calibrate_batch_stats(backbone["vision"], pixels, config.backbone.trunk)
+    return {**backbone, "vision": jax.tree_util.tree_map(np.asarray, vision)}
 
 
 def trainable_mask(config: ScratchConfig, params: dict) -> dict:

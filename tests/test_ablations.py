@@ -236,3 +236,45 @@ def test_methods_are_registered():
 
     specs = method_specs()
     assert specs["no_llm"].label == "Ours w/o LLM" and specs["no_pretrain"].label == "Ours w/o CLIP pre-train"
+
+
+def test_no_pretrain_is_ours_architecture_from_random_weights():
+    import dataclasses
+
+    from ocplace.models import offline_backbone as ob
+    from ocplace.models import scratch
+    from ocplace.models.imagenet_weights import load_pretrained
+
+    backbone = scratch.default_config().backbone
+    assert backbone.trunk_init == "random"
+    assert dataclasses.replace(backbone, trunk_init="imagenet") == ob.default_config()
+    smoke = scratch.smoke_config().backbone
+    params = ob.init_params(smoke, jax.random.key(0))
+    imagenet = ob.flatten_params({"vision": load_pretrained(smoke.trunk)})
+    random_trunk = ob.flatten_params({"vision": params["vision"]})
+    assert random_trunk.keys() == imagenet.keys()
+    assert not any(np.array_equal(random_trunk[k], imagenet[k]) for k in random_trunk if k.endswith("kernel"))
+
+
+def test_calibration_keeps_a_random_trunk_alive(smoke_dataset):
+    """A random EfficientNet with identity batch-norm statistics gives near-constant features;
+    statistics measured on training images restore their spread across images."""
+    from ocplace.models import efficientnet
+    from ocplace.models import offline_backbone as ob
+    from ocplace.models import scratch
+    from ocplace.models.backbone import PromptConfig
+    from ocplace.train.scratch import scratch_inputs
+
+    model = scratch.smoke_config()
+    arrays = scratch_inputs(smoke_dataset, "train", model.backbone, PromptConfig(), progress=False).arrays
+    params = scratch.init_params(model, jax.random.key(0))
+    pixels = arrays["pixels"][arrays["visual_mask"].astype(bool)]
+
+    def spread(backbone):
+        features = np.asarray(efficientnet.features(backbone["vision"], pixels, model.backbone.trunk))
+        return float(features.std(axis=0).mean())
+
+    calibrated = scratch.calibrate(model, params["backbone"], arrays)
+    assert spread(params["backbone"]) < 1e-3 < 0.1 < spread(calibrated)
+    assert ob.flatten_params(calibrated["vision"]["params"]).keys() == ob.flatten_params(
+        params["backbone"]["vision"]["params"]).keys()

@@ -77,7 +77,7 @@ class ScratchRecipe:
 
 RECIPES = {
     "smoke": ScratchRecipe(scratch.smoke_config(), ScratchTrainConfig(
-        steps=30, batch_size=4, learning_rate=3e-3, warmup_steps=3, log_every=10, checkpoint_every=10)),
+        steps=150, batch_size=4, learning_rate=1e-3, warmup_steps=3, log_every=10, checkpoint_every=50)),
     "demo": ScratchRecipe(scratch.demo_config(), ScratchTrainConfig(
         steps=150, batch_size=8, warmup_steps=15, log_every=25, checkpoint_every=50)),
     "default": ScratchRecipe(scratch.default_config(), ScratchTrainConfig()),
@@ -194,6 +194,7 @@ def train_on_inputs(arrays: dict, run_dir: Path, recipe_: ScratchRecipe, run_met
     run_dir = Path(run_dir)
     checkpoints.claim_run_dir(run_dir, run_meta, "config.json")
     params = scratch.init_params(model, jax.random.key(config.seed))
+    params["backbone"] = scratch.calibrate(model, params["backbone"], arrays)
     trainable, frozen = ob.split_trainable(scratch.trainable_mask(model, params), params)
     state = (trainable, make_optimizer(config).init(trainable))
     start = 0
