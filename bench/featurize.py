@@ -1,11 +1,13 @@
-"""Image encoding throughput of a ViT-B/32-sized Flax CLIP (random weights, built here, no download).
+"""Image encoding throughput of an image tower against the machine's matmul roofline.
 
-Measures, in the same run: (1) the jitted image tower (`ClipBackbone`'s normalisation + CLIP
-vision model + projection + L2 norm) in images/s at batch 32 on 224 x 224 inputs; (2) host-side
+Towers: `--tower clip`, a ViT-B/32-sized Flax CLIP (random weights, built here, no download), or
+`--tower offline`, the default offline backbone's (EfficientNet-Lite0 with its ImageNet weights,
+128 px, + projection). Measures, in the same run: (1) the jitted image tower (normalisation +
+trunk + projection + L2 norm) in images/s at batch 32 on its input size; (2) host-side
 preprocessing (PIL bicubic resize + centre crop) of 224 x 224 crops and of 640 x 480 frames;
 (3) a dense-matmul roofline: a square `jnp.dot` of about the same FLOPs as one batch, whose
 achieved FLOP/s is the machine's practical peak. FLOPs of the model come from XLA's cost analysis.
-Usage: `python bench/featurize.py [--batch 32] [--repeats 3]`.
+Usage: `python bench/featurize.py [--tower clip|offline] [--batch 32] [--repeats 3]`.
 """
 
 from __future__ import annotations
@@ -42,19 +44,37 @@ def best_seconds(fn, repeats: int) -> float:
     return min(times)
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--batch", type=int, default=32)
-    parser.add_argument("--repeats", type=int, default=3)
-    args = parser.parse_args()
-
+def clip_tower():
     from transformers import CLIPConfig, FlaxCLIPModel
 
     model = FlaxCLIPModel(CLIPConfig(**VIT_B32), _do_init=False)
     params = jax.device_put(random_clip_params(model.params_shape_tree, seed=0))
     encode = jax.jit(lambda p, x: l2_normalize(model.get_image_features(normalize_pixels(x, PREP), params=p)))
+    return encode, params, PREP, "ViT-B/32"
+
+
+def offline_tower():
+    import functools
+
+    from ocplace.models import offline_backbone as ob
+
+    config = ob.default_config()
+    params = jax.device_put(ob.init_params(config, jax.random.key(0)))
+    encode = jax.jit(functools.partial(ob.image_embeddings, config))
+    return encode, params, config.preprocessing, f"offline (EfficientNet-{config.trunk}, {config.image_size} px)"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--batch", type=int, default=32)
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--tower", choices=("clip", "offline"), default="clip")
+    args = parser.parse_args()
+
+    encode, params, prep, name = clip_tower() if args.tower == "clip" else offline_tower()
     rng = np.random.default_rng(0)
-    pixels = jnp.asarray(rng.integers(0, 256, (args.batch, 224, 224, 3), dtype=np.uint8))
+    size = prep.crop[0]
+    pixels = jnp.asarray(rng.integers(0, 256, (args.batch, size, size, 3), dtype=np.uint8))
     print(f"{datetime.datetime.now():%Y-%m-%d %H:%M}, {os.cpu_count()} CPUs, load average "
           f"{' '.join(f'{x:.1f}' for x in os.getloadavg())} (other jobs share this machine)")
 
@@ -74,17 +94,18 @@ def main() -> None:
 
     crops = rng.integers(0, 256, (args.batch, 224, 224, 3), dtype=np.uint8)
     frames = rng.integers(0, 256, (8, 480, 640, 3), dtype=np.uint8)
-    crop_s = best_seconds(lambda: [resize_and_crop(c, PREP) for c in crops], args.repeats) / len(crops)
-    frame_s = best_seconds(lambda: [resize_and_crop(f, PREP) for f in frames], args.repeats) / len(frames)
+    crop_s = best_seconds(lambda: [resize_and_crop(c, prep) for c in crops], args.repeats) / len(crops)
+    frame_s = best_seconds(lambda: [resize_and_crop(f, prep) for f in frames], args.repeats) / len(frames)
 
     model_rate, dot_rate = flops / model_s, dot_flops / dot_s
-    print(f"ViT-B/32 image tower, batch {args.batch}: {args.batch / model_s:6.1f} images/s "
+    print(f"{name} image tower, batch {args.batch}: {args.batch / model_s:6.1f} images/s "
           f"({model_s:.2f} s per batch, compile {compile_s:.1f} s not counted)")
     print(f"  {flops / args.batch / 1e9:.2f} GFLOP per image (XLA cost analysis); {model_rate / 1e9:.1f} GFLOP/s")
     print(f"dense matmul roofline: jnp.dot {n}x{n} @ {n}x{n} ({dot_flops / 1e9:.0f} GFLOP): "
           f"{dot_rate / 1e9:.1f} GFLOP/s")
     print(f"image tower at {100 * model_rate / dot_rate:.0f}% of the matmul roofline")
-    print(f"host preprocessing: {1 / crop_s:7.0f} crops/s (224x224), {1 / frame_s:6.0f} frames/s (640x480)")
+    print(f"host preprocessing to {size} px: {1 / crop_s:7.0f} crops/s (224x224), "
+          f"{1 / frame_s:6.0f} frames/s (640x480)")
 
 
 if __name__ == "__main__":
