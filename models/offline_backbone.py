@@ -72,6 +72,9 @@ class OfflineConfig:
     image_size: int = 128
     patch_size: int = 16
     width: int = 256  # the ViT's width; an EfficientNet-Lite trunk gives 1280 features
+    layers: int = 6
+    heads: int = 4
+    mlp_dim: int = 1024
     embed_dim: int = 256  # D, the shared embedding width
     text_dim: int = MINILM_DIM  # width of the frozen text tower's sentence embedding
     text_max_length: int = 32  # MiniLM tokens per text; longer texts are truncated
@@ -112,7 +115,6 @@ class OfflineConfig:
 
     @classmethod
     def from_dict(cls, fields: dict) -> OfflineConfig:
-        """Fields missing from older saved configs (a ViT trunk) take their defaults."""
         return cls(**fields)
 
 

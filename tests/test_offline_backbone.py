@@ -315,3 +315,18 @@ def test_backbone_path_command_prints_the_recipe_directory(tmp_path, monkeypatch
     assert args.func(args) == 0
     printed = capsys.readouterr().out.strip()
     assert printed == str(recipe_dir("demo")) and printed.startswith(str(tmp_path / "backbones" / "offline-"))
+
+
+def test_a_vit_trunk_still_builds_encodes_and_round_trips(tmp_path):
+    """The first offline backbone's ViT trunk (`vit_config`) still builds, encodes, saves and loads."""
+    vit = dataclasses.replace(ob.vit_config(), image_size=32, patch_size=8, width=32, layers=1, heads=2, mlp_dim=64,
+                              embed_dim=16)
+    params = init_params(vit, jax.random.key(0))
+    assert params["visual_projection"].shape == (32, 16)
+    assert all(jax.tree_util.tree_leaves(ob.trainable_mask(vit, params)))
+    backbone = OfflineBackbone(vit, params)
+    features = backbone.encode_images(np.random.default_rng(0).integers(0, 256, (3, 40, 50, 3), dtype=np.uint8))
+    assert features.shape == (3, 16) and np.allclose(np.linalg.norm(features, axis=1), 1.0, atol=1e-5)
+    loaded = load_saved_backbone(backbone.save(tmp_path / "vit"))
+    assert loaded.config == vit and np.array_equal(loaded.encode_images(np.zeros((1, 32, 32, 3), np.uint8)),
+                                                   backbone.encode_images(np.zeros((1, 32, 32, 3), np.uint8)))
