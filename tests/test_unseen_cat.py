@@ -124,3 +124,15 @@ def test_robosuite_download_failure_says_what_to_do(tmp_path, monkeypatch):
     monkeypatch.setattr(robosuite_assets.subprocess, "run", offline)
     with pytest.raises(MissingAssetPackage, match="pip download --no-deps robosuite==1.5.2"):
         robosuite_assets.robosuite_root()
+
+
+def test_a_wheel_member_outside_its_folder_is_refused_and_nothing_escapes(tmp_path, monkeypatch):
+    monkeypatch.setenv("OCPLACE_CACHE", str(tmp_path / "cache"))
+    (tmp_path / "cache" / "sources").mkdir(parents=True)
+    wheel = tmp_path / "cache" / "sources" / robosuite_assets.WHEEL_NAME
+    _fake_wheel(wheel)
+    with zipfile.ZipFile(wheel, "a") as archive:
+        archive.writestr("robosuite/models/assets/objects/../../../../../../../escaped.txt", "x")
+    with pytest.raises(MissingAssetPackage, match="outside its folder"):
+        robosuite_assets.robosuite_root()
+    assert not list(tmp_path.rglob("escaped.txt"))

