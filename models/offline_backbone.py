@@ -57,6 +57,9 @@ CLIP_STD = (0.26862954, 0.26130258, 0.27577711)
 BICUBIC = 3  # PIL.Image.BICUBIC
 
 
+VIT_DEPTH_FIELDS = ("layers", "heads", "mlp_dim")
+
+
 @dataclasses.dataclass(frozen=True)
 class OfflineConfig:
     """Architecture of the offline backbone (everything that shapes its parameters).
@@ -111,7 +114,10 @@ class OfflineConfig:
                                 num_attention_heads=self.heads, projection_dim=self.embed_dim)
 
     def to_dict(self) -> dict:
-        return dataclasses.asdict(self)
+        """The fields; an EfficientNet trunk's leaves out the ViT's depth, which does not shape it, so
+        that its recipe key (and the cached backbones named by it) change only with what matters."""
+        fields = dataclasses.asdict(self)
+        return fields if self.is_vit else {k: v for k, v in fields.items() if k not in VIT_DEPTH_FIELDS}
 
     @classmethod
     def from_dict(cls, fields: dict) -> OfflineConfig:

@@ -39,7 +39,7 @@ class ScratchConfig:
         return AdapterConfig(self.backbone.embed_dim, self.reduction, self.residual_ratio)
 
     def to_dict(self) -> dict:
-        return dataclasses.asdict(self)
+        return {**dataclasses.asdict(self), "backbone": self.backbone.to_dict()}
 
     @classmethod
     def from_dict(cls, fields: dict) -> ScratchConfig:

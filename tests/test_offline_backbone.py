@@ -25,7 +25,7 @@ from ocplace.models.offline_backbone import (
     smoke_config as smoke_model,
 )
 from ocplace.train.pretrain.captions import ObjectDescription, build_caption_bank
-from ocplace.train.pretrain.config import PretrainConfig, default_config, smoke_config
+from ocplace.train.pretrain.config import PretrainConfig, default_config, recipe_config, smoke_config
 from ocplace.train.pretrain.loss import contrastive_loss
 from ocplace.train.pretrain.render import training_pool
 
@@ -330,3 +330,13 @@ def test_a_vit_trunk_still_builds_encodes_and_round_trips(tmp_path):
     loaded = load_saved_backbone(backbone.save(tmp_path / "vit"))
     assert loaded.config == vit and np.array_equal(loaded.encode_images(np.zeros((1, 32, 32, 3), np.uint8)),
                                                    backbone.encode_images(np.zeros((1, 32, 32, 3), np.uint8)))
+
+
+def test_the_vit_depth_does_not_change_an_efficientnet_recipe_key():
+    """Only what shapes the trunk keys a recipe: lite0's cached backbones survive ViT-only edits."""
+    recipe = recipe_config("default")
+    deeper = dataclasses.replace(recipe, model=dataclasses.replace(recipe.model, layers=12, heads=8))
+    assert recipe.model.trunk == "lite0" and deeper.key() == recipe.key()
+    assert PretrainConfig.from_dict(deeper.to_dict()) == recipe
+    vit = dataclasses.replace(recipe, model=ob.vit_config())
+    assert dataclasses.replace(vit, model=dataclasses.replace(vit.model, layers=12)).key() != vit.key()

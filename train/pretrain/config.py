@@ -108,7 +108,7 @@ class PretrainConfig:
             raise TrainingError(f"invalid pretraining recipe {self.recipe!r}: " + "; ".join(problems))
 
     def to_dict(self) -> dict:
-        return json.loads(json.dumps(dataclasses.asdict(self)))
+        return json.loads(json.dumps({**dataclasses.asdict(self), "model": self.model.to_dict()}))
 
     @classmethod
     def from_dict(cls, fields: dict) -> PretrainConfig:
@@ -127,9 +127,9 @@ def default_config() -> PretrainConfig:
 
 
 def demo_config() -> PretrainConfig:
-    """A few minutes: fewer scenes and steps, same architecture."""
-    return PretrainConfig("demo", render=RenderConfig(scenes=150),
-                          optim=OptimConfig(steps=150, warmup_steps=15, checkpoint_every=50))
+    """About three minutes on 2 cores: fewer scenes and steps, same architecture."""
+    return PretrainConfig("demo", render=RenderConfig(scenes=120),
+                          optim=OptimConfig(steps=100, warmup_steps=10, checkpoint_every=50))
 
 
 def smoke_config() -> PretrainConfig:
