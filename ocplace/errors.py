@@ -99,3 +99,7 @@ class GroundingUncertain(OcplaceError):
         return (f"cannot ground {self.phrase!r} confidently (best candidates: {best}; threshold "
                 f"{self.threshold:.2f}); the object may not be in the image or not have a box. Rephrase the "
                 "instruction, check the detector's boxes, or lower the threshold (--threshold)")
+
+
+class LLMConfigError(OcplaceError, ValueError):
+    """An LLM parser setting that cannot work (a base URL that is not http(s), a limit <= 0)."""

@@ -283,14 +283,15 @@ def test_llm_parses_and_sends_a_seen_only_few_shot_prompt(llm, server):
 
 def test_llm_cache_answers_without_the_server(llm, server, tmp_path):
     llm.parse(INSTRUCTION)
-    assert (tmp_path / "parser" / f"{cache_key('canned', INSTRUCTION)}.json").exists()
+    key = cache_key(llm.config.base_url, "canned", INSTRUCTION)
+    assert (tmp_path / "parser" / f"{key}.json").exists()
     again = llm.parse(INSTRUCTION)
     assert len(server.requests) == 1
     assert as_pairs(again) == [("red bowl", "left")] and again[0].parser == "llm"
 
 
-def test_llm_retries_malformed_json_and_500s_with_backoff(llm, server):
-    server.script = [("content", "{not json"), ("status", 500)]
+def test_llm_retries_5xx_with_backoff(llm, server):
+    server.script = [("status", 503), ("status", 500)]
     assert as_pairs(llm.parse(INSTRUCTION)) == [("red bowl", "left")]
     assert len(server.requests) == 3
     assert llm.sleeps == [0.01, 0.02]
@@ -339,12 +340,15 @@ def test_llm_unreachable_endpoint_falls_back(llm):
         json.dumps(["red bowl", "left"]),
     ],
 )
-def test_llm_invalid_answers_are_retried_then_fall_back(llm, server, answer):
+@pytest.mark.parametrize("temperature, requests", [(0.0, 1), (0.7, 3)])
+def test_llm_invalid_answers_fall_back_retried_only_above_temperature_0(
+        llm, server, answer, temperature, requests):
+    llm.config = dataclasses.replace(llm.config, temperature=temperature)
     server.default = ("content", answer)
     (item,) = llm.parse(INSTRUCTION)
     assert item.parser == "offline" and item.fallback_reason
     assert as_pairs([item]) == [("red bowl", "left")]
-    assert len(server.requests) == 3
+    assert len(server.requests) == requests
 
 
 def test_llm_off_list_relation_is_snapped(llm, server):

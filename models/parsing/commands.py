@@ -33,18 +33,20 @@ def register(subparsers) -> None:
 
 def _add_parser_options(command: argparse.ArgumentParser) -> None:
     command.add_argument("--parser", choices=PARSER_CHOICES, default="offline")
-    command.add_argument("--base-url", help="LLM endpoint, e.g. http://127.0.0.1:8080/v1")
+    command.add_argument("--base-url", help="LLM endpoint, an http(s) URL such as "
+                                            "http://127.0.0.1:8080/v1")
     command.add_argument("--model", help="LLM model name")
+    command.add_argument("--llm-deadline", type=float, metavar="SECONDS",
+                         help="longest an LLM parse may wait, retries included, before the "
+                              "offline parser answers (default 30)")
 
 
 def _config(args):
     from ocplace.models.parsing import config
 
-    llm = config.LLMConfig()
-    if args.base_url:
-        llm = dataclasses.replace(llm, base_url=args.base_url)
-    if args.model:
-        llm = dataclasses.replace(llm, model=args.model)
+    given = {"base_url": args.base_url, "model": args.model, "deadline_s": args.llm_deadline}
+    # LLMConfig checks the values (an ftp:// URL is an LLMConfigError, exit status 2).
+    llm = config.LLMConfig(**{name: value for name, value in given.items() if value is not None})
     return dataclasses.replace(config.default_config(), parser=args.parser, llm=llm)
 
 

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import dataclasses
+import urllib.parse
 
+from ocplace.errors import LLMConfigError
 from ocplace.models.parsing import text
 
 PARSER_NAMES = ("offline", "offline-snap", "llm")
@@ -28,15 +30,49 @@ class OfflineConfig:
 
 @dataclasses.dataclass(frozen=True)
 class LLMConfig:
-    base_url: str = "http://127.0.0.1:8000/v1"  # any OpenAI-compatible server
+    """The endpoint and its limits; a parse waits at most `deadline_s` (then the offline parser
+    answers), whatever the endpoint does. See docs/reliability.md."""
+
+    base_url: str = "http://127.0.0.1:8000/v1"  # any OpenAI-compatible server; http or https only
     model: str = "gpt-4o-mini"
     api_key_env: str = "OCPLACE_LLM_API_KEY"  # unset: no Authorization header (local servers)
-    timeout_s: float = 20.0
+    timeout_s: float = 20.0  # one request, connect to last body byte (wall clock)
+    deadline_s: float = 30.0  # the whole parse: every attempt and every back-off
+    max_body_bytes: int = 1_000_000  # a chat completion is a few KB; more is refused unread
     max_attempts: int = 3
     backoff_s: float = 0.5  # doubled after each failed attempt
-    temperature: float = 0.0
+    temperature: float = 0.0  # at 0 an invalid answer is final: the same request gets it again
     use_cache: bool = True
     cache_subdir: str = "parser"  # under ocplace.paths.cache_dir()
+
+    def __post_init__(self):
+        check_base_url(self.base_url, self.api_key_env)
+        if min(self.timeout_s, self.deadline_s, self.max_body_bytes, self.max_attempts) <= 0:
+            raise LLMConfigError("the LLM parser's timeout_s, deadline_s, max_body_bytes and "
+                                 "max_attempts must all be positive")
+
+
+def check_base_url(url: str, api_key_env: str) -> None:
+    """Raises LLMConfigError unless `url` is an http(s) URL a request can be sent to.
+
+    Checked before any request: urllib would also open file:// and ftp:// URLs.
+    """
+    example = "give an http:// or https:// URL such as http://127.0.0.1:8080/v1"
+    if "@" in url:  # not echoed: it may hold a password
+        raise LLMConfigError(f"the LLM base URL must not hold credentials (user:password@); "
+                             f"{example} and put the API key in ${api_key_env}")
+    try:
+        parts = urllib.parse.urlsplit(url)
+        parts.port  # reading the port parses it: "host:abc" and "host:99999" raise
+    except ValueError:
+        raise LLMConfigError(f"the LLM base URL {url!r} is malformed; {example}") from None
+    if parts.scheme not in ("http", "https"):
+        raise LLMConfigError(f"the LLM base URL {url!r} does not start with http:// or https://; "
+                             f"{example}")
+    if (not parts.hostname or parts.query or parts.fragment
+            or " " in url or not url.isprintable()):
+        raise LLMConfigError(f"the LLM base URL {url!r} needs a host and no spaces, query or "
+                             f"fragment; {example}")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -52,4 +88,5 @@ def default_config() -> ParsingConfig:
 
 def smoke_config() -> ParsingConfig:
     """Fast retries and short timeouts, for tests against a local server."""
-    return ParsingConfig(llm=LLMConfig(timeout_s=1.0, max_attempts=3, backoff_s=0.01))
+    return ParsingConfig(llm=LLMConfig(timeout_s=1.0, deadline_s=3.0, max_attempts=3,
+                                       backoff_s=0.01))

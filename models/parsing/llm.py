@@ -2,14 +2,19 @@
 
 The prompt's examples come from the seen templates only (as in the paper), so unseen
 instructions stay unseen. Answers are validated: a JSON object with 1-4 tuples, every reference
-made of words that occur in the instruction, every relation canonical or snapped. Transport
-failures and invalid answers are retried with exponential backoff; when attempts run out, the
-offline parser answers instead and each tuple says so (`fallback_reason`), as does the log.
-Valid answers are cached on disk, keyed by (model, prompt version, instruction).
+a phrase of the instruction that names an object (never "it" or "the thing"), every relation
+canonical or snapped. Whatever the endpoint does, a parse ends within `LLMConfig.deadline_s`:
+each request has a wall-clock budget and a body-size cap, and only transport failures (no
+connection, timeouts, HTTP 429 and 5xx) are retried, with exponential back-off or the server's
+Retry-After when it fits. When no valid answer comes, the offline parser answers instead and each
+tuple says why (`fallback_reason`), as does the log; neither ever holds the API key. Valid
+answers are cached on disk, keyed by (base URL, model, prompt version, instruction).
+See docs/reliability.md.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import hashlib
 import http.client
@@ -18,6 +23,7 @@ import logging
 import os
 import re
 import socket
+import threading
 import time
 import urllib.error
 import urllib.request
@@ -26,7 +32,7 @@ from typing import Callable
 
 from ocplace import paths
 from ocplace.errors import ParseError
-from ocplace.models.parsing import text
+from ocplace.models.parsing import lexicon, text
 from ocplace.models.parsing.config import LLMConfig
 from ocplace.models.parsing.snapping import Snapper
 from ocplace.models.parsing.types import ParsedTuple, Parser
@@ -50,16 +56,28 @@ _SYSTEM_PROMPT = (
 )
 
 
+# Words that point at an object without naming it: a reference made of these alone ("it", "the
+# thing", "them") could be the held object or anything else, so the answer is refused.
+_NOT_A_NAME = (
+    lexicon.PRONOUN_REFERENCES | lexicon.HELD_OBJECT_WORDS | lexicon.FUNCTION_WORDS
+    | frozenset("they these those ones things objects items pieces something stuff".split())
+)
+
+
 class _InvalidAnswer(Exception):
     """The endpoint answered, but not with a usable parse."""
 
 
-class _Unretryable(Exception):
-    """The endpoint refused in a way that retrying will not fix (e.g. 401)."""
+class _Transient(Exception):
+    """A failure that may pass on retry: no connection, a timeout, HTTP 429 or 5xx."""
+
+    def __init__(self, reason: str, retry_after: float | None = None):
+        super().__init__(reason)
+        self.retry_after = retry_after
 
 
-class _RetriesExhausted(Exception):
-    """Every attempt failed; the message lists why."""
+class _Failed(Exception):
+    """Retrying cannot help or time is up; the message says why (it becomes `fallback_reason`)."""
 
 
 def prompt_messages(instruction: str) -> list[dict[str, str]]:
@@ -73,8 +91,10 @@ def prompt_messages(instruction: str) -> list[dict[str, str]]:
     return messages
 
 
-def cache_key(model: str, instruction: str) -> str:
-    return hashlib.sha256(json.dumps([model, PROMPT_VERSION, instruction]).encode()).hexdigest()
+def cache_key(base_url: str, model: str, instruction: str) -> str:
+    """Two endpoints may serve different models under one name, so the URL is part of the key."""
+    record = [base_url.rstrip("/"), model, PROMPT_VERSION, instruction]
+    return hashlib.sha256(json.dumps(record).encode()).hexdigest()
 
 
 class LLMParser:
@@ -95,7 +115,8 @@ class LLMParser:
 
     def parse(self, instruction: str) -> list[ParsedTuple]:
         cleaned = text.validate(instruction)
-        cache_file = self.cache_dir / f"{cache_key(self.config.model, cleaned)}.json"
+        key = cache_key(self.config.base_url, self.config.model, cleaned)
+        cache_file = self.cache_dir / f"{key}.json"
         if self.config.use_cache and cache_file.exists():
             try:
                 content = json.loads(cache_file.read_text(encoding="utf-8"))["content"]
@@ -104,31 +125,47 @@ class LLMParser:
                 log.warning("ignoring unreadable parser cache entry %s", cache_file)
         try:
             content, tuples = self._ask_with_retries(cleaned)
-        except (_Unretryable, _RetriesExhausted) as error:
+        except _Failed as error:
             return self._fall_back(cleaned, str(error))
         if self.config.use_cache:
-            record = {"model": self.config.model, "prompt_version": PROMPT_VERSION,
-                      "instruction": cleaned, "content": content}
+            record = {"base_url": self.config.base_url, "model": self.config.model,
+                      "prompt_version": PROMPT_VERSION, "instruction": cleaned, "content": content}
             paths.write_text_atomic(cache_file, json.dumps(record))
         return tuples
 
     def _ask_with_retries(self, instruction: str) -> tuple[str, list[ParsedTuple]]:
-        reasons = []
-        for attempt in range(self.config.max_attempts):
-            if attempt:
-                self._sleep(self.config.backoff_s * 2 ** (attempt - 1))
+        """The first valid answer; _Failed when a failure is final, attempts run out or the
+        deadline would pass before the next attempt starts."""
+        config = self.config
+        deadline = time.monotonic() + config.deadline_s
+        reasons: list[str] = []
+        backoff = config.backoff_s
+        for attempt in range(1, config.max_attempts + 1):
             try:
-                content = self._complete(instruction)
+                content = self._complete(instruction, deadline)
                 return content, self._tuples_from_answer(content, instruction)
-            except (_InvalidAnswer, urllib.error.URLError, TimeoutError, socket.timeout,
-                    ConnectionError, http.client.HTTPException) as error:
-                reasons.append(_describe(error))
-                log.info("LLM parser attempt %d/%d failed: %s", attempt + 1,
-                         self.config.max_attempts, reasons[-1])
-        raise _RetriesExhausted(f"{self.config.max_attempts} attempts failed: {'; '.join(reasons)}")
+            except _InvalidAnswer as error:
+                if config.temperature == 0:
+                    raise _Failed(f"invalid answer, not retried at temperature 0 (the same request "
+                                  f"gets the same answer): {error}") from error
+                reason, wait = f"invalid answer: {error}", backoff
+            except _Transient as error:
+                reason = str(error)
+                wait = backoff if error.retry_after is None else error.retry_after
+            reasons.append(reason)
+            log.info("LLM parser attempt %d/%d failed: %s", attempt, config.max_attempts, reason)
+            if attempt == config.max_attempts:
+                break
+            if time.monotonic() + wait >= deadline:
+                raise _Failed(f"gave up at the {config.deadline_s:g} s deadline: "
+                              f"{'; '.join(reasons)}")
+            self._sleep(wait)
+            backoff *= 2
+        raise _Failed(f"{config.max_attempts} attempts failed: {'; '.join(reasons)}")
 
-    def _complete(self, instruction: str) -> str:
-        """The assistant message's content for `instruction`; raises on any transport failure."""
+    def _complete(self, instruction: str, deadline: float) -> str:
+        """The assistant message's content for `instruction`; raises _Transient or _Failed on a
+        transport failure and _InvalidAnswer on a body that is not a chat completion."""
         body = json.dumps({"model": self.config.model, "temperature": self.config.temperature,
                            "messages": prompt_messages(instruction)}).encode()
         headers = {"Content-Type": "application/json"}
@@ -139,31 +176,47 @@ class LLMParser:
             self.config.base_url.rstrip("/") + "/chat/completions", data=body, headers=headers,
             method="POST",
         )
-        try:
-            with urllib.request.urlopen(request, timeout=self.config.timeout_s) as response:
-                payload = response.read()
-        except urllib.error.HTTPError as error:
-            if error.code in (400, 401, 403, 404):
-                raise _Unretryable(f"endpoint refused the request: HTTP {error.code}") from error
-            raise
+        payload = self._post(request, deadline)
+        if key:  # a server that echoes the request must not put the key into reasons or logs
+            payload = payload.replace(key.encode(), b"<api key>")
         try:
             return json.loads(payload)["choices"][0]["message"]["content"]
         except (ValueError, KeyError, IndexError, TypeError) as error:
             raise _InvalidAnswer(f"response is not a chat completion: {payload[:120]!r}") from error
 
+    def _post(self, request: urllib.request.Request, deadline: float) -> bytes:
+        """The response body, within `timeout_s` (and the parse's deadline) and the size cap."""
+        budget = min(self.config.timeout_s, deadline - time.monotonic())
+        timed_out = f"timed out after {max(budget, 0):.1f} s"
+        if budget <= 0:
+            raise _Transient(timed_out)
+        with _Watchdog(budget) as watchdog:
+            try:
+                with _opener(watchdog).open(request, timeout=budget) as response:
+                    payload = self._read_capped(response)
+            except urllib.error.HTTPError as error:
+                error.close()
+                raise _http_failure(error) from error
+            except (OSError, http.client.HTTPException) as error:
+                raise _Transient(timed_out if watchdog.fired else _describe(error)) from error
+            if watchdog.fired:  # the shut socket ended the body early: it is not the whole answer
+                raise _Transient(timed_out)
+        return payload
+
+    def _read_capped(self, response: http.client.HTTPResponse) -> bytes:
+        """The body; _Failed past `max_body_bytes` (unread when Content-Length announces it)."""
+        cap = self.config.max_body_bytes
+        if (response.length or 0) > cap or len(payload := response.read(cap + 1)) > cap:
+            raise _Failed(f"the response is larger than the {cap:,}-byte cap (max_body_bytes); "
+                          "is the base URL a chat-completions endpoint?")
+        return payload
+
     def _tuples_from_answer(self, content: object, instruction: str) -> list[ParsedTuple]:
         items = _answer_items(content)
         if not items:
             raise ParseError(f"the LLM found no placement in {instruction[:80]!r}")
-        written = _instruction_words(instruction)
-        tuples = []
-        for reference_text, relation_text in items:
-            reference = text.normalise_reference(text_words(reference_text))
-            if not reference or (reference != language.TABLE_NAME
-                                 and not set(reference.split()) <= written):
-                raise _InvalidAnswer(f"reference {reference_text!r} is not in the instruction")
-            tuples.append(self._tuple(reference, relation_text.strip().lower()))
-        return tuples
+        return [self._tuple(_checked_reference(reference, instruction), relation.strip().lower())
+                for reference, relation in items]
 
     def _tuple(self, reference: str, relation_text: str) -> ParsedTuple:
         if relation_text in relations.RELATION_NAMES:
@@ -184,13 +237,118 @@ class LLMParser:
                 for t in self.offline.parse(instruction)]
 
 
+class _Watchdog:
+    """Shuts a request's socket down when its budget is spent, so that no read outlives it.
+
+    A socket timeout bounds each read, not the request: a server that sends a byte every
+    second would hold the parse for ever.
+    """
+
+    def __init__(self, seconds: float):
+        self.fired = False
+        self._sockets: list[socket.socket] = []
+        self._lock = threading.Lock()
+        self._timer = threading.Timer(seconds, self._fire)
+        self._timer.daemon = True
+
+    def __enter__(self) -> _Watchdog:
+        self._timer.start()
+        return self
+
+    def __exit__(self, *exc_info) -> None:
+        self._timer.cancel()
+
+    def watch(self, sock: socket.socket) -> None:
+        with self._lock:
+            self._sockets.append(sock)
+            if self.fired:
+                _shut(sock)
+
+    def _fire(self) -> None:
+        with self._lock:
+            self.fired = True
+            for sock in self._sockets:
+                _shut(sock)
+
+
+def _shut(sock: socket.socket) -> None:
+    with contextlib.suppress(OSError):  # already closed: the request ended on its own
+        sock.shutdown(socket.SHUT_RDWR)
+
+
+class _WatchedConnection:
+    """Hands its socket to the watchdog once connected."""
+
+    def __init__(self, *args, watchdog: _Watchdog, **kwargs):
+        super().__init__(*args, **kwargs)
+        self._watchdog = watchdog
+
+    def connect(self) -> None:
+        super().connect()
+        self._watchdog.watch(self.sock)
+
+
+class _HTTPConnection(_WatchedConnection, http.client.HTTPConnection):
+    pass
+
+
+class _HTTPSConnection(_WatchedConnection, http.client.HTTPSConnection):
+    pass
+
+
+class _WatchedHandler(urllib.request.HTTPHandler, urllib.request.HTTPSHandler):
+    """urllib's http and https handlers, opening watched connections."""
+
+    def __init__(self, watchdog: _Watchdog):
+        super().__init__()
+        self._watchdog = watchdog
+
+    def http_open(self, request):
+        return self.do_open(_HTTPConnection, request, watchdog=self._watchdog)
+
+    def https_open(self, request):
+        return self.do_open(_HTTPSConnection, request, watchdog=self._watchdog)
+
+
+class _NoRedirects(urllib.request.HTTPRedirectHandler):
+    """Following a redirect would resend the API key to wherever it points."""
+
+    def redirect_request(self, *args, **kwargs):
+        return None
+
+
+def _opener(watchdog: _Watchdog) -> urllib.request.OpenerDirector:
+    return urllib.request.build_opener(_WatchedHandler(watchdog), _NoRedirects())
+
+
+def _http_failure(error: urllib.error.HTTPError) -> Exception:
+    """_Transient for 429 and 5xx (with Retry-After for 429 and 503), else _Failed."""
+    if error.code == 429 or error.code >= 500:
+        retry_after = _retry_after(error.headers) if error.code in (429, 503) else None
+        note = "" if retry_after is None else f" (Retry-After {retry_after:g} s)"
+        return _Transient(f"HTTP {error.code}{note}", retry_after)
+    if 300 <= error.code < 400:
+        return _Failed(f"the endpoint redirected the request (HTTP {error.code}); redirects are "
+                       "not followed: give the final URL as the base URL")
+    return _Failed(f"endpoint refused the request: HTTP {error.code}")
+
+
+def _retry_after(headers) -> float | None:
+    """Retry-After in seconds; an HTTP date is ignored (the back-off applies instead)."""
+    value = (headers.get("Retry-After") or "").strip()
+    return float(value) if value.isdigit() else None
+
+
 def _describe(error: Exception) -> str:
-    if isinstance(error, urllib.error.HTTPError):
-        return f"HTTP {error.code}"
-    if isinstance(error, urllib.error.URLError):
-        return f"connection failed ({error.reason})"
-    if isinstance(error, (TimeoutError, socket.timeout)):
+    """A reason that quotes nothing the server sent: http.client's errors can (a bad status
+    line that echoes the request would carry the API key)."""
+    cause = getattr(error, "reason", error)  # URLError wraps the socket's error
+    if isinstance(cause, TimeoutError):
         return "timed out"
+    if isinstance(error, urllib.error.URLError):
+        return f"connection failed ({cause})"
+    if isinstance(error, http.client.HTTPException):
+        return f"malformed response ({type(error).__name__})"
     return str(error) or type(error).__name__
 
 
@@ -198,9 +356,27 @@ def text_words(phrase: str) -> list[str]:
     return [token.text for token in text.tokenize(phrase) if token.is_word]
 
 
-def _instruction_words(instruction: str) -> set[str]:
-    words = set(text_words(instruction))
-    return words | {w[:-2] for w in words if w.endswith("'s")}
+def _checked_reference(answer: str, instruction: str) -> str:
+    """The answer's reference, normalised; _InvalidAnswer unless it is the table or a phrase of
+    the instruction that names an object."""
+    reference = text.normalise_reference(text_words(answer))
+    if reference == language.TABLE_NAME:
+        return reference
+    words = reference.split()
+    if not words or set(words) <= _NOT_A_NAME:
+        raise _InvalidAnswer(f"reference {answer!r} does not name an object")
+    if not _is_phrase_of(words, [w for w in text_words(instruction) if w not in text.ARTICLES]):
+        raise _InvalidAnswer(f"reference {answer!r} is not a phrase of the instruction")
+    return reference
+
+
+def _is_phrase_of(words: list[str], written: list[str]) -> bool:
+    """Whether `words` occur in `written` in a row ("duck" matches "duck's")."""
+    def same(word: str, seen: str) -> bool:
+        return word == seen or (seen.endswith("'s") and word == seen[:-2])
+
+    return any(all(same(w, seen) for w, seen in zip(words, written[start:]))
+               for start in range(len(written) - len(words) + 1))
 
 
 _FENCE = re.compile(r"^```(?:json)?\s*|\s*```$")

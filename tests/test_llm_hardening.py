@@ -1,0 +1,288 @@
+"""The LLM parser against endpoints that misbehave: real `http.server`s on 127.0.0.1 that drip,
+flood, throttle, redirect and echo the request back. Every fault ends in an answer or an
+offline fallback within the configured deadline; none leaks the API key."""
+
+import dataclasses
+import http.server
+import json
+import logging
+import threading
+import time
+
+import pytest
+
+from ocplace.cli import main
+from ocplace.errors import LLMConfigError
+from ocplace.models.parsing import LLMConfig, OfflineConfig, SnapConfig, as_pairs, make_snapper
+from ocplace.models.parsing.llm import LLMParser
+from ocplace.models.parsing.offline import OfflineParser
+
+SECRET = "sk-test-0123456789-do-not-leak"
+INSTRUCTION = "could you put it on the left of the red bowl"
+GOOD_ANSWER = json.dumps({"tuples": [{"reference": "red bowl", "relation": "left"}]})
+DEADLINE_S = 2.0
+DRIP_S = 0.2  # one byte per DRIP_S: every read succeeds, so only a total deadline stops it
+
+
+def _completion(content: str) -> bytes:
+    return json.dumps({"choices": [{"message": {"role": "assistant", "content": content}}]}).encode()
+
+
+def _send(handler, status, body: bytes, headers=(), announce_length=True, message=None):
+    handler.send_response(status, message)
+    for name, value in headers:
+        handler.send_header(name, value)
+    if announce_length:
+        handler.send_header("Content-Length", str(len(body)))
+    handler.end_headers()
+    handler.wfile.write(body)
+
+
+def _drip(handler, start: bytes):
+    handler.wfile.write(start)
+    while not handler.server.stop.wait(DRIP_S):
+        handler.wfile.write(b"x")
+
+
+def _echo(handler) -> str:
+    """The request's headers, the key first so that no truncation can hide a leak."""
+    return f"Authorization: {handler.headers['Authorization']}; {dict(handler.headers)}"
+
+
+ONE_MB = 1_000_000  # LLMConfig's default body cap
+FAULTS = {
+    "answer": lambda h: _send(h, 200, _completion(h.server.options.get("answer", GOOD_ANSWER))),
+    "drip body": lambda h: _drip(h, b"HTTP/1.0 200 OK\r\nContent-Length: 100000\r\n\r\n{"),
+    "drip headers": lambda h: _drip(h, b"HTTP/1.0 200 OK\r\nX-Slow: "),
+    "oversized": lambda h: _send(h, 200, _completion("x" * ONE_MB)),
+    "oversized, no length": lambda h: _send(h, 200, _completion("x" * ONE_MB),
+                                            announce_length=False),
+    "busy": lambda h: _send(h, h.server.options["status"], b"busy",
+                            [("Retry-After", h.server.options["retry_after"])]),
+    "redirect": lambda h: _send(h, 302, b"", [("Location", h.server.options["location"])]),
+    "echo in error": lambda h: _send(h, 500, _echo(h).encode(), message=h.headers["Authorization"]),
+    "echo as body": lambda h: _send(h, 200, _echo(h).encode()),
+    "echo as answer": lambda h: _send(h, 200, _completion(_echo(h))),
+    "echo as status line": lambda h: h.wfile.write(f"HTTP/1.1 {_echo(h)}\r\n\r\n".encode()),
+}
+
+
+class _FaultHandler(http.server.BaseHTTPRequestHandler):
+    """Answers each POST with the next fault of `server.script`, then with `server.fault`."""
+
+    def do_POST(self):
+        self.rfile.read(int(self.headers["Content-Length"]))
+        self.server.requests.append(dict(self.headers))
+        fault = self.server.script.pop(0) if self.server.script else self.server.fault
+        try:
+            FAULTS[fault](self)
+        except OSError:  # the client hung up on a drip or a flood: the point of the test
+            pass
+
+    def log_message(self, *args):
+        pass
+
+
+@pytest.fixture
+def serve():
+    """`serve(fault, script=(), **options)` starts a fault server; all stop after the test."""
+    servers = []
+
+    def start(fault="answer", script=(), **options):
+        httpd = http.server.ThreadingHTTPServer(("127.0.0.1", 0), _FaultHandler)
+        httpd.daemon_threads = True
+        httpd.fault, httpd.script, httpd.options = fault, list(script), options
+        httpd.requests, httpd.stop = [], threading.Event()
+        threading.Thread(target=httpd.serve_forever, args=(0.05,), daemon=True).start()
+        servers.append(httpd)
+        return httpd
+
+    yield start
+    for httpd in servers:
+        httpd.stop.set()
+        httpd.shutdown()
+        httpd.server_close()
+
+
+@pytest.fixture(autouse=True)
+def environment(tmp_path, monkeypatch):
+    monkeypatch.setenv("OCPLACE_CACHE", str(tmp_path))
+    monkeypatch.setenv("OCPLACE_LLM_API_KEY", SECRET)
+
+
+@pytest.fixture(scope="module")
+def offline():
+    # The fallback instructions here never need the sentence encoder, so it never loads.
+    return OfflineParser(OfflineConfig(), lambda: make_snapper(SnapConfig()))
+
+
+def url(server) -> str:
+    return f"http://127.0.0.1:{server.server_port}/v1"
+
+
+@pytest.fixture
+def llm(offline):
+    """`llm(server, sleep=..., **config)`: an LLM parser for `server`, small limits by default."""
+
+    def build(server, sleep=time.sleep, **changes):
+        config = LLMConfig(base_url=url(server), model="canned", timeout_s=1.0,
+                           deadline_s=DEADLINE_S, backoff_s=0.01)
+        return LLMParser(dataclasses.replace(config, **changes), offline,
+                         lambda: offline.snapper, sleep=sleep)
+
+    return build
+
+
+# --- the deadline and the body cap ----------------------------------------------------------
+
+
+@pytest.mark.parametrize("fault", ["drip body", "drip headers"])
+@pytest.mark.parametrize("timeout_s, max_attempts", [(10.0, 3), (0.5, 10)])
+def test_a_dripping_endpoint_falls_back_within_the_deadline(serve, llm, fault, timeout_s,
+                                                            max_attempts):
+    server = serve(fault)
+    parser = llm(server, timeout_s=timeout_s, max_attempts=max_attempts, backoff_s=0.05)
+    start = time.monotonic()
+    (item,) = parser.parse(INSTRUCTION)
+    elapsed = time.monotonic() - start
+    assert item.parser == "offline" and as_pairs([item]) == [("red bowl", "left")]
+    assert "2 s deadline" in item.fallback_reason and "timed out" in item.fallback_reason
+    assert elapsed < 3 * DEADLINE_S, f"a parse with a {DEADLINE_S} s deadline took {elapsed:.1f} s"
+
+
+def test_the_parse_command_ends_at_its_deadline(serve, capsys):
+    command = ["parse", "--parser", "llm", "--base-url", url(serve("drip body")), "--json"]
+    start = time.monotonic()
+    assert main([*command, "--llm-deadline", "1", INSTRUCTION]) == 0
+    assert time.monotonic() - start < 3.0
+    (item,) = json.loads(capsys.readouterr().out)
+    assert item["parser"] == "offline" and "1 s deadline" in item["fallback_reason"]
+    assert main([*command, "--llm-deadline", "0", INSTRUCTION]) == 2
+    assert "must all be positive" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("fault", ["oversized", "oversized, no length"])
+def test_a_body_over_the_cap_is_refused_and_not_retried(serve, llm, fault):
+    server = serve(fault)
+    parser = llm(server)
+    assert parser.config.max_body_bytes == ONE_MB == LLMConfig().max_body_bytes
+    (item,) = parser.parse(INSTRUCTION)
+    assert item.parser == "offline" and "1,000,000-byte cap" in item.fallback_reason
+    assert len(server.requests) == 1
+
+
+# --- what is retried ---------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("status", [429, 503])
+def test_retry_after_is_honoured_when_it_fits_the_deadline(serve, llm, status):
+    server = serve("answer", script=["busy"], status=status, retry_after="1")
+    sleeps = []
+    (item,) = llm(server, sleep=sleeps.append).parse(INSTRUCTION)
+    assert item.parser == "llm" and sleeps == [1.0] and len(server.requests) == 2
+
+
+def test_retry_after_past_the_deadline_falls_back_at_once(serve, llm):
+    server = serve("busy", status=429, retry_after="120")
+    sleeps = []
+    (item,) = llm(server, sleep=sleeps.append).parse(INSTRUCTION)
+    assert item.parser == "offline" and sleeps == [] and len(server.requests) == 1
+    assert "HTTP 429 (Retry-After 120 s)" in item.fallback_reason
+    assert "2 s deadline" in item.fallback_reason
+
+
+def test_a_redirect_is_not_followed(serve, llm):
+    elsewhere = serve("answer")
+    server = serve("redirect", location=url(elsewhere) + "/chat/completions")
+    (item,) = llm(server).parse(INSTRUCTION)
+    assert item.parser == "offline" and "redirect" in item.fallback_reason
+    assert len(server.requests) == 1 and elsewhere.requests == [], "the key went elsewhere"
+
+
+# --- the API key never leaves -----------------------------------------------------------------
+
+
+@pytest.mark.parametrize("fault", ["echo in error", "echo as body", "echo as answer",
+                                   "echo as status line"])
+def test_an_echoing_endpoint_never_puts_the_api_key_in_reasons_or_logs(serve, llm, caplog,
+                                                                       fault):
+    server = serve(fault)
+    with caplog.at_level(logging.DEBUG):
+        (item,) = llm(server).parse(INSTRUCTION)
+    assert server.requests[0]["Authorization"] == f"Bearer {SECRET}"
+    assert item.parser == "offline" and item.fallback_reason
+    assert SECRET not in item.fallback_reason
+    assert "fell back" in caplog.text and SECRET not in caplog.text
+
+
+# --- answers ----------------------------------------------------------------------------------
+
+
+def test_the_cache_key_includes_the_base_url(serve, llm):
+    left = serve("answer")
+    right = serve("answer", answer=json.dumps({"tuples": [{"reference": "red bowl",
+                                                           "relation": "right"}]}))
+    assert as_pairs(llm(left).parse(INSTRUCTION)) == [("red bowl", "left")]
+    assert as_pairs(llm(right).parse(INSTRUCTION)) == [("red bowl", "right")]
+    assert as_pairs(llm(left).parse(INSTRUCTION)) == [("red bowl", "left")]
+    assert (len(left.requests), len(right.requests)) == (1, 1), "the second left parse is cached"
+
+
+@pytest.mark.parametrize(
+    "instruction, reference",
+    [
+        ("could you put it on the left of the red bowl", "it"),
+        ("put the thing on the left of the red bowl", "the thing"),
+        ("put the object on the left of the red bowl", "the object"),
+        ("put them on the left of the red bowl", "them"),
+        ("put this on the left of the red bowl", "this"),
+        ("put this one on the left of the red bowl", "one"),
+    ],
+)
+def test_a_pronoun_is_not_a_reference(serve, llm, instruction, reference):
+    answer = json.dumps({"tuples": [{"reference": reference, "relation": "left"}]})
+    server = serve("answer", answer=answer)
+    (item,) = llm(server).parse(instruction)
+    assert item.parser == "offline" and as_pairs([item]) == [("red bowl", "left")]
+    assert "does not name an object" in item.fallback_reason
+    assert len(server.requests) == 1, "an invalid answer at temperature 0 is not retried"
+
+
+@pytest.mark.parametrize(
+    "instruction, reference, accepted",
+    [
+        ("put it left of the red bowl and right of the blue cup", "red cup", False),
+        ("put it left of the red bowl and right of the blue cup", "the blue cup", True),
+        ("put it on the duck's left", "duck", True),
+    ],
+)
+def test_a_reference_is_a_phrase_of_the_instruction(serve, llm, instruction, reference, accepted):
+    answer = json.dumps({"tuples": [{"reference": reference, "relation": "left"}]})
+    tuples = llm(serve("answer", answer=answer)).parse(instruction)
+    assert (tuples[0].parser == "llm") == accepted
+
+
+# --- base URLs ----------------------------------------------------------------------------------
+
+
+def _bad_urls(port: int) -> list[str]:
+    return [f"localhost:{port}/v1", f"ftp://127.0.0.1:{port}/v1", "file:///etc/passwd", "http://",
+            f"http://127.0.0.1:{port}/v1?x=1", f"http://user:pw@127.0.0.1:{port}/v1",
+            f"http://127.0.0.1:{port}:x/v1"]
+
+
+def test_only_http_urls_are_accepted_and_nothing_is_sent(serve, capsys):
+    server = serve("answer")
+    for bad in _bad_urls(server.server_port):
+        with pytest.raises(LLMConfigError, match="http://127.0.0.1:8080/v1"):
+            LLMConfig(base_url=bad)
+        argv = ["parse", "--parser", "llm", "--base-url", bad, "put it behind the mug"]
+        assert main(argv) == 2
+        assert capsys.readouterr().err.startswith("ocplace parse: error: the LLM base URL")
+    assert server.requests == []
+
+
+def test_a_url_with_credentials_is_refused_without_echoing_them():
+    with pytest.raises(LLMConfigError) as raised:
+        LLMConfig(base_url="http://user:hunter2@127.0.0.1:8080/v1")
+    assert "hunter2" not in str(raised.value) and "OCPLACE_LLM_API_KEY" in str(raised.value)
