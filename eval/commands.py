@@ -52,7 +52,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     reproduce.add_argument("--scale", choices=("smoke", "demo", "default"), default="demo")
     reproduce.add_argument("--out", type=Path, help="output folder (default: out/demo, out/reproduce, out/smoke)")
     reproduce.add_argument("--backbone", help="use this backbone spec instead of pretraining the offline one")
-    reproduce.add_argument("--methods", default="all", help="comma-separated method names, or `all`")
+    reproduce.add_argument("--methods", help="comma-separated method names, or `all` (default: the scale's: "
+                                              "every method; at the demo scale Ours and its ablations)")
     reproduce.add_argument("--workers", type=int, help="dataset generation processes (default: all CPUs)")
     reproduce.add_argument("--dataset", type=Path,
                            help="dataset folder to use, or to generate into (default: OUT/dataset)")
@@ -208,7 +209,9 @@ def _reproduce(args: argparse.Namespace) -> int:
     changes = {"progress": not args.no_progress}
     if args.backbone:
         changes["backbone"] = args.backbone
-    if args.methods != "all":
+    if args.methods == "all":
+        changes["methods"] = None
+    elif args.methods:
         changes["methods"] = tuple(n.strip() for n in args.methods.split(",") if n.strip())
     if args.workers:
         changes["workers"] = args.workers

@@ -153,6 +153,9 @@ def test_scale_configs():
     assert (default.train_scenes, default.test_scenes, default.fractions) == (2000, 400, (0.25, 0.5, 0.75, 1.0))
     assert demo.fractions == (1.0,) and str(demo.default_out) == "out/demo"
     assert str(default.default_out) == "out/reproduce"
+    specs = registry.method_specs()
+    assert [s.name for s in pipeline.selected_specs(demo, specs)] == ["ours", "no_adapter", "no_llm", "no_pretrain"]
+    assert [s.name for s in pipeline.selected_specs(default, specs)] == list(specs)
     runs = pipeline.planned_runs(default, list(eval_methods.SPECS.values()))
     assert [(s.name, f) for s, f in runs] == [("oracle", 1.0), ("centre", 1.0), ("failing", 1.0), ("flaky", 1.0),
                                                ("random", 1.0)]
