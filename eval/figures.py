@@ -79,6 +79,17 @@ def _draw_case(axis, record, outcomes: Sequence[tuple[str, dict]]) -> None:
     axis.set_axis_off()
 
 
+def _listed_scene(dataset_dir: Path, subset: str, scene_id: str) -> Path:
+    """The folder of a scene the results name, found among those the manifest lists, never joined from the name."""
+    from ocplace.sim.dataset.job import scene_dirs
+
+    listed = {directory.name: directory for directory in scene_dirs(dataset_dir, subset)}
+    if scene_id not in listed:
+        raise EvaluationError(f"scene {scene_id!r} of the results is not in the manifest of {dataset_dir}: the "
+                              "results come from another dataset; pass the dataset they were made on")
+    return listed[scene_id]
+
+
 def plot_cases(results: Mapping, path: str | Path, dataset_dir: str | Path | None = None,
                methods: Sequence[str] = CASE_METHODS, cases: Sequence[tuple[str, str]] | None = None) -> Path:
     """Fig. 6: one panel per case, each method's mode (o success, X failure) over the scene with its
@@ -102,7 +113,7 @@ def plot_cases(results: Mapping, path: str | Path, dataset_dir: str | Path | Non
     for axis in axes.flat[len(cases):]:
         axis.set_axis_off()
     for axis, (subset, scene_id) in zip(axes.flat, cases):
-        record = read_scene(dataset_dir / subset / scene_id)
+        record = read_scene(_listed_scene(dataset_dir, subset, scene_id))
         outcomes = [(entries[m]["label"], _outcomes_by_scene(entries[m], subset)[scene_id]) for m in methods]
         _draw_case(axis, record, outcomes)
     figure.tight_layout()

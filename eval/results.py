@@ -74,13 +74,10 @@ def environment() -> dict:
 
 def dataset_identity(dataset_dir: str | Path) -> dict:
     """Where the dataset is and hashes that change whenever any of its files does."""
+    from ocplace.sim.dataset.job import read_manifest
+
     dataset_dir = Path(dataset_dir)
-    path = dataset_dir / "manifest.json"
-    try:
-        manifest = json.loads(path.read_text())
-    except (OSError, ValueError) as error:
-        raise ResultsError(f"{path} is missing or corrupt ({error}); generate or complete the dataset with "
-                           f"`ocplace generate --out {dataset_dir}`") from None
+    manifest = read_manifest(dataset_dir)
     files_digest = hashlib.sha256(json.dumps(manifest["files"], sort_keys=True).encode()).hexdigest()
     return {"dir": str(dataset_dir.resolve()), "dataset_hash": files_digest[:16], "manifest_hash": files_digest,
             "counts": manifest.get("counts"), "config": manifest.get("config")}

@@ -1,11 +1,16 @@
-"""Where ocplace keeps what it builds: the cache root and atomic file writes."""
+"""Where ocplace keeps what it builds: the cache root, atomic file writes, and names read from files."""
 
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import tempfile
 from pathlib import Path
+
+from ocplace.errors import OutputError
+
+_DISK_FULL = (errno.ENOSPC, errno.EDQUOT)
 
 
 def cache_dir() -> Path:
@@ -14,22 +19,70 @@ def cache_dir() -> Path:
     return Path(root).expanduser()
 
 
+def inside(root: str | os.PathLike, relative: str) -> Path:
+    """`root / relative`, or ValueError unless it names something strictly inside `root`.
+
+    For names read from a file we did not just write (a manifest, a results file): refuses an
+    absolute path, a `..` segment, an empty name, the root itself and a symlink that leads out of
+    `root`, so that no such file can make us read, write or delete elsewhere.
+    """
+    if not isinstance(relative, str) or relative in ("", "."):
+        raise ValueError(f"{relative!r} is not a file name")
+    if Path(relative).is_absolute() or ".." in Path(relative).parts:
+        raise ValueError(f"{relative!r} leads out of {root}")
+    path = Path(root) / relative
+    real_root = os.path.join(os.path.realpath(root), "")  # strings: Path.resolve and .parents are 3x slower
+    if not os.path.realpath(path).startswith(real_root):
+        raise ValueError(f"{relative!r} is {root} itself or a symlink that leads out of it")
+    return path
+
+
 @contextlib.contextmanager
 def atomic_path(target: str | os.PathLike):
     """Yields a temporary path beside `target`; renames it onto `target` only on success.
 
-    A crash or kill leaves at most a stray `*.tmp*` file, never a half-written `target`.
+    A crash or kill leaves at most a stray `*.tmp*` file, never a half-written `target`; a full disk
+    is an OutputError naming `target`.
     """
     target = Path(target)
     target.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
-    os.close(fd)
+    tmp = None
     try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+        os.close(fd)
         yield Path(tmp)
         os.replace(tmp, target)
+    except OSError as error:
+        if error.errno in _DISK_FULL:
+            raise OutputError(f"cannot write {target}: the disk is full ({error.strerror}); free some space "
+                              "there or write the output elsewhere") from error
+        raise
     finally:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
+        if tmp is not None:
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(tmp)
+
+
+def check_writable(target: str | os.PathLike) -> None:
+    """Raises OutputError unless `target` (a file or folder to create or replace) can be written.
+
+    Commands call it before any expensive work, so that a bad `--out` fails at once and not after
+    minutes of computing: every existing ancestor must be a folder and the nearest one writable.
+    """
+    target = Path(target)
+    folder = target if target.is_dir() else target.parent
+    while not folder.exists() and folder != folder.parent:
+        folder = folder.parent
+    if not folder.is_dir():
+        raise OutputError(f"cannot write {target}: {folder} is a file, not a folder; choose an output path "
+                          "in a folder")
+    try:  # os.access says yes to root and knows nothing of read-only mounts: try it
+        fd, probe = tempfile.mkstemp(prefix=".ocplace-write-check.", dir=folder)
+    except OSError as error:
+        raise OutputError(f"cannot write {target}: {folder} is not writable ({error.strerror}); choose an "
+                          "output path in a folder you can write") from None
+    os.close(fd)
+    os.unlink(probe)
 
 
 def write_bytes_atomic(target: str | os.PathLike, data: bytes) -> None:

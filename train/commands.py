@@ -66,10 +66,9 @@ def dataset_hash(dataset_dir: Path, split: str) -> str:
 
 def split_files(dataset_dir: Path, split: str) -> list[tuple[str, str]]:
     """Sorted `(relative path, sha256)` of the split's files, from the dataset manifest."""
-    manifest = Path(dataset_dir) / "manifest.json"
-    if not manifest.exists():
-        raise FeaturesError(f"{manifest} not found: {dataset_dir} is not a dataset written by `ocplace generate`")
-    files = json.loads(manifest.read_text()).get("files", {})
+    from ocplace.sim.dataset.job import read_manifest
+
+    files = read_manifest(dataset_dir)["files"]
     chosen = sorted((name, digest) for name, digest in files.items() if name.startswith(f"{split}/"))
     if not chosen:
         raise FeaturesError(f"{dataset_dir} has no scenes in split {split!r}; generate it with "

@@ -30,7 +30,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
     dataset = subparsers.add_parser("dataset", help="check or draw a generated dataset")
     actions = dataset.add_subparsers(dest="action", metavar="ACTION", required=True)
-    verify = actions.add_parser("verify", help="check every file against the manifest's sha256 and the schema")
+    verify = actions.add_parser("verify", help="check every file against the manifest's sha256 and the schema, "
+                                               "and report what the manifest does not list")
     verify.add_argument("dir", type=Path)
     verify.set_defaults(func=_verify)
     show = actions.add_parser("show", help="draw one scene with its instruction, truth and feasible region")
@@ -74,7 +75,7 @@ def _verify(args: argparse.Namespace) -> int:
         print(f"{scene}: {problem}")
     if problems:
         print(f"{len(problems)} problems; rerun `ocplace generate --out {args.dir}` with the same options "
-              "to regenerate exactly those scenes")
+              "to regenerate exactly the damaged scenes, and delete what the manifest does not list")
         return 1
     print(f"{args.dir}: every file matches the manifest")
     return 0
@@ -96,9 +97,11 @@ def _show(args: argparse.Namespace) -> int:
 
 def _check(args: argparse.Namespace) -> int:
     from ocplace.sim.dataset.check import check_oracle
+    from ocplace.sim.dataset.job import read_manifest
     from ocplace.sim.library import load_library
 
-    splits = [s for s in SPLIT_NAMES if (args.dir / s).is_dir()] if args.split == "all" else [args.split]
+    listed = {relative.split("/")[0] for relative in read_manifest(args.dir)["files"]}
+    splits = [s for s in SPLIT_NAMES if s in listed] if args.split == "all" else [args.split]
     report = check_oracle(args.dir, splits, load_library() if args.physical else None, args.physical)
     total = {"scenes": 0, "metric_success": 0, "physical_success": 0}
     for split, row in report.items():

@@ -6,6 +6,9 @@
 
 Each scene is written into a temporary folder and renamed into place, so a killed run leaves no
 half-written scene; a rerun skips finished scenes and makes the rest.
+
+The manifest is what a dataset is: readers take the scenes it lists, never whatever folders exist,
+and every entry is checked to name a scene file inside DIR before anything is read or deleted.
 """
 
 from __future__ import annotations
@@ -23,7 +26,7 @@ from tqdm import tqdm
 
 import ocplace
 from ocplace.errors import DatasetError
-from ocplace.paths import write_text_atomic
+from ocplace.paths import inside, write_text_atomic
 from ocplace.sim.dataset.config import DatasetConfig
 from ocplace.sim.dataset.generate import SceneGenerator, describe, level_schedule, scene_id
 from ocplace.sim.dataset.records import IMAGE_FILES, SCENE_FILE, read_meta
@@ -31,6 +34,7 @@ from ocplace.sim.dataset.records import IMAGE_FILES, SCENE_FILE, read_meta
 CONFIG_FILE = "dataset.json"
 MANIFEST_FILE = "manifest.json"
 TMP_PREFIX = ".tmp-"
+SCENE_FILES = (SCENE_FILE, *IMAGE_FILES)
 
 
 def code_version() -> str:
@@ -72,7 +76,9 @@ def _claim_directory(out: Path, config: DatasetConfig) -> None:
         try:
             existing = json.loads(config_path.read_text())
         except ValueError:
-            raise DatasetError(f"{config_path} is corrupt; delete it to start this dataset afresh") from None
+            existing = None
+        if not isinstance(existing, dict):
+            raise DatasetError(f"{config_path} is corrupt; delete it to start this dataset afresh")
         if existing.get("config") != wanted["config"]:
             raise DatasetError(f"{out} holds another dataset (its {CONFIG_FILE} has a different configuration); "
                                "choose another --out folder or delete that one")
@@ -82,49 +88,115 @@ def _claim_directory(out: Path, config: DatasetConfig) -> None:
         write_text_atomic(config_path, json.dumps(wanted | {"code_version": code_version()}, indent=2))
 
 
-def _remove_leftovers(out: Path) -> None:
-    for tmp in out.glob(f"*/{TMP_PREFIX}*"):
-        shutil.rmtree(tmp, ignore_errors=True)
+def _inside(out: Path, relative: str) -> Path:
+    """A folder of this dataset; DatasetError if a symlink leads it out of `out`."""
+    try:
+        return inside(out, relative)
+    except ValueError as error:
+        raise DatasetError(f"{error}; a dataset keeps all its scenes inside its folder: remove that symlink "
+                           f"(or move its target into {out}) and rerun") from None
+
+
+def _listed_path(out: Path, relative: str) -> Path:
+    """The scene file a manifest entry names; DatasetError unless it is `<split>/<split>-<n>/<file>` in `out`."""
+    parts = relative.split("/") if isinstance(relative, str) else []
+    if len(parts) != 3 or parts[2] not in SCENE_FILES or not parts[1].startswith(f"{parts[0]}-"):
+        problem = f"{relative!r} is not <split>/<scene id>/<scene file>"
+    else:
+        try:
+            return inside(out, relative)
+        except ValueError as error:
+            problem = str(error)
+    raise DatasetError(f"corrupt dataset: an entry of {out / MANIFEST_FILE} is unsafe: {problem}. ocplace never "
+                       f"writes such an entry, so nothing was read or deleted; remove any symlink out of {out}, "
+                       f"delete the manifest and rerun `ocplace generate --out {out}` with the same options")
+
+
+def read_manifest(out: str | Path) -> dict:
+    """The manifest of `out`, with every entry checked before any is used."""
+    out = Path(out)
+    path = out / MANIFEST_FILE
+    if not path.exists():
+        raise DatasetError(f"{out} has no {MANIFEST_FILE}: the dataset is incomplete; rerun `ocplace generate`")
+    try:
+        manifest = json.loads(path.read_text())
+    except ValueError:
+        manifest = None
+    files = manifest.get("files") if isinstance(manifest, dict) else None
+    if not isinstance(files, dict) or not all(isinstance(digest, str) for digest in files.values()):
+        raise DatasetError(f"corrupt dataset: {path} is not a manifest written by `ocplace generate`; delete it and "
+                           f"rerun `ocplace generate --out {out}` with the same options to rewrite it")
+    for relative in files:
+        _listed_path(out, relative)
+    return manifest
+
+
+def _remove_leftovers(out: Path, config: DatasetConfig) -> None:
+    for split in config.splits:
+        for tmp in _inside(out, split.name).glob(f"{TMP_PREFIX}*"):
+            shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _scene_dir(out: Path, split: str, index: int) -> Path:
+    return _inside(out, f"{split}/{scene_id(split, index)}")
 
 
 def _scene_is_complete(scene_dir: Path) -> bool:
-    return all((scene_dir / name).is_file() for name in (SCENE_FILE, *IMAGE_FILES))
+    return all((scene_dir / name).is_file() for name in SCENE_FILES)
+
+
+def _damaged_files(out: Path, manifest: dict) -> list[tuple[str, str]]:
+    """`(manifest entry, problem)` for every listed file that is missing, corrupt or off-schema."""
+    problems = []
+    for relative, digest in manifest["files"].items():
+        path = _listed_path(out, relative)
+        if not path.is_file():
+            problems.append((relative, f"{relative} is missing"))
+        elif _sha256(path) != digest:
+            problems.append((relative, f"{relative} does not match its sha256"))
+        elif path.name == SCENE_FILE:
+            try:
+                read_meta(path.parent)
+            except DatasetError as error:
+                problems.append((relative, str(error)))
+    return problems
+
+
+def _unlisted(out: Path, manifest: dict) -> list[tuple[str, str]]:
+    """`(path, problem)` for every folder or file in `out` that the manifest does not list.
+
+    Hidden names are left out: leftovers of a killed run, which the next run removes. Symlinks are
+    reported, not followed.
+    """
+    files = set(manifest["files"]) | {CONFIG_FILE, MANIFEST_FILE}
+    folders = {parent.as_posix() for relative in files for parent in Path(relative).parents} - {"."}
+    problems = []
+    for top, dirnames, filenames in os.walk(out):
+        base = Path(top).relative_to(out)
+        for name in sorted(dirnames + filenames):
+            relative = (base / name).as_posix()
+            if not name.startswith(".") and relative not in files and relative not in folders:
+                problems.append((relative, f"{relative} is not in the manifest, so nothing reads it; "
+                                           "delete it or move it out of the dataset"))
+        dirnames[:] = sorted(name for name in dirnames if (base / name).as_posix() in folders)
+    return problems
 
 
 def verify_dataset(out: str | Path) -> list[tuple[str, str]]:
     """`(scene id or file, problem)` for every missing, corrupt or unlisted file; empty when sound."""
     out = Path(out)
-    manifest_path = out / MANIFEST_FILE
-    if not manifest_path.exists():
-        raise DatasetError(f"{out} has no {MANIFEST_FILE}: the dataset is incomplete; rerun `ocplace generate`")
-    try:
-        manifest = json.loads(manifest_path.read_text())
-    except ValueError:
-        raise DatasetError(f"{manifest_path} is corrupt; rerun `ocplace generate` to rewrite it") from None
-    problems = []
-    for relative, digest in manifest["files"].items():
-        path = out / relative
-        scene = Path(relative).parent.name
-        if not path.is_file():
-            problems.append((scene, f"{relative} is missing"))
-        elif _sha256(path) != digest:
-            problems.append((scene, f"{relative} does not match its sha256"))
-        elif path.name == SCENE_FILE:
-            try:
-                read_meta(path.parent)
-            except DatasetError as error:
-                problems.append((scene, str(error)))
-    return problems
+    manifest = read_manifest(out)
+    damaged = [(relative.split("/")[1], problem) for relative, problem in _damaged_files(out, manifest)]
+    return damaged + _unlisted(out, manifest)
 
 
-def _drop_corrupt_scenes(out: Path) -> int:
-    """Deletes scenes the manifest says are damaged, so the run regenerates them."""
-    if not (out / MANIFEST_FILE).exists():
+def _drop_damaged_scenes(out: Path, manifest: dict | None) -> int:
+    """Deletes the listed scenes that are damaged, so the run makes them again; never an unlisted file."""
+    if manifest is None:
         return 0
-    bad = {scene for scene, _ in verify_dataset(out)}
-    for scene in bad:
-        split = scene.rsplit("-", 1)[0]
-        shutil.rmtree(out / split / scene, ignore_errors=True)
+    bad = {_listed_path(out, relative).parent for relative, _ in _damaged_files(out, manifest)}
+    for scene_dir in bad:
+        shutil.rmtree(scene_dir, ignore_errors=True)
     return len(bad)
 
 
@@ -156,12 +228,14 @@ def generate_dataset(out: str | Path, config: DatasetConfig, splits: list[str] |
         raise DatasetError(f"--workers must be at least 1, got {workers}")
     out.mkdir(parents=True, exist_ok=True)
     _claim_directory(out, config)
-    _remove_leftovers(out)
-    regenerated = _drop_corrupt_scenes(out)
+    # Read (and so checked) before anything is removed: a crafted manifest must not steer a deletion.
+    manifest = read_manifest(out) if (out / MANIFEST_FILE).exists() else None
+    _remove_leftovers(out, config)
+    regenerated = _drop_damaged_scenes(out, manifest)
     jobs = [(name, index, level)
             for name in splits
             for index, level in enumerate(level_schedule(config.split(name), config.seed))
-            if not _scene_is_complete(out / name / scene_id(name, index))]
+            if not _scene_is_complete(_scene_dir(out, name, index))]
     bar = tqdm(total=len(jobs), desc="scenes", unit="scene", disable=not progress)
     if workers == 1:
         _init_worker(config, cache)
@@ -182,15 +256,19 @@ def generate_dataset(out: str | Path, config: DatasetConfig, splits: list[str] |
 
 
 def write_manifest(out: Path, config: DatasetConfig, regenerated: int = 0) -> dict:
+    """Lists the config's scenes that exist; a folder the config does not name stays unlisted, so unread."""
     files, counts, resamples = {}, {}, {"scenes": 0, "relations": 0}
     for split in config.splits:
-        for scene_dir in sorted((out / split.name).glob(f"{split.name}-*")):
+        for index in range(split.num_scenes):
+            scene_dir = _scene_dir(out, split.name, index)
+            if not scene_dir.exists():
+                continue
             meta = read_meta(scene_dir)
             level_counts = counts.setdefault(split.name, {})
             level_counts[meta["level"]] = level_counts.get(meta["level"], 0) + 1
             for key in resamples:
                 resamples[key] += meta["resamples"][key]
-            for name in (SCENE_FILE, *IMAGE_FILES):
+            for name in SCENE_FILES:
                 files[f"{split.name}/{scene_dir.name}/{name}"] = _sha256(scene_dir / name)
     manifest = {
         "config": describe(config),
@@ -206,13 +284,16 @@ def write_manifest(out: Path, config: DatasetConfig, regenerated: int = 0) -> di
 
 def dataset_hash(out: str | Path) -> str:
     """A short hash of the manifest's file list: changes whenever any scene file changes."""
-    manifest = json.loads((Path(out) / MANIFEST_FILE).read_text())
+    manifest = read_manifest(out)
     digest = hashlib.sha256(json.dumps(manifest["files"], sort_keys=True).encode()).hexdigest()
     return digest[:16]
 
 
 def scene_dirs(out: str | Path, split: str) -> list[Path]:
-    dirs = sorted((Path(out) / split).glob(f"{split}-*"))
+    """The scene folders of `split` that the manifest lists, in id order: what `verify` checked."""
+    out = Path(out)
+    listed = [relative for relative in read_manifest(out)["files"] if relative.startswith(f"{split}/")]
+    dirs = sorted({_listed_path(out, relative).parent for relative in listed})
     if not dirs:
         raise DatasetError(f"{out} has no scenes of split {split!r}; generate them with "
                            f"`ocplace generate --out {out} --split {split}`")

@@ -55,7 +55,7 @@ def example_from_record(record: SceneRecord, crop_size: int = CROP_SIZE) -> Scen
 
 
 def iter_examples(dataset_dir: str | Path, split: str, crop_size: int = CROP_SIZE) -> Iterator[SceneExample]:
-    """Every scene of `split` in id order."""
+    """Every scene of `split` that the manifest lists, in id order."""
     for scene_dir in scene_dirs(dataset_dir, split):
         yield example_from_record(read_scene(scene_dir), crop_size)
 

@@ -105,6 +105,9 @@ def read_meta(scene_dir: Path) -> dict:
     except (OSError, ValueError) as error:
         raise DatasetError(f"{path} is missing or corrupt ({error}); run `ocplace generate` on the "
                            f"dataset again to regenerate that scene") from None
+    if not isinstance(meta, dict):
+        raise DatasetError(f"{path} is corrupt (not a JSON object); run `ocplace generate` on the dataset again "
+                           f"to regenerate that scene")
     missing = [key for key in SCENE_KEYS if key not in meta]
     if missing:
         raise DatasetError(f"{path} lacks {missing}; it was not written by this version of ocplace")

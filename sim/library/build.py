@@ -114,9 +114,10 @@ def _cached(root: Path, job: _Job) -> ObjectResult | None:
     directory = root / job.folder
     try:
         record = json.loads((directory / ASSET_FILE).read_text())
-    except (OSError, ValueError):
+        asset = asset_from_json(record, directory)
+    except (OSError, ValueError, KeyError, TypeError):  # unreadable, or names files outside its folder: not reused
         return None
-    return ObjectResult(job.spec.name, "ok", "", record.get("build_seconds", 0.0), asset_from_json(record, directory))
+    return ObjectResult(job.spec.name, "ok", "", record.get("build_seconds", 0.0), asset)
 
 
 def _pid_alive(pid: int) -> bool:

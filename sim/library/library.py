@@ -10,6 +10,7 @@ from collections.abc import Mapping
 from pathlib import Path
 
 from ocplace.errors import LibraryNotBuilt, UnknownObject
+from ocplace.paths import inside
 from ocplace.sim.splits import LIBRARY_SPLITS
 from ocplace.sim.library.records import (
     ASSET_FILE,
@@ -75,11 +76,11 @@ def _read_manifest(root: Path) -> dict:
 
 
 def _read_asset(root: Path, entry: dict) -> ObjectAsset:
-    directory = root / entry["folder"]
     try:
+        directory = inside(root, entry["folder"])
         return asset_from_json(json.loads((directory / ASSET_FILE).read_text()), directory)
     except (OSError, ValueError, KeyError) as error:
-        raise LibraryNotBuilt(f"object {entry['name']!r} in {directory} is incomplete ({error}); {BUILD_HINT}") from error
+        raise LibraryNotBuilt(f"object {entry['name']!r} in {root} is incomplete ({error}); {BUILD_HINT}") from error
 
 
 def load_library(cache: str | Path | None = None) -> Library:
@@ -94,7 +95,10 @@ def load_library(cache: str | Path | None = None) -> Library:
     }
     textures = {}
     for entry in manifest["textures"]:
-        path = root / entry["file"]
+        try:
+            path = inside(root, entry["file"])
+        except ValueError as error:
+            raise LibraryNotBuilt(f"table texture {entry['name']!r} of {root}: {error}; {BUILD_HINT}") from None
         if not path.is_file():
             raise LibraryNotBuilt(f"table texture {path} is missing; {BUILD_HINT}")
         textures[entry["name"]] = TableTexture(entry["name"], path, entry["split"])

@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
+from ocplace.paths import inside
 from ocplace.sim.library.types import ObjectAsset
 
 LIBRARY_DIRNAME = "library"
@@ -41,8 +42,9 @@ def asset_to_json(asset: ObjectAsset) -> dict:
 
 
 def asset_from_json(record: dict, directory: Path) -> ObjectAsset:
+    """The asset an `asset.json` describes; ValueError if it names a file outside `directory`."""
     def path(value):
-        return None if value is None else directory / value
+        return None if value is None else inside(directory, value)
 
     return ObjectAsset(
         name=record["name"],
@@ -56,7 +58,7 @@ def asset_from_json(record: dict, directory: Path) -> ObjectAsset:
         visual_mesh=path(record["visual_mesh"]),
         texture=path(record["texture"]),
         rgba=tuple(record["rgba"]),
-        hulls=tuple(directory / p for p in record["hulls"]),
+        hulls=tuple(inside(directory, p) for p in record["hulls"]),
         mjcf=path(record["mjcf"]),
         urdf=path(record["urdf"]),
         extents=tuple(record["extents"]),

@@ -1,0 +1,176 @@
+"""Names read from a dataset's files never lead outside it, and readers take only what the manifest lists."""
+
+import json
+import os
+import shutil
+import tempfile
+from pathlib import Path
+
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from ocplace.cli import main
+from ocplace.errors import DatasetError
+from ocplace.paths import inside
+from ocplace.sim.dataset.config import DatasetConfig, SplitConfig, smoke_config
+from ocplace.sim.dataset.generate import describe
+from ocplace.sim.dataset.job import CONFIG_FILE, MANIFEST_FILE, generate_dataset, scene_dirs, verify_dataset
+from ocplace.sim.dataset.loader import iter_examples
+
+CONFIG = DatasetConfig(splits=(SplitConfig("train", (("table", 1), ("1obj", 1)), "seen", "seen", "seen"),))
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory, library):
+    """Two generated scenes: the smallest real dataset."""
+    out = tmp_path_factory.mktemp("tiny") / "ds"
+    generate_dataset(out, CONFIG, progress=False)
+    return out
+
+
+def _sandbox(base: Path, tiny: Path) -> Path:
+    """`base/trav/a/b/ds`, a copy of `tiny`, with canaries beside and above it and symlinks out of it."""
+    ds = base / "trav" / "a" / "b" / "ds"
+    shutil.copytree(tiny, ds)
+    a = base / "trav" / "a"
+    (a / "canary.txt").write_text("keep me")
+    (a / "b" / "scene.json").write_text("keep me too")
+    for folder in (a / "outside", a / "evil-00000"):  # what a symlinked scene or split would reach
+        shutil.copytree(tiny / "train" / "train-00000", folder)
+    (ds / "train" / "train-00009").symlink_to(a / "outside")
+    (ds / "evil").symlink_to(a)
+    return ds
+
+
+def _snapshot(root: Path) -> dict:
+    """Every path under `root` with its size and mtime, symlinks not followed."""
+    found = {}
+    for top, dirnames, filenames in os.walk(root):
+        for name in dirnames + filenames:
+            stat = (Path(top) / name).lstat()
+            found[(Path(top) / name).relative_to(root).as_posix()] = (stat.st_size, stat.st_mtime_ns)
+    return found
+
+
+def _refusal(call) -> str:
+    """The DatasetError message `call` raises, or "" (so that a test can check the files first)."""
+    try:
+        call()
+    except DatasetError as error:
+        return str(error)
+    return ""
+
+
+def _with_entries(ds: Path, tiny: Path, entries) -> None:
+    manifest = json.loads((tiny / MANIFEST_FILE).read_text())
+    manifest["files"] |= {entry: "0" * 64 for entry in entries}
+    (ds / MANIFEST_FILE).write_text(json.dumps(manifest))
+
+
+HOSTILE = ["../scene.json", "../../x", "../../canary.txt", "scene.json", "train/train-00000/../../../canary.txt",
+           "train/train-00009/scene.json", "evil/evil-00000/scene.json", "train/train-00000/../../ds/x"]
+
+
+@pytest.mark.parametrize("entry", [*HOSTILE, "ABSOLUTE"])
+def test_a_hostile_manifest_entry_is_refused_and_nothing_is_touched(tmp_path, tiny, entry, capsys):
+    ds = _sandbox(tmp_path, tiny)
+    entry = str(tmp_path / "trav" / "a" / "canary.txt") if entry == "ABSOLUTE" else entry
+    _with_entries(ds, tiny, [entry])
+    before = _snapshot(tmp_path)
+    refusals = [_refusal(lambda: generate_dataset(ds, CONFIG, progress=False)), _refusal(lambda: verify_dataset(ds)),
+                _refusal(lambda: list(iter_examples(ds, "train")))]
+    code = main(["dataset", "verify", str(ds)])
+    assert _snapshot(tmp_path) == before
+    assert all(refusal.startswith("corrupt dataset") and repr(entry) in refusal for refusal in refusals), refusals
+    assert code == 2 and "ocplace dataset: error: corrupt dataset" in capsys.readouterr().err
+
+
+def test_cli_generate_refuses_a_traversal_manifest_with_exit_2(tmp_path, capsys):
+    """The reported attack: `--out trav/a/b/ds` with `../scene.json` listed; no scene is made."""
+    ds = tmp_path / "trav" / "a" / "b" / "ds"
+    ds.mkdir(parents=True)
+    (tmp_path / "trav" / "a" / "canary.txt").write_text("keep me")
+    (ds / CONFIG_FILE).write_text(json.dumps({"config": describe(smoke_config())}))
+    (ds / MANIFEST_FILE).write_text(json.dumps({"files": {"../scene.json": "0" * 64}}))
+    before = _snapshot(tmp_path)
+    code = main(["generate", "--out", str(ds), "--smoke", "--workers", "1"])
+    assert _snapshot(tmp_path) == before
+    assert code == 2 and "ocplace generate: error: corrupt dataset" in capsys.readouterr().err
+
+
+_SEGMENTS = st.sampled_from(["..", ".", "", "train", "train-00000", "train-00009", "evil", "evil-00000", "ds",
+                             "scene.json", "rgb.png", "canary.txt", "x"])
+_PATHS = st.lists(_SEGMENTS, min_size=1, max_size=6).map("/".join)
+_HOSTILE = st.one_of(
+    st.sampled_from(HOSTILE),
+    _PATHS.map(lambda path: f"../{path}"),  # a `..` segment
+    _PATHS.map(lambda path: f"{path}/../.."),
+    _PATHS.map(lambda path: f"/{path}"),  # absolute
+    st.sampled_from(["train/train-00009", "evil/evil-00000"]).flatmap(  # under a symlink out of the dataset
+        lambda folder: st.sampled_from(["scene.json", "rgb.png", "depth.png"]).map(lambda name: f"{folder}/{name}")),
+)
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(hostile=st.lists(_HOSTILE, min_size=1, max_size=3), noise=st.lists(_PATHS, max_size=3))
+def test_no_hostile_manifest_touches_a_file_outside_the_dataset(tiny, hostile, noise):
+    with tempfile.TemporaryDirectory() as base:
+        base = Path(base)
+        ds = _sandbox(base, tiny)
+        _with_entries(ds, tiny, [*noise, *hostile])
+        before = _snapshot(base)  # the dataset's parent tree and the dataset itself: nothing may change
+        refusals = [_refusal(lambda: generate_dataset(ds, CONFIG, progress=False)),
+                    _refusal(lambda: verify_dataset(ds))]
+        assert _snapshot(base) == before
+        assert all(refusals), refusals
+
+
+def test_inside_refuses_every_way_out(tmp_path):
+    root = tmp_path / "root"
+    (root / "a").mkdir(parents=True)
+    (root / "in").symlink_to(root / "a")
+    (root / "out").symlink_to(tmp_path)
+    (root / "self").symlink_to(root)
+    assert inside(root, "a/b") == root / "a" / "b"
+    assert inside(root, "in/b") == root / "in" / "b"  # a symlink that stays inside is fine
+    for bad in ("", ".", "./", "/etc/passwd", str(root / "a"), "..", "../root/a", "a/../../x", "a/..", "out/x",
+                "self", None):
+        with pytest.raises(ValueError):
+            inside(root, bad)
+
+
+def test_unlisted_scenes_and_files_are_reported_and_never_read(tmp_path, tiny, capsys):
+    ds = tmp_path / "ds"
+    shutil.copytree(tiny, ds)
+    shutil.copytree(ds / "train" / "train-00000", ds / "train" / "train-00099")
+    (ds / "train" / "train-00001" / "notes.txt").write_text("mine")
+    (ds / "seen").mkdir()
+    (ds / "train" / ".tmp-train-00003-1").mkdir()  # a killed run's leftover: removed by the next run
+    problems = dict(verify_dataset(ds))
+    assert set(problems) == {"train/train-00099", "train/train-00001/notes.txt", "seen"}
+    assert all("not in the manifest" in problem for problem in problems.values())
+    assert [d.name for d in scene_dirs(ds, "train")] == ["train-00000", "train-00001"]
+    assert [example.scene_id for example in iter_examples(ds, "train", crop_size=32)] == ["train-00000", "train-00001"]
+    assert main(["dataset", "verify", str(ds)]) == 1
+    assert "train/train-00099 is not in the manifest" in capsys.readouterr().out
+    manifest = generate_dataset(ds, CONFIG, progress=False)  # a resume lists only the config's scenes...
+    assert manifest["files"] == json.loads((tiny / MANIFEST_FILE).read_text())["files"]
+    assert (ds / "train" / "train-00099" / "scene.json").is_file()  # ...and deletes nothing it did not write
+
+
+@pytest.mark.parametrize("text", ["[]", '"a string"', '{"files": ', "{}", '{"files": ["train/train-00000/rgb.png"]}',
+                                  '{"files": {"train/train-00000/rgb.png": 3}}'])
+def test_a_manifest_that_is_not_a_manifest_is_a_corrupt_dataset(tmp_path, tiny, text):
+    from ocplace.eval.results import dataset_identity
+    from ocplace.train.commands import dataset_hash
+
+    ds = tmp_path / "ds"
+    shutil.copytree(tiny, ds)
+    (ds / MANIFEST_FILE).write_text(text)
+    before = _snapshot(tmp_path)
+    for read in (verify_dataset, lambda d: generate_dataset(d, CONFIG, progress=False),
+                 lambda d: list(iter_examples(d, "train")), lambda d: dataset_hash(d, "train"), dataset_identity):
+        with pytest.raises(DatasetError, match=r"corrupt dataset: .* rerun `ocplace generate --out"):
+            read(ds)
+    assert _snapshot(tmp_path) == before
