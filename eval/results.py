@@ -37,6 +37,10 @@ COMPARED_FIELDS = ("level", "success", "sample_success", "mode", "num_samples", 
                    "grounded", "parse_ok", "grounding_ok", "program_ok", "stage", "physical")
 
 
+_SECTIONS = {"dataset": dict, "settings": dict, "evaluations": list}
+_ENTRY_FIELDS = {"key", "method", "label", "fraction", "subsets"}
+
+
 class ResultsError(EvaluationError):
     """A results file that is missing, corrupt, of another schema, or cannot be re-run."""
 
@@ -143,7 +147,19 @@ def read_results(path: str | Path) -> dict:
     if not isinstance(results, dict) or results.get("schema") != SCHEMA:
         raise ResultsError(f"{path} is not an ocplace evaluation ({SCHEMA}); it says "
                            f"{results.get('schema') if isinstance(results, dict) else type(results).__name__}")
+    _check_sections(path, results)
     return results
+
+
+def _check_sections(path: Path, results: dict) -> None:
+    """Refuses a results file cut short or edited by hand, before anything reads or draws from it."""
+    bad = [name for name, kind in _SECTIONS.items() if not isinstance(results.get(name), kind)]
+    entries = results.get("evaluations") if "evaluations" not in bad else []
+    bad += [f"evaluations[{i}]" for i, entry in enumerate(entries)
+            if not isinstance(entry, dict) or not _ENTRY_FIELDS <= entry.keys()]
+    if bad:
+        raise ResultsError(f"{path} is not a complete evaluation: {', '.join(bad[:5])} missing or malformed; "
+                           "write it again with `ocplace evaluate` or `ocplace reproduce`")
 
 
 def evaluations(results: Mapping) -> list[Evaluation]:

@@ -443,7 +443,7 @@ def read_backbone_config(directory: str | Path) -> dict:
 
 def load_saved_backbone(directory: str | Path, max_batch: int = 64) -> OfflineBackbone:
     """An offline backbone from its directory; its fingerprint must match the one saved with it."""
-    from safetensors.numpy import load_file
+    from ocplace.models.weights_file import read_weights
 
     directory = Path(directory).expanduser()
     document = read_backbone_config(directory)
@@ -451,7 +451,11 @@ def load_saved_backbone(directory: str | Path, max_batch: int = 64) -> OfflineBa
         raise BackboneUnavailable(f"{directory} holds no finished offline backbone ({FORMAT}); "
                                   "run (or resume) `ocplace backbone pretrain`")
     config = OfflineConfig.from_dict(document["model"])
-    params = unflatten_params(load_file(str(directory / WEIGHTS_FILE)), config)
+    # the fingerprint is this file's content hash; read_weights adds typed errors and the NaN check
+    arrays, _ = read_weights(directory / WEIGHTS_FILE, f"delete {directory} and rebuild it: re-run `ocplace backbone "
+                             "pretrain` (for the backbone/ of a no_pretrain run, delete that run and rerun "
+                             "`ocplace evaluate` or `ocplace reproduce`)")
+    params = unflatten_params(arrays, config)
     backbone = OfflineBackbone(config, params, source=str(directory), max_batch=max_batch)
     if backbone.text_tower.digest != document["text_tower"]["sha256"]:
         raise BackboneError(f"the installed all-MiniLM-L6-v2 differs from the one {directory} was trained "
@@ -465,6 +469,18 @@ def load_saved_backbone(directory: str | Path, max_batch: int = 64) -> OfflineBa
 
 def backbones_root() -> Path:
     return cache_dir() / BACKBONES_DIR
+
+
+def saved_backbone_with(fingerprint: str) -> Path | None:
+    """The saved offline backbone in the cache whose fingerprint is `fingerprint`, if any.
+
+    Trained adapters record only their backbone's fingerprint; this finds that backbone without
+    loading any weights (each directory's `fingerprint.txt` is written last, so it is complete).
+    """
+    for path in sorted(backbones_root().glob(f"*/{FINGERPRINT_FILE}")):
+        if path.read_text().strip() == fingerprint:
+            return path.parent
+    return None
 
 
 def load_offline_backbone(argument: str = "", max_batch: int = 64) -> OfflineBackbone:

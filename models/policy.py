@@ -51,6 +51,18 @@ def load_backbone_spec(spec: str) -> Backbone:
     return load_backbone(f"{spec}:" if spec in BACKBONE_LOADERS else spec)
 
 
+def backbone_hint(fingerprint: str) -> str:
+    """How to get the backbone with `fingerprint`: its saved directory, or how to build or pass it."""
+    from ocplace.models.offline_backbone import backbones_root, saved_backbone_with
+
+    directory = saved_backbone_with(fingerprint)
+    if directory is not None:
+        return f"the backbone they were trained with is saved in {directory}: pass `--backbone offline:{directory}`"
+    return (f"no saved offline backbone in {backbones_root()} has that fingerprint: pass the backbone they were "
+            "trained with (`--backbone SPEC`, the spec their training used), or train adapters on a backbone you "
+            "have (`ocplace reproduce` pretrains its scale's backbone and trains on it)")
+
+
 @dataclasses.dataclass(frozen=True)
 class SceneInput:
     """One scene as a robot sees it; see `PlacementPolicy.place` for the fields."""
@@ -192,7 +204,7 @@ class PlacementPolicy:
         if trained.backbone_fingerprint != backbone.fingerprint:
             raise TrainingError(f"the adapters in {adapters} were trained on features of another backbone "
                                 f"(fingerprint {trained.backbone_fingerprint[:12]}, this one "
-                                f"{backbone.fingerprint[:12]}); pass the backbone they were trained with")
+                                f"{backbone.fingerprint[:12]}); {backbone_hint(trained.backbone_fingerprint)}")
         return cls(backbone, trained.model, trained.prompt, parser, **kwargs)
 
     # ------------------------------------------------------------------ public calls
@@ -338,9 +350,9 @@ class PlacementPolicy:
         return tuple(references)
 
     def check_confidence(self, scene: PreparedScene, references: Sequence[GroundedReference]) -> None:
-        """Raises GroundingUncertain for the first reference whose best token is below the threshold."""
+        """Raises GroundingUncertain for the first reference whose best token is below the threshold (or NaN)."""
         for ref in references:
-            if ref.probability < self.threshold:
+            if not ref.probability >= self.threshold:  # written so that NaN (every comparison False) refuses
                 best = np.argsort(-ref.probabilities, kind="stable")[:3]
                 raise GroundingUncertain(ref.phrase, [(_token_label(scene, int(t)), float(ref.probabilities[t]))
                                                       for t in best], self.threshold)
@@ -442,14 +454,23 @@ def _check_images(rgb, depth) -> tuple[np.ndarray, np.ndarray]:
     rgb, depth = np.asarray(rgb), np.asarray(depth)
     if rgb.dtype != np.uint8 or rgb.ndim != 3 or rgb.shape[-1] != 3:
         raise PolicyInputError(f"rgb must be a uint8 (H, W, 3) image, got {rgb.dtype} {rgb.shape}")
-    if depth.ndim != 2:
-        raise PolicyInputError(f"depth must be an (H, W) image, got shape {depth.shape}")
+    depth = check_depth(depth)
     if depth.shape != rgb.shape[:2]:
         raise PolicyInputError(f"rgb is {rgb.shape[1]}x{rgb.shape[0]} but depth is {depth.shape[1]}x{depth.shape[0]}; "
                                "register the depth image to the colour image first")
+    return np.ascontiguousarray(rgb), depth
+
+
+def check_depth(depth) -> np.ndarray:
+    """`(H, W)` float32 metres from a depth image of numbers (integers are millimetres, as PNGs store them)."""
+    depth = np.asarray(depth)
+    if not (np.issubdtype(depth.dtype, np.integer) or np.issubdtype(depth.dtype, np.floating)):
+        raise PolicyInputError(f"depth must hold numbers (float metres or integer millimetres), got dtype {depth.dtype}")
+    if depth.ndim != 2:
+        raise PolicyInputError(f"depth must be an (H, W) image, got shape {depth.shape}")
     if np.issubdtype(depth.dtype, np.integer):
-        depth = depth.astype(np.float32) / 1000.0  # millimetres, as depth PNGs store it
-    return np.ascontiguousarray(rgb), depth.astype(np.float32)
+        return depth.astype(np.float32) / 1000.0
+    return depth.astype(np.float32)
 
 
 def _check_boxes(boxes, image_shape) -> np.ndarray:

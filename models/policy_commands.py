@@ -30,7 +30,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                      help="half-extents of the held object's footprint in metres (default 0.05 0.05)")
     parser.add_argument("--instruction", help="the instruction (a dataset scene's own by default)")
     model = parser.add_argument_group("model")
-    model.add_argument("--backbone", default="offline", help="backbone spec (default: offline)")
+    model.add_argument("--backbone", help="backbone spec (default: the saved offline backbone the --adapters were "
+                                          "trained with, found by its fingerprint; without --adapters: offline)")
     model.add_argument("--adapters", type=Path, help="training run directory or adapters file (default: none, "
                                                      "zero-shot grounding)")
     model.add_argument("--parser", default="offline", help="offline, offline-snap or llm")
@@ -45,31 +46,59 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run_place(args: argparse.Namespace) -> int:
     import jax
 
+    from ocplace.models.parsing import make_parser
     from ocplace.models.placement.sampler import SamplerConfig
     from ocplace.models.policy import PlacementPolicy, load_backbone_spec
-    from ocplace.models.policy_figure import save_placement
+    from ocplace.models.policy_figure import save_placement_figure
 
+    # Everything given is read and checked before the backbone loads, which takes seconds to minutes.
     scene, record = _scene(args)
+    parser = make_parser(args.parser)
+    parser.parse(scene.instruction)  # the policy parses it again: a few milliseconds, or the LLM parser's cache
+    backbone_spec = _backbone_spec(args)
     kwargs = {"sampler": SamplerConfig(num_samples=args.samples)}
     if args.threshold is not None:
         kwargs["threshold"] = args.threshold
     if args.adapters is None:
         print("no --adapters given: zero-shot grounding (plain backbone similarity, 'Ours w/o Adapter')")
-    policy = PlacementPolicy.from_run(load_backbone_spec(args.backbone), args.adapters, parser=args.parser, **kwargs)
-    placement = save_placement(policy, scene, jax.random.key(args.seed), args.out)
+    policy = PlacementPolicy.from_run(load_backbone_spec(backbone_spec), args.adapters, parser=parser, **kwargs)
+    [placement] = policy.place_many([scene], jax.random.key(args.seed))
     print(placement.summary())
     if record is not None:
         _compare_with_truth(placement, record)
+    save_placement_figure(placement, scene, args.out)  # last: a full disk costs the picture, not the placement
     print(f"wrote {args.out}")
     return 0 if placement.error is None else 2
+
+
+def _backbone_spec(args) -> str:
+    """--backbone; else the saved backbone whose fingerprint the adapters record; else the default one."""
+    from ocplace.errors import BackboneUnavailable
+    from ocplace.models.offline_backbone import saved_backbone_with
+    from ocplace.models.policy import backbone_hint
+    from ocplace.train.checkpoints import load_adapters
+
+    if args.adapters is None:
+        return args.backbone or "offline"
+    fingerprint = load_adapters(args.adapters).backbone_fingerprint  # also: a bad adapters file fails here
+    if args.backbone is not None:
+        return args.backbone
+    directory = saved_backbone_with(fingerprint)
+    if directory is None:
+        raise BackboneUnavailable(f"the adapters in {args.adapters} were trained on the backbone with fingerprint "
+                                  f"{fingerprint[:12]}; {backbone_hint(fingerprint)}")
+    return f"offline:{directory}"
 
 
 def _scene(args):
     from ocplace.errors import PolicyInputError
 
+    if args.instruction is not None and not args.instruction.strip():
+        raise PolicyInputError("--instruction is empty; say where to put the object, e.g. --instruction "
+                               "\"put it to the left of the red bowl\", or leave it out to use a dataset scene's own")
     if args.dataset is not None:
         return _dataset_scene(args)
-    if args.rgb is None or args.depth is None or not args.instruction:
+    if args.rgb is None or args.depth is None or args.instruction is None:
         raise PolicyInputError("give --dataset DIR --id K, or --rgb, --depth and --instruction")
     return _image_scene(args), None
 
@@ -98,7 +127,7 @@ def _dataset_scene(args):
     scene = scene_input(record)
     if args.detect:
         scene = dataclasses.replace(scene, boxes_or_segmentation=None, object_aabbs=None)
-    if args.instruction:
+    if args.instruction is not None:
         scene = dataclasses.replace(scene, instruction=args.instruction)
     return scene, record
 
@@ -108,7 +137,8 @@ def _image_scene(args):
     import numpy as np
 
     from ocplace.errors import PolicyInputError
-    from ocplace.models.policy import SceneInput
+    from ocplace.models.pinhole import PinholeCamera
+    from ocplace.models.policy import SceneInput, check_depth
     from ocplace.sim.camera import DEFAULT_CAMERA
 
     def read(path: Path, flags: int):
@@ -118,12 +148,27 @@ def _image_scene(args):
         return image
 
     rgb = np.ascontiguousarray(read(args.rgb, cv2.IMREAD_COLOR)[..., ::-1])
-    depth = np.load(args.depth) if args.depth.suffix == ".npy" else read(args.depth, cv2.IMREAD_UNCHANGED)
+    depth = check_depth(_read_npy(args.depth) if args.depth.suffix == ".npy" else read(args.depth,
+                                                                                       cv2.IMREAD_UNCHANGED))
     segmentation = read(args.segmentation, cv2.IMREAD_UNCHANGED).astype(np.int32) if args.segmentation else None
     if args.camera is None:
         print("no --camera given: assuming the simulator's camera (640x480, 70 deg, 0.6 m above the table)")
-    return SceneInput(rgb, depth, segmentation, args.instruction, tuple(args.held_footprint),
-                      args.camera or DEFAULT_CAMERA, name=args.rgb.name)
+    camera = PinholeCamera.from_any(args.camera or DEFAULT_CAMERA)
+    return SceneInput(rgb, depth, segmentation, args.instruction, tuple(args.held_footprint), camera,
+                      name=args.rgb.name)
+
+
+def _read_npy(path: Path):
+    """A depth `.npy` of numbers; never unpickles (a pickled array could run any code)."""
+    import numpy as np
+
+    from ocplace.errors import PolicyInputError
+
+    try:
+        return np.load(path, allow_pickle=False)
+    except (OSError, ValueError, EOFError) as error:
+        raise PolicyInputError(f"cannot read the depth {path} as a .npy array of numbers ({error}); save a float "
+                               "array of metres with numpy.save") from None
 
 
 def _compare_with_truth(placement, record) -> None:

@@ -54,9 +54,14 @@ def _rectangle(axis, box, colour: str, width: float, style: str) -> None:
 
 def save_placement(policy, scene, key, path) -> object:
     """Places the held object in `scene` (a `models.policy.SceneInput`) and saves the figure to `path`."""
+    [placement] = policy.place_many([scene], key)
+    save_placement_figure(placement, scene, path)
+    return placement
+
+
+def save_placement_figure(placement, scene, path) -> None:
+    """Draws what the policy did in `scene` (a `models.policy.SceneInput`) into the PNG `path`."""
     from ocplace.models.pinhole import PinholeCamera
     from ocplace.models.placement.figures import save_figure
 
-    [placement] = policy.place_many([scene], key)
     save_figure(placement_figure(placement, scene.rgb, PinholeCamera.from_any(scene.camera)), path)
-    return placement

@@ -48,6 +48,7 @@ def main(argv: list[str] | None = None) -> int:
         format="%(levelname)s %(name)s: %(message)s",
     )
     try:
+        _check_output(args)
         return args.func(args) or 0
     except OcplaceError as error:
         print(f"ocplace {args.command}: error: {error}", file=sys.stderr)
@@ -55,6 +56,14 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
+
+
+def _check_output(args: argparse.Namespace) -> None:
+    """A bad `--out` (every command names its output `out`) fails before the command does any work."""
+    from ocplace.paths import check_writable
+
+    if getattr(args, "out", None) is not None:
+        check_writable(args.out)
 
 
 if __name__ == "__main__":

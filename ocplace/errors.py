@@ -103,3 +103,7 @@ class GroundingUncertain(OcplaceError):
 
 class LLMConfigError(OcplaceError, ValueError):
     """An LLM parser setting that cannot work (a base URL that is not http(s), a limit <= 0)."""
+
+
+class OutputError(OcplaceError):
+    """An output that cannot be written: a path under a file, a read-only folder, a full disk."""

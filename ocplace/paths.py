@@ -68,6 +68,7 @@ def check_writable(target: str | os.PathLike) -> None:
 
     Commands call it before any expensive work, so that a bad `--out` fails at once and not after
     minutes of computing: every existing ancestor must be a folder and the nearest one writable.
+    Nothing is written to find out (a probe file would change the folder's mtime).
     """
     target = Path(target)
     folder = target if target.is_dir() else target.parent
@@ -76,13 +77,10 @@ def check_writable(target: str | os.PathLike) -> None:
     if not folder.is_dir():
         raise OutputError(f"cannot write {target}: {folder} is a file, not a folder; choose an output path "
                           "in a folder")
-    try:  # os.access says yes to root and knows nothing of read-only mounts: try it
-        fd, probe = tempfile.mkstemp(prefix=".ocplace-write-check.", dir=folder)
-    except OSError as error:
-        raise OutputError(f"cannot write {target}: {folder} is not writable ({error.strerror}); choose an "
-                          "output path in a folder you can write") from None
-    os.close(fd)
-    os.unlink(probe)
+    # os.access knows permissions (and that root passes them) but not read-only mounts: ask statvfs too.
+    if not os.access(folder, os.W_OK | os.X_OK) or os.statvfs(folder).f_flag & os.ST_RDONLY:
+        raise OutputError(f"cannot write {target}: {folder} is not writable (read-only folder or file system); "
+                          "choose an output path in a folder you can write")
 
 
 def write_bytes_atomic(target: str | os.PathLike, data: bytes) -> None:

@@ -5,6 +5,8 @@
     RUN/checkpoints/step_*.safetensors   params + optimiser state (the newest `keep` kept)
     RUN/weights.safetensors   the final parameters; its presence marks the run finished
 
+Checkpoints and weights carry a content hash (`models.weights_file`), checked on load.
+
 A rerun with the same directory and settings skips a finished run and resumes an interrupted one
 from its newest checkpoint (`metrics.jsonl` is cut back to it); other settings are refused. Steps
 are functions of (seed, step) alone, so a resumed run ends where an uninterrupted one would.
@@ -24,7 +26,7 @@ import numpy as np
 import optax
 
 from ocplace.errors import TrainingError
-from ocplace.paths import atomic_path
+from ocplace.models import weights_file
 from ocplace.train import checkpoints
 from ocplace.train.metrics import MetricsLog
 
@@ -94,27 +96,18 @@ def run_chunks(run_dir: Path, run_meta: dict, state, chunk: Callable, schedule: 
 
 
 def save_weights(run_dir: Path, params, metadata: dict[str, str]) -> Path:
-    from safetensors.numpy import save_file
-
-    path = Path(run_dir) / WEIGHTS_FILE
-    with atomic_path(path) as tmp:
-        save_file(checkpoints.flatten_state(params), str(tmp), metadata=metadata)
-    return path
+    return weights_file.save_weights(Path(run_dir) / WEIGHTS_FILE, checkpoints.flatten_state(params), metadata)
 
 
-def load_weights(run_dir: Path, template) -> tuple[dict, dict[str, str], str]:
-    """`(params, metadata, sha256 of the file)`; `template` is the parameter tree (e.g. from jax.eval_shape)."""
-    from safetensors import safe_open
-    from safetensors.numpy import load_file
-
+def load_weights(run_dir: Path) -> tuple[dict[str, np.ndarray], str]:
+    """`(flat arrays, sha256 of the file)`, verified; `checkpoints.unflatten_state` makes the tree of them."""
     path = Path(run_dir) / WEIGHTS_FILE
     if not path.is_file():
         raise TrainingError(f"no trained weights at {path}; train the method first (`ocplace evaluate` "
                             "trains missing runs)")
-    with safe_open(str(path), framework="numpy") as handle:
-        metadata = handle.metadata() or {}
-    params = checkpoints.unflatten_state(load_file(str(path)), template)
-    return params, metadata, hashlib.sha256(path.read_bytes()).hexdigest()
+    arrays, _ = weights_file.load_weights(path, f"delete {path.parent} and rerun `ocplace evaluate` or "
+                                                "`ocplace reproduce` (they train missing runs)")
+    return arrays, hashlib.sha256(path.read_bytes()).hexdigest()
 
 
 def step_keys(seed: int, start: int, count: int):

@@ -1,5 +1,8 @@
 """Checkpoints (adapter weights + Adam state) and the final adapters file, as safetensors.
 
+Both are written and read through `models.weights_file`: a content hash in the file, checked on
+load, so a damaged, truncated or NaN file is a `WeightsError` rather than silently wrong weights.
+
 A checkpoint stores every leaf of the `(params, opt_state)` pytree under its key path, so it is
 restored into a freshly initialised state of the same structure, bit for bit.
 """
@@ -17,7 +20,8 @@ from ocplace.errors import TrainingError
 from ocplace.models.adapters import AdapterConfig
 from ocplace.models.backbone import PromptConfig
 from ocplace.models.grounding import GroundingModel
-from ocplace.paths import atomic_path, write_text_atomic
+from ocplace.models.weights_file import load_weights, save_weights
+from ocplace.paths import write_text_atomic
 
 ADAPTERS_FILE = "adapters.safetensors"
 CHECKPOINT_DIR = "checkpoints"
@@ -46,12 +50,8 @@ def checkpoint_path(run_dir: Path, step: int) -> Path:
 
 
 def save_checkpoint(run_dir: Path, step: int, state, metadata: dict[str, str], keep: int) -> Path:
-    """Writes the checkpoint of `step` atomically and keeps only the newest `keep`."""
-    from safetensors.numpy import save_file
-
-    path = checkpoint_path(run_dir, step)
-    with atomic_path(path) as tmp:
-        save_file(flatten_state(state), str(tmp), metadata={**metadata, "step": str(step)})
+    """Writes the checkpoint of `step` atomically, with its content hash, and keeps only the newest `keep`."""
+    path = save_weights(checkpoint_path(run_dir, step), flatten_state(state), {**metadata, "step": str(step)})
     for old in list_checkpoints(run_dir)[:-keep]:
         old.unlink()
     return path
@@ -62,13 +62,11 @@ def list_checkpoints(run_dir: Path) -> list[Path]:
 
 
 def load_checkpoint(path: Path, template) -> tuple[object, int, dict[str, str]]:
-    """`(state, step, metadata)` of a checkpoint, restored into `template`'s structure."""
-    from safetensors import safe_open
-    from safetensors.numpy import load_file
-
-    with safe_open(str(path), framework="numpy") as handle:
-        metadata = handle.metadata()
-    return unflatten_state(load_file(str(path)), template), int(metadata["step"]), metadata
+    """`(state, step, metadata)` of a verified checkpoint, restored into `template`'s structure."""
+    path = Path(path)
+    arrays, metadata = load_weights(path, f"delete {path.name} to resume from the checkpoint before it (or from "
+                                          f"the start), or delete {path.parent.parent} to start the run over")
+    return unflatten_state(arrays, template), int(metadata["step"]), metadata
 
 
 @dataclasses.dataclass(frozen=True)
@@ -84,20 +82,14 @@ class TrainedAdapters:
 
 def save_adapters(path: Path, params, config: AdapterConfig, logit_scale: float, *, backbone_fingerprint: str,
                   prompt: PromptConfig, features_key: str, steps: int, train_config_json: str) -> None:
-    from safetensors.numpy import save_file
-
     metadata = {"adapter_config": json.dumps(dataclasses.asdict(config)), "logit_scale": repr(logit_scale),
                 "backbone_fingerprint": backbone_fingerprint, "prompt": prompt.to_json(),
                 "features_key": features_key, "steps": str(steps), "train_config": train_config_json}
-    with atomic_path(path) as tmp:
-        save_file(flatten_state(params), str(tmp), metadata=metadata)
+    save_weights(path, flatten_state(params), metadata)
 
 
 def load_adapters(path) -> TrainedAdapters:
-    """Trained adapters from a run directory or an `adapters.safetensors` file."""
-    from safetensors import safe_open
-    from safetensors.numpy import load_file
-
+    """Trained adapters from a run directory or an `adapters.safetensors` file, verified."""
     from ocplace.models.adapters import init_adapters
 
     path = Path(path)
@@ -105,11 +97,11 @@ def load_adapters(path) -> TrainedAdapters:
         path = path / ADAPTERS_FILE
     if not path.exists():
         raise TrainingError(f"no trained adapters at {path}; train them with `ocplace train`")
-    with safe_open(str(path), framework="numpy") as handle:
-        metadata = handle.metadata()
+    arrays, metadata = load_weights(path, f"delete {path.parent} and train it again (`ocplace train ... --out "
+                                          f"{path.parent}`, or `ocplace reproduce`, which retrains missing runs)")
     config = AdapterConfig(**json.loads(metadata["adapter_config"]))
     template = jax.eval_shape(lambda: init_adapters(config, jax.random.key(0)))
-    params = unflatten_state(load_file(str(path)), template)
+    params = unflatten_state(arrays, template)
     model = GroundingModel(config, params, float(metadata["logit_scale"]))
     return TrainedAdapters(model, metadata["backbone_fingerprint"], PromptConfig.from_json(metadata["prompt"]),
                            metadata["features_key"], int(metadata["steps"]))

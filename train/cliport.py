@@ -27,7 +27,7 @@ from ocplace.paths import atomic_path, cache_dir
 from ocplace.sim import metric
 from ocplace.sim.dataset.job import scene_dirs
 from ocplace.sim.dataset.records import read_scene
-from ocplace.train import baseline_runs, optim
+from ocplace.train import baseline_runs, checkpoints, optim
 from ocplace.train.baseline_runs import Schedule
 from ocplace.train.loop import batch_indices, subset_indices
 
@@ -172,5 +172,5 @@ def load_params(run_dir: Path) -> tuple[dict, dict, str]:
     run_meta = baseline_runs.read_run(run_dir)
     config = cliport.CliportConfig.from_json(json.dumps(run_meta["network"]))
     template = jax.eval_shape(lambda: cliport.init_network(config, run_meta["dim"], jax.random.key(0)))
-    params, _, sha = baseline_runs.load_weights(run_dir, template)
-    return params, run_meta, sha
+    arrays, sha = baseline_runs.load_weights(run_dir)
+    return checkpoints.unflatten_state(arrays, template), run_meta, sha

@@ -31,7 +31,7 @@ from ocplace.paths import cache_dir
 from ocplace.sim.dataset.job import scene_dirs
 from ocplace.sim.dataset.loader import letterbox
 from ocplace.sim.dataset.records import read_scene
-from ocplace.train import baseline_runs, optim
+from ocplace.train import baseline_runs, checkpoints, optim
 from ocplace.train.baseline_runs import Schedule
 from ocplace.train.loop import batch_indices, subset_indices
 
@@ -142,14 +142,7 @@ def load_params(run_dir: Path) -> tuple[dict, dict, str]:
     """`(params, run_meta, weights sha256)` of a finished run."""
     run_meta = baseline_runs.read_run(run_dir)
     config = grids.GridConfig.from_json(json.dumps(run_meta["grid"]))
-    dim = _feature_dim(run_dir)
+    arrays, sha = baseline_runs.load_weights(run_dir)
+    dim = int(arrays["['visual']['up']['kernel']"].shape[-1])  # the feature size is not in the run's config
     template = jax.eval_shape(lambda: grids.init_grids(config, dim, jax.random.key(0)))
-    params, _, sha = baseline_runs.load_weights(run_dir, template)
-    return params, run_meta, sha
-
-
-def _feature_dim(run_dir: Path) -> int:
-    from safetensors import safe_open
-
-    with safe_open(str(Path(run_dir) / baseline_runs.WEIGHTS_FILE), framework="numpy") as handle:
-        return int(handle.get_slice("['visual']['up']['kernel']").get_shape()[-1])
+    return checkpoints.unflatten_state(arrays, template), run_meta, sha

@@ -11,6 +11,8 @@ Run directory:
     metrics.jsonl        per chunk: step, loss, reference_loss, relation_loss, learning_rate, elapsed_s
     checkpoints/         params + Adam state (newest two)
     model.safetensors    the trained model, with its config, logit scale and backbone fingerprint
+
+Checkpoints and the model file carry a content hash (`models.weights_file`), checked on load.
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ from ocplace.errors import FeaturesError, TrainingError
 from ocplace.models.backbone import Backbone
 from ocplace.models.features import Features, FeaturizeConfig, featurize, load_features
 from ocplace.models.gtref import GtRefConfig, GtRefModel, init_params, loss_terms
+from ocplace.models.weights_file import load_weights, save_weights
 from ocplace.paths import atomic_path, cache_dir
 from ocplace.sim.relations import relation_index
 from ocplace.train import checkpoints
@@ -260,12 +263,9 @@ def train_gtref(dataset_dir: Path, backbone: Backbone, run_dir: Path, config: Gt
 
 
 def save_model(path: Path, model: GtRefModel, *, backbone_fingerprint: str, train_config: GtRefTrainConfig) -> None:
-    from safetensors.numpy import save_file
-
     metadata = {"model_config": model.config.to_json(), "logit_scale": repr(model.logit_scale),
                 "backbone_fingerprint": backbone_fingerprint, "train_config": train_config.to_json()}
-    with atomic_path(path) as tmp:
-        save_file(checkpoints.flatten_state(model.params), str(tmp), metadata=metadata)
+    save_weights(path, checkpoints.flatten_state(model.params), metadata)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -277,18 +277,16 @@ class TrainedGtRef:
 
 
 def load_model(run_dir: Path) -> TrainedGtRef:
-    from safetensors import safe_open
-    from safetensors.numpy import load_file
-
+    """The trained model of a finished run, verified."""
     path = Path(run_dir) / MODEL_FILE
     if not path.exists():
         raise TrainingError(f"no trained GT-ref# model at {path}; train it first (`ocplace evaluate` trains "
                             "registered methods, or call ocplace.train.gtref.train_gtref)")
-    with safe_open(str(path), framework="numpy") as handle:
-        metadata = handle.metadata()
+    arrays, metadata = load_weights(path, f"delete {path.parent} and rerun `ocplace evaluate` or "
+                                          "`ocplace reproduce` (they train missing runs)")
     config = GtRefConfig.from_json(metadata["model_config"])
     template = jax.eval_shape(lambda: init_params(config, jax.random.key(0)))
-    params = checkpoints.unflatten_state(load_file(str(path)), template)
+    params = checkpoints.unflatten_state(arrays, template)
     return TrainedGtRef(GtRefModel(config, params, float(metadata["logit_scale"])), metadata["backbone_fingerprint"],
                         json.loads(metadata["train_config"]), params_sha256(params))
 

@@ -4,11 +4,15 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import logging
 from pathlib import Path
 
 import numpy as np
 
+from ocplace.errors import TrainingError
 from ocplace.paths import write_text_atomic
+
+log = logging.getLogger(__name__)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -46,9 +50,20 @@ class MetricsLog:
             handle.flush()
 
     def records(self) -> list[dict]:
+        """Every record; a torn last line (a crash mid-append) is dropped with a warning."""
         if not self.path.exists():
             return []
-        return [json.loads(line) for line in self.path.read_text().splitlines() if line.strip()]
+        lines = [(number, line) for number, line in enumerate(self.path.read_text().splitlines(), 1) if line.strip()]
+        records = []
+        for number, line in lines:
+            try:
+                records.append(json.loads(line))
+            except ValueError as error:
+                if number < lines[-1][0]:
+                    raise TrainingError(f"{self.path} line {number} is not JSON ({error}); delete that line, or "
+                                        "the run directory to start the run over") from error
+                log.warning("%s: dropped its torn last line (a crash while writing it): %r", self.path, line[:80])
+        return records
 
     def truncate_after(self, step: int) -> None:
         """Drops records past `step`: what a resumed run will redo."""

@@ -8,7 +8,8 @@ Mentions found by `grammar` are resolved across clauses:
   neighbouring mention without a reference ("..., on the left"); alone it is an error;
 - a direction without a reference means the table ("put it on the left");
 - two relations on the same reference on different axes make a corner ("left of and behind
-  the mug" is back left).
+  the mug" is back left); opposite ones contradict ("to the left and right of the mug" is an
+  error, not the table's left and the mug's right).
 """
 
 from __future__ import annotations
@@ -24,6 +25,8 @@ from ocplace.sim import language, relations
 
 _HORIZONTAL = (lexicon.LEFT, lexicon.RIGHT)
 _DEPTH = (lexicon.BACK, lexicon.FRONT)
+_OPPOSITE = {lexicon.LEFT: lexicon.RIGHT, lexicon.RIGHT: lexicon.LEFT,
+             lexicon.BACK: lexicon.FRONT, lexicon.FRONT: lexicon.BACK}
 
 
 class OfflineParser:
@@ -143,14 +146,21 @@ def _give_sides_to_proximity(mentions: list[grammar.Mention]) -> None:
     """Pairs each referenceless direction with a neighbouring reference-bearing mention.
 
     A neighbouring proximity mention is preferred ("beside the mug, on the left"); else the
-    previous mention when it repeats the direction or is on the other axis; else the next
-    mention when it is on the other axis ("to the front and to the right of the block").
+    next mention when it names the opposite side ("to the left and right of the mug": one
+    reference, so that the contradiction is reported); else the previous mention when it
+    repeats the direction or is on the other axis; else the next mention when it is on the
+    other axis ("to the front and to the right of the block").
     """
     for index, mention in enumerate(mentions):
         if mention.reference or not mention.directions or mention.needs_snapping:
             continue
         neighbours = [mentions[j] for j in (index - 1, index + 1) if 0 <= j < len(mentions)]
         partner = next((m for m in neighbours if m.is_proximity_only and m.reference), None)
+        following = mentions[index + 1] if index + 1 < len(mentions) else None
+        if (partner is None and following is not None and following.reference
+                and following.sentence == mention.sentence
+                and _opposite(mention.directions, following.directions)):
+            partner = following
         previous = mentions[index - 1] if index > 0 else None
         if (partner is None and previous is not None and previous.reference
                 and previous.sentence == mention.sentence
@@ -160,14 +170,16 @@ def _give_sides_to_proximity(mentions: list[grammar.Mention]) -> None:
                 and previous.sentence == mention.sentence and _axes(mention.directions)
                 and _axes(previous.directions).isdisjoint(_axes(mention.directions))):
             partner = previous  # "to the front of the tray, slightly to the left": a corner
-        if partner is None and index + 1 < len(mentions):
-            following = mentions[index + 1]
-            if (following.reference and following.sentence == mention.sentence
-                    and _axes(following.directions).isdisjoint(_axes(mention.directions))
-                    and _axes(mention.directions)):
-                partner = following
+        if (partner is None and following is not None and following.reference
+                and following.sentence == mention.sentence and _axes(mention.directions)
+                and _axes(following.directions).isdisjoint(_axes(mention.directions))):
+            partner = following
         if partner is not None:
             mention.reference = list(partner.reference)
+
+
+def _opposite(first: set[str], second: set[str]) -> bool:
+    return any(_OPPOSITE.get(direction) in second for direction in first)
 
 
 def _axes(directions: set[str]) -> set[str]:
@@ -207,8 +219,9 @@ def _merge_same_reference(items, parser_name: str) -> list[ParsedTuple]:
         previous = merged[reference]
         combined = _combine(previous[0], relation)
         if combined is None:
-            raise ParseError(f"{reference!r} is given two relations that cannot both hold: "
-                             f"{previous[0]!r} and {relation!r}")
+            raise ParseError(f"the relations {previous[0]!r} and {relation!r} on {reference!r} contradict: "
+                             "they cannot both hold. Keep one of them; two relations on different axes "
+                             "make a corner ('behind and to the left of the mug')")
         previous[0] = combined
         previous[1] = f"{previous[1]}; {phrase}"
     return [

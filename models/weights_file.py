@@ -1,0 +1,96 @@
+"""Weight files that vouch for their content: safetensors with a content hash, checked on load.
+
+`save_weights` writes the tensors atomically with `HASH_KEY` in the safetensors metadata: the
+sha256 of the other metadata (sorted JSON) and of every tensor's name, dtype, shape and bytes, in
+name order. The hash travels inside the file it covers, so the rename that publishes the tensors
+publishes their hash with them. `load_weights` refuses, with a `WeightsError` that names the file
+and says how to rebuild it: a file safetensors cannot parse (truncated, damaged header), content
+that does not hash to the stored value (flipped bits), and NaN or inf in a floating-point tensor
+(a diverged run, or damage in a file too old to carry a hash). Files without a hash, written
+before it existed, load with a warning. See docs/reliability.md#weights.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+from pathlib import Path
+
+import numpy as np
+
+from ocplace.errors import WeightsError
+from ocplace.paths import write_bytes_atomic
+
+log = logging.getLogger(__name__)
+
+HASH_KEY = "ocplace_content_sha256"
+
+
+def content_sha256(tensors: dict[str, np.ndarray], metadata: dict[str, str]) -> str:
+    """Independent of the file layout: safetensors orders its header as it likes."""
+    digest = hashlib.sha256(json.dumps(metadata, sort_keys=True).encode())
+    for name in sorted(tensors):
+        array = np.asarray(tensors[name], order="C")
+        digest.update(json.dumps([name, array.dtype.str, array.shape]).encode())
+        digest.update(array.tobytes())
+    return digest.hexdigest()
+
+
+def save_weights(path: str | Path, tensors: dict[str, np.ndarray], metadata: dict[str, str]) -> Path:
+    """Writes `tensors` and `metadata` (str to str) to `path` atomically, with their content hash."""
+    from safetensors.numpy import save
+
+    tensors = {name: np.asarray(array, order="C") for name, array in tensors.items()}
+    blob = save(tensors, metadata={**metadata, HASH_KEY: content_sha256(tensors, metadata)})
+    write_bytes_atomic(path, _sorted_header(blob))
+    return Path(path)
+
+
+def _sorted_header(blob: bytes) -> bytes:
+    """safetensors writes the metadata in hash-map order, which changes from call to call; with the
+    header's keys sorted, the same weights give the same bytes (runs compare and report file hashes)."""
+    size = int.from_bytes(blob[:8], "little")
+    header = json.dumps(json.loads(blob[8:8 + size]), sort_keys=True, separators=(",", ":")).encode()
+    header += b" " * (-len(header) % 8)  # safetensors keeps the tensor data 8-byte aligned
+    return len(header).to_bytes(8, "little") + header + blob[8 + size:]
+
+
+def load_weights(path: str | Path, rebuild: str) -> tuple[dict[str, np.ndarray], dict[str, str]]:
+    """`(tensors, metadata)` of a file `save_weights` wrote, verified; `rebuild` tells the user how to remake it."""
+    tensors, metadata = _read(path, rebuild)
+    stored = metadata.pop(HASH_KEY, None)
+    if stored is None:
+        log.warning("%s has no content hash (written by an older ocplace), so damage cannot be detected; "
+                    "loading it anyway. To protect it, %s", path, rebuild)
+    elif stored != content_sha256(tensors, metadata):
+        raise WeightsError(f"{path} does not match its content hash: the file is damaged or was edited; {rebuild}")
+    _check_finite(path, tensors, rebuild)
+    return tensors, metadata
+
+
+def read_weights(path: str | Path, rebuild: str) -> tuple[dict[str, np.ndarray], dict[str, str]]:
+    """`load_weights` without the hash, for files whose loader checks a hash of its own (the offline backbone)."""
+    tensors, metadata = _read(path, rebuild)
+    _check_finite(path, tensors, rebuild)
+    return tensors, metadata
+
+
+def _read(path: str | Path, rebuild: str) -> tuple[dict[str, np.ndarray], dict[str, str]]:
+    from safetensors import SafetensorError, safe_open
+
+    try:
+        with safe_open(str(path), framework="numpy") as handle:
+            metadata = dict(handle.metadata() or {})
+            tensors = {name: handle.get_tensor(name) for name in handle.keys()}
+    except (SafetensorError, OSError) as error:
+        raise WeightsError(f"{path} cannot be read ({error}): it is truncated or damaged; {rebuild}") from error
+    return tensors, metadata
+
+
+def _check_finite(path: str | Path, tensors: dict[str, np.ndarray], rebuild: str) -> None:
+    for name in sorted(tensors):
+        array = tensors[name]
+        if np.issubdtype(array.dtype, np.floating) and not np.isfinite(array).all():
+            raise WeightsError(f"{path} holds NaN or inf weights ({name}): the run diverged or the file is damaged; "
+                               f"{rebuild} (a run that diverges again needs a lower learning rate)")
