@@ -79,7 +79,7 @@ RECIPES = {
     "smoke": ScratchRecipe(scratch.smoke_config(), ScratchTrainConfig(
         steps=150, batch_size=4, learning_rate=1e-3, warmup_steps=3, log_every=10, checkpoint_every=50)),
     "demo": ScratchRecipe(scratch.demo_config(), ScratchTrainConfig(
-        steps=100, batch_size=8, warmup_steps=10, log_every=25, checkpoint_every=50)),
+        steps=75, batch_size=8, warmup_steps=8, log_every=25, checkpoint_every=25)),
     "default": ScratchRecipe(scratch.default_config(), ScratchTrainConfig()),
 }
 

@@ -127,9 +127,9 @@ def default_config() -> PretrainConfig:
 
 
 def demo_config() -> PretrainConfig:
-    """About three minutes on 2 cores: fewer scenes and steps, same architecture."""
-    return PretrainConfig("demo", render=RenderConfig(scenes=120),
-                          optim=OptimConfig(steps=100, warmup_steps=10, checkpoint_every=50))
+    """About two and a half minutes on 2 cores: fewer scenes and steps, same architecture."""
+    return PretrainConfig("demo", render=RenderConfig(scenes=100),
+                          optim=OptimConfig(steps=75, warmup_steps=8, checkpoint_every=25))
 
 
 def smoke_config() -> PretrainConfig:
