@@ -293,7 +293,7 @@ def scene_dirs(out: str | Path, split: str) -> list[Path]:
     """The scene folders of `split` that the manifest lists, in id order: what `verify` checked."""
     out = Path(out)
     listed = [relative for relative in read_manifest(out)["files"] if relative.startswith(f"{split}/")]
-    dirs = sorted({_listed_path(out, relative).parent for relative in listed})
+    dirs = sorted({(out / relative).parent for relative in listed})  # read_manifest checked every entry
     if not dirs:
         raise DatasetError(f"{out} has no scenes of split {split!r}; generate them with "
                            f"`ocplace generate --out {out} --split {split}`")
