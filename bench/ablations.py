@@ -25,12 +25,14 @@ def time_gtref(scale: str, dim: int, steps: int, num_scenes: int) -> dict:
 
     config = gtref.recipe(scale)
     rng = np.random.default_rng(0)
-    arrays = {"visual": rng.normal(size=(num_scenes, 6, dim)).astype(np.float32),
-              "visual_mask": np.ones((num_scenes, 6), bool),
-              "sentence": rng.normal(size=(num_scenes, dim)).astype(np.float32),
-              "targets": rng.integers(6, size=(num_scenes, 2)).astype(np.int32),
-              "target_mask": np.ones((num_scenes, 2), bool),
-              "relations": rng.integers(8, size=(num_scenes, 2)).astype(np.int32)}
+    arrays = {
+        "visual": rng.normal(size=(num_scenes, 6, dim)).astype(np.float32),
+        "visual_mask": np.ones((num_scenes, 6), bool),
+        "sentence": rng.normal(size=(num_scenes, dim)).astype(np.float32),
+        "targets": rng.integers(6, size=(num_scenes, 2)).astype(np.int32),
+        "target_mask": np.ones((num_scenes, 2), bool),
+        "relations": rng.integers(8, size=(num_scenes, 2)).astype(np.int32),
+    }
     model_config = config.model_config(dim)
     params = gtref.init_params(model_config, jax.random.key(0))
     state = (params, gtref.optax.adam(gtref.learning_rate_schedule(config)).init(params))
@@ -46,8 +48,14 @@ def time_gtref(scale: str, dim: int, steps: int, num_scenes: int) -> dict:
 
     first = run(steps, 0)
     timed = run(steps, steps)
-    return {"method": "no_llm", "scale": scale, "dim": dim, "batch_size": config.batch_size,
-            "recipe_steps": config.steps, **report_times(first, timed, steps, config.steps)}
+    return {
+        "method": "no_llm",
+        "scale": scale,
+        "dim": dim,
+        "batch_size": config.batch_size,
+        "recipe_steps": config.steps,
+        **report_times(first, timed, steps, config.steps),
+    }
 
 
 def time_scratch(scale: str, steps: int, num_scenes: int) -> dict:
@@ -58,11 +66,13 @@ def time_scratch(scale: str, steps: int, num_scenes: int) -> dict:
     model, config = recipe.model, recipe.train
     size = model.backbone.image_size
     rng = np.random.default_rng(0)
-    arrays = {"pixels": rng.integers(256, size=(num_scenes, 6, size, size, 3), dtype=np.uint8),
-              "visual_mask": np.ones((num_scenes, 6), bool),
-              "sentences": rng.normal(size=(num_scenes, 2, model.backbone.text_dim)).astype(np.float32),
-              "text_mask": np.ones((num_scenes, 2), bool),
-              "targets": rng.integers(6, size=(num_scenes, 2)).astype(np.int32)}
+    arrays = {
+        "pixels": rng.integers(256, size=(num_scenes, 6, size, size, 3), dtype=np.uint8),
+        "visual_mask": np.ones((num_scenes, 6), bool),
+        "sentences": rng.normal(size=(num_scenes, 2, model.backbone.text_dim)).astype(np.float32),
+        "text_mask": np.ones((num_scenes, 2), bool),
+        "targets": rng.integers(6, size=(num_scenes, 2)).astype(np.int32),
+    }
     params = scratch.init_params(model, jax.random.key(0))
     state = (params, train_scratch.make_optimizer(config).init(params))
 
@@ -70,8 +80,9 @@ def time_scratch(scale: str, steps: int, num_scenes: int) -> dict:
         nonlocal state
         rows = train_scratch.batch_indices(num_scenes, 0, index, 1, config.batch_size)[0]
         batch = {name: jnp.asarray(array[rows]) for name, array in arrays.items()}
-        state, loss = train_scratch.train_step(model, config, state, batch,
-                                               jnp.asarray(train_scratch.step_codes(config, index)))
+        state, loss = train_scratch.train_step(
+            model, config, state, batch, jnp.asarray(train_scratch.step_codes(config, index))
+        )
         return loss
 
     with Timer() as first:
@@ -81,9 +92,15 @@ def time_scratch(scale: str, steps: int, num_scenes: int) -> dict:
             loss = step(index)
         jax.block_until_ready(loss)
     parameters = sum(int(leaf.size) for leaf in jax.tree_util.tree_leaves(state[0]))
-    return {"method": "no_pretrain", "scale": scale, "model": model.to_dict(), "parameters": parameters,
-            "batch_scenes": config.batch_size, "recipe_steps": config.steps,
-            **report_times(first, timed, steps, config.steps)}
+    return {
+        "method": "no_pretrain",
+        "scale": scale,
+        "model": model.to_dict(),
+        "parameters": parameters,
+        "batch_scenes": config.batch_size,
+        "recipe_steps": config.steps,
+        **report_times(first, timed, steps, config.steps),
+    }
 
 
 class Timer:
@@ -98,10 +115,14 @@ class Timer:
 
 
 def report_times(first: Timer, timed: Timer, steps: int, recipe_steps: int) -> dict:
-    return {"first_call_wall_s": round(first.wall, 2), "first_call_cpu_s": round(first.cpu, 2),
-            "step_wall_ms": round(1e3 * timed.wall / steps, 3), "step_cpu_ms": round(1e3 * timed.cpu / steps, 3),
-            "estimated_train_wall_s": round(first.wall + timed.wall / steps * recipe_steps, 1),
-            "estimated_train_cpu_s": round(first.cpu + timed.cpu / steps * recipe_steps, 1)}
+    return {
+        "first_call_wall_s": round(first.wall, 2),
+        "first_call_cpu_s": round(first.cpu, 2),
+        "step_wall_ms": round(1e3 * timed.wall / steps, 3),
+        "step_cpu_ms": round(1e3 * timed.cpu / steps, 3),
+        "estimated_train_wall_s": round(first.wall + timed.wall / steps * recipe_steps, 1),
+        "estimated_train_cpu_s": round(first.cpu + timed.cpu / steps * recipe_steps, 1),
+    }
 
 
 def main() -> None:
@@ -112,9 +133,14 @@ def main() -> None:
     parser.add_argument("--scenes", type=int, default=200, help="synthetic training scenes held in memory")
     parser.add_argument("--out", help="write the report here as JSON")
     args = parser.parse_args()
-    report = {"cpus": len(os.sched_getaffinity(0)), "load_average": os.getloadavg(),
-              "results": [time_gtref(args.scale, args.dim, args.steps, args.scenes),
-                          time_scratch(args.scale, args.steps, args.scenes)]}
+    report = {
+        "cpus": len(os.sched_getaffinity(0)),
+        "load_average": os.getloadavg(),
+        "results": [
+            time_gtref(args.scale, args.dim, args.steps, args.scenes),
+            time_scratch(args.scale, args.steps, args.scenes),
+        ],
+    }
     text = json.dumps(report, indent=2)
     print(text)
     if args.out:

@@ -25,7 +25,6 @@ from ocplace.train import cliport as train_cliport
 from ocplace.train import grids as train_grids
 from ocplace.train import optim
 
-
 CPU_SECONDS: dict[str, float] = {}  # process CPU time (all threads) per measurement, beside the wall clock
 
 
@@ -40,16 +39,24 @@ def timed(fn, name: str = "") -> float:
 def grid_featurize_seconds(backbone, config: grids.GridConfig, scenes: int) -> float:
     rgb = np.random.default_rng(0).integers(0, 256, (480, 640, 3), dtype=np.uint8)
     backbone.encode_images(grids.cell_crops(rgb, Camera(), config))  # compile
-    return timed(lambda: [backbone.encode_images(grids.cell_crops(rgb, Camera(), config)) for _ in range(scenes)],
-                 "grids_featurize") / scenes
+    return (
+        timed(
+            lambda: [backbone.encode_images(grids.cell_crops(rgb, Camera(), config)) for _ in range(scenes)],
+            "grids_featurize",
+        )
+        / scenes
+    )
 
 
 def grid_step_seconds(recipe: train_grids.GridsRecipe, dim: int, steps: int) -> float:
     config, schedule = recipe.grid, recipe.schedule
     rng = np.random.default_rng(0)
-    data = (rng.normal(size=(200, config.num_cells, dim)).astype(np.float32),
-            rng.normal(size=(200, 2, dim)).astype(np.float32), np.ones((200, 2), bool),
-            rng.integers(0, config.num_cells, 200).astype(np.int32))
+    data = (
+        rng.normal(size=(200, config.num_cells, dim)).astype(np.float32),
+        rng.normal(size=(200, 2, dim)).astype(np.float32),
+        np.ones((200, 2), bool),
+        rng.integers(0, config.num_cells, 200).astype(np.int32),
+    )
     params = grids.init_grids(config, dim, jax.random.key(0))
 
     def run():
@@ -66,10 +73,12 @@ def cliport_seconds(recipe: train_cliport.CliportRecipe, dim: int, steps: int) -
     config, schedule = recipe.network, recipe.schedule
     rng = np.random.default_rng(0)
     count = 32
-    data = {"rgb": rng.integers(0, 256, (count, config.height, config.width, 3), dtype=np.uint8),
-            "height": rng.uniform(0, 0.2, (count, config.height, config.width)).astype(np.float16),
-            "text": rng.normal(size=(count, dim)).astype(np.float32),
-            "targets": rng.integers(0, config.num_pixels, (count, 4)).astype(np.int32)}
+    data = {
+        "rgb": rng.integers(0, 256, (count, config.height, config.width, 3), dtype=np.uint8),
+        "height": rng.uniform(0, 0.2, (count, config.height, config.width)).astype(np.float16),
+        "text": rng.normal(size=(count, dim)).astype(np.float32),
+        "targets": rng.integers(0, config.num_pixels, (count, 4)).astype(np.int32),
+    }
     mask = jnp.ones((config.height, config.width), bool)
     params = cliport.init_network(config, dim, jax.random.key(0))
 
@@ -105,18 +114,29 @@ def main() -> None:
     featurize = grid_featurize_seconds(backbone, grid_recipe.grid, args.scenes)
     grid_step = grid_step_seconds(grid_recipe, backbone.dim, args.grid_steps)
     cliport_step, cliport_infer = cliport_seconds(cliport_recipe, backbone.dim, args.cliport_steps)
-    print(json.dumps({
-        "scale": args.scale, "backbone_dim": backbone.dim, "cpus": len(os.sched_getaffinity(0)),
-        "grids_featurize_s_per_scene": round(featurize, 4),
-        "grids_step_ms": round(1e3 * grid_step, 4),
-        "grids_recipe_train_s": round(grid_step * grid_recipe.schedule.steps, 1),
-        "cliport_step_s": round(cliport_step, 4),
-        "cliport_recipe_train_s": round(cliport_step * cliport_recipe.schedule.steps, 1),
-        "cliport_infer_s_per_scene": round(cliport_infer, 4),
-        "cpu_seconds": {name: round(value, 3) for name, value in CPU_SECONDS.items()},
-        "counts": {"grids_featurize_scenes": args.scenes, "grids_steps": args.grid_steps,
-                   "cliport_steps": args.cliport_steps, "cliport_infer_scenes": 8},
-    }, indent=1))
+    print(
+        json.dumps(
+            {
+                "scale": args.scale,
+                "backbone_dim": backbone.dim,
+                "cpus": len(os.sched_getaffinity(0)),
+                "grids_featurize_s_per_scene": round(featurize, 4),
+                "grids_step_ms": round(1e3 * grid_step, 4),
+                "grids_recipe_train_s": round(grid_step * grid_recipe.schedule.steps, 1),
+                "cliport_step_s": round(cliport_step, 4),
+                "cliport_recipe_train_s": round(cliport_step * cliport_recipe.schedule.steps, 1),
+                "cliport_infer_s_per_scene": round(cliport_infer, 4),
+                "cpu_seconds": {name: round(value, 3) for name, value in CPU_SECONDS.items()},
+                "counts": {
+                    "grids_featurize_scenes": args.scenes,
+                    "grids_steps": args.grid_steps,
+                    "cliport_steps": args.cliport_steps,
+                    "cliport_infer_scenes": 8,
+                },
+            },
+            indent=1,
+        )
+    )
 
 
 if __name__ == "__main__":

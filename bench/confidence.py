@@ -44,8 +44,9 @@ def main() -> None:
     from ocplace.sim.dataset.records import read_scene
 
     records = [read_scene(d) for d in scene_dirs(args.dataset, args.split)]
-    policy = PlacementPolicy.from_run(load_backbone_spec(args.backbone), args.adapters, threshold=0.0,
-                                      sampler=SamplerConfig(num_samples=16))
+    policy = PlacementPolicy.from_run(
+        load_backbone_spec(args.backbone), args.adapters, threshold=0.0, sampler=SamplerConfig(num_samples=16)
+    )
     scenes = [scene_input(r) for r in records]
     names = sorted({obj["human_name"] for r in records for obj in r.meta["objects"]})
     rng = np.random.default_rng(0)
@@ -62,13 +63,17 @@ def main() -> None:
     for name, values in (("right", right), ("wrong", wrong), ("absent", missing)):
         if values:
             quantiles = np.percentile(values, [1, 5, 25, 50, 75])
-            print(f"  top probability, {name:<6}: p1 {quantiles[0]:.3f} p5 {quantiles[1]:.3f} p25 {quantiles[2]:.3f} "
-                  f"median {quantiles[3]:.3f} p75 {quantiles[4]:.3f}")
+            print(
+                f"  top probability, {name:<6}: p1 {quantiles[0]:.3f} p5 {quantiles[1]:.3f} p25 {quantiles[2]:.3f} "
+                f"median {quantiles[3]:.3f} p75 {quantiles[4]:.3f}"
+            )
     for threshold in THRESHOLDS:
         refused = np.mean(np.asarray(right) < threshold) if right else float("nan")
         caught = np.mean(np.asarray(missing) < threshold) if missing else float("nan")
-        print(f"  threshold {threshold:.1f}: refuses {refused:6.1%} of right groundings, catches {caught:6.1%} of "
-              "absent references")
+        print(
+            f"  threshold {threshold:.1f}: refuses {refused:6.1%} of right groundings, catches {caught:6.1%} of "
+            "absent references"
+        )
 
 
 if __name__ == "__main__":

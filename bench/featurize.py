@@ -26,13 +26,31 @@ from ocplace.models.grounding import l2_normalize
 
 # openai/clip-vit-base-patch32's architecture and preprocessing.
 VIT_B32 = dict(
-    text_config=dict(vocab_size=49408, hidden_size=512, intermediate_size=2048, num_hidden_layers=12,
-                     num_attention_heads=8, max_position_embeddings=77),
-    vision_config=dict(image_size=224, patch_size=32, hidden_size=768, intermediate_size=3072,
-                       num_hidden_layers=12, num_attention_heads=12),
-    projection_dim=512)
-PREP = ImagePreprocessing(resize=224, crop=(224, 224), mean=(0.48145466, 0.4578275, 0.40821073),
-                          std=(0.26862954, 0.26130258, 0.27577711), resample=3)
+    text_config=dict(
+        vocab_size=49408,
+        hidden_size=512,
+        intermediate_size=2048,
+        num_hidden_layers=12,
+        num_attention_heads=8,
+        max_position_embeddings=77,
+    ),
+    vision_config=dict(
+        image_size=224,
+        patch_size=32,
+        hidden_size=768,
+        intermediate_size=3072,
+        num_hidden_layers=12,
+        num_attention_heads=12,
+    ),
+    projection_dim=512,
+)
+PREP = ImagePreprocessing(
+    resize=224,
+    crop=(224, 224),
+    mean=(0.48145466, 0.4578275, 0.40821073),
+    std=(0.26862954, 0.26130258, 0.27577711),
+    resample=3,
+)
 
 
 def best_seconds(fn, repeats: int) -> float:
@@ -75,8 +93,10 @@ def main() -> None:
     rng = np.random.default_rng(0)
     size = prep.crop[0]
     pixels = jnp.asarray(rng.integers(0, 256, (args.batch, size, size, 3), dtype=np.uint8))
-    print(f"{datetime.datetime.now():%Y-%m-%d %H:%M}, {os.cpu_count()} CPUs, load average "
-          f"{' '.join(f'{x:.1f}' for x in os.getloadavg())} (other jobs share this machine)")
+    print(
+        f"{datetime.datetime.now():%Y-%m-%d %H:%M}, {os.cpu_count()} CPUs, load average "
+        f"{' '.join(f'{x:.1f}' for x in os.getloadavg())} (other jobs share this machine)"
+    )
 
     start = time.perf_counter()
     compiled = encode.lower(params, pixels).compile()
@@ -90,7 +110,7 @@ def main() -> None:
     dot = jax.jit(jnp.dot)
     jax.block_until_ready(dot(a, b))
     dot_s = best_seconds(lambda: dot(a, b), args.repeats)
-    dot_flops = 2.0 * n ** 3
+    dot_flops = 2.0 * n**3
 
     crops = rng.integers(0, 256, (args.batch, 224, 224, 3), dtype=np.uint8)
     frames = rng.integers(0, 256, (8, 480, 640, 3), dtype=np.uint8)
@@ -98,14 +118,18 @@ def main() -> None:
     frame_s = best_seconds(lambda: [resize_and_crop(f, prep) for f in frames], args.repeats) / len(frames)
 
     model_rate, dot_rate = flops / model_s, dot_flops / dot_s
-    print(f"{name} image tower, batch {args.batch}: {args.batch / model_s:6.1f} images/s "
-          f"({model_s:.2f} s per batch, compile {compile_s:.1f} s not counted)")
+    print(
+        f"{name} image tower, batch {args.batch}: {args.batch / model_s:6.1f} images/s "
+        f"({model_s:.2f} s per batch, compile {compile_s:.1f} s not counted)"
+    )
     print(f"  {flops / args.batch / 1e9:.2f} GFLOP per image (XLA cost analysis); {model_rate / 1e9:.1f} GFLOP/s")
-    print(f"dense matmul roofline: jnp.dot {n}x{n} @ {n}x{n} ({dot_flops / 1e9:.0f} GFLOP): "
-          f"{dot_rate / 1e9:.1f} GFLOP/s")
+    print(
+        f"dense matmul roofline: jnp.dot {n}x{n} @ {n}x{n} ({dot_flops / 1e9:.0f} GFLOP): {dot_rate / 1e9:.1f} GFLOP/s"
+    )
     print(f"image tower at {100 * model_rate / dot_rate:.0f}% of the matmul roofline")
-    print(f"host preprocessing to {size} px: {1 / crop_s:7.0f} crops/s (224x224), "
-          f"{1 / frame_s:6.0f} frames/s (640x480)")
+    print(
+        f"host preprocessing to {size} px: {1 / crop_s:7.0f} crops/s (224x224), {1 / frame_s:6.0f} frames/s (640x480)"
+    )
 
 
 if __name__ == "__main__":

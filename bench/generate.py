@@ -37,14 +37,19 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         for workers in args.workers:
             seconds, manifest = timed(Path(tmp) / f"w{workers}", prefix, workers)
-            print(f"{workers} worker(s): {args.scenes} scenes in {seconds:.1f} s = {args.scenes / seconds:.2f} scenes/s "
-                  f"(process start and arena compile included), {manifest['statistics']['bytes'] / args.scenes / 1e6:.2f} MB/scene")
+            print(
+                f"{workers} worker(s): {args.scenes} scenes in {seconds:.1f} s = {args.scenes / seconds:.2f} scenes/s "
+                f"(process start and arena compile included), "
+                f"{manifest['statistics']['bytes'] / args.scenes / 1e6:.2f} MB/scene"
+            )
         if args.full:
             out = args.out or Path(tmp) / "full"
             seconds, manifest = timed(out, default_config(), max(args.workers))
             scenes = sum(sum(c.values()) for c in manifest["counts"].values())
-            print(f"full default dataset: {scenes} scenes in {seconds / 60:.1f} min with {max(args.workers)} workers, "
-                  f"{manifest['statistics']['bytes'] / 1e9:.2f} GB, resampled {manifest['statistics']['resamples']}")
+            print(
+                f"full default dataset: {scenes} scenes in {seconds / 60:.1f} min with {max(args.workers)} workers, "
+                f"{manifest['statistics']['bytes'] / 1e9:.2f} GB, resampled {manifest['statistics']['resamples']}"
+            )
             if args.out is None:
                 shutil.rmtree(out)
 

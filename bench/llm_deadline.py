@@ -65,16 +65,19 @@ def main() -> None:
     args = parser.parse_args()
 
     config = LLMConfig(deadline_s=args.deadline, use_cache=False)
-    print(f"LLMConfig: timeout_s {config.timeout_s:g}, deadline_s {config.deadline_s:g}, "
-          f"max_attempts {config.max_attempts}, backoff_s {config.backoff_s:g}")
+    print(
+        f"LLMConfig: timeout_s {config.timeout_s:g}, deadline_s {config.deadline_s:g}, "
+        f"max_attempts {config.max_attempts}, backoff_s {config.backoff_s:g}"
+    )
     worst = 0.0
     for where in STARTS:
         seconds, reason = timed_parse(config, where, args.drip)
         worst = max(worst, seconds)
-        print(f"drip in the {where} (1 byte every {args.drip:g} s): {seconds:.2f} s; "
-              f"fallback_reason: {reason}")
-    print(f"parse against a drip endpoint: {worst:.2f} s worst case; bound {config.deadline_s:g} s "
-          f"(deadline_s) + the offline parse")
+        print(f"drip in the {where} (1 byte every {args.drip:g} s): {seconds:.2f} s; fallback_reason: {reason}")
+    print(
+        f"parse against a drip endpoint: {worst:.2f} s worst case; bound {config.deadline_s:g} s "
+        f"(deadline_s) + the offline parse"
+    )
 
 
 if __name__ == "__main__":

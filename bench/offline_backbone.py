@@ -8,8 +8,8 @@ which matters: the 30-minute budget is for 2 otherwise idle cores.
 Usage: `python bench/offline_backbone.py --data DIR [--recipe default] [--variant chosen] [--splits
 seen unseen_obj unseen_cat] [--out report.json]`. `--variant` changes the recipe for comparisons:
 `vit` is the first offline backbone (a ViT from scratch, no attribute data), `no-attributes` the
-chosen trunk without recoloured objects and primitives, `chosen` the recipe as it is. The dataset comes from `ocplace generate --out DIR --split seen` (and
-`--split unseen_obj`, `--split unseen_cat`).
+chosen trunk without recoloured objects and primitives, `chosen` the recipe as it is. The dataset
+comes from `ocplace generate --out DIR --split seen` (and `--split unseen_obj`, `--split unseen_cat`).
 """
 
 from __future__ import annotations
@@ -56,9 +56,14 @@ def main() -> None:
 
     library = load_library()
     config = variant_config(recipe_config(args.recipe), args.variant)
-    report = {"recipe": args.recipe, "variant": args.variant, "key": config.key(), "cpu_count": os.cpu_count(),
-              "started": datetime.datetime.now().astimezone().isoformat(timespec="seconds"),
-              "load_average_before": os.getloadavg()}
+    report = {
+        "recipe": args.recipe,
+        "variant": args.variant,
+        "key": config.key(),
+        "cpu_count": os.cpu_count(),
+        "started": datetime.datetime.now().astimezone().isoformat(timespec="seconds"),
+        "load_average_before": os.getloadavg(),
+    }
     began = time.perf_counter()
     result = pretrain(config, library, args.backbone_dir, progress=True)
     report["pretrain_wall_s"] = round(time.perf_counter() - began, 1)
@@ -70,17 +75,22 @@ def main() -> None:
     report["fingerprint"] = result.backbone.fingerprint
 
     backbone = result.backbone
-    random_init = OfflineBackbone(backbone.config, init_params(backbone.config, jax.random.key(0)),
-                                  backbone.text_tower, source="random init")
+    random_init = OfflineBackbone(
+        backbone.config, init_params(backbone.config, jax.random.key(0)), backbone.text_tower, source="random init"
+    )
     report["results"] = {}
     for name, candidate in (("pretrained", backbone), ("random_init", random_init)):
-        report["results"][name] = {split: evaluate_split(candidate, args.data, split, library, limit=args.limit,
-                                                         progress=True) for split in args.splits}
+        report["results"][name] = {
+            split: evaluate_split(candidate, args.data, split, library, limit=args.limit, progress=True)
+            for split in args.splits
+        }
     report["load_average_end"] = os.getloadavg()
     args.out.write_text(json.dumps(report, indent=2) + "\n")
     print(format_report(report))
-    print(f"pretraining ({args.recipe}): {report['pretrain_timings_s']} (load average before "
-          f"{report['load_average_before'][0]:.1f}); wrote {args.out}")
+    print(
+        f"pretraining ({args.recipe}): {report['pretrain_timings_s']} (load average before "
+        f"{report['load_average_before'][0]:.1f}); wrote {args.out}"
+    )
 
 
 if __name__ == "__main__":

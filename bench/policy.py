@@ -30,17 +30,38 @@ from ocplace.models.placement.sampler import SamplerConfig
 from ocplace.models.policy import PlacementPolicy, load_backbone_spec
 
 VIT_B32 = dict(
-    text_config=dict(hidden_size=512, intermediate_size=2048, num_hidden_layers=12, num_attention_heads=8,
-                     max_position_embeddings=77, vocab_size=49408),
-    vision_config=dict(image_size=224, patch_size=32, hidden_size=768, intermediate_size=3072,
-                       num_hidden_layers=12, num_attention_heads=12),
-    projection_dim=512)
+    text_config=dict(
+        hidden_size=512,
+        intermediate_size=2048,
+        num_hidden_layers=12,
+        num_attention_heads=8,
+        max_position_embeddings=77,
+        vocab_size=49408,
+    ),
+    vision_config=dict(
+        image_size=224,
+        patch_size=32,
+        hidden_size=768,
+        intermediate_size=3072,
+        num_hidden_layers=12,
+        num_attention_heads=12,
+    ),
+    projection_dim=512,
+)
 TINY_CLIP = dict(
-    text_config=dict(hidden_size=32, intermediate_size=64, num_hidden_layers=2, num_attention_heads=2,
-                     max_position_embeddings=16, vocab_size=49408),
-    vision_config=dict(image_size=32, patch_size=8, hidden_size=32, intermediate_size=64, num_hidden_layers=2,
-                       num_attention_heads=2),
-    projection_dim=16)
+    text_config=dict(
+        hidden_size=32,
+        intermediate_size=64,
+        num_hidden_layers=2,
+        num_attention_heads=2,
+        max_position_embeddings=16,
+        vocab_size=49408,
+    ),
+    vision_config=dict(
+        image_size=32, patch_size=8, hidden_size=32, intermediate_size=64, num_hidden_layers=2, num_attention_heads=2
+    ),
+    projection_dim=16,
+)
 CLIP_MEAN, CLIP_STD = (0.48145466, 0.4578275, 0.40821073), (0.26862954, 0.26130258, 0.27577711)
 
 
@@ -52,10 +73,14 @@ def random_clip_backbone(sizes: dict, directory: Path) -> ClipBackbone:
     from tiny_clip import write_tokenizer
 
     tokenizer = write_tokenizer(directory)
-    ids = dict(bos_token_id=tokenizer.bos_token_id, eos_token_id=tokenizer.eos_token_id,
-               pad_token_id=tokenizer.eos_token_id)
-    config = CLIPConfig(text_config={**sizes["text_config"], **ids}, vision_config=sizes["vision_config"],
-                        projection_dim=sizes["projection_dim"])
+    ids = dict(
+        bos_token_id=tokenizer.bos_token_id, eos_token_id=tokenizer.eos_token_id, pad_token_id=tokenizer.eos_token_id
+    )
+    config = CLIPConfig(
+        text_config={**sizes["text_config"], **ids},
+        vision_config=sizes["vision_config"],
+        projection_dim=sizes["projection_dim"],
+    )
     model = FlaxCLIPModel(config, _do_init=False)
     size = sizes["vision_config"]["image_size"]
     prep = ImagePreprocessing(size, (size, size), CLIP_MEAN, CLIP_STD, resample=3)
@@ -104,8 +129,19 @@ def median_ms(fn, repeats: int) -> float:
 
 def stage_times(policy: PlacementPolicy, scene, repeats: int) -> dict[str, float]:
     key = jax.random.key(0)
-    place = lambda: policy.place(scene.rgb, scene.depth, scene.boxes_or_segmentation, scene.instruction,  # noqa: E731
-                                 scene.held_footprint, key, camera=scene.camera, object_aabbs=scene.object_aabbs)
+
+    def place():
+        return policy.place(
+            scene.rgb,
+            scene.depth,
+            scene.boxes_or_segmentation,
+            scene.instruction,
+            scene.held_footprint,
+            key,
+            camera=scene.camera,
+            object_aabbs=scene.object_aabbs,
+        )
+
     start = time.perf_counter()
     place()  # compiles everything once
     first_s = time.perf_counter() - start
@@ -118,13 +154,15 @@ def stage_times(policy: PlacementPolicy, scene, repeats: int) -> dict[str, float
     return {
         "parse": median_ms(lambda: policy.parse(scene.instruction), repeats),
         "prepare (crops, workspace)": median_ms(lambda: policy.prepare(scene), repeats),
-        f"encode {len(images)} images + {len(texts)} texts": median_ms(lambda: policy.encode([prepared], [parsed]),
-                                                                       repeats),
+        f"encode {len(images)} images + {len(texts)} texts": median_ms(
+            lambda: policy.encode([prepared], [parsed]), repeats
+        ),
         "  images alone": median_ms(lambda: policy.backbone.encode_images(np.stack(images)), repeats),
         "  texts alone": median_ms(lambda: policy.backbone.encode_texts(texts), repeats),
         "ground": median_ms(lambda: policy.ground(tokens), repeats),
-        f"sample {policy.sampler.num_samples}": median_ms(lambda: policy.sample([prepared], [references], key)[0],
-                                                          repeats),
+        f"sample {policy.sampler.num_samples}": median_ms(
+            lambda: policy.sample([prepared], [references], key)[0], repeats
+        ),
         "place (end to end)": median_ms(place, repeats),
         "first place call (compiles)": first_s * 1000.0,
     }
@@ -143,20 +181,27 @@ def main() -> None:
     tiny = args.size == "tiny"
     scene, true_tokens = pick_scene(args.dataset)
     text_parser = make_parser("offline")
-    print(f"{datetime.datetime.now():%Y-%m-%d %H:%M}, {os.cpu_count()} CPUs, load average "
-          f"{' '.join(f'{x:.1f}' for x in os.getloadavg())} (other jobs share this machine)")
+    print(
+        f"{datetime.datetime.now():%Y-%m-%d %H:%M}, {os.cpu_count()} CPUs, load average "
+        f"{' '.join(f'{x:.1f}' for x in os.getloadavg())} (other jobs share this machine)"
+    )
     print(f"scene {scene.name}: {len(scene.boxes_or_segmentation)} boxes, {scene.instruction!r}")
     with tempfile.TemporaryDirectory() as tmp:
         backbones = {
-            "offline" + ("" if args.offline else " (random weights)"):
-                load_backbone_spec(args.offline) if args.offline else random_offline_backbone(tiny),
-            ("tiny CLIP" if tiny else "ViT-B/32 CLIP") + " (random weights)":
-                random_clip_backbone(TINY_CLIP if tiny else VIT_B32, Path(tmp)),
+            "offline" + ("" if args.offline else " (random weights)"): load_backbone_spec(args.offline)
+            if args.offline
+            else random_offline_backbone(tiny),
+            ("tiny CLIP" if tiny else "ViT-B/32 CLIP") + " (random weights)": random_clip_backbone(
+                TINY_CLIP if tiny else VIT_B32, Path(tmp)
+            ),
         }
         for name, backbone in backbones.items():
-            policy = TrueTokenPolicy(**vars(PlacementPolicy.from_run(backbone, None, parser=text_parser,
-                                                                     sampler=SamplerConfig(), threshold=0.0)),
-                                     true_tokens=tuple(true_tokens))
+            policy = TrueTokenPolicy(
+                **vars(
+                    PlacementPolicy.from_run(backbone, None, parser=text_parser, sampler=SamplerConfig(), threshold=0.0)
+                ),
+                true_tokens=tuple(true_tokens),
+            )
             print(f"\n{name}, D = {backbone.dim}: median of {args.repeats} calls, ms")
             for stage, ms in stage_times(policy, scene, args.repeats).items():
                 print(f"  {stage:<36} {ms:9.1f}")

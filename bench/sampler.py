@@ -66,8 +66,9 @@ def reference_samples(problem, num_samples: int, rng: np.random.Generator, confi
             chosen = which == index
             for axis in (0, 1):
                 a, b = (low[axis] - mean[axis]) / sigma[axis], (high[axis] - mean[axis]) / sigma[axis]
-                draws[chosen, axis] = stats.truncnorm.rvs(a, b, loc=mean[axis], scale=sigma[axis],
-                                                          size=chosen.sum(), random_state=rng)
+                draws[chosen, axis] = stats.truncnorm.rvs(
+                    a, b, loc=mean[axis], scale=sigma[axis], size=chosen.sum(), random_state=rng
+                )
         accepted.append(draws[metric.placement_success(draws, problem)])
         if sum(len(a) for a in accepted) >= num_samples:
             return np.concatenate(accepted)[:num_samples]
@@ -131,19 +132,27 @@ def main() -> None:
 
     jax_median, jax_best = statistics.median(times), min(times)
     passed = metric.placement_success(result.samples, problems).mean()
-    reference_passed = metric.placement_success(reference, metric.PlacementProblem(
-        *(np.asarray(field)[finished] for field in problems))).mean()
+    reference_passed = metric.placement_success(
+        reference, metric.PlacementProblem(*(np.asarray(field)[finished] for field in problems))
+    ).mean()
     cores = len(os.sched_getaffinity(0))
-    print(f"machine: {platform.processor() or platform.machine()}, {cores} cores, jax {jax.__version__} "
-          f"({jax.default_backend()}), load average {os.getloadavg()[0]:.2f}")
-    print(f"scenes {args.scenes} (table {levels.count('table')}, 1obj {levels.count('1obj')}, "
-          f"2obj {levels.count('2obj')}), samples per scene {args.samples}, tuple padding K={args.max_tuples}, "
-          f"grid {config.grid.shape[0]}x{config.grid.shape[1]} ({config.grid.resolution * 1000:g} mm)")
+    print(
+        f"machine: {platform.processor() or platform.machine()}, {cores} cores, jax {jax.__version__} "
+        f"({jax.default_backend()}), load average {os.getloadavg()[0]:.2f}"
+    )
+    print(
+        f"scenes {args.scenes} (table {levels.count('table')}, 1obj {levels.count('1obj')}, "
+        f"2obj {levels.count('2obj')}), samples per scene {args.samples}, tuple padding K={args.max_tuples}, "
+        f"grid {config.grid.shape[0]}x{config.grid.shape[1]} ({config.grid.resolution * 1000:g} mm)"
+    )
     print(f"jax compile:          {compile_s:8.2f} s")
-    print(f"jax sample (median):  {jax_median * 1000:8.1f} ms   best {jax_best * 1000:.1f} ms   "
-          f"over {args.repeats} runs")
-    print(f"reference (scipy):    {reference_s * 1000:8.1f} ms   ({seconds.mean() * 1000:.2f} ms per scene over the "
-          f"{len(finished)} scenes it finished; {args.scenes - len(finished)} gave up after 50 rounds)")
+    print(
+        f"jax sample (median):  {jax_median * 1000:8.1f} ms   best {jax_best * 1000:.1f} ms   over {args.repeats} runs"
+    )
+    print(
+        f"reference (scipy):    {reference_s * 1000:8.1f} ms   ({seconds.mean() * 1000:.2f} ms per scene over the "
+        f"{len(finished)} scenes it finished; {args.scenes - len(finished)} gave up after 50 rounds)"
+    )
     print(f"throughput ratio:     {reference_s / jax_median:8.1f}x (median)   {reference_s / jax_best:.1f}x (best)")
     print(f"samples passing the metric: jax {passed:.4%}, reference {reference_passed:.4%}")
 

@@ -40,8 +40,9 @@ def main() -> None:
 
     hulls = {name: object_hull_points(library.get(name)) for name in library.names()}
     start = time.perf_counter()
-    pybullet = PybulletScenes([library.get(n) for n in library.names()],
-                              {n: t.path for n, t in library.textures.items()})
+    pybullet = PybulletScenes(
+        [library.get(n) for n in library.names()], {n: t.path for n, t in library.textures.items()}
+    )
     pybullet.activate(library.names())  # loads every URDF once, like the MuJoCo arena compile
     pybullet.activate(())
     pybullet_setup = time.perf_counter() - start
@@ -54,10 +55,14 @@ def main() -> None:
 
     mujoco_rate, pybullet_rate = args.scenes / mujoco_seconds, args.scenes / pybullet_seconds
     print(f"scenes: {args.scenes} (seen split, {len(library.names())} objects in the arena)")
-    print(f"MuJoCo:   {mujoco_rate:6.2f} scenes/s  ({1000 / mujoco_rate:.1f} ms/scene, "
-          f"{np.mean(steps):.0f} settle steps on average; set-up {mujoco_setup:.2f} s, not counted)")
-    print(f"PyBullet: {pybullet_rate:6.2f} scenes/s  ({1000 / pybullet_rate:.1f} ms/scene; "
-          f"set-up {pybullet_setup:.2f} s, not counted)")
+    print(
+        f"MuJoCo:   {mujoco_rate:6.2f} scenes/s  ({1000 / mujoco_rate:.1f} ms/scene, "
+        f"{np.mean(steps):.0f} settle steps on average; set-up {mujoco_setup:.2f} s, not counted)"
+    )
+    print(
+        f"PyBullet: {pybullet_rate:6.2f} scenes/s  ({1000 / pybullet_rate:.1f} ms/scene; "
+        f"set-up {pybullet_setup:.2f} s, not counted)"
+    )
     print(f"ratio MuJoCo / PyBullet: {mujoco_rate / pybullet_rate:.1f}x")
 
 

@@ -31,7 +31,7 @@ def main() -> None:
     parser.add_argument("--cpus", type=int, help="pin to this many CPUs (default: all)")
     args = parser.parse_args()
     if args.cpus:
-        os.sched_setaffinity(0, sorted(os.sched_getaffinity(0))[:args.cpus])
+        os.sched_setaffinity(0, sorted(os.sched_getaffinity(0))[: args.cpus])
     run(args)
 
 
@@ -45,8 +45,9 @@ def run(args) -> None:
     from ocplace.train.loop import batch_indices, init_state, jit_train_chunk, jit_train_step, make_optimizer
     from ocplace.train.synthetic import synthetic_features
 
-    config = dataclasses.replace(default_config(), steps=args.steps, batch_size=args.batch_size,
-                                 chunk_steps=args.chunk_steps)
+    config = dataclasses.replace(
+        default_config(), steps=args.steps, batch_size=args.batch_size, chunk_steps=args.chunk_steps
+    )
     features = synthetic_features(args.scenes, args.dim)
     adapter_config = AdapterConfig(args.dim, config.reduction, config.residual_ratio)
     optimizer = make_optimizer(config)
@@ -57,18 +58,26 @@ def run(args) -> None:
     data = jax.device_put(features.arrays())
     indices = jnp.asarray(batch_indices(features.num_scenes, config.seed, 0, args.steps, args.batch_size))
     load = " ".join(f"{x:.1f}" for x in os.getloadavg())
-    print(f"{datetime.datetime.now():%Y-%m-%d %H:%M}, {len(os.sched_getaffinity(0))} of {os.cpu_count()} CPUs, "
-          f"load average {load} (other jobs share this machine)")
-    print(f"D = {args.dim}, {count_parameters(fresh_state()[0]):,} trainable parameters, {args.scenes} scenes, "
-          f"batch {args.batch_size}, {args.steps:,} steps in chunks of {args.chunk_steps}")
+    print(
+        f"{datetime.datetime.now():%Y-%m-%d %H:%M}, {len(os.sched_getaffinity(0))} of {os.cpu_count()} CPUs, "
+        f"load average {load} (other jobs share this machine)"
+    )
+    print(
+        f"D = {args.dim}, {count_parameters(fresh_state()[0]):,} trainable parameters, {args.scenes} scenes, "
+        f"batch {args.batch_size}, {args.steps:,} steps in chunks of {args.chunk_steps}"
+    )
 
     fused_s, fused_cpu_s = time_fused(train_chunk, fresh_state, data, indices, args.chunk_steps)
-    loop_s = time_loop(train_step, fresh_state, data, indices[:args.loop_steps])
+    loop_s = time_loop(train_step, fresh_state, data, indices[: args.loop_steps])
     fused_us, loop_us = fused_s / args.steps * 1e6, loop_s / args.loop_steps * 1e6
-    print(f"lax.scan chunks : {fused_s:7.1f} s for {args.steps:,} steps ({fused_us:.1f} us/step; "
-          f"{fused_cpu_s:.1f} CPU-seconds)")
-    print(f"per-step loop   : {loop_us * args.steps / 1e6:7.1f} s extrapolated from {args.loop_steps:,} steps "
-          f"({loop_us:.1f} us/step)")
+    print(
+        f"lax.scan chunks : {fused_s:7.1f} s for {args.steps:,} steps ({fused_us:.1f} us/step; "
+        f"{fused_cpu_s:.1f} CPU-seconds)"
+    )
+    print(
+        f"per-step loop   : {loop_us * args.steps / 1e6:7.1f} s extrapolated from {args.loop_steps:,} steps "
+        f"({loop_us:.1f} us/step)"
+    )
     print(f"speed-up of the fused loop: {loop_us / fused_us:.2f}x")
 
 
@@ -81,7 +90,7 @@ def time_fused(train_chunk, fresh_state, data, indices, chunk: int) -> tuple[flo
     state = jax.block_until_ready(fresh_state())
     start, start_cpu = time.perf_counter(), time.process_time()
     for begin in range(0, len(indices), chunk):
-        state, _ = train_chunk(state, data, indices[begin:begin + chunk])
+        state, _ = train_chunk(state, data, indices[begin : begin + chunk])
     jax.block_until_ready(state)
     return time.perf_counter() - start, time.process_time() - start_cpu
 

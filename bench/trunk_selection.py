@@ -40,8 +40,10 @@ def development_library(library):
     """The library with every fifth training object moved to a split pretraining never renders."""
     seen = library.names("seen")
     held_out = set(seen[::5])
-    objects = {name: dataclasses.replace(asset, split=HOLDOUT_SPLIT) if name in held_out else asset
-               for name, asset in library.objects.items()}
+    objects = {
+        name: dataclasses.replace(asset, split=HOLDOUT_SPLIT) if name in held_out else asset
+        for name, asset in library.objects.items()
+    }
     return dataclasses.replace(library, objects=objects), sorted(held_out)
 
 
@@ -56,8 +58,9 @@ def measure(backbone, data: Path, held_out: list[str], seen_names: list[str], li
         example = example_from_record(record, CROP_SIZE)
         object_names = {o["object_id"]: o["name"] for o in record.meta["objects"]}
         crop_names = [object_names[int(i)] for i in example.box_object_ids]
-        wanted = [k for k, target in enumerate(example.targets)
-                  if target < len(crop_names) and crop_names[target] in held_out]
+        wanted = [
+            k for k, target in enumerate(example.targets) if target < len(crop_names) and crop_names[target] in held_out
+        ]
         crops_wanted = [k for k, name in enumerate(crop_names) if name in held_out]
         if not wanted and not crops_wanted:
             continue
@@ -71,9 +74,13 @@ def measure(backbone, data: Path, held_out: list[str], seen_names: list[str], li
             scores = names @ visual[k]
             ranks.append(int(np.sum(scores > scores[seen_names.index(crop_names[k])])))
     ranks = np.asarray(ranks)
-    return {"grounding_top1": correct / max(tuples, 1), "tuples": tuples,
-            "retrieval_top1": float(np.mean(ranks == 0)), "retrieval_top5": float(np.mean(ranks < 5)),
-            "crops": len(ranks)}
+    return {
+        "grounding_top1": correct / max(tuples, 1),
+        "tuples": tuples,
+        "retrieval_top1": float(np.mean(ranks == 0)),
+        "retrieval_top5": float(np.mean(ranks < 5)),
+        "crops": len(ranks),
+    }
 
 
 def main() -> None:
@@ -89,18 +96,22 @@ def main() -> None:
     dev_library, held_out = development_library(library)
     demo = recipe_config("demo")
     # The size the published selection ran at; the demo recipe has since shrunk to fit `make demo`.
-    base = dataclasses.replace(demo, recipe="selection",
-                               render=dataclasses.replace(demo.render, scenes=150),
-                               optim=dataclasses.replace(demo.optim, steps=150, warmup_steps=15, checkpoint_every=50))
+    base = dataclasses.replace(
+        demo,
+        recipe="selection",
+        render=dataclasses.replace(demo.render, scenes=150),
+        optim=dataclasses.replace(demo.optim, steps=150, warmup_steps=15, checkpoint_every=50),
+    )
     report = {"held_out": held_out, "recipe": "selection", "cpu_count": os.cpu_count(), "candidates": {}}
     for candidate in args.candidates:
         frozen, size = (int(part) for part in candidate.split("@"))
-        config = dataclasses.replace(base, model=dataclasses.replace(base.model, frozen_blocks=frozen,
-                                                                     image_size=size))
+        config = dataclasses.replace(base, model=dataclasses.replace(base.model, frozen_blocks=frozen, image_size=size))
         began = time.perf_counter()
         result = pretrain(config, dev_library, args.work / candidate, progress=True)
-        row = {"pretrain_s": round(time.perf_counter() - began, 1),
-               **measure(result.backbone, args.data, held_out, library.names("seen"), library, args.limit)}
+        row = {
+            "pretrain_s": round(time.perf_counter() - began, 1),
+            **measure(result.backbone, args.data, held_out, library.names("seen"), library, args.limit),
+        }
         report["candidates"][candidate] = row
         print(candidate, json.dumps(row), flush=True)
         args.out.write_text(json.dumps(report, indent=2) + "\n")

@@ -33,8 +33,13 @@ def train_no_llm(ctx: TrainContext) -> Path:
     from ocplace.models.policy import load_backbone_spec
     from ocplace.train.gtref import recipe, train_gtref
 
-    return train_gtref(Path(ctx.dataset_dir), load_backbone_spec(ctx.backbone), Path(ctx.out_dir),
-                       recipe(ctx.scale, ctx.fraction, ctx.seed), progress=False)
+    return train_gtref(
+        Path(ctx.dataset_dir),
+        load_backbone_spec(ctx.backbone),
+        Path(ctx.out_dir),
+        recipe(ctx.scale, ctx.fraction, ctx.seed),
+        progress=False,
+    )
 
 
 @dataclasses.dataclass
@@ -58,11 +63,13 @@ class GtRefMethod:
         references: dict[int, tuple] = {}
         chunk_size = self.policy.encode_scenes
         for start in range(0, len(ready), chunk_size):
-            chunk = ready[start:start + chunk_size]
-            references.update(zip(chunk, self.program([prepared[i] for i in chunk],
-                                                      [scenes[i].meta["level"] for i in chunk])))
-        sampled = dict(zip(ready, self.policy.sample([prepared[i] for i in ready], [references[i] for i in ready],
-                                                     key)))
+            chunk = ready[start : start + chunk_size]
+            references.update(
+                zip(chunk, self.program([prepared[i] for i in chunk], [scenes[i].meta["level"] for i in chunk]))
+            )
+        sampled = dict(
+            zip(ready, self.policy.sample([prepared[i] for i in ready], [references[i] for i in ready], key))
+        )
         return [self._output(prepared[i], references.get(i), sampled.get(i)) for i in range(len(scenes))]
 
     def program(self, prepared: Sequence, levels: Sequence[str]) -> list[tuple]:
@@ -75,19 +82,28 @@ class GtRefMethod:
         model = self.trained.model
         tokens = self.policy.encode(prepared, [()] * len(prepared))
         sentences = encode_sentences(self.policy.backbone, model.config, [scene.instruction for scene in prepared])
-        prediction = model.predict(tokens.visual, tokens.visual_mask, sentences,
-                                   np.array([REFERENCES_BY_LEVEL[level] for level in levels]))
+        prediction = model.predict(
+            tokens.visual, tokens.visual_mask, sentences, np.array([REFERENCES_BY_LEVEL[level] for level in levels])
+        )
         programs = []
         for row, scene in enumerate(prepared):
             num_boxes = len(scene.boxes)
-            probabilities = prediction.token_probabilities[row, :num_boxes + 1].astype(np.float64)
+            probabilities = prediction.token_probabilities[row, : num_boxes + 1].astype(np.float64)
             chosen = []
             for slot in np.flatnonzero(prediction.reference_mask[row]):
                 token = int(prediction.references[row, slot])
                 is_table = token == num_boxes
-                chosen.append(GroundedReference(
-                    "", RELATION_NAMES[int(prediction.relations[row, slot])], token, float(probabilities[token]),
-                    probabilities, None if is_table else scene.boxes[token], None if is_table else scene.aabbs[token]))
+                chosen.append(
+                    GroundedReference(
+                        "",
+                        RELATION_NAMES[int(prediction.relations[row, slot])],
+                        token,
+                        float(probabilities[token]),
+                        probabilities,
+                        None if is_table else scene.boxes[token],
+                        None if is_table else scene.aabbs[token],
+                    )
+                )
             programs.append(tuple(chosen))
         return programs
 
@@ -96,26 +112,42 @@ class GtRefMethod:
         failure = next((x for x in (prepared, sampled) if isinstance(x, OcplaceError)), None)
         grounded = tuple(ref.token for ref in references) if references else None
         if failure is not None:
-            return MethodOutput(mode=None, samples=None, grounded=grounded,
-                                failure=f"{type(failure).__name__}: {failure}")
+            return MethodOutput(
+                mode=None, samples=None, grounded=grounded, failure=f"{type(failure).__name__}: {failure}"
+            )
         samples, _, mode = sampled
-        return MethodOutput(mode=np.asarray(mode, np.float64), samples=np.asarray(samples, np.float64),
-                            parsed=None, grounded=grounded)
+        return MethodOutput(
+            mode=np.asarray(mode, np.float64), samples=np.asarray(samples, np.float64), parsed=None, grounded=grounded
+        )
 
     def describe(self) -> dict:
         model = self.trained.model
-        return json.loads(json.dumps({
-            "method": self.name,
-            "backbone": {"spec": self.backbone_spec, "fingerprint": self.policy.backbone.fingerprint},
-            "model": {"path": str(Path(self.run_dir) / "model.safetensors"), "weights_sha256": self.trained.sha256,
-                      "config": dataclasses.asdict(model.config), "logit_scale": float(model.logit_scale),
-                      "train_config": self.trained.train_config, "seed": self.trained.train_config["seed"]},
-            "references": "top-L visual tokens by adapted similarity to the sentence; L from meta['level'] "
-                          "(table, 1obj: 1; 2obj: 2)",
-            "sampler": dataclasses.asdict(self.policy.sampler),
-            "policy": {"crop_size": self.policy.crop_size, "min_boxes": self.policy.min_boxes,
-                       "boxes": "dataset (from segmentation)", "aabbs": "dataset (simulator AABBs of boxed objects)"},
-        }, default=_jsonable))
+        return json.loads(
+            json.dumps(
+                {
+                    "method": self.name,
+                    "backbone": {"spec": self.backbone_spec, "fingerprint": self.policy.backbone.fingerprint},
+                    "model": {
+                        "path": str(Path(self.run_dir) / "model.safetensors"),
+                        "weights_sha256": self.trained.sha256,
+                        "config": dataclasses.asdict(model.config),
+                        "logit_scale": float(model.logit_scale),
+                        "train_config": self.trained.train_config,
+                        "seed": self.trained.train_config["seed"],
+                    },
+                    "references": "top-L visual tokens by adapted similarity to the sentence; L from meta['level'] "
+                    "(table, 1obj: 1; 2obj: 2)",
+                    "sampler": dataclasses.asdict(self.policy.sampler),
+                    "policy": {
+                        "crop_size": self.policy.crop_size,
+                        "min_boxes": self.policy.min_boxes,
+                        "boxes": "dataset (from segmentation)",
+                        "aabbs": "dataset (simulator AABBs of boxed objects)",
+                    },
+                },
+                default=_jsonable,
+            )
+        )
 
 
 def load_no_llm(ctx: LoadContext) -> GtRefMethod:
@@ -130,11 +162,18 @@ def load_no_llm(ctx: LoadContext) -> GtRefMethod:
     trained = load_model(ctx.run_dir)
     backbone = load_backbone_spec(ctx.backbone)
     if trained.backbone_fingerprint != backbone.fingerprint:
-        raise TrainingError(f"the GT-ref# model in {ctx.run_dir} was trained on another backbone (fingerprint "
-                            f"{trained.backbone_fingerprint[:12]}, {ctx.backbone} is {backbone.fingerprint[:12]})")
+        raise TrainingError(
+            f"the GT-ref# model in {ctx.run_dir} was trained on another backbone (fingerprint "
+            f"{trained.backbone_fingerprint[:12]}, {ctx.backbone} is {backbone.fingerprint[:12]})"
+        )
     # Grounding and parsing are the model's own; the policy only prepares scenes and samples.
-    policy = PlacementPolicy(backbone, GroundingModel.zero_shot(backbone.dim, backbone.logit_scale), PromptConfig(),
-                             parser=None, sampler=SamplerConfig(num_samples=ctx.num_samples))
+    policy = PlacementPolicy(
+        backbone,
+        GroundingModel.zero_shot(backbone.dim, backbone.logit_scale),
+        PromptConfig(),
+        parser=None,
+        sampler=SamplerConfig(num_samples=ctx.num_samples),
+    )
     return GtRefMethod("no_llm", policy, trained, ctx.backbone, Path(ctx.run_dir))
 
 
@@ -145,8 +184,9 @@ def train_no_pretrain(ctx: TrainContext) -> Path:
     """Train the tower and adapters from random weights (`ctx.backbone` is not used: nothing is pretrained)."""
     from ocplace.train.scratch import recipe, train_scratch
 
-    return train_scratch(Path(ctx.dataset_dir), Path(ctx.out_dir), recipe(ctx.scale, ctx.fraction, ctx.seed),
-                         progress=False)
+    return train_scratch(
+        Path(ctx.dataset_dir), Path(ctx.out_dir), recipe(ctx.scale, ctx.fraction, ctx.seed), progress=False
+    )
 
 
 @dataclasses.dataclass
@@ -174,10 +214,10 @@ def load_no_pretrain(ctx: LoadContext) -> ScratchMethod:
         raise TrainingError(f"no trained tower and adapters in {ctx.run_dir}; train the 'no_pretrain' method first")
     run_dir = Path(ctx.run_dir)
     backbone = load_saved_backbone(run_dir / BACKBONE_DIR)
-    policy = PlacementPolicy.from_run(backbone, run_dir / ADAPTERS_FILE, parser=ctx.parser,
-                                      sampler=SamplerConfig(num_samples=ctx.num_samples))
-    return ScratchMethod("no_pretrain", policy, f"offline:{run_dir / BACKBONE_DIR}", run_dir / ADAPTERS_FILE,
-                         run_dir)
+    policy = PlacementPolicy.from_run(
+        backbone, run_dir / ADAPTERS_FILE, parser=ctx.parser, sampler=SamplerConfig(num_samples=ctx.num_samples)
+    )
+    return ScratchMethod("no_pretrain", policy, f"offline:{run_dir / BACKBONE_DIR}", run_dir / ADAPTERS_FILE, run_dir)
 
 
 def _jsonable(value):

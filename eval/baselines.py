@@ -30,9 +30,11 @@ def _load_backbone(spec: str, run_meta: dict, name: str):
 
     backbone = load_backbone(spec)
     if backbone.fingerprint != run_meta["backbone_fingerprint"]:
-        raise TrainingError(f"the {name} run was trained with another backbone (fingerprint "
-                            f"{run_meta['backbone_fingerprint'][:12]}, loaded {backbone.fingerprint[:12]}); "
-                            "evaluate with the backbone it was trained with, or retrain")
+        raise TrainingError(
+            f"the {name} run was trained with another backbone (fingerprint "
+            f"{run_meta['backbone_fingerprint'][:12]}, loaded {backbone.fingerprint[:12]}); "
+            "evaluate with the backbone it was trained with, or retrain"
+        )
     return backbone
 
 
@@ -58,9 +60,14 @@ class GridsMethod:
     name: str = "grids"
 
     def describe(self) -> dict:
-        return {"method": self.name, "run": self.run_meta, "weights_sha256": self.weights_sha256,
-                "backbone_fingerprint": self.backbone.fingerprint, "parser": self.parser.name,
-                "num_samples": self.num_samples}
+        return {
+            "method": self.name,
+            "run": self.run_meta,
+            "weights_sha256": self.weights_sha256,
+            "backbone_fingerprint": self.backbone.fingerprint,
+            "parser": self.parser.name,
+            "num_samples": self.num_samples,
+        }
 
     def run(self, scenes: Sequence[SceneRecord], key) -> list[MethodOutput]:
         return [self._place(scene, scene_key) for scene, scene_key in zip(scenes, jax.random.split(key, len(scenes)))]
@@ -69,12 +76,16 @@ class GridsMethod:
         """`(cell, logits (num_cells,))` for one scene and its parse."""
         cells = self.encoded_cells(scene)
         text = self.backbone.encode_texts([grids.tuple_text(reference, relation) for reference, relation in parsed])
-        logits = np.asarray(grids.jit_grid_logits(self.config, self.params, cells, text, np.ones(len(text), bool),
-                                                  float(self.run_meta["logit_scale"])))
+        logits = np.asarray(
+            grids.jit_grid_logits(
+                self.config, self.params, cells, text, np.ones(len(text), bool), float(self.run_meta["logit_scale"])
+            )
+        )
         return int(np.argmax(logits)), logits
 
     def encoded_cells(self, scene: SceneRecord) -> np.ndarray:
         """`(num_cells, D)` backbone features of the scene's cells, read from `cells_cache` when there."""
+
         def encode():
             crops = grids.cell_crops(scene.rgb, camera_from_meta(scene.meta), self.config)
             return np.asarray(self.backbone.encode_images(crops))
@@ -117,8 +128,9 @@ def load_grids(context: LoadContext) -> GridsMethod:
     backbone = _load_backbone(context.backbone, run_meta, "Raw Image Grids")
     grid_key = hashlib.sha256(config.to_json().encode()).hexdigest()[:12]
     cells_cache = cache_dir() / "baselines" / f"test-cells-{backbone.fingerprint[:16]}-{grid_key}"
-    return GridsMethod(backbone, make_parser(context.parser), params, config, run_meta, sha, context.num_samples,
-                       cells_cache)
+    return GridsMethod(
+        backbone, make_parser(context.parser), params, config, run_meta, sha, context.num_samples, cells_cache
+    )
 
 
 # ----------------------------------------------------------------------------- CLIPort-Place
@@ -137,14 +149,19 @@ class CliportMethod:
     name: str = "cliport"
 
     def describe(self) -> dict:
-        return {"method": self.name, "run": self.run_meta, "weights_sha256": self.weights_sha256,
-                "backbone_fingerprint": self.backbone.fingerprint, "num_samples": self.num_samples}
+        return {
+            "method": self.name,
+            "run": self.run_meta,
+            "weights_sha256": self.weights_sha256,
+            "backbone_fingerprint": self.backbone.fingerprint,
+            "num_samples": self.num_samples,
+        }
 
     def distributions(self, scenes: Sequence[SceneRecord]) -> np.ndarray:
         """`(num_scenes, h * w)` pixel distributions (each sums to 1 over the table's pixels)."""
         out = []
         for start in range(0, len(scenes), SCENES_PER_BATCH):
-            batch = list(scenes[start:start + SCENES_PER_BATCH])
+            batch = list(scenes[start : start + SCENES_PER_BATCH])
             cameras = [camera_from_meta(scene.meta) for scene in batch]
             images = [cliport.prepare_image(s.rgb, s.depth, c, self.config) for s, c in zip(batch, cameras)]
             text = self.backbone.encode_texts([scene.meta["instruction"] for scene in batch])
@@ -154,7 +171,7 @@ class CliportMethod:
             text = np.concatenate([text, np.zeros((pad, text.shape[1]), text.dtype)])
             mask = np.stack([cliport.table_mask(camera, self.config) for camera in cameras + cameras[:1] * pad])
             probabilities = cliport.jit_distribution(self.config, self.params, rgb, height, text, mask)
-            out.append(np.asarray(probabilities)[:len(batch)])
+            out.append(np.asarray(probabilities)[: len(batch)])
         return np.concatenate(out) if out else np.zeros((0, self.config.num_pixels), np.float32)
 
     def run(self, scenes: Sequence[SceneRecord], key) -> list[MethodOutput]:
@@ -164,8 +181,9 @@ class CliportMethod:
             return [_failure(error) for _ in scenes]
         outputs = []
         for scene, probabilities, scene_key in zip(scenes, distributions, jax.random.split(key, len(scenes))):
-            mode, samples = cliport.mode_and_samples(scene_key, probabilities, self.num_samples,
-                                                     camera_from_meta(scene.meta), self.config)
+            mode, samples = cliport.mode_and_samples(
+                scene_key, probabilities, self.num_samples, camera_from_meta(scene.meta), self.config
+            )
             outputs.append(MethodOutput(mode=mode, samples=samples, parsed=None, grounded=None))
         return outputs
 
@@ -181,8 +199,9 @@ def load_cliport(context: LoadContext) -> CliportMethod:
 
     params, run_meta, sha = load_params(context.run_dir)
     config = cliport.CliportConfig.from_json(json.dumps(run_meta["network"]))
-    return CliportMethod(_load_backbone(context.backbone, run_meta, "CLIPort-Place"), params, config, run_meta, sha,
-                         context.num_samples)
+    return CliportMethod(
+        _load_backbone(context.backbone, run_meta, "CLIPort-Place"), params, config, run_meta, sha, context.num_samples
+    )
 
 
 METHODS = (

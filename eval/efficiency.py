@@ -19,8 +19,7 @@ def efficiency_curves(results: Mapping) -> dict[str, dict[str, list[tuple[float,
             lines["seen"].append((entry["fraction"], 100 * seen))
         if unseen is not None:
             lines["unseen"].append((entry["fraction"], 100 * unseen))
-    return {label: lines for label, lines in curves.items()
-            if len(lines["seen"]) > 1 or len(lines["unseen"]) > 1}
+    return {label: lines for label, lines in curves.items() if len(lines["seen"]) > 1 or len(lines["unseen"]) > 1}
 
 
 def plot_sample_efficiency(results: Mapping, path: str | Path) -> Path:

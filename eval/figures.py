@@ -30,15 +30,18 @@ def _outcomes_by_scene(entry: Mapping, subset: str) -> dict[str, dict]:
     return {scene["id"]: scene for scene in entry["subsets"].get(subset, {}).get("scenes", [])}
 
 
-def choose_cases(results: Mapping, methods: Sequence[str] = CASE_METHODS,
-                 levels: Sequence[str] = CASE_LEVELS) -> list[tuple[str, str]]:
+def choose_cases(
+    results: Mapping, methods: Sequence[str] = CASE_METHODS, levels: Sequence[str] = CASE_LEVELS
+) -> list[tuple[str, str]]:
     """`(subset, scene id)` per evaluated subset and level: the first scene where the methods'
     successes differ, else the first scene of that level. Full-data runs only."""
     entries = _full_runs_by_method(results)
     missing = [m for m in methods if m not in entries]
     if missing:
-        raise EvaluationError(f"the results hold no full-data evaluation of {missing}; evaluate them first "
-                              f"(evaluated: {', '.join(entries) or 'none'})")
+        raise EvaluationError(
+            f"the results hold no full-data evaluation of {missing}; evaluate them first "
+            f"(evaluated: {', '.join(entries) or 'none'})"
+        )
     cases = []
     for subset in results["settings"]["subsets"]:
         outcomes = [_outcomes_by_scene(entries[m], subset) for m in methods]
@@ -62,20 +65,34 @@ def _draw_case(axis, record, outcomes: Sequence[tuple[str, dict]]) -> None:
     references = {t.reference_object_id for t in record.tuples}
     for object_id, (u0, v0, u1, v1) in zip(record.boxes.object_ids, record.boxes.boxes, strict=True):
         if object_id in references:
-            axis.add_patch(Rectangle((u0 - 0.5, v0 - 0.5), u1 - u0, v1 - v0, fill=False, edgecolor="white",
-                                     linewidth=1.5))
+            axis.add_patch(
+                Rectangle((u0 - 0.5, v0 - 0.5), u1 - u0, v1 - v0, fill=False, edgecolor="white", linewidth=1.5)
+            )
     camera = PinholeCamera.from_json(meta["camera"])
     for k, (label, outcome) in enumerate(outcomes):
         colour = METHOD_COLOURS[k % len(METHOD_COLOURS)]
         verdict = "success" if outcome["success"] else ("not placed" if outcome["failure"] else "failure")
         if outcome["mode"] is not None:
             u, v = camera.table_to_pixel(np.asarray(outcome["mode"]))
-            axis.scatter([u], [v], s=90, marker="o" if outcome["success"] else "X", color=colour,
-                         edgecolors="black", linewidths=0.8, zorder=3)
-        axis.text(6, 18 + 20 * k, f"{label}: {verdict}", color=colour, fontsize=7,
-                  bbox={"facecolor": "black", "alpha": 0.6, "pad": 1})
-    axis.set_title(f"{meta['id']} ({meta['level']})\n" + "\n".join(textwrap.wrap(meta["instruction"], 48)),
-                   fontsize=7)
+            axis.scatter(
+                [u],
+                [v],
+                s=90,
+                marker="o" if outcome["success"] else "X",
+                color=colour,
+                edgecolors="black",
+                linewidths=0.8,
+                zorder=3,
+            )
+        axis.text(
+            6,
+            18 + 20 * k,
+            f"{label}: {verdict}",
+            color=colour,
+            fontsize=7,
+            bbox={"facecolor": "black", "alpha": 0.6, "pad": 1},
+        )
+    axis.set_title(f"{meta['id']} ({meta['level']})\n" + "\n".join(textwrap.wrap(meta["instruction"], 48)), fontsize=7)
     axis.set_axis_off()
 
 
@@ -85,13 +102,20 @@ def _listed_scene(dataset_dir: Path, subset: str, scene_id: str) -> Path:
 
     listed = {directory.name: directory for directory in scene_dirs(dataset_dir, subset)}
     if scene_id not in listed:
-        raise EvaluationError(f"scene {scene_id!r} of the results is not in the manifest of {dataset_dir}: the "
-                              "results come from another dataset; pass the dataset they were made on")
+        raise EvaluationError(
+            f"scene {scene_id!r} of the results is not in the manifest of {dataset_dir}: the "
+            "results come from another dataset; pass the dataset they were made on"
+        )
     return listed[scene_id]
 
 
-def plot_cases(results: Mapping, path: str | Path, dataset_dir: str | Path | None = None,
-               methods: Sequence[str] = CASE_METHODS, cases: Sequence[tuple[str, str]] | None = None) -> Path:
+def plot_cases(
+    results: Mapping,
+    path: str | Path,
+    dataset_dir: str | Path | None = None,
+    methods: Sequence[str] = CASE_METHODS,
+    cases: Sequence[tuple[str, str]] | None = None,
+) -> Path:
     """Fig. 6: one panel per case, each method's mode (o success, X failure) over the scene with its
     feasible region (green) and ground-truth references (white boxes). A PNG at `path`."""
     import matplotlib
@@ -110,7 +134,7 @@ def plot_cases(results: Mapping, path: str | Path, dataset_dir: str | Path | Non
     columns = min(len(cases), 3)
     rows = -(-len(cases) // columns)
     figure, axes = plt.subplots(rows, columns, figsize=(4.4 * columns, 3.9 * rows), squeeze=False)
-    for axis in axes.flat[len(cases):]:
+    for axis in axes.flat[len(cases) :]:
         axis.set_axis_off()
     for axis, (subset, scene_id) in zip(axes.flat, cases):
         record = read_scene(_listed_scene(dataset_dir, subset, scene_id))
@@ -133,15 +157,23 @@ def plot_fig5(dataset_dir: str | Path, path: str | Path, seed: int = 0, subset: 
     meta = record.meta
     boxes = np.array([obj["aabb"] for obj in meta["objects"]], dtype=float)[:, :, :2]
     held = meta["held_object"]
-    figure = fig5(jax.random.key(seed), record.rgb, PinholeCamera.from_json(meta["camera"]), boxes,
-                  held["footprint_half_extents"], rng=np.random.default_rng(seed),
-                  names=[obj["human_name"] for obj in meta["objects"]],
-                  suptitle=f"{record.id} | held: {held['human_name']}", scene=record.id)
+    figure = fig5(
+        jax.random.key(seed),
+        record.rgb,
+        PinholeCamera.from_json(meta["camera"]),
+        boxes,
+        held["footprint_half_extents"],
+        rng=np.random.default_rng(seed),
+        names=[obj["human_name"] for obj in meta["objects"]],
+        suptitle=f"{record.id} | held: {held['human_name']}",
+        scene=record.id,
+    )
     return save_figure(figure, path)
 
 
-def write_figures(results: Mapping, out_dir: str | Path, dataset_dir: str | Path | None = None,
-                  seed: int = 0) -> list[Path]:
+def write_figures(
+    results: Mapping, out_dir: str | Path, dataset_dir: str | Path | None = None, seed: int = 0
+) -> list[Path]:
     """Every paper figure the results allow: Fig. 5 always, Fig. 6 with Ours and CLIPort-Place
     evaluated (and per-scene outcomes, which a summary lacks), Fig. 7 with several training fractions."""
     from ocplace.eval.efficiency import efficiency_curves, plot_sample_efficiency

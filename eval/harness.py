@@ -114,12 +114,17 @@ class SceneOutcome:
             return None if value is None else tuple(inner(v) for v in value)
 
         physical = fields.get("physical")
-        return cls(**(fields | {
-            "mode": tuples(fields["mode"], float),
-            "parsed": tuples(fields["parsed"], tuple),
-            "grounded": tuples(fields["grounded"], int),
-            "physical": None if physical is None else PhysicalOutcome(**physical),
-        }))
+        return cls(
+            **(
+                fields
+                | {
+                    "mode": tuples(fields["mode"], float),
+                    "parsed": tuples(fields["parsed"], tuple),
+                    "grounded": tuples(fields["grounded"], int),
+                    "physical": None if physical is None else PhysicalOutcome(**physical),
+                }
+            )
+        )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -167,7 +172,7 @@ def chunks(dirs: Sequence[Path], size: int) -> Iterator[tuple[int, list[SceneRec
     from ocplace.sim.dataset.records import read_scene
 
     for index, start in enumerate(range(0, len(dirs), size)):
-        yield index, [read_scene(d) for d in dirs[start:start + size]]
+        yield index, [read_scene(d) for d in dirs[start : start + size]]
 
 
 # ----------------------------------------------------------------------------- running a method
@@ -179,8 +184,10 @@ def _describe_error(error: BaseException) -> str:
 
 def _checked(outputs, count: int) -> list[MethodOutput]:
     if not isinstance(outputs, (list, tuple)) or len(outputs) != count:
-        raise ValueError(f"run() returned {type(outputs).__name__} of length "
-                         f"{len(outputs) if hasattr(outputs, '__len__') else '?'} for {count} scenes")
+        raise ValueError(
+            f"run() returned {type(outputs).__name__} of length "
+            f"{len(outputs) if hasattr(outputs, '__len__') else '?'} for {count} scenes"
+        )
     return list(outputs)
 
 
@@ -190,14 +197,14 @@ def run_chunk(method: Method, scenes: Sequence[SceneRecord], key) -> list[Method
 
     try:
         return _checked(method.run(scenes, key), len(scenes))
-    except Exception:  # noqa: BLE001  (a method's bug must not end the evaluation)
+    except Exception:
         if len(scenes) == 1:
             raise
     outputs = []
     for index, scene in enumerate(scenes):
         try:
             outputs.append(_checked(method.run([scene], jax.random.fold_in(key, index)), 1)[0])
-        except Exception as error:  # noqa: BLE001
+        except Exception as error:
             outputs.append(MethodOutput(mode=None, samples=None, failure=_describe_error(error)))
     return outputs
 
@@ -206,7 +213,7 @@ def run_scenes(method: Method, scenes: Sequence[SceneRecord], key) -> list[Metho
     """`run_chunk`, with a single scene's exception turned into a failure."""
     try:
         return run_chunk(method, scenes, key)
-    except Exception as error:  # noqa: BLE001
+    except Exception as error:
         return [MethodOutput(mode=None, samples=None, failure=_describe_error(error))]
 
 
@@ -265,8 +272,10 @@ def interpret(output: MethodOutput) -> _Interpreted:
             samples=None if output.samples is None else _points(output.samples, rows=True),
             parsed=None if output.parsed is None else tuple((str(r), str(rel)) for r, rel in output.parsed),
             tokens=None if output.grounded is None else tuple(int(t) for t in output.grounded),
-            failure=output.failure if output.failure is not None or output.mode is not None
-            else "no placement and no failure message")
+            failure=output.failure
+            if output.failure is not None or output.mode is not None
+            else "no placement and no failure message",
+        )
     except (TypeError, ValueError) as error:
         return _Interpreted(None, None, None, None, output.failure or f"malformed output: {error}")
 
@@ -294,13 +303,23 @@ def score_scene(record: SceneRecord, output: MethodOutput) -> SceneOutcome:
     program_ok = None
     if parsed is not None and grounded is not None:
         program_ok = len(parsed) == len(grounded) and _same(
-            zip(grounded, (rel for _, rel in parsed)), zip(truth_ids, (t.relation for t in truth)))
+            zip(grounded, (rel for _, rel in parsed)), zip(truth_ids, (t.relation for t in truth))
+        )
     return SceneOutcome(
-        id=record.id, level=meta["level"], success=success, sample_success=sample_success,
+        id=record.id,
+        level=meta["level"],
+        success=success,
+        sample_success=sample_success,
         mode=None if mode is None else (float(mode[0]), float(mode[1])),
-        num_samples=0 if samples is None else len(samples), failure=failure,
-        parsed=parsed, grounded=grounded, parse_ok=parse_ok, grounding_ok=grounding_ok, program_ok=program_ok,
-        stage=None if success else _stage(failure, parse_ok, grounding_ok, program_ok))
+        num_samples=0 if samples is None else len(samples),
+        failure=failure,
+        parsed=parsed,
+        grounded=grounded,
+        parse_ok=parse_ok,
+        grounding_ok=grounding_ok,
+        program_ok=program_ok,
+        stage=None if success else _stage(failure, parse_ok, grounding_ok, program_ok),
+    )
 
 
 def physical_outcome(arena, record: SceneRecord, outcome: SceneOutcome) -> PhysicalOutcome:
@@ -317,8 +336,15 @@ def physical_outcome(arena, record: SceneRecord, outcome: SceneOutcome) -> Physi
 
 
 def load_method(run: MethodRun, settings: EvalSettings) -> Method:
-    return run.spec.load(LoadContext(run_dir=run.run_dir, backbone=settings.backbone, scale=settings.scale,
-                                     parser=settings.parser, num_samples=settings.num_samples))
+    return run.spec.load(
+        LoadContext(
+            run_dir=run.run_dir,
+            backbone=settings.backbone,
+            scale=settings.scale,
+            parser=settings.parser,
+            num_samples=settings.num_samples,
+        )
+    )
 
 
 def jsonable(value):
@@ -338,8 +364,9 @@ def jsonable(value):
     return str(value)
 
 
-def evaluate_subset(method: Method, name: str, dataset_dir: Path, subset: str, settings: EvalSettings,
-                    arena=None, progress: bool = True) -> tuple[SceneOutcome, ...]:
+def evaluate_subset(
+    method: Method, name: str, dataset_dir: Path, subset: str, settings: EvalSettings, arena=None, progress: bool = True
+) -> tuple[SceneOutcome, ...]:
     """Every scene of `subset` (up to `settings.limit`), scored; the first K also physically."""
     import jax
     from tqdm import tqdm
@@ -361,8 +388,14 @@ def evaluate_subset(method: Method, name: str, dataset_dir: Path, subset: str, s
     return tuple(outcomes)
 
 
-def evaluate_run(run: MethodRun, dataset_dir: str | Path, settings: EvalSettings, arena=None,
-                 progress: bool = True, method: Method | None = None) -> Evaluation:
+def evaluate_run(
+    run: MethodRun,
+    dataset_dir: str | Path,
+    settings: EvalSettings,
+    arena=None,
+    progress: bool = True,
+    method: Method | None = None,
+) -> Evaluation:
     """Loads the run (unless `method` is given) and scores it on every subset of `settings`.
 
     The physical check runs for runs on the whole training set only (fractions feed the
@@ -371,12 +404,20 @@ def evaluate_run(run: MethodRun, dataset_dir: str | Path, settings: EvalSettings
     began = time.perf_counter()
     method = method or load_method(run, settings)
     arena = arena if run.fraction == 1.0 else None
-    subsets = {subset: evaluate_subset(method, run.spec.name, Path(dataset_dir), subset, settings, arena, progress)
-               for subset in settings.subsets}
-    return Evaluation(key=run.key, method=run.spec.name, label=run.spec.label, fraction=run.fraction,
-                      run_dir=None if run.run_dir is None else str(run.run_dir),
-                      description=jsonable(method.describe()), subsets=subsets,
-                      wall_s=time.perf_counter() - began)
+    subsets = {
+        subset: evaluate_subset(method, run.spec.name, Path(dataset_dir), subset, settings, arena, progress)
+        for subset in settings.subsets
+    }
+    return Evaluation(
+        key=run.key,
+        method=run.spec.name,
+        label=run.spec.label,
+        fraction=run.fraction,
+        run_dir=None if run.run_dir is None else str(run.run_dir),
+        description=jsonable(method.describe()),
+        subsets=subsets,
+        wall_s=time.perf_counter() - began,
+    )
 
 
 # ----------------------------------------------------------------------------- aggregates

@@ -27,8 +27,9 @@ def train_recipe(scale: str):
     recipes = {
         "smoke": smoke_config,
         # A tenth of the paper's steps at a higher peak rate: the demo dataset is small too.
-        "demo": lambda: TrainConfig(steps=20_000, learning_rate=5e-4, warmup_steps=500, eval_every=10_000,
-                                    checkpoint_every=10_000),
+        "demo": lambda: TrainConfig(
+            steps=20_000, learning_rate=5e-4, warmup_steps=500, eval_every=10_000, checkpoint_every=10_000
+        ),
         "default": default_config,
     }
     if scale not in recipes:
@@ -52,9 +53,14 @@ def featurize_split(dataset_dir: Path, split: str, backbone, progress: bool = Tr
     from ocplace.sim.dataset.loader import iter_examples
     from ocplace.train.commands import dataset_hash
 
-    return featurize(iter_examples(dataset_dir, split), backbone, features_path(dataset_dir, split, backbone),
-                     dataset_hash=dataset_hash(dataset_dir, split), total=len(scene_dirs(dataset_dir, split)),
-                     progress=progress)
+    return featurize(
+        iter_examples(dataset_dir, split),
+        backbone,
+        features_path(dataset_dir, split, backbone),
+        dataset_hash=dataset_hash(dataset_dir, split),
+        total=len(scene_dirs(dataset_dir, split)),
+        progress=progress,
+    )
 
 
 def train_ours(ctx: TrainContext) -> Path:
@@ -78,8 +84,16 @@ def scene_input(record: SceneRecord):
     boxes = record.boxes
     aabb_by_id = {obj["object_id"]: obj["aabb"] for obj in meta["objects"]}
     aabbs = np.array([aabb_by_id[int(i)] for i in boxes.object_ids], np.float64).reshape(-1, 2, 3)[:, :, :2]
-    return SceneInput(record.rgb, record.depth, boxes.boxes, meta["instruction"],
-                      meta["held_object"]["footprint_half_extents"], meta["camera"], aabbs, name=record.id)
+    return SceneInput(
+        record.rgb,
+        record.depth,
+        boxes.boxes,
+        meta["instruction"],
+        meta["held_object"]["footprint_half_extents"],
+        meta["camera"],
+        aabbs,
+        name=record.id,
+    )
 
 
 def output_of(placement) -> MethodOutput:
@@ -88,7 +102,8 @@ def output_of(placement) -> MethodOutput:
         samples=None if placement.samples is None else np.asarray(placement.samples, np.float64),
         parsed=placement.pairs or None,
         grounded=placement.tokens or None,
-        failure=placement.failure)
+        failure=placement.failure,
+    )
 
 
 @dataclasses.dataclass
@@ -120,23 +135,43 @@ def describe_policy(policy, name: str, backbone_spec: str, adapters_file: Path |
         from ocplace.train.checkpoints import load_adapters
 
         trained = load_adapters(adapters_file)
-        adapters = {"path": str(adapters_file), "sha256": hashlib.sha256(Path(adapters_file).read_bytes()).hexdigest(),
-                    "steps": trained.steps, "features_key": trained.features_key}
-    return json.loads(json.dumps({
-        "method": name,
-        "backbone": {"spec": backbone_spec, "fingerprint": policy.backbone.fingerprint},
-        "adapters": adapters,
-        "grounding": {"adapter_config": dataclasses.asdict(policy.grounding.config),
-                      "logit_scale": float(policy.grounding.logit_scale), "zero_shot": adapters is None},
-        "prompt": dataclasses.asdict(policy.prompt),
-        "parser": {"name": parser_name, "config": parsing,
-                   "cache": str(cache_dir() / parsing["llm"]["cache_subdir"]) if parser_name == "llm" else None},
-        "sampler": dataclasses.asdict(policy.sampler),
-        "threshold": policy.threshold,
-        "policy": {"crop_size": policy.crop_size, "min_boxes": policy.min_boxes, "max_tuples": policy.max_tuples,
-                   "detector": dataclasses.asdict(policy.detector), "boxes": "dataset (from segmentation)",
-                   "aabbs": "dataset (simulator AABBs of boxed objects)"},
-    }, default=_jsonable))
+        adapters = {
+            "path": str(adapters_file),
+            "sha256": hashlib.sha256(Path(adapters_file).read_bytes()).hexdigest(),
+            "steps": trained.steps,
+            "features_key": trained.features_key,
+        }
+    return json.loads(
+        json.dumps(
+            {
+                "method": name,
+                "backbone": {"spec": backbone_spec, "fingerprint": policy.backbone.fingerprint},
+                "adapters": adapters,
+                "grounding": {
+                    "adapter_config": dataclasses.asdict(policy.grounding.config),
+                    "logit_scale": float(policy.grounding.logit_scale),
+                    "zero_shot": adapters is None,
+                },
+                "prompt": dataclasses.asdict(policy.prompt),
+                "parser": {
+                    "name": parser_name,
+                    "config": parsing,
+                    "cache": str(cache_dir() / parsing["llm"]["cache_subdir"]) if parser_name == "llm" else None,
+                },
+                "sampler": dataclasses.asdict(policy.sampler),
+                "threshold": policy.threshold,
+                "policy": {
+                    "crop_size": policy.crop_size,
+                    "min_boxes": policy.min_boxes,
+                    "max_tuples": policy.max_tuples,
+                    "detector": dataclasses.asdict(policy.detector),
+                    "boxes": "dataset (from segmentation)",
+                    "aabbs": "dataset (simulator AABBs of boxed objects)",
+                },
+            },
+            default=_jsonable,
+        )
+    )
 
 
 def _jsonable(value):
@@ -151,8 +186,12 @@ def _policy(ctx: LoadContext, adapters_file: Path | None):
     from ocplace.models.placement.sampler import SamplerConfig
     from ocplace.models.policy import PlacementPolicy, load_backbone_spec
 
-    return PlacementPolicy.from_run(load_backbone_spec(ctx.backbone), adapters_file, parser=ctx.parser,
-                                    sampler=SamplerConfig(num_samples=ctx.num_samples))
+    return PlacementPolicy.from_run(
+        load_backbone_spec(ctx.backbone),
+        adapters_file,
+        parser=ctx.parser,
+        sampler=SamplerConfig(num_samples=ctx.num_samples),
+    )
 
 
 def load_ours(ctx: LoadContext) -> PolicyMethod:

@@ -26,7 +26,7 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
 from ocplace.eval.api import MethodSpec, TrainContext
-from ocplace.eval.harness import EvalSettings, Evaluation, MethodRun, SUBSETS
+from ocplace.eval.harness import SUBSETS, EvalSettings, Evaluation, MethodRun
 
 # Issue 9: the sample-efficiency study trains these on 25/50/75/100% of the training set.
 FRACTION_METHODS = ("ours", "grids", "no_pretrain", "no_llm")
@@ -60,8 +60,9 @@ class PipelineConfig:
 
 def default_config() -> PipelineConfig:
     """The paper's protocol: 2000 + 3 x 400 scenes, every fraction, 100 physical drops per subset."""
-    return PipelineConfig("default", 2000, 400, physical_scenes=100, default_out=Path("out/reproduce"),
-                          fractions=FRACTIONS)
+    return PipelineConfig(
+        "default", 2000, 400, physical_scenes=100, default_out=Path("out/reproduce"), fractions=FRACTIONS
+    )
 
 
 def demo_config() -> PipelineConfig:
@@ -74,8 +75,11 @@ def smoke_config() -> PipelineConfig:
     return PipelineConfig("smoke", 12, 8, physical_scenes=2, default_out=Path("out/smoke"), num_samples=64)
 
 
-SCALES: dict[str, Callable[[], PipelineConfig]] = {"default": default_config, "demo": demo_config,
-                                                   "smoke": smoke_config}
+SCALES: dict[str, Callable[[], PipelineConfig]] = {
+    "default": default_config,
+    "demo": demo_config,
+    "smoke": smoke_config,
+}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -125,7 +129,8 @@ class _Timer:
 
 
 def build_library_step(progress: bool):
-    from ocplace.sim.library import build_library, default_config as library_config
+    from ocplace.sim.library import build_library
+    from ocplace.sim.library import default_config as library_config
 
     return build_library(library_config(), progress=progress)
 
@@ -148,8 +153,9 @@ def dataset_step(config: PipelineConfig, dataset_dir: Path) -> str:
     wanted = dataset_config(config)
     if (dataset_dir / MANIFEST_FILE).exists() and read_manifest(dataset_dir).get("config") == describe(wanted):
         return f"{dataset_dir}: already complete"
-    manifest = generate_dataset(dataset_dir, wanted, workers=config.workers or os.cpu_count() or 1,
-                                progress=config.progress)
+    manifest = generate_dataset(
+        dataset_dir, wanted, workers=config.workers or os.cpu_count() or 1, progress=config.progress
+    )
     return f"{dataset_dir}: {sum(sum(c.values()) for c in manifest['counts'].values())} scenes"
 
 
@@ -183,8 +189,9 @@ def run_directory(out: Path, name: str, fraction: float) -> Path:
     return out / "runs" / name / f"fraction-{fraction:.2f}"
 
 
-def train_step(spec: MethodSpec, fraction: float, config: PipelineConfig, dataset_dir: Path, backbone: str,
-               out: Path) -> tuple[Path | None, bool]:
+def train_step(
+    spec: MethodSpec, fraction: float, config: PipelineConfig, dataset_dir: Path, backbone: str, out: Path
+) -> tuple[Path | None, bool]:
     """(run directory, reused). A finished training is recorded beside its run directory and not
     repeated: a method's own resume may rewrite its files, which would change checkpoint hashes."""
     from ocplace.eval.harness import jsonable
@@ -192,8 +199,14 @@ def train_step(spec: MethodSpec, fraction: float, config: PipelineConfig, datase
 
     if spec.train is None:
         return None, False
-    context = TrainContext(dataset_dir=dataset_dir, backbone=backbone, out_dir=run_directory(out, spec.name, fraction),
-                           scale=config.scale, fraction=fraction, seed=config.seed)
+    context = TrainContext(
+        dataset_dir=dataset_dir,
+        backbone=backbone,
+        out_dir=run_directory(out, spec.name, fraction),
+        scale=config.scale,
+        fraction=fraction,
+        seed=config.seed,
+    )
     record = context.out_dir.with_name(context.out_dir.name + ".done.json")
     wanted = jsonable(dataclasses.asdict(context))
     if record.exists():
@@ -206,12 +219,18 @@ def train_step(spec: MethodSpec, fraction: float, config: PipelineConfig, datase
 
 
 def evaluation_settings(config: PipelineConfig, backbone: str) -> EvalSettings:
-    return EvalSettings(backbone=backbone, scale=config.scale, parser=config.parser, num_samples=config.num_samples,
-                        subsets=config.subsets, physical_scenes=config.physical_scenes, seed=config.seed)
+    return EvalSettings(
+        backbone=backbone,
+        scale=config.scale,
+        parser=config.parser,
+        num_samples=config.num_samples,
+        subsets=config.subsets,
+        physical_scenes=config.physical_scenes,
+        seed=config.seed,
+    )
 
 
-def placement_figure_step(run_dir: Path, config: PipelineConfig, dataset_dir: Path, backbone: str,
-                          path: Path) -> str:
+def placement_figure_step(run_dir: Path, config: PipelineConfig, dataset_dir: Path, backbone: str, path: Path) -> str:
     """Draws Ours on the first `seen` test scene: what a user looks at first."""
     import jax
 
@@ -232,13 +251,26 @@ def evaluation_key(run: MethodRun, description: dict, settings: EvalSettings, da
     """Everything that decides an evaluation's outcome, hashed: a stored evaluation with it is reused."""
     from ocplace.eval.results import SCHEMA
 
-    fields = {"schema": SCHEMA, "key": run.key, "run_dir": None if run.run_dir is None else str(run.run_dir),
-              "description": description, "settings": settings.to_json(), "dataset": dataset_hash}
+    fields = {
+        "schema": SCHEMA,
+        "key": run.key,
+        "run_dir": None if run.run_dir is None else str(run.run_dir),
+        "description": description,
+        "settings": settings.to_json(),
+        "dataset": dataset_hash,
+    }
     return hashlib.sha256(json.dumps(fields, sort_keys=True).encode()).hexdigest()[:16]
 
 
-def evaluate_step(run: MethodRun, settings: EvalSettings, dataset_dir: Path, dataset_hash: str, out: Path,
-                  arena_factory: Callable, progress: bool) -> tuple[Evaluation, bool]:
+def evaluate_step(
+    run: MethodRun,
+    settings: EvalSettings,
+    dataset_dir: Path,
+    dataset_hash: str,
+    out: Path,
+    arena_factory: Callable,
+    progress: bool,
+) -> tuple[Evaluation, bool]:
     """The run's evaluation, from OUT/evaluations/ when an identical one is stored; (evaluation, reused)."""
     from ocplace.eval.harness import evaluate_run, jsonable, load_method
     from ocplace.eval.results import evaluation_from_json, evaluation_to_json
@@ -258,16 +290,21 @@ def evaluate_step(run: MethodRun, settings: EvalSettings, dataset_dir: Path, dat
 # ----------------------------------------------------------------------------- the pipeline
 
 
-def run_pipeline(config: PipelineConfig, out: str | Path | None = None,
-                 specs: Mapping[str, MethodSpec] | None = None, command=None,
-                 library=None, arena=None) -> PipelineSummary:
+def run_pipeline(
+    config: PipelineConfig,
+    out: str | Path | None = None,
+    specs: Mapping[str, MethodSpec] | None = None,
+    command=None,
+    library=None,
+    arena=None,
+) -> PipelineSummary:
     """Runs (or resumes) every step; a method whose training or evaluation raises is reported, not fatal.
 
     `specs` defaults to the registry; `library` and `arena` (a compiled MujocoScenes) may be passed in
     to reuse them.
     """
-    from ocplace.eval.results import build_results, dataset_identity, summarise, write_results
     from ocplace.eval.commands import write_outputs
+    from ocplace.eval.results import build_results, dataset_identity, summarise, write_results
 
     out = Path(out or config.default_out)
     out.mkdir(parents=True, exist_ok=True)
@@ -296,7 +333,7 @@ def run_pipeline(config: PipelineConfig, out: str | Path | None = None,
                 run_dir, reused = train_step(spec, fraction, config, dataset_dir, backbone, out)
                 runs.append(dataclasses.replace(run, run_dir=run_dir))
                 step.detail = ("done before: " if reused else "") + str(run_dir or "nothing to train")
-            except Exception as error:  # noqa: BLE001  (one method's failure must not hide the others)
+            except Exception as error:
                 summary.errors.append(_error(run.key, "train", error))
                 step.detail = f"FAILED: {type(error).__name__}: {error}"
 
@@ -307,13 +344,15 @@ def run_pipeline(config: PipelineConfig, out: str | Path | None = None,
         for run in runs:
             with _Timer(summary, f"evaluate {run.key}") as step:
                 try:
-                    evaluation, reused = evaluate_step(run, settings, dataset_dir, dataset_hash, out, arena.get,
-                                                       config.progress)
+                    evaluation, reused = evaluate_step(
+                        run, settings, dataset_dir, dataset_hash, out, arena.get, config.progress
+                    )
                     evaluations.append(evaluation)
                     seen = evaluation.subsets.get("seen")
                     step.detail = ("stored " if reused else "") + (
-                        f"seen success {sum(o.success for o in seen) / max(len(seen), 1):.1%}" if seen else "")
-                except Exception as error:  # noqa: BLE001
+                        f"seen success {sum(o.success for o in seen) / max(len(seen), 1):.1%}" if seen else ""
+                    )
+                except Exception as error:
                     summary.errors.append(_error(run.key, "evaluate", error))
                     step.detail = f"FAILED: {type(error).__name__}: {error}"
     finally:
@@ -321,8 +360,11 @@ def run_pipeline(config: PipelineConfig, out: str | Path | None = None,
 
     with _Timer(summary, "results") as step:
         results = build_results(evaluations, dataset_dir, settings, command)
-        results["pipeline"] = {"config": _config_json(config), "steps": [dataclasses.asdict(s) for s in summary.steps],
-                               "errors": summary.errors}
+        results["pipeline"] = {
+            "config": _config_json(config),
+            "steps": [dataclasses.asdict(s) for s in summary.steps],
+            "errors": summary.errors,
+        }
         summary.results_path = out / "results.json"
         summary.markdown = write_outputs(results, summary.results_path)
         write_results(out / SUMMARY_FILE, summarise(results))
@@ -334,17 +376,18 @@ def run_pipeline(config: PipelineConfig, out: str | Path | None = None,
 
                 summary.figures = write_figures(results, out / "figures", dataset_dir, config.seed)
                 step.detail = ", ".join(str(path) for path in summary.figures)
-            except Exception as error:  # noqa: BLE001  (the results are written already)
+            except Exception as error:
                 summary.errors.append(_error("figures", "figures", error))
                 step.detail = f"FAILED: {type(error).__name__}: {error}"
     ours = [run for run in runs if run.spec.name == "ours" and run.fraction == 1.0 and run.run_dir is not None]
     if ours and "seen" in config.subsets:
         with _Timer(summary, "figure") as step:
             try:
-                step.detail = placement_figure_step(ours[0].run_dir, config, dataset_dir, backbone,
-                                                    out / "placement.png")
+                step.detail = placement_figure_step(
+                    ours[0].run_dir, config, dataset_dir, backbone, out / "placement.png"
+                )
                 summary.placement_figure = out / "placement.png"
-            except Exception as error:  # noqa: BLE001  (the results are written already)
+            except Exception as error:
                 summary.errors.append(_error("ours", "figure", error))
                 step.detail = f"FAILED: {type(error).__name__}: {error}"
     return summary

@@ -26,15 +26,36 @@ from importlib import metadata
 from pathlib import Path
 
 from ocplace.eval.api import MethodSpec
-from ocplace.eval.harness import (Evaluation, EvaluationError, EvalSettings, MethodRun, SceneOutcome, aggregate_subset,
-                                  evaluate_run, jsonable)
+from ocplace.eval.harness import (
+    EvalSettings,
+    Evaluation,
+    EvaluationError,
+    MethodRun,
+    SceneOutcome,
+    aggregate_subset,
+    evaluate_run,
+    jsonable,
+)
 from ocplace.paths import write_text_atomic
 
 SCHEMA = "ocplace.evaluation/1"
 PACKAGES = ("jax", "jaxlib", "flax", "optax", "mujoco", "numpy", "transformers")
 # Outcome fields that must agree for a rerun to count as a reproduction (wall times may not).
-COMPARED_FIELDS = ("level", "success", "sample_success", "mode", "num_samples", "failure", "parsed",
-                   "grounded", "parse_ok", "grounding_ok", "program_ok", "stage", "physical")
+COMPARED_FIELDS = (
+    "level",
+    "success",
+    "sample_success",
+    "mode",
+    "num_samples",
+    "failure",
+    "parsed",
+    "grounded",
+    "parse_ok",
+    "grounding_ok",
+    "program_ok",
+    "stage",
+    "physical",
+)
 
 
 _SECTIONS = {"dataset": dict, "settings": dict, "evaluations": list}
@@ -53,14 +74,15 @@ def git_state() -> dict:
 
     def git(*args: str) -> str:
         try:
-            return subprocess.run(["git", *args], cwd=source, capture_output=True, text=True,
-                                  timeout=10).stdout.strip()
+            return subprocess.run(["git", *args], cwd=source, capture_output=True, text=True, timeout=10).stdout.strip()
         except (OSError, subprocess.SubprocessError):
             return ""
 
     commit = git("rev-parse", "HEAD")
-    return {"commit": commit or None, "dirty": bool(git("status", "--porcelain", "--untracked-files=no"))
-            if commit else None}
+    return {
+        "commit": commit or None,
+        "dirty": bool(git("status", "--porcelain", "--untracked-files=no")) if commit else None,
+    }
 
 
 def environment() -> dict:
@@ -72,8 +94,13 @@ def environment() -> dict:
             versions[package] = metadata.version(package)
         except metadata.PackageNotFoundError:
             versions[package] = None
-    return {"ocplace": ocplace.__version__, "git": git_state(), "python": platform.python_version(),
-            "platform": platform.platform(), "packages": versions}
+    return {
+        "ocplace": ocplace.__version__,
+        "git": git_state(),
+        "python": platform.python_version(),
+        "platform": platform.platform(),
+        "packages": versions,
+    }
 
 
 def dataset_identity(dataset_dir: str | Path) -> dict:
@@ -83,34 +110,53 @@ def dataset_identity(dataset_dir: str | Path) -> dict:
     dataset_dir = Path(dataset_dir)
     manifest = read_manifest(dataset_dir)
     files_digest = hashlib.sha256(json.dumps(manifest["files"], sort_keys=True).encode()).hexdigest()
-    return {"dir": str(dataset_dir.resolve()), "dataset_hash": files_digest[:16], "manifest_hash": files_digest,
-            "counts": manifest.get("counts"), "config": manifest.get("config")}
+    return {
+        "dir": str(dataset_dir.resolve()),
+        "dataset_hash": files_digest[:16],
+        "manifest_hash": files_digest,
+        "counts": manifest.get("counts"),
+        "config": manifest.get("config"),
+    }
 
 
 def evaluation_to_json(evaluation: Evaluation) -> dict:
     return {
-        "key": evaluation.key, "method": evaluation.method, "label": evaluation.label,
-        "fraction": evaluation.fraction, "run_dir": evaluation.run_dir, "description": evaluation.description,
+        "key": evaluation.key,
+        "method": evaluation.method,
+        "label": evaluation.label,
+        "fraction": evaluation.fraction,
+        "run_dir": evaluation.run_dir,
+        "description": evaluation.description,
         "wall_s": round(evaluation.wall_s, 3),
-        "subsets": {subset: {"aggregate": aggregate_subset(outcomes),
-                             "scenes": [o.to_json() for o in outcomes]}
-                    for subset, outcomes in evaluation.subsets.items()},
+        "subsets": {
+            subset: {"aggregate": aggregate_subset(outcomes), "scenes": [o.to_json() for o in outcomes]}
+            for subset, outcomes in evaluation.subsets.items()
+        },
     }
 
 
 def evaluation_from_json(entry: dict) -> Evaluation:
     return Evaluation(
-        key=entry["key"], method=entry["method"], label=entry["label"], fraction=entry["fraction"],
-        run_dir=entry["run_dir"], description=entry["description"], wall_s=entry["wall_s"],
-        subsets={subset: tuple(SceneOutcome.from_json(s) for s in body["scenes"])
-                 for subset, body in entry["subsets"].items()})
+        key=entry["key"],
+        method=entry["method"],
+        label=entry["label"],
+        fraction=entry["fraction"],
+        run_dir=entry["run_dir"],
+        description=entry["description"],
+        wall_s=entry["wall_s"],
+        subsets={
+            subset: tuple(SceneOutcome.from_json(s) for s in body["scenes"])
+            for subset, body in entry["subsets"].items()
+        },
+    )
 
 
-def build_results(evaluations: Sequence[Evaluation], dataset_dir: str | Path, settings: EvalSettings,
-                  command=None) -> dict:
+def build_results(
+    evaluations: Sequence[Evaluation], dataset_dir: str | Path, settings: EvalSettings, command=None
+) -> dict:
     return {
         "schema": SCHEMA,
-        "created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+        "created": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
         "command": jsonable(command),
         "environment": environment(),
         "dataset": dataset_identity(dataset_dir),
@@ -122,12 +168,19 @@ def build_results(evaluations: Sequence[Evaluation], dataset_dir: str | Path, se
 def summarise(results: Mapping) -> dict:
     """The results without per-scene outcomes, small enough to keep beside the tables: every table of
     `eval.table.render` comes out the same, except that failures are counted, not listed."""
-    def counts_only(body: Mapping) -> dict:
-        return {"aggregate": body["aggregate"], "scenes": [], "omitted_scenes": len(body["scenes"]),
-                "failed_scenes": sum(scene["failure"] is not None for scene in body["scenes"])}
 
-    evaluations = [{**entry, "subsets": {subset: counts_only(body) for subset, body in entry["subsets"].items()}}
-                   for entry in results["evaluations"]]
+    def counts_only(body: Mapping) -> dict:
+        return {
+            "aggregate": body["aggregate"],
+            "scenes": [],
+            "omitted_scenes": len(body["scenes"]),
+            "failed_scenes": sum(scene["failure"] is not None for scene in body["scenes"]),
+        }
+
+    evaluations = [
+        {**entry, "subsets": {subset: counts_only(body) for subset, body in entry["subsets"].items()}}
+        for entry in results["evaluations"]
+    ]
     return {**results, "summary": True, "evaluations": evaluations}
 
 
@@ -145,8 +198,10 @@ def read_results(path: str | Path) -> dict:
     except (OSError, ValueError) as error:
         raise ResultsError(f"{path} is missing or not JSON ({error}); write it with `ocplace evaluate`") from None
     if not isinstance(results, dict) or results.get("schema") != SCHEMA:
-        raise ResultsError(f"{path} is not an ocplace evaluation ({SCHEMA}); it says "
-                           f"{results.get('schema') if isinstance(results, dict) else type(results).__name__}")
+        raise ResultsError(
+            f"{path} is not an ocplace evaluation ({SCHEMA}); it says "
+            f"{results.get('schema') if isinstance(results, dict) else type(results).__name__}"
+        )
     _check_sections(path, results)
     return results
 
@@ -155,11 +210,16 @@ def _check_sections(path: Path, results: dict) -> None:
     """Refuses a results file cut short or edited by hand, before anything reads or draws from it."""
     bad = [name for name, kind in _SECTIONS.items() if not isinstance(results.get(name), kind)]
     entries = results.get("evaluations") if "evaluations" not in bad else []
-    bad += [f"evaluations[{i}]" for i, entry in enumerate(entries)
-            if not isinstance(entry, dict) or not _ENTRY_FIELDS <= entry.keys()]
+    bad += [
+        f"evaluations[{i}]"
+        for i, entry in enumerate(entries)
+        if not isinstance(entry, dict) or not entry.keys() >= _ENTRY_FIELDS
+    ]
     if bad:
-        raise ResultsError(f"{path} is not a complete evaluation: {', '.join(bad[:5])} missing or malformed; "
-                           "write it again with `ocplace evaluate` or `ocplace reproduce`")
+        raise ResultsError(
+            f"{path} is not a complete evaluation: {', '.join(bad[:5])} missing or malformed; "
+            "write it again with `ocplace evaluate` or `ocplace reproduce`"
+        )
 
 
 def evaluations(results: Mapping) -> list[Evaluation]:
@@ -182,27 +242,35 @@ def runs_of(results: Mapping, specs: Mapping[str, MethodSpec] | None = None) -> 
     runs = []
     for entry in results["evaluations"]:
         if entry["method"] not in specs:
-            raise ResultsError(f"method {entry['method']!r} of the results is not registered here "
-                               f"(registered: {', '.join(specs) or 'none'})")
+            raise ResultsError(
+                f"method {entry['method']!r} of the results is not registered here "
+                f"(registered: {', '.join(specs) or 'none'})"
+            )
         run_dir = None if entry["run_dir"] is None else Path(entry["run_dir"])
         if run_dir is not None and not run_dir.exists():
-            raise ResultsError(f"run directory {run_dir} of {entry['key']!r} is gone; train it again with the "
-                               "same settings (runs are deterministic) or restore it")
+            raise ResultsError(
+                f"run directory {run_dir} of {entry['key']!r} is gone; train it again with the "
+                "same settings (runs are deterministic) or restore it"
+            )
         runs.append(MethodRun(specs[entry["method"]], run_dir, entry["fraction"]))
     return runs
 
 
-def rerun(results: Mapping, specs: Mapping[str, MethodSpec] | None = None, arena=None, progress: bool = True,
-          command=None) -> dict:
+def rerun(
+    results: Mapping, specs: Mapping[str, MethodSpec] | None = None, arena=None, progress: bool = True, command=None
+) -> dict:
     """Evaluates again every run of `results` with its settings, on its dataset; returns the new results."""
     if results.get("summary"):
-        raise ResultsError("these results are a summary without per-scene outcomes; rerun from the full "
-                           "results.json it was made from")
+        raise ResultsError(
+            "these results are a summary without per-scene outcomes; rerun from the full results.json it was made from"
+        )
     dataset_dir = Path(results["dataset"]["dir"])
     identity = dataset_identity(dataset_dir)
     if identity["manifest_hash"] != results["dataset"]["manifest_hash"]:
-        raise ResultsError(f"the dataset in {dataset_dir} changed since the evaluation (manifest hash "
-                           f"{identity['manifest_hash'][:16]} != {results['dataset']['manifest_hash'][:16]})")
+        raise ResultsError(
+            f"the dataset in {dataset_dir} changed since the evaluation (manifest hash "
+            f"{identity['manifest_hash'][:16]} != {results['dataset']['manifest_hash'][:16]})"
+        )
     settings = settings_of(results)
     fresh = [evaluate_run(run, dataset_dir, settings, arena, progress) for run in runs_of(results, specs)]
     return build_results(fresh, dataset_dir, settings, command)
@@ -224,8 +292,12 @@ def compare(expected: Mapping, actual: Mapping) -> list[str]:
         if old[key]["description"] != new[key]["description"]:
             differences.append(f"{key}: describe() differs (configs, checkpoints or backbone)")
         for subset in sorted(old[key]["subsets"].keys() | new[key]["subsets"].keys()):
-            differences += _compare_scenes(key, subset, old[key]["subsets"].get(subset, {}).get("scenes", []),
-                                           new[key]["subsets"].get(subset, {}).get("scenes", []))
+            differences += _compare_scenes(
+                key,
+                subset,
+                old[key]["subsets"].get(subset, {}).get("scenes", []),
+                new[key]["subsets"].get(subset, {}).get("scenes", []),
+            )
     return differences
 
 

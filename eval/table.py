@@ -13,8 +13,12 @@ from collections.abc import Callable, Mapping, Sequence
 from ocplace.eval.harness import LEVELS, STAGES, SUBSETS
 from ocplace.sim.dataset.config import PAPER_SUBSETS
 
-SUBSET_TITLES = {"seen": "Seen", "unseen_obj": "Unseen obj", "unseen_inst": "Unseen inst",
-                 "unseen_cat": "Unseen cat (ours, not in the paper)"}
+SUBSET_TITLES = {
+    "seen": "Seen",
+    "unseen_obj": "Unseen obj",
+    "unseen_inst": "Unseen inst",
+    "unseen_cat": "Unseen cat (ours, not in the paper)",
+}
 LEVEL_TITLES = {"table": "Table", "1obj": "1 Obj", "2obj": "2 Obj", "overall": "Overall"}
 MISSING = "–"
 MAX_LISTED_FAILURES = 20
@@ -42,10 +46,13 @@ def level_table(results: Mapping, metric: str, title: str) -> str:
     """Rows = methods; per subset Table / 1 Obj / 2 Obj / Overall of `metric` (an aggregate rate) in %."""
     subsets = _subsets(results)
     columns = [*LEVELS, "overall"]
-    lines = [f"**{title}**", "",
-             _row(["", *[SUBSET_TITLES[s] if i == 0 else "" for s in subsets for i in range(len(columns))]]),
-             _row(["---", *["---:"] * (len(subsets) * len(columns))]),
-             _row(["**Method**", *[f"**{LEVEL_TITLES[c]}**" for _ in subsets for c in columns]])]
+    lines = [
+        f"**{title}**",
+        "",
+        _row(["", *[SUBSET_TITLES[s] if i == 0 else "" for s in subsets for i in range(len(columns))]]),
+        _row(["---", *["---:"] * (len(subsets) * len(columns))]),
+        _row(["**Method**", *[f"**{LEVEL_TITLES[c]}**" for _ in subsets for c in columns]]),
+    ]
     for entry in full_runs(results):
         cells = [entry["label"]]
         for subset in subsets:
@@ -62,10 +69,13 @@ def table_one(results: Mapping) -> str:
 def subset_table(results: Mapping, title: str, columns: Mapping[str, Callable[[dict], str]]) -> str:
     """Rows = methods; per subset the named columns, each computed from the subset's overall aggregate."""
     subsets = _subsets(results)
-    lines = [f"**{title}**", "",
-             _row(["", *[SUBSET_TITLES[s] if i == 0 else "" for s in subsets for i in range(len(columns))]]),
-             _row(["---", *["---:"] * (len(subsets) * len(columns))]),
-             _row(["**Method**", *[f"**{name}**" for _ in subsets for name in columns]])]
+    lines = [
+        f"**{title}**",
+        "",
+        _row(["", *[SUBSET_TITLES[s] if i == 0 else "" for s in subsets for i in range(len(columns))]]),
+        _row(["---", *["---:"] * (len(subsets) * len(columns))]),
+        _row(["**Method**", *[f"**{name}**" for _ in subsets for name in columns]]),
+    ]
     for entry in full_runs(results):
         cells = [entry["label"]]
         for subset in subsets:
@@ -83,36 +93,55 @@ def _physical(overall: dict) -> str:
 
 
 def physical_table(results: Mapping) -> str:
-    return subset_table(results, "Physical success (%, successes/scenes checked: the first K scenes of a subset), "
-                                 "beside the success of the mode on the same scenes", {
-        "Physical": _physical,
-        "Mode": lambda o: percent(o["physical_mode_success"], 1),
-    })
+    return subset_table(
+        results,
+        "Physical success (%, successes/scenes checked: the first K scenes of a subset), "
+        "beside the success of the mode on the same scenes",
+        {
+            "Physical": _physical,
+            "Mode": lambda o: percent(o["physical_mode_success"], 1),
+        },
+    )
 
 
 def diagnosis_table(results: Mapping) -> str:
-    return subset_table(results, "Parse, grounding and program accuracy (%, per scene)", {
-        "Parse": lambda o: percent(o["parse_accuracy"], 1),
-        "Grounding": lambda o: percent(o["grounding_accuracy"], 1),
-        "Program": lambda o: percent(o["program_accuracy"], 1),
-    })
+    return subset_table(
+        results,
+        "Parse, grounding and program accuracy (%, per scene)",
+        {
+            "Parse": lambda o: percent(o["parse_accuracy"], 1),
+            "Grounding": lambda o: percent(o["grounding_accuracy"], 1),
+            "Program": lambda o: percent(o["program_accuracy"], 1),
+        },
+    )
 
 
 def stage_table(results: Mapping) -> str:
     """Unsuccessful scenes by the stage they went wrong at, per method and subset."""
-    lines = ["**Unsuccessful scenes by stage** (failure: the method gave no placement or raised; parse: "
-             "wrong tuples; grounding: right tuples, wrong objects; sampling: right problem, placement "
-             "misses; placement: the method reports no parse or grounding)", "",
-             _row(["Method", "Subset", "Scenes", "Unsuccessful", *STAGES]),
-             _row(["---", "---", *["---:"] * (2 + len(STAGES))])]
+    lines = [
+        "**Unsuccessful scenes by stage** (failure: the method gave no placement or raised; parse: "
+        "wrong tuples; grounding: right tuples, wrong objects; sampling: right problem, placement "
+        "misses; placement: the method reports no parse or grounding)",
+        "",
+        _row(["Method", "Subset", "Scenes", "Unsuccessful", *STAGES]),
+        _row(["---", "---", *["---:"] * (2 + len(STAGES))]),
+    ]
     for entry in full_runs(results):
         for subset in _subsets(results):
             overall = entry["subsets"].get(subset, {}).get("aggregate", {}).get("overall")
             if overall is None:
                 continue
-            lines.append(_row([entry["label"], SUBSET_TITLES[subset], str(overall["scenes"]),
-                               str(sum(overall["stages"].values())),
-                               *[str(overall["stages"][stage]) for stage in STAGES]]))
+            lines.append(
+                _row(
+                    [
+                        entry["label"],
+                        SUBSET_TITLES[subset],
+                        str(overall["scenes"]),
+                        str(sum(overall["stages"].values())),
+                        *[str(overall["stages"][stage]) for stage in STAGES],
+                    ]
+                )
+            )
     return "\n".join(lines)
 
 
@@ -120,8 +149,12 @@ def failure_list(results: Mapping, limit: int = MAX_LISTED_FAILURES) -> str:
     """Scenes where a method gave no placement, with its message (the first `limit` per method)."""
     lines = ["**Method failures**", ""]
     for entry in results["evaluations"]:
-        failed = [(subset, scene) for subset, body in entry["subsets"].items()
-                  for scene in body["scenes"] if scene["failure"] is not None]
+        failed = [
+            (subset, scene)
+            for subset, body in entry["subsets"].items()
+            for scene in body["scenes"]
+            if scene["failure"] is not None
+        ]
         counted = sum(body.get("failed_scenes", 0) for body in entry["subsets"].values())  # a summary's
         if counted:
             lines.append(f"- {entry['label']} ({entry['key']}): {counted} scenes (listed in the full results JSON)")
@@ -136,8 +169,11 @@ def failure_list(results: Mapping, limit: int = MAX_LISTED_FAILURES) -> str:
 
 def unseen_mean(entry: Mapping) -> float | None:
     """The 1:1 mean of the unseen_obj and unseen_inst overall success (the paper's Fig. 7 'unseen')."""
-    values = [entry["subsets"].get(s, {}).get("aggregate", {}).get("overall", {}).get("success")
-              for s in PAPER_SUBSETS if s != "seen"]
+    values = [
+        entry["subsets"].get(s, {}).get("aggregate", {}).get("overall", {}).get("success")
+        for s in PAPER_SUBSETS
+        if s != "seen"
+    ]
     return None if None in values else sum(values) / 2
 
 
@@ -146,9 +182,12 @@ def efficiency_table(results: Mapping) -> str:
     fractions = sorted({e["fraction"] for e in results["evaluations"]})
     if fractions == [1.0]:
         return ""
-    lines = ["**Sample efficiency: overall success of the mode (%) by share of the training set**", "",
-             _row(["Method", "Fraction", "Seen", "Unseen (mean of obj and inst)"]),
-             _row(["---", "---:", "---:", "---:"])]
+    lines = [
+        "**Sample efficiency: overall success of the mode (%) by share of the training set**",
+        "",
+        _row(["Method", "Fraction", "Seen", "Unseen (mean of obj and inst)"]),
+        _row(["---", "---:", "---:", "---:"]),
+    ]
     for entry in sorted(results["evaluations"], key=lambda e: (e["method"], e["fraction"])):
         seen = entry["subsets"].get("seen", {}).get("aggregate", {}).get("overall", {}).get("success")
         lines.append(_row([entry["label"], f"{entry['fraction']:g}", percent(seen), percent(unseen_mean(entry))]))
@@ -158,11 +197,19 @@ def efficiency_table(results: Mapping) -> str:
 def render(results: Mapping) -> str:
     """Every table of a results JSON as one markdown document."""
     settings = results["settings"]
-    header = (f"Dataset {results['dataset']['dataset_hash']} ({results['dataset']['dir']}), backbone "
-              f"`{settings['backbone']}`, parser `{settings['parser']}`, {settings['num_samples']} samples, "
-              f"seed {settings['seed']}; ocplace {(results['environment']['git'].get('commit') or '?')[:12]}.")
-    parts = [header, table_one(results),
-             level_table(results, "sample_success", "Mean success over samples (%)"),
-             physical_table(results), diagnosis_table(results), stage_table(results),
-             efficiency_table(results), failure_list(results)]
+    header = (
+        f"Dataset {results['dataset']['dataset_hash']} ({results['dataset']['dir']}), backbone "
+        f"`{settings['backbone']}`, parser `{settings['parser']}`, {settings['num_samples']} samples, "
+        f"seed {settings['seed']}; ocplace {(results['environment']['git'].get('commit') or '?')[:12]}."
+    )
+    parts = [
+        header,
+        table_one(results),
+        level_table(results, "sample_success", "Mean success over samples (%)"),
+        physical_table(results),
+        diagnosis_table(results),
+        stage_table(results),
+        efficiency_table(results),
+        failure_list(results),
+    ]
     return "\n\n".join(part for part in parts if part) + "\n"

@@ -59,8 +59,9 @@ def init_adapters(config: AdapterConfig, key: jax.Array) -> dict:
     return GroundingAdapters(config).init(key, dummy, dummy)["params"]
 
 
-def apply_adapters(config: AdapterConfig, params: dict, visual: jax.Array, text: jax.Array
-                   ) -> tuple[jax.Array, jax.Array]:
+def apply_adapters(
+    config: AdapterConfig, params: dict, visual: jax.Array, text: jax.Array
+) -> tuple[jax.Array, jax.Array]:
     """`(V*, T*)` for visual tokens `(..., T, D)` and text tokens `(..., L, D)`."""
     return GroundingAdapters(config).apply({"params": params}, visual, text)
 

@@ -20,8 +20,9 @@ import json
 import os
 import socket
 import urllib.parse
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Protocol, Sequence, runtime_checkable
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
@@ -29,8 +30,10 @@ from ocplace.errors import BackboneError, BackboneUnavailable
 
 DEFAULT_CLIP = "openai/clip-vit-base-patch32"
 # kind -> "module:function(argument: str) -> Backbone"; the offline backbone adds its own kind.
-BACKBONE_LOADERS = {"clip": "ocplace.models.backbone:load_clip_backbone",
-                    "offline": "ocplace.models.offline_backbone:load_offline_backbone"}
+BACKBONE_LOADERS = {
+    "clip": "ocplace.models.backbone:load_clip_backbone",
+    "offline": "ocplace.models.offline_backbone:load_offline_backbone",
+}
 _HUB_PROBE_TIMEOUT_S = 3.0
 
 
@@ -93,7 +96,8 @@ def load_backbone(spec: str, **kwargs) -> Backbone:
     if not sep and "/" not in spec and not Path(spec).is_dir():
         raise BackboneError(
             f"unknown backbone {spec!r}: use clip:HUB_ID, clip:/path/to/clip_dir or a local CLIP "
-            f"directory; registered kinds: {sorted(BACKBONE_LOADERS)}")
+            f"directory; registered kinds: {sorted(BACKBONE_LOADERS)}"
+        )
     return load_clip_backbone(spec, **kwargs)
 
 
@@ -116,9 +120,13 @@ class ImagePreprocessing:
         if not (processor.do_resize and processor.do_center_crop and "shortest_edge" in size):
             raise BackboneError("only CLIP-style preprocessing (shortest-edge resize, centre crop) is supported")
         crop = processor.crop_size
-        return cls(int(size["shortest_edge"]), (int(crop["height"]), int(crop["width"])),
-                   tuple(float(m) for m in processor.image_mean), tuple(float(s) for s in processor.image_std),
-                   int(processor.resample))
+        return cls(
+            int(size["shortest_edge"]),
+            (int(crop["height"]), int(crop["width"])),
+            tuple(float(m) for m in processor.image_mean),
+            tuple(float(s) for s in processor.image_std),
+            int(processor.resample),
+        )
 
 
 def resize_and_crop(image: np.ndarray, prep: ImagePreprocessing) -> np.ndarray:
@@ -134,7 +142,7 @@ def resize_and_crop(image: np.ndarray, prep: ImagePreprocessing) -> np.ndarray:
     if crop_h > new_h or crop_w > new_w:
         raise BackboneError(f"crop {prep.crop} larger than the resized image {(new_h, new_w)}")
     top, left = (new_h - crop_h) // 2, (new_w - crop_w) // 2
-    return resized[top:top + crop_h, left:left + crop_w]
+    return resized[top : top + crop_h, left : left + crop_w]
 
 
 def normalize_pixels(pixels, prep: ImagePreprocessing):
@@ -171,7 +179,7 @@ def run_batched(fn, arrays: tuple[np.ndarray, ...], max_batch: int) -> np.ndarra
     total = len(arrays[0])
     outputs = []
     for start in range(0, total, max_batch):
-        chunk = [a[start:start + max_batch] for a in arrays]
+        chunk = [a[start : start + max_batch] for a in arrays]
         count = len(chunk[0])
         size = bucket_size(count, max_batch)
         padded = [np.concatenate([c, np.zeros((size - count, *c.shape[1:]), c.dtype)]) for c in chunk]
@@ -223,8 +231,9 @@ class ClipBackbone:
         texts = list(texts)
         if not texts:
             return np.zeros((0, self.dim), np.float32)
-        tokens = self._tokenizer(texts, padding="longest", max_length=self.context_length,
-                                 truncation=True, return_tensors="np")
+        tokens = self._tokenizer(
+            texts, padding="longest", max_length=self.context_length, truncation=True, return_tensors="np"
+        )
         ids, mask = tokens["input_ids"].astype(np.int32), tokens["attention_mask"].astype(np.int32)
         # Tuple texts are a dozen tokens: padding them to the context length (77) would make the
         # text tower 6x slower. Causal attention keeps the pooled token blind to the padding.
@@ -308,9 +317,11 @@ def load_clip_backbone(name_or_dir: str = DEFAULT_CLIP, max_batch: int = 32) -> 
         try:
             return _load_clip(str(local), local_only=True, max_batch=max_batch)
         except OSError as error:
-            raise BackboneError(f"{local} is not a complete CLIP checkpoint ({error}); it needs config.json, "
-                                "weights, tokenizer files and preprocessor_config.json (save_pretrained writes "
-                                "them)") from error
+            raise BackboneError(
+                f"{local} is not a complete CLIP checkpoint ({error}); it needs config.json, "
+                "weights, tokenizer files and preprocessor_config.json (save_pretrained writes "
+                "them)"
+            ) from error
     if _looks_like_path(name_or_dir):
         raise BackboneUnavailable(f"no CLIP directory at {local}. {_how_to_fix()}")
     try:
@@ -320,12 +331,14 @@ def load_clip_backbone(name_or_dir: str = DEFAULT_CLIP, max_batch: int = 32) -> 
     if os.environ.get("HF_HUB_OFFLINE", "0").lower() in ("1", "true", "yes"):
         raise BackboneUnavailable(
             f"CLIP checkpoint {name_or_dir!r} is not in the Hugging Face cache and HF_HUB_OFFLINE is set. "
-            f"{_how_to_fix()}")
+            f"{_how_to_fix()}"
+        )
     host = _hub_host()
     if not _reachable(host):
         raise BackboneUnavailable(
             f"cannot load CLIP checkpoint {name_or_dir!r}: {host[0]} is unreachable (no network) and there is "
-            f"no local copy in the Hugging Face cache. {_how_to_fix()}")
+            f"no local copy in the Hugging Face cache. {_how_to_fix()}"
+        )
     try:
         return _load_clip(name_or_dir, local_only=False, max_batch=max_batch)
     except OSError as error:
@@ -338,8 +351,9 @@ def _load_clip(name_or_dir: str, local_only: bool, max_batch: int) -> ClipBackbo
     model, params = _load_flax_clip(name_or_dir, local_only)
     tokenizer = CLIPTokenizerFast.from_pretrained(name_or_dir, local_files_only=local_only)
     processor = CLIPImageProcessor.from_pretrained(name_or_dir, local_files_only=local_only)
-    return ClipBackbone(model, params, tokenizer, ImagePreprocessing.from_processor(processor),
-                        source=name_or_dir, max_batch=max_batch)
+    return ClipBackbone(
+        model, params, tokenizer, ImagePreprocessing.from_processor(processor), source=name_or_dir, max_batch=max_batch
+    )
 
 
 def _load_flax_clip(name_or_dir: str, local_only: bool):
@@ -380,10 +394,12 @@ def _looks_like_path(name: str) -> bool:
 
 
 def _how_to_fix() -> str:
-    return ("Pass a local directory holding a CLIP checkpoint (config.json, flax_model.msgpack or "
-            "model.safetensors, tokenizer and preprocessor_config.json files), e.g. "
-            "`--backbone clip:/path/to/clip-vit-base-patch32`, or choose the offline backbone "
-            "(`--backbone offline`).")
+    return (
+        "Pass a local directory holding a CLIP checkpoint (config.json, flax_model.msgpack or "
+        "model.safetensors, tokenizer and preprocessor_config.json files), e.g. "
+        "`--backbone clip:/path/to/clip-vit-base-patch32`, or choose the offline backbone "
+        "(`--backbone offline`)."
+    )
 
 
 def _hub_host() -> tuple[str, int]:

@@ -35,11 +35,12 @@ def default_config() -> DetectorConfig:
     return DetectorConfig()
 
 
-def heights_above_table(depth: np.ndarray, camera: PinholeCamera, config: DetectorConfig = DetectorConfig()
-                        ) -> np.ndarray:
+def heights_above_table(
+    depth: np.ndarray, camera: PinholeCamera, config: DetectorConfig = DetectorConfig()
+) -> np.ndarray:
     """`(H, W)` metres above the (refined) table plane; NaN where depth is invalid."""
     depth = np.asarray(depth, np.float64)
-    v, u = np.mgrid[:depth.shape[0], :depth.shape[1]]
+    v, u = np.mgrid[: depth.shape[0], : depth.shape[1]]
     valid = (depth > 0) & (depth < config.max_range) & np.isfinite(depth)
     points = camera.pixel_to_world(np.stack([u, v], axis=-1), np.where(valid, depth, 0.0))
     height = np.where(valid, points[..., 2], np.nan)
@@ -67,20 +68,31 @@ def detect_boxes(depth: np.ndarray, camera, config: DetectorConfig = DetectorCon
     camera = PinholeCamera.from_any(camera)
     depth = np.asarray(depth)
     if depth.shape != (camera.height, camera.width):
-        raise PolicyInputError(f"depth is {depth.shape[1]}x{depth.shape[0]} but the camera is "
-                               f"{camera.width}x{camera.height}; pass the camera the depth image was taken with")
+        raise PolicyInputError(
+            f"depth is {depth.shape[1]}x{depth.shape[0]} but the camera is "
+            f"{camera.width}x{camera.height}; pass the camera the depth image was taken with"
+        )
     mask = object_mask(depth, camera, config).astype(np.uint8)
-    count, _, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    _, _, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
     stats = stats[1:]  # component 0 is the background
     stats = stats[stats[:, cv2.CC_STAT_AREA] >= config.min_area]
     stats = stats[np.argsort(-stats[:, cv2.CC_STAT_AREA], kind="stable")]
     u0, v0 = stats[:, cv2.CC_STAT_LEFT], stats[:, cv2.CC_STAT_TOP]
-    return np.stack([u0, v0, u0 + stats[:, cv2.CC_STAT_WIDTH], v0 + stats[:, cv2.CC_STAT_HEIGHT]], axis=1
-                    ).astype(np.int32).reshape(-1, 4)
+    return (
+        np.stack([u0, v0, u0 + stats[:, cv2.CC_STAT_WIDTH], v0 + stats[:, cv2.CC_STAT_HEIGHT]], axis=1)
+        .astype(np.int32)
+        .reshape(-1, 4)
+    )
 
 
-def estimate_aabbs(depth: np.ndarray, camera, boxes: np.ndarray, segmentation: np.ndarray | None = None,
-                   object_ids: np.ndarray | None = None, config: DetectorConfig = DetectorConfig()) -> np.ndarray:
+def estimate_aabbs(
+    depth: np.ndarray,
+    camera,
+    boxes: np.ndarray,
+    segmentation: np.ndarray | None = None,
+    object_ids: np.ndarray | None = None,
+    config: DetectorConfig = DetectorConfig(),
+) -> np.ndarray:
     """`(N, 2, 2)` table-frame x-y AABBs of the objects in `boxes` `(N, 4)`, from depth.
 
     An object's pixels are its segmentation mask (with `segmentation` and `object_ids`), else the
@@ -164,11 +176,17 @@ def box_recall(records: Iterable, config: DetectorConfig = DetectorConfig(), iou
     return Recall(matched, total, detections, scenes, iou_threshold)
 
 
-def dataset_box_recall(dataset_dir, splits: Iterable[str] = TEST_SUBSETS,
-                       config: DetectorConfig = DetectorConfig(), iou_threshold: float = 0.5) -> dict[str, Recall]:
+def dataset_box_recall(
+    dataset_dir,
+    splits: Iterable[str] = TEST_SUBSETS,
+    config: DetectorConfig = DetectorConfig(),
+    iou_threshold: float = 0.5,
+) -> dict[str, Recall]:
     """`box_recall` per split of a dataset directory."""
     from ocplace.sim.dataset.job import scene_dirs
     from ocplace.sim.dataset.records import read_scene
 
-    return {split: box_recall((read_scene(d) for d in scene_dirs(dataset_dir, split)), config, iou_threshold)
-            for split in splits}
+    return {
+        split: box_recall((read_scene(d) for d in scene_dirs(dataset_dir, split)), config, iou_threshold)
+        for split in splits
+    }

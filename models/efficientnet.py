@@ -133,8 +133,10 @@ def trainable_mask(params: dict, frozen: int) -> dict:
     """A pytree of bools over `params` (the `params` collection): False for the first `frozen`
     top-level entries of `block_names` order, True after. For `optax.masked` / `multi_transform`."""
     frozen_names = set(_ordered(params)[:frozen])
-    return {name: jax.tree_util.tree_map(lambda _: name not in frozen_names, subtree)
-            for name, subtree in params.items()}
+    return {
+        name: jax.tree_util.tree_map(lambda _, trainable=name not in frozen_names: trainable, subtree)
+        for name, subtree in params.items()
+    }
 
 
 def _ordered(params: dict) -> list[str]:
@@ -166,7 +168,7 @@ def depthwise_conv(x: jax.Array, kernel: jax.Array, stride: int) -> jax.Array:
     total = None
     for i in range(k):
         for j in range(k):
-            window = padded[:, i:i + stride * (out_h - 1) + 1:stride, j:j + stride * (out_w - 1) + 1:stride, :]
+            window = padded[:, i : i + stride * (out_h - 1) + 1 : stride, j : j + stride * (out_w - 1) + 1 : stride, :]
             term = window * kernel[i, j]
             total = term if total is None else total + term
     return total
@@ -180,8 +182,11 @@ class DepthwiseConv(nn.Module):
 
     @nn.compact
     def __call__(self, x):
-        kernel = self.param("kernel", nn.initializers.lecun_normal(in_axis=(0, 1), out_axis=2),
-                            (self.kernel_size, self.kernel_size, x.shape[-1]))
+        kernel = self.param(
+            "kernel",
+            nn.initializers.lecun_normal(in_axis=(0, 1), out_axis=2),
+            (self.kernel_size, self.kernel_size, x.shape[-1]),
+        )
         return depthwise_conv(x, kernel, self.stride)
 
 
@@ -252,7 +257,7 @@ def normalise(pixels: jax.Array) -> jax.Array:
 # ----------------------------------------------------------------------------- pure functions
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def module(variant: str = "lite0") -> EfficientNetLite:
     return EfficientNetLite(config(variant))
 
@@ -281,7 +286,8 @@ def calibrate_batch_stats(variables: dict, pixels, variant: str = "lite0") -> di
     data-dependent initialisation keeps them normalised, as training-mode batch norm would.
     """
     _, updated = EfficientNetLite(config(variant), calibrate=True).apply(
-        variables, pixels, classify=False, mutable=["batch_stats"])
+        variables, pixels, classify=False, mutable=["batch_stats"]
+    )
     return {**variables, "batch_stats": updated["batch_stats"]}
 
 
@@ -299,4 +305,3 @@ def init(key: jax.Array, variant: str = "lite0") -> dict:
 
 def count_params(tree: dict) -> int:
     return sum(math.prod(leaf.shape) for leaf in jax.tree_util.tree_leaves(tree))
-

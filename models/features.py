@@ -62,8 +62,10 @@ def check_example(example, max_objects: int, max_tuples: int) -> None:
     if workspace.dtype != np.uint8 or workspace.ndim != 3 or workspace.shape[-1] != 3:
         problems.append(f"workspace must be uint8 (H, W, 3), got {workspace.dtype} {workspace.shape}")
     if not 1 <= len(example.texts) <= max_tuples or targets.shape != (len(example.texts),):
-        problems.append(f"need 1..{max_tuples} texts and one target each, got {len(example.texts)} texts "
-                        f"and targets of shape {targets.shape}")
+        problems.append(
+            f"need 1..{max_tuples} texts and one target each, got {len(example.texts)} texts "
+            f"and targets of shape {targets.shape}"
+        )
     elif targets.min() < 0 or targets.max() > len(crops):
         problems.append(f"targets {targets.tolist()} outside 0..{len(crops)} (N = {len(crops)} is the table)")
     if problems:
@@ -101,16 +103,28 @@ class FeatureInfo:
     dim: int
 
     def to_metadata(self) -> dict[str, str]:
-        return {"format_version": FORMAT_VERSION, "key": self.key, "backbone_fingerprint": self.backbone_fingerprint,
-                "dataset_hash": self.dataset_hash, "config": self.config.to_json(),
-                "logit_scale": repr(self.logit_scale), "dim": str(self.dim)}
+        return {
+            "format_version": FORMAT_VERSION,
+            "key": self.key,
+            "backbone_fingerprint": self.backbone_fingerprint,
+            "dataset_hash": self.dataset_hash,
+            "config": self.config.to_json(),
+            "logit_scale": repr(self.logit_scale),
+            "dim": str(self.dim),
+        }
 
     @classmethod
     def from_metadata(cls, meta: dict[str, str]) -> FeatureInfo:
         fields = json.loads(meta["config"])
         config = FeaturizeConfig(**{**fields, "prompt": PromptConfig.from_json(json.dumps(fields["prompt"]))})
-        return cls(meta["key"], meta["backbone_fingerprint"], meta["dataset_hash"], config,
-                   float(meta["logit_scale"]), int(meta["dim"]))
+        return cls(
+            meta["key"],
+            meta["backbone_fingerprint"],
+            meta["dataset_hash"],
+            config,
+            float(meta["logit_scale"]),
+            int(meta["dim"]),
+        )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -140,8 +154,12 @@ class Features:
     def subset(self, indices) -> Features:
         indices = np.asarray(indices, dtype=np.int64)
         picked = {name: getattr(self, name)[indices] for name in ARRAY_NAMES}
-        return dataclasses.replace(self, **picked, scene_ids=tuple(self.scene_ids[i] for i in indices),
-                                   phrases=tuple(self.phrases[i] for i in indices))
+        return dataclasses.replace(
+            self,
+            **picked,
+            scene_ids=tuple(self.scene_ids[i] for i in indices),
+            phrases=tuple(self.phrases[i] for i in indices),
+        )
 
 
 def features_key(backbone_fingerprint: str, dataset_hash: str, config: FeaturizeConfig) -> str:
@@ -149,9 +167,16 @@ def features_key(backbone_fingerprint: str, dataset_hash: str, config: Featurize
     return hashlib.sha256(payload.encode()).hexdigest()
 
 
-def featurize(examples: Iterable[SceneExample], backbone: Backbone, out_path, *, dataset_hash: str,
-              config: FeaturizeConfig = FeaturizeConfig(), total: int | None = None,
-              progress: bool = True) -> Path:
+def featurize(
+    examples: Iterable[SceneExample],
+    backbone: Backbone,
+    out_path,
+    *,
+    dataset_hash: str,
+    config: FeaturizeConfig = FeaturizeConfig(),
+    total: int | None = None,
+    progress: bool = True,
+) -> Path:
     """Encodes every example once into `out_path`; returns it.
 
     A file already holding the same key (same backbone, data and config) is left alone without
@@ -161,8 +186,14 @@ def featurize(examples: Iterable[SceneExample], backbone: Backbone, out_path, *,
     from tqdm import tqdm
 
     out_path = Path(out_path)
-    info = FeatureInfo(features_key(backbone.fingerprint, dataset_hash, config), backbone.fingerprint,
-                       dataset_hash, config, float(backbone.logit_scale), int(backbone.dim))
+    info = FeatureInfo(
+        features_key(backbone.fingerprint, dataset_hash, config),
+        backbone.fingerprint,
+        dataset_hash,
+        config,
+        float(backbone.logit_scale),
+        int(backbone.dim),
+    )
     if _holds_key(out_path, info.key):
         log.info("features up to date: %s", out_path)
         return out_path
@@ -194,18 +225,20 @@ def encode_chunk(chunk: list[SceneExample], backbone: Backbone, config: Featuriz
     text_features = backbone.encode_texts([config.prompt.text_for(phrase) for phrase in phrases])
 
     count, dim = len(chunk), backbone.dim
-    arrays = {"visual": np.zeros((count, config.max_tokens, dim), np.float32),
-              "visual_mask": np.zeros((count, config.max_tokens), bool),
-              "text": np.zeros((count, config.max_tuples, dim), np.float32),
-              "text_mask": np.zeros((count, config.max_tuples), bool),
-              "targets": np.zeros((count, config.max_tuples), np.int32)}
+    arrays = {
+        "visual": np.zeros((count, config.max_tokens, dim), np.float32),
+        "visual_mask": np.zeros((count, config.max_tokens), bool),
+        "text": np.zeros((count, config.max_tuples, dim), np.float32),
+        "text_mask": np.zeros((count, config.max_tuples), bool),
+        "targets": np.zeros((count, config.max_tuples), np.int32),
+    }
     crop_row, text_row, workspace_row = 0, 0, len(images) - count
     for i, example in enumerate(chunk):
         n, num_texts = len(example.crops), len(example.texts)
-        arrays["visual"][i, :n] = image_features[crop_row:crop_row + n]
+        arrays["visual"][i, :n] = image_features[crop_row : crop_row + n]
         arrays["visual"][i, n] = image_features[workspace_row + i]
-        arrays["visual_mask"][i, :n + 1] = True
-        arrays["text"][i, :num_texts] = text_features[text_row:text_row + num_texts]
+        arrays["visual_mask"][i, : n + 1] = True
+        arrays["text"][i, :num_texts] = text_features[text_row : text_row + num_texts]
         arrays["text_mask"][i, :num_texts] = True
         arrays["targets"][i, :num_texts] = example.targets
         crop_row, text_row = crop_row + n, text_row + num_texts
@@ -234,14 +267,19 @@ def load_features(path, expected_fingerprint: str | None = None) -> Features:
 
     info, meta = _read_metadata(path)
     if expected_fingerprint is not None and info.backbone_fingerprint != expected_fingerprint:
-        raise FeaturesError(f"{path} was encoded by another backbone (fingerprint "
-                            f"{info.backbone_fingerprint[:12]}, expected {expected_fingerprint[:12]}); "
-                            "run `ocplace featurize` again with this backbone")
+        raise FeaturesError(
+            f"{path} was encoded by another backbone (fingerprint "
+            f"{info.backbone_fingerprint[:12]}, expected {expected_fingerprint[:12]}); "
+            "run `ocplace featurize` again with this backbone"
+        )
     arrays = load_file(str(path))
     scenes = json.loads(meta["scenes"])
-    return Features(**{name: arrays[name] for name in ARRAY_NAMES},
-                    scene_ids=tuple(s["id"] for s in scenes),
-                    phrases=tuple(tuple(s["texts"]) for s in scenes), info=info)
+    return Features(
+        **{name: arrays[name] for name in ARRAY_NAMES},
+        scene_ids=tuple(s["id"] for s in scenes),
+        phrases=tuple(tuple(s["texts"]) for s in scenes),
+        info=info,
+    )
 
 
 def _read_metadata(path) -> tuple[FeatureInfo, dict[str, str]]:
@@ -254,13 +292,16 @@ def _read_metadata(path) -> tuple[FeatureInfo, dict[str, str]]:
     except FileNotFoundError as error:
         raise FeaturesError(f"no feature file at {path}; create it with `ocplace featurize`") from error
     except (SafetensorError, OSError, KeyError, ValueError, TypeError) as error:
-        raise FeaturesError(f"{path} is not a readable ocplace feature file ({error}); "
-                            "delete it and run `ocplace featurize` again") from error
+        raise FeaturesError(
+            f"{path} is not a readable ocplace feature file ({error}); delete it and run `ocplace featurize` again"
+        ) from error
 
 
 def save_features(features: Features, path) -> Path:
     """Writes `features` (e.g. a subset, or synthetic ones) as a feature file."""
-    scenes = [{"id": scene_id, "texts": list(phrases)} for scene_id, phrases in zip(features.scene_ids, features.phrases)]
+    scenes = [
+        {"id": scene_id, "texts": list(phrases)} for scene_id, phrases in zip(features.scene_ids, features.phrases)
+    ]
     _write(Path(path), dict(zip(ARRAY_NAMES, features.arrays())), features.info, scenes)
     return Path(path)
 

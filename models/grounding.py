@@ -59,13 +59,11 @@ class GroundingModel:
     params: dict  # {"visual": ..., "text": ...}
     logit_scale: float
 
-    def logits(self, text: np.ndarray, visual: np.ndarray, visual_mask: np.ndarray | None = None
-               ) -> np.ndarray:
+    def logits(self, text: np.ndarray, visual: np.ndarray, visual_mask: np.ndarray | None = None) -> np.ndarray:
         """`(..., L, T)` logits for text `(..., L, D)` and visual `(..., T, D)` tokens."""
         if visual_mask is None:
             visual_mask = np.ones(np.shape(visual)[:-1], bool)
-        return np.asarray(_jitted_logits(self.config, self.params, text, visual, visual_mask,
-                                         self.logit_scale))
+        return np.asarray(_jitted_logits(self.config, self.params, text, visual, visual_mask, self.logit_scale))
 
     def probabilities(self, text, visual, visual_mask=None) -> np.ndarray:
         """`(..., L, T)` P: a distribution over the visual tokens per tuple."""

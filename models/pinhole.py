@@ -17,12 +17,13 @@ import numpy as np
 
 from ocplace.errors import PolicyInputError
 
-
 # A camera JSON may also repeat these entries of K (`sim.camera.Camera.to_json` does): they must agree.
 _K_ENTRIES = {"fx": (0, 0), "fy": (1, 1), "cx": (0, 2), "cy": (1, 2)}
-_FIELDS_HELP = ("a camera JSON holds intrinsics (3x3 K: fx, fy > 0 pixels on the diagonal, the principal point "
-                "cx, cy in the last column, last row 0 0 1), world_from_camera (4x4 rigid pose in the table "
-                "frame, metres), width and height (pixels)")
+_FIELDS_HELP = (
+    "a camera JSON holds intrinsics (3x3 K: fx, fy > 0 pixels on the diagonal, the principal point "
+    "cx, cy in the last column, last row 0 0 1), world_from_camera (4x4 rigid pose in the table "
+    "frame, metres), width and height (pixels)"
+)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -55,8 +56,10 @@ class PinholeCamera:
             return cls.from_json(camera)
         if hasattr(camera, "intrinsics") and hasattr(camera, "world_from_camera"):
             return cls(camera.intrinsics, camera.world_from_camera, camera.width, camera.height)
-        raise PolicyInputError(f"cannot read a camera from {type(camera).__name__}; pass a PinholeCamera, a "
-                               "sim.camera.Camera or a dict with intrinsics, world_from_camera, width, height")
+        raise PolicyInputError(
+            f"cannot read a camera from {type(camera).__name__}; pass a PinholeCamera, a "
+            "sim.camera.Camera or a dict with intrinsics, world_from_camera, width, height"
+        )
 
     @classmethod
     def from_json(cls, fields: dict) -> PinholeCamera:
@@ -71,8 +74,12 @@ class PinholeCamera:
         return camera
 
     def to_json(self) -> dict:
-        return {"intrinsics": self.intrinsics.tolist(), "world_from_camera": self.world_from_camera.tolist(),
-                "width": self.width, "height": self.height}
+        return {
+            "intrinsics": self.intrinsics.tolist(),
+            "world_from_camera": self.world_from_camera.tolist(),
+            "width": self.width,
+            "height": self.height,
+        }
 
     @property
     def rotation(self) -> np.ndarray:
@@ -128,8 +135,10 @@ def _finite_matrix(name: str, value, shape: tuple[int, int]) -> np.ndarray:
     except (TypeError, ValueError):
         matrix = None
     if matrix is None or matrix.shape != shape or not np.all(np.isfinite(matrix)):
-        raise PolicyInputError(f"camera {name} must be a {shape[0]}x{shape[1]} matrix of finite numbers, got "
-                               f"{_show(value)}; {_FIELDS_HELP}")
+        raise PolicyInputError(
+            f"camera {name} must be a {shape[0]}x{shape[1]} matrix of finite numbers, got "
+            f"{_show(value)}; {_FIELDS_HELP}"
+        )
     return matrix
 
 
@@ -137,30 +146,40 @@ def _check_intrinsics(k: np.ndarray) -> None:
     for name in ("fx", "fy"):
         value = k[_K_ENTRIES[name]]
         if value <= 0:  # a negative focal length mirrors the image: placements would land on the wrong side
-            raise PolicyInputError(f"camera focal length {name} (intrinsics{list(_K_ENTRIES[name])}) is {value:g}; "
-                                   "it must be a positive number of pixels (the simulator's camera has 457.0)")
+            raise PolicyInputError(
+                f"camera focal length {name} (intrinsics{list(_K_ENTRIES[name])}) is {value:g}; "
+                "it must be a positive number of pixels (the simulator's camera has 457.0)"
+            )
     if k[1, 0] != 0 or not np.array_equal(k[2], [0.0, 0.0, 1.0]):
-        raise PolicyInputError(f"camera intrinsics {k.tolist()} is not a pinhole K, which reads "
-                               "[[fx, skew, cx], [0, fy, cy], [0, 0, 1]]")
+        raise PolicyInputError(
+            f"camera intrinsics {k.tolist()} is not a pinhole K, which reads [[fx, skew, cx], [0, fy, cy], [0, 0, 1]]"
+        )
 
 
 def _check_pose(pose: np.ndarray) -> None:
     rotation = pose[:3, :3]
     if not np.array_equal(pose[3], [0.0, 0.0, 0.0, 1.0]):
-        raise PolicyInputError(f"camera world_from_camera's last row is {pose[3].tolist()}; a rigid pose ends in "
-                               "0 0 0 1")
+        raise PolicyInputError(
+            f"camera world_from_camera's last row is {pose[3].tolist()}; a rigid pose ends in 0 0 0 1"
+        )
     # A reflection (determinant -1) is orthonormal too, but swaps left and right in the table frame.
     if not np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-6) or np.linalg.det(rotation) < 0:
-        raise PolicyInputError("camera world_from_camera's rotation block (3x3, top left) is not a rotation: it must "
-                               "be orthonormal with determinant +1")
+        raise PolicyInputError(
+            "camera world_from_camera's rotation block (3x3, top left) is not a rotation: it must "
+            "be orthonormal with determinant +1"
+        )
 
 
 def _pixels(name: str, value) -> int:
-    whole = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_)) \
+    whole = (
+        isinstance(value, (int, float, np.integer, np.floating))
+        and not isinstance(value, (bool, np.bool_))
         and float(value).is_integer()
+    )
     if not whole or value <= 0:
-        raise PolicyInputError(f"camera {name} is {_show(value)}; it must be a positive whole number of pixels "
-                               "(e.g. 640 wide, 480 high)")
+        raise PolicyInputError(
+            f"camera {name} is {_show(value)}; it must be a positive whole number of pixels (e.g. 640 wide, 480 high)"
+        )
     return int(value)
 
 
@@ -170,8 +189,10 @@ def _check_repeated_entries(fields: dict, k: np.ndarray) -> None:
             continue
         value = fields[name]
         if not isinstance(value, (int, float)) or isinstance(value, bool) or not np.isclose(value, k[index]):
-            raise PolicyInputError(f"camera JSON {name} = {_show(value)} disagrees with intrinsics{list(index)} = "
-                                   f"{k[index]:g}; edit both, or drop {name}")
+            raise PolicyInputError(
+                f"camera JSON {name} = {_show(value)} disagrees with intrinsics{list(index)} = "
+                f"{k[index]:g}; edit both, or drop {name}"
+            )
 
 
 def _show(value) -> str:

@@ -58,9 +58,11 @@ def backbone_hint(fingerprint: str) -> str:
     directory = saved_backbone_with(fingerprint)
     if directory is not None:
         return f"the backbone they were trained with is saved in {directory}: pass `--backbone offline:{directory}`"
-    return (f"no saved offline backbone in {backbones_root()} has that fingerprint: pass the backbone they were "
-            "trained with (`--backbone SPEC`, the spec their training used), or train adapters on a backbone you "
-            "have (`ocplace reproduce` pretrains its scale's backbone and trains on it)")
+    return (
+        f"no saved offline backbone in {backbones_root()} has that fingerprint: pass the backbone they were "
+        "trained with (`--backbone SPEC`, the spec their training used), or train adapters on a backbone you "
+        "have (`ocplace reproduce` pretrains its scale's backbone and trains on it)"
+    )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -154,14 +156,18 @@ class Placement:
         return tuple(r.token for r in self.references)
 
     def summary(self) -> str:
-        lines = [f"{self.name}: {self.instruction!r}",
-                 "  parse: " + ("; ".join(f"<{ref}, {rel}>" for ref, rel in self.pairs) or "-")]
+        lines = [
+            f"{self.name}: {self.instruction!r}",
+            "  parse: " + ("; ".join(f"<{ref}, {rel}>" for ref, rel in self.pairs) or "-"),
+        ]
         for ref in self.references:
             where = TABLE_LABEL if ref.is_table else f"box {ref.token} {ref.box.tolist()}"
             lines.append(f"  {ref.phrase!r} -> {where} (p={ref.probability:.3f}), relation {ref.relation}")
         if self.mode is not None:
-            lines.append(f"  mode: ({self.mode[0]:+.4f}, {self.mode[1]:+.4f}) m = pixel "
-                         f"({self.mode_px[0]:.1f}, {self.mode_px[1]:.1f}); {len(self.samples)} samples")
+            lines.append(
+                f"  mode: ({self.mode[0]:+.4f}, {self.mode[1]:+.4f}) m = pixel "
+                f"({self.mode_px[0]:.1f}, {self.mode_px[1]:.1f}); {len(self.samples)} samples"
+            )
         if self.flags:
             lines.append(f"  flags: {', '.join(self.flags)}")
         if self.error is not None:
@@ -196,21 +202,33 @@ class PlacementPolicy:
         if isinstance(parser, str):
             parser = make_parser(parser)
         if adapters is None:
-            return cls(backbone, GroundingModel.zero_shot(backbone.dim, backbone.logit_scale), PromptConfig(),
-                       parser, **kwargs)
+            return cls(
+                backbone, GroundingModel.zero_shot(backbone.dim, backbone.logit_scale), PromptConfig(), parser, **kwargs
+            )
         from ocplace.train.checkpoints import load_adapters
 
         trained = load_adapters(adapters)
         if trained.backbone_fingerprint != backbone.fingerprint:
-            raise TrainingError(f"the adapters in {adapters} were trained on features of another backbone "
-                                f"(fingerprint {trained.backbone_fingerprint[:12]}, this one "
-                                f"{backbone.fingerprint[:12]}); {backbone_hint(trained.backbone_fingerprint)}")
+            raise TrainingError(
+                f"the adapters in {adapters} were trained on features of another backbone "
+                f"(fingerprint {trained.backbone_fingerprint[:12]}, this one "
+                f"{backbone.fingerprint[:12]}); {backbone_hint(trained.backbone_fingerprint)}"
+            )
         return cls(backbone, trained.model, trained.prompt, parser, **kwargs)
 
     # ------------------------------------------------------------------ public calls
 
-    def place(self, rgb, depth, boxes_or_segmentation, instruction: str, held_footprint, key,
-              camera=DEFAULT_CAMERA, object_aabbs=None) -> Placement:
+    def place(
+        self,
+        rgb,
+        depth,
+        boxes_or_segmentation,
+        instruction: str,
+        held_footprint,
+        key,
+        camera=DEFAULT_CAMERA,
+        object_aabbs=None,
+    ) -> Placement:
         """Places the held object in one scene; raises a typed `OcplaceError` instead of placing blindly.
 
         Args:
@@ -241,13 +259,14 @@ class PlacementPolicy:
         """`place` on many scenes: crops encoded in batches, one vmapped sampler call. Never raises an
         `OcplaceError` for one scene: that scene's Placement carries it (`error`, `failure`)."""
         prepared = [_attempt(self.prepare, scene) for scene in scenes]
-        parses = [_attempt(self.parse, scene.instruction) if not _failed(p) else p
-                  for scene, p in zip(scenes, prepared)]
+        parses = [
+            _attempt(self.parse, scene.instruction) if not _failed(p) else p for scene, p in zip(scenes, prepared)
+        ]
         groundings: list[Any] = [None] * len(scenes)
         ready = [i for i in range(len(scenes)) if not _failed(prepared[i]) and not _failed(parses[i])]
         outcome = {i: _attempt(_check_boxes_for, prepared[i], parses[i]) for i in ready}
         ready = [i for i in ready if not _failed(outcome[i])]
-        chunks = [ready[start:start + self.encode_scenes] for start in range(0, len(ready), self.encode_scenes)]
+        chunks = [ready[start : start + self.encode_scenes] for start in range(0, len(ready), self.encode_scenes)]
         for chunk in _progress(chunks, progress, "encode"):
             tokens = self.encode([prepared[i] for i in chunk], [parses[i] for i in chunk])
             probabilities = self.ground(tokens)
@@ -257,8 +276,10 @@ class PlacementPolicy:
         sampled = [i for i in ready if not _failed(outcome[i])]
         results = self.sample([prepared[i] for i in sampled], [groundings[i] for i in sampled], key)
         outcome.update(zip(sampled, results))
-        return [self._assemble(scene, prepared[i], parses[i], groundings[i], outcome.get(i))
-                for i, scene in enumerate(scenes)]
+        return [
+            self._assemble(scene, prepared[i], parses[i], groundings[i], outcome.get(i))
+            for i, scene in enumerate(scenes)
+        ]
 
     # ------------------------------------------------------------------ stages
 
@@ -269,8 +290,10 @@ class PlacementPolicy:
         rgb, depth = _check_images(scene.rgb, scene.depth)
         camera = PinholeCamera.from_any(scene.camera)
         if (camera.width, camera.height) != (rgb.shape[1], rgb.shape[0]):
-            raise PolicyInputError(f"the camera is {camera.width}x{camera.height} but the images are "
-                                   f"{rgb.shape[1]}x{rgb.shape[0]}; pass the intrinsics of this image")
+            raise PolicyInputError(
+                f"the camera is {camera.width}x{camera.height} but the images are "
+                f"{rgb.shape[1]}x{rgb.shape[0]}; pass the intrinsics of this image"
+            )
         flags, segmentation, object_ids = [], None, None
         given = scene.boxes_or_segmentation
         if given is None:
@@ -280,11 +303,13 @@ class PlacementPolicy:
             segmentation = np.asarray(given)
             found = boxes_from_segmentation(segmentation)
             boxes, object_ids = found.boxes, found.object_ids
-        elif np.ndim(given) == 2 and np.shape(given)[1] == 4 or np.size(given) == 0:
+        elif (np.ndim(given) == 2 and np.shape(given)[1] == 4) or np.size(given) == 0:
             boxes = _check_boxes(given, rgb.shape)
         else:
-            raise PolicyInputError(f"boxes_or_segmentation has shape {np.shape(given)}: pass (N, 4) pixel boxes "
-                                   f"or a segmentation image of the image's size {rgb.shape[:2]}")
+            raise PolicyInputError(
+                f"boxes_or_segmentation has shape {np.shape(given)}: pass (N, 4) pixel boxes "
+                f"or a segmentation image of the image's size {rgb.shape[:2]}"
+            )
         if scene.object_aabbs is None:
             aabbs = estimate_aabbs(depth, camera, boxes, segmentation, object_ids, self.detector)
             flags.append("aabbs_estimated")
@@ -292,20 +317,36 @@ class PlacementPolicy:
             aabbs = _check_aabbs(scene.object_aabbs, len(boxes))
         half_extents = np.asarray(scene.held_footprint, np.float64).reshape(-1)
         if half_extents.shape != (2,) or not np.all(np.isfinite(half_extents) & (half_extents >= 0)):
-            raise PolicyInputError(f"held_footprint must be two half-extents (hx, hy) >= 0 in metres, got "
-                                   f"{scene.held_footprint!r}")
-        crops = np.stack([square_crop(rgb, box, size=self.crop_size) for box in boxes]) if len(boxes) else \
-            np.zeros((0, self.crop_size, self.crop_size, 3), np.uint8)
-        return PreparedScene(scene.name, scene.instruction, rgb, camera, boxes, aabbs, crops,
-                             letterbox(rgb, self.crop_size), half_extents, tuple(flags))
+            raise PolicyInputError(
+                f"held_footprint must be two half-extents (hx, hy) >= 0 in metres, got {scene.held_footprint!r}"
+            )
+        crops = (
+            np.stack([square_crop(rgb, box, size=self.crop_size) for box in boxes])
+            if len(boxes)
+            else np.zeros((0, self.crop_size, self.crop_size, 3), np.uint8)
+        )
+        return PreparedScene(
+            scene.name,
+            scene.instruction,
+            rgb,
+            camera,
+            boxes,
+            aabbs,
+            crops,
+            letterbox(rgb, self.crop_size),
+            half_extents,
+            tuple(flags),
+        )
 
     def parse(self, instruction: str) -> tuple[ParsedTuple, ...]:
         from ocplace.errors import InvalidPlacementProblem
 
         parsed = tuple(self.parser.parse(instruction))
         if not 1 <= len(parsed) <= self.max_tuples:
-            raise InvalidPlacementProblem(f"the instruction {instruction!r} gave {len(parsed)} tuples; the policy "
-                                          f"places against 1 to {self.max_tuples}")
+            raise InvalidPlacementProblem(
+                f"the instruction {instruction!r} gave {len(parsed)} tuples; the policy "
+                f"places against 1 to {self.max_tuples}"
+            )
         return parsed
 
     def encode(self, scenes: Sequence[PreparedScene], parses: Sequence[Sequence[ParsedTuple]]) -> Tokens:
@@ -318,15 +359,19 @@ class PlacementPolicy:
         text_features = self.backbone.encode_texts(texts)
         count, dim = len(scenes), self.backbone.dim
         num_tokens = max([self.min_boxes] + [len(scene.boxes) for scene in scenes]) + 1
-        tokens = Tokens(np.zeros((count, num_tokens, dim), np.float32), np.zeros((count, num_tokens), bool),
-                        np.zeros((count, self.max_tuples, dim), np.float32), np.zeros((count, self.max_tuples), bool))
+        tokens = Tokens(
+            np.zeros((count, num_tokens, dim), np.float32),
+            np.zeros((count, num_tokens), bool),
+            np.zeros((count, self.max_tuples, dim), np.float32),
+            np.zeros((count, self.max_tuples), bool),
+        )
         crop_row, text_row, workspace_row = 0, 0, len(images) - count
         for i, (scene, parsed) in enumerate(zip(scenes, parses)):
             n, num_texts = len(scene.boxes), len(parsed)
-            tokens.visual[i, :n] = image_features[crop_row:crop_row + n]
+            tokens.visual[i, :n] = image_features[crop_row : crop_row + n]
             tokens.visual[i, n] = image_features[workspace_row + i]
-            tokens.visual_mask[i, :n + 1] = True
-            tokens.text[i, :num_texts] = text_features[text_row:text_row + num_texts]
+            tokens.visual_mask[i, : n + 1] = True
+            tokens.text[i, :num_texts] = text_features[text_row : text_row + num_texts]
             tokens.text_mask[i, :num_texts] = True
             crop_row, text_row = crop_row + n, text_row + num_texts
         return tokens
@@ -335,8 +380,9 @@ class PlacementPolicy:
         """`(B, L, T)` P over the visual tokens per tuple (rows past a scene's tuples are padding)."""
         return self.grounding.probabilities(tokens.text, tokens.visual, tokens.visual_mask)
 
-    def decide(self, scene: PreparedScene, parsed: Sequence[ParsedTuple], probabilities: np.ndarray
-               ) -> tuple[GroundedReference, ...]:
+    def decide(
+        self, scene: PreparedScene, parsed: Sequence[ParsedTuple], probabilities: np.ndarray
+    ) -> tuple[GroundedReference, ...]:
         """The grounded reference (argmax token) per tuple, from `(L, T)` probabilities."""
         num_tokens = len(scene.boxes) + 1
         references = []
@@ -344,9 +390,17 @@ class PlacementPolicy:
             row = np.asarray(probabilities[k, :num_tokens], np.float64)
             token = int(np.argmax(row))
             is_table = token == len(scene.boxes)
-            references.append(GroundedReference(item.reference, item.relation, token, float(row[token]), row,
-                                                None if is_table else scene.boxes[token],
-                                                None if is_table else scene.aabbs[token]))
+            references.append(
+                GroundedReference(
+                    item.reference,
+                    item.relation,
+                    token,
+                    float(row[token]),
+                    row,
+                    None if is_table else scene.boxes[token],
+                    None if is_table else scene.aabbs[token],
+                )
+            )
         return tuple(references)
 
     def check_confidence(self, scene: PreparedScene, references: Sequence[GroundedReference]) -> None:
@@ -354,16 +408,25 @@ class PlacementPolicy:
         for ref in references:
             if not ref.probability >= self.threshold:  # written so that NaN (every comparison False) refuses
                 best = np.argsort(-ref.probabilities, kind="stable")[:3]
-                raise GroundingUncertain(ref.phrase, [(_token_label(scene, int(t)), float(ref.probabilities[t]))
-                                                      for t in best], self.threshold)
+                raise GroundingUncertain(
+                    ref.phrase,
+                    [(_token_label(scene, int(t)), float(ref.probabilities[t])) for t in best],
+                    self.threshold,
+                )
 
     def problem(self, scene: PreparedScene, references: Sequence[GroundedReference]) -> metric.PlacementProblem:
         tuples = [metric.GroundedTuple(ref.relation, ref.aabb) for ref in references]
-        return metric.encode_problem(tuples, scene.aabbs, scene.half_extents, max_tuples=self.max_tuples,
-                                     max_boxes=max(self.min_boxes, len(scene.aabbs)))
+        return metric.encode_problem(
+            tuples,
+            scene.aabbs,
+            scene.half_extents,
+            max_tuples=self.max_tuples,
+            max_boxes=max(self.min_boxes, len(scene.aabbs)),
+        )
 
-    def sample(self, scenes: Sequence[PreparedScene], references: Sequence[Sequence[GroundedReference]], key
-               ) -> list[Any]:
+    def sample(
+        self, scenes: Sequence[PreparedScene], references: Sequence[Sequence[GroundedReference]], key
+    ) -> list[Any]:
         """One sampler call for all scenes: per scene `(samples, heatmap, mode)` or an OcplaceError."""
         import jax
 
@@ -398,17 +461,30 @@ class PlacementPolicy:
             samples, heatmap, mode = (np.asarray(x) for x in sampled)
             samples_px, mode_px = prepared.camera.table_to_pixel(samples), prepared.camera.table_to_pixel(mode)
         return Placement(
-            name=scene.name, instruction=scene.instruction,
+            name=scene.name,
+            instruction=scene.instruction,
             parsed=tuple(parsed) if not _failed(parsed) and parsed is not None else (),
             references=references or (),
-            boxes=boxes, aabbs=prepared.aabbs if ok_prepared else np.zeros((0, 2, 2)),
-            samples=samples, samples_px=samples_px, mode=mode, mode_px=mode_px, heatmap=heatmap,
-            grid=self.sampler.grid, flags=tuple(flags), error=error)
+            boxes=boxes,
+            aabbs=prepared.aabbs if ok_prepared else np.zeros((0, 2, 2)),
+            samples=samples,
+            samples_px=samples_px,
+            mode=mode,
+            mode_px=mode_px,
+            heatmap=heatmap,
+            grid=self.sampler.grid,
+            flags=tuple(flags),
+            error=error,
+        )
 
 
-_FAILURE_FLAGS = {"GroundingUncertain": "low_confidence", "NoFeasiblePlacement": "empty_region",
-                  "NoObjectBoxes": "no_boxes_for_reference", "ParseError": "parse_failed",
-                  "InvalidPlacementProblem": "invalid_problem"}
+_FAILURE_FLAGS = {
+    "GroundingUncertain": "low_confidence",
+    "NoFeasiblePlacement": "empty_region",
+    "NoObjectBoxes": "no_boxes_for_reference",
+    "ParseError": "parse_failed",
+    "InvalidPlacementProblem": "invalid_problem",
+}
 
 
 def _padded_count(count: int, step: int) -> int:
@@ -441,9 +517,11 @@ def _check_boxes_for(scene: PreparedScene, parsed: Sequence[ParsedTuple]) -> Non
     """An image without boxes can still take a table-only instruction; not one about an object."""
     objects = [t.reference for t in parsed if not t.is_table]
     if not len(scene.boxes) and objects:
-        raise NoObjectBoxes(f"scene {scene.name} has no object box, but the instruction refers to {objects[0]!r}; "
-                            "pass boxes from a detector, a segmentation image, or check the depth image "
-                            "(the depth detector found nothing above the table)")
+        raise NoObjectBoxes(
+            f"scene {scene.name} has no object box, but the instruction refers to {objects[0]!r}; "
+            "pass boxes from a detector, a segmentation image, or check the depth image "
+            "(the depth detector found nothing above the table)"
+        )
 
 
 def _token_label(scene: PreparedScene, token: int) -> str:
@@ -456,8 +534,10 @@ def _check_images(rgb, depth) -> tuple[np.ndarray, np.ndarray]:
         raise PolicyInputError(f"rgb must be a uint8 (H, W, 3) image, got {rgb.dtype} {rgb.shape}")
     depth = check_depth(depth)
     if depth.shape != rgb.shape[:2]:
-        raise PolicyInputError(f"rgb is {rgb.shape[1]}x{rgb.shape[0]} but depth is {depth.shape[1]}x{depth.shape[0]}; "
-                               "register the depth image to the colour image first")
+        raise PolicyInputError(
+            f"rgb is {rgb.shape[1]}x{rgb.shape[0]} but depth is {depth.shape[1]}x{depth.shape[0]}; "
+            "register the depth image to the colour image first"
+        )
     return np.ascontiguousarray(rgb), depth
 
 
@@ -465,7 +545,9 @@ def check_depth(depth) -> np.ndarray:
     """`(H, W)` float32 metres from a depth image of numbers (integers are millimetres, as PNGs store them)."""
     depth = np.asarray(depth)
     if not (np.issubdtype(depth.dtype, np.integer) or np.issubdtype(depth.dtype, np.floating)):
-        raise PolicyInputError(f"depth must hold numbers (float metres or integer millimetres), got dtype {depth.dtype}")
+        raise PolicyInputError(
+            f"depth must hold numbers (float metres or integer millimetres), got dtype {depth.dtype}"
+        )
     if depth.ndim != 2:
         raise PolicyInputError(f"depth must be an (H, W) image, got shape {depth.shape}")
     if np.issubdtype(depth.dtype, np.integer):
@@ -481,11 +563,19 @@ def _check_boxes(boxes, image_shape) -> np.ndarray:
         raise PolicyInputError("boxes must be finite (u0, v0, u1, v1) pixel coordinates")
     boxes = np.round(boxes).astype(np.int32).reshape(-1, 4)
     height, width = image_shape[:2]
-    bad = (boxes[:, 0] >= boxes[:, 2]) | (boxes[:, 1] >= boxes[:, 3]) | (boxes[:, 0] < 0) | (boxes[:, 1] < 0) | \
-        (boxes[:, 2] > width) | (boxes[:, 3] > height)
+    bad = (
+        (boxes[:, 0] >= boxes[:, 2])
+        | (boxes[:, 1] >= boxes[:, 3])
+        | (boxes[:, 0] < 0)
+        | (boxes[:, 1] < 0)
+        | (boxes[:, 2] > width)
+        | (boxes[:, 3] > height)
+    )
     if bad.any():
-        raise PolicyInputError(f"box {int(np.flatnonzero(bad)[0])} {boxes[bad][0].tolist()} is empty or leaves the "
-                               f"{width}x{height} image; boxes are (u0, v0, u1, v1) pixel edges, u0 < u1 <= width")
+        raise PolicyInputError(
+            f"box {int(np.flatnonzero(bad)[0])} {boxes[bad][0].tolist()} is empty or leaves the "
+            f"{width}x{height} image; boxes are (u0, v0, u1, v1) pixel edges, u0 < u1 <= width"
+        )
     return boxes
 
 
@@ -494,6 +584,8 @@ def _check_aabbs(aabbs, count: int) -> np.ndarray:
     if aabbs.size == 0 and count == 0:
         return np.zeros((0, 2, 2))
     if aabbs.shape != (count, 2, 2) or not np.all(np.isfinite(aabbs)) or np.any(aabbs[:, 0] > aabbs[:, 1]):
-        raise PolicyInputError(f"object_aabbs must be ({count}, 2, 2) finite [[xmin, ymin], [xmax, ymax]] boxes, one "
-                               f"per pixel box, got shape {aabbs.shape}")
+        raise PolicyInputError(
+            f"object_aabbs must be ({count}, 2, 2) finite [[xmin, ymin], [xmax, ymax]] boxes, one "
+            f"per pixel box, got shape {aabbs.shape}"
+        )
     return aabbs

@@ -8,35 +8,58 @@ from pathlib import Path
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
-        "place", help="place the held object in one scene with the policy and draw what it did",
+        "place",
+        help="place the held object in one scene with the policy and draw what it did",
         description="Parses the instruction, grounds each reference among the object boxes, samples placements "
-                    "and prints them (table frame and pixels). Input: a dataset scene (--dataset DIR --id K), or "
-                    "your own images (--rgb, --depth, --instruction; boxes from --segmentation or the depth "
-                    "detector). Writes a figure: image, boxes, grounded references, density, samples, mode.")
+        "and prints them (table frame and pixels). Input: a dataset scene (--dataset DIR --id K), or "
+        "your own images (--rgb, --depth, --instruction; boxes from --segmentation or the depth "
+        "detector). Writes a figure: image, boxes, grounded references, density, samples, mode.",
+    )
     source = parser.add_argument_group("a dataset scene")
     source.add_argument("--dataset", type=Path, help="dataset directory (written by `ocplace generate`)")
     source.add_argument("--id", help="scene id (e.g. seen-00003) or its index within --split")
     source.add_argument("--split", default="seen")
-    source.add_argument("--detect", action="store_true",
-                        help="use the depth detector and depth-estimated AABBs instead of the dataset's boxes/AABBs")
+    source.add_argument(
+        "--detect",
+        action="store_true",
+        help="use the depth detector and depth-estimated AABBs instead of the dataset's boxes/AABBs",
+    )
     own = parser.add_argument_group("your own images")
     own.add_argument("--rgb", type=Path, help="colour image (PNG/JPEG)")
     own.add_argument("--depth", type=Path, help="depth: uint16 PNG in millimetres, or .npy float metres")
-    own.add_argument("--segmentation", type=Path, help="optional segmentation PNG (0 = background); "
-                                                         "without it, boxes come from the depth detector")
-    own.add_argument("--camera", type=Path, help="camera JSON: intrinsics (3x3), world_from_camera (4x4, table "
-                                                 "frame, metres), width, height; default: the simulator's camera")
-    own.add_argument("--held-footprint", type=float, nargs=2, metavar=("HX", "HY"), default=(0.05, 0.05),
-                     help="half-extents of the held object's footprint in metres (default 0.05 0.05)")
+    own.add_argument(
+        "--segmentation",
+        type=Path,
+        help="optional segmentation PNG (0 = background); without it, boxes come from the depth detector",
+    )
+    own.add_argument(
+        "--camera",
+        type=Path,
+        help="camera JSON: intrinsics (3x3), world_from_camera (4x4, table "
+        "frame, metres), width, height; default: the simulator's camera",
+    )
+    own.add_argument(
+        "--held-footprint",
+        type=float,
+        nargs=2,
+        metavar=("HX", "HY"),
+        default=(0.05, 0.05),
+        help="half-extents of the held object's footprint in metres (default 0.05 0.05)",
+    )
     parser.add_argument("--instruction", help="the instruction (a dataset scene's own by default)")
     model = parser.add_argument_group("model")
-    model.add_argument("--backbone", help="backbone spec (default: the saved offline backbone the --adapters were "
-                                          "trained with, found by its fingerprint; without --adapters: offline)")
-    model.add_argument("--adapters", type=Path, help="training run directory or adapters file (default: none, "
-                                                     "zero-shot grounding)")
+    model.add_argument(
+        "--backbone",
+        help="backbone spec (default: the saved offline backbone the --adapters were "
+        "trained with, found by its fingerprint; without --adapters: offline)",
+    )
+    model.add_argument(
+        "--adapters", type=Path, help="training run directory or adapters file (default: none, zero-shot grounding)"
+    )
     model.add_argument("--parser", default="offline", help="offline, offline-snap or llm")
-    model.add_argument("--threshold", type=float, help="least grounding probability to place against "
-                                                       "(default: the policy's)")
+    model.add_argument(
+        "--threshold", type=float, help="least grounding probability to place against (default: the policy's)"
+    )
     model.add_argument("--samples", type=int, default=1024, help="placements to sample")
     model.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=Path("place.png"), help="figure to write (PNG)")
@@ -85,8 +108,10 @@ def _backbone_spec(args) -> str:
         return args.backbone
     directory = saved_backbone_with(fingerprint)
     if directory is None:
-        raise BackboneUnavailable(f"the adapters in {args.adapters} were trained on the backbone with fingerprint "
-                                  f"{fingerprint[:12]}; {backbone_hint(fingerprint)}")
+        raise BackboneUnavailable(
+            f"the adapters in {args.adapters} were trained on the backbone with fingerprint "
+            f"{fingerprint[:12]}; {backbone_hint(fingerprint)}"
+        )
     return f"offline:{directory}"
 
 
@@ -94,8 +119,10 @@ def _scene(args):
     from ocplace.errors import PolicyInputError
 
     if args.instruction is not None and not args.instruction.strip():
-        raise PolicyInputError("--instruction is empty; say where to put the object, e.g. --instruction "
-                               "\"put it to the left of the red bowl\", or leave it out to use a dataset scene's own")
+        raise PolicyInputError(
+            "--instruction is empty; say where to put the object, e.g. --instruction "
+            '"put it to the left of the red bowl", or leave it out to use a dataset scene\'s own'
+        )
     if args.dataset is not None:
         return _dataset_scene(args)
     if args.rgb is None or args.depth is None or args.instruction is None:
@@ -148,14 +175,16 @@ def _image_scene(args):
         return image
 
     rgb = np.ascontiguousarray(read(args.rgb, cv2.IMREAD_COLOR)[..., ::-1])
-    depth = check_depth(_read_npy(args.depth) if args.depth.suffix == ".npy" else read(args.depth,
-                                                                                       cv2.IMREAD_UNCHANGED))
+    depth = check_depth(
+        _read_npy(args.depth) if args.depth.suffix == ".npy" else read(args.depth, cv2.IMREAD_UNCHANGED)
+    )
     segmentation = read(args.segmentation, cv2.IMREAD_UNCHANGED).astype(np.int32) if args.segmentation else None
     if args.camera is None:
         print("no --camera given: assuming the simulator's camera (640x480, 70 deg, 0.6 m above the table)")
     camera = PinholeCamera.from_any(args.camera or DEFAULT_CAMERA)
-    return SceneInput(rgb, depth, segmentation, args.instruction, tuple(args.held_footprint), camera,
-                      name=args.rgb.name)
+    return SceneInput(
+        rgb, depth, segmentation, args.instruction, tuple(args.held_footprint), camera, name=args.rgb.name
+    )
 
 
 def _read_npy(path: Path):
@@ -167,8 +196,10 @@ def _read_npy(path: Path):
     try:
         return np.load(path, allow_pickle=False)
     except (OSError, ValueError, EOFError) as error:
-        raise PolicyInputError(f"cannot read the depth {path} as a .npy array of numbers ({error}); save a float "
-                               "array of metres with numpy.save") from None
+        raise PolicyInputError(
+            f"cannot read the depth {path} as a .npy array of numbers ({error}); save a float "
+            "array of metres with numpy.save"
+        ) from None
 
 
 def _compare_with_truth(placement, record) -> None:

@@ -20,12 +20,22 @@ def placement_figure(placement, rgb: np.ndarray, camera, max_points: int = 300):
     mode = placement.mode if placement.mode is not None else np.full(2, np.nan)
     references = [ref.aabb for ref in placement.references if ref.aabb is not None]
     parse = "; ".join(f"<{ref}, {rel}>" for ref, rel in placement.pairs) or "no parse"
-    status = f"NOT PLACED: {placement.failure}" if placement.error is not None else \
-        f"mode ({mode[0]:+.3f}, {mode[1]:+.3f}) m"
+    status = (
+        f"NOT PLACED: {placement.failure}"
+        if placement.error is not None
+        else f"mode ({mode[0]:+.3f}, {mode[1]:+.3f}) m"
+    )
     title = f"{parse}\n{status}"
     panel = Panel(title, heatmap, samples, mode, np.asarray(references).reshape(-1, 2, 2))
-    figure = draw_panels(rgb, camera.world_to_pixel, [panel], placement.grid, scene_boxes=placement.aabbs,
-                         max_points=max_points, suptitle="\n".join(textwrap.wrap(placement.instruction, 56)))
+    figure = draw_panels(
+        rgb,
+        camera.world_to_pixel,
+        [panel],
+        placement.grid,
+        scene_boxes=placement.aabbs,
+        max_points=max_points,
+        suptitle="\n".join(textwrap.wrap(placement.instruction, 56)),
+    )
     axis = figure.axes[0]
     for index, (u0, v0, u1, v1) in enumerate(np.asarray(placement.boxes).reshape(-1, 4)):
         _rectangle(axis, (u0, v0, u1, v1), "white", 0.8, "--")
@@ -34,13 +44,26 @@ def placement_figure(placement, rgb: np.ndarray, camera, max_points: int = 300):
         colour = REFERENCE_COLOURS[k % len(REFERENCE_COLOURS)]
         label = f"{ref.phrase!r} p={ref.probability:.2f} ({ref.relation})"
         if ref.is_table:
-            axis.text(4, 14 + 14 * k, f"table: {label}", color=colour, fontsize=7,
-                      bbox={"facecolor": "black", "alpha": 0.5, "pad": 1})
+            axis.text(
+                4,
+                14 + 14 * k,
+                f"table: {label}",
+                color=colour,
+                fontsize=7,
+                bbox={"facecolor": "black", "alpha": 0.5, "pad": 1},
+            )
             continue
         u0, v0, u1, v1 = ref.box
         _rectangle(axis, (u0, v0, u1, v1), colour, 1.8, "-")
-        axis.text(u0, v1 + 2 + 12 * k, label, color=colour, fontsize=7, va="top",
-                  bbox={"facecolor": "black", "alpha": 0.5, "pad": 1})
+        axis.text(
+            u0,
+            v1 + 2 + 12 * k,
+            label,
+            color=colour,
+            fontsize=7,
+            va="top",
+            bbox={"facecolor": "black", "alpha": 0.5, "pad": 1},
+        )
     return figure
 
 
@@ -48,8 +71,9 @@ def _rectangle(axis, box, colour: str, width: float, style: str) -> None:
     from matplotlib.patches import Rectangle
 
     u0, v0, u1, v1 = (float(x) - 0.5 for x in box)  # pixel edges: pixel centres sit at integers
-    axis.add_patch(Rectangle((u0, v0), u1 - u0, v1 - v0, fill=False, edgecolor=colour, linewidth=width,
-                             linestyle=style))
+    axis.add_patch(
+        Rectangle((u0, v0), u1 - u0, v1 - v0, fill=False, edgecolor=colour, linewidth=width, linestyle=style)
+    )
 
 
 def save_placement(policy, scene, key, path) -> object:

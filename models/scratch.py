@@ -67,8 +67,10 @@ def smoke_config() -> ScratchConfig:
 def init_params(config: ScratchConfig, key) -> dict:
     """`{"backbone": offline backbone params, "adapters": {"visual", "text"}}`."""
     backbone_key, adapter_key = jax.random.split(key)
-    return {"backbone": ob.init_params(config.backbone, backbone_key),
-            "adapters": init_adapters(config.adapters, adapter_key)}
+    return {
+        "backbone": ob.init_params(config.backbone, backbone_key),
+        "adapters": init_adapters(config.adapters, adapter_key),
+    }
 
 
 CALIBRATION_IMAGES = 256
@@ -87,8 +89,10 @@ def calibrate(config: ScratchConfig, backbone: dict, arrays: dict) -> dict:
 
 def trainable_mask(config: ScratchConfig, params: dict) -> dict:
     """Bools over `params`: the backbone's `ob.trainable_mask`, every adapter weight."""
-    return {"backbone": ob.trainable_mask(config.backbone, params["backbone"]),
-            "adapters": jax.tree_util.tree_map(lambda _: True, params["adapters"])}
+    return {
+        "backbone": ob.trainable_mask(config.backbone, params["backbone"]),
+        "adapters": jax.tree_util.tree_map(lambda _: True, params["adapters"]),
+    }
 
 
 def dihedral(pixels, codes):
@@ -97,6 +101,7 @@ def dihedral(pixels, codes):
     The camera looks straight down, so a quarter turn or a mirror image of a crop is a pose the
     benchmark can show.
     """
+
     def pick(bit, transformed, image):
         return jnp.where(((codes >> bit) & 1).astype(bool)[:, None, None, None], transformed, image)
 

@@ -100,7 +100,8 @@ class _RestrictedUnpickler(pickle.Unpickler):
         except KeyError:
             raise WeightsError(
                 f"the weight file asks to load {module}.{name}, which a tensor state dict never needs; "
-                "refusing to unpickle it (it could run code). Use a weight file from a trusted source") from None
+                "refusing to unpickle it (it could run code). Use a weight file from a trusted source"
+            ) from None
 
     def persistent_load(self, pid):
         if not (isinstance(pid, tuple) and len(pid) in (5, 6) and pid[0] == "storage"):
@@ -133,8 +134,10 @@ def load_legacy(file: BinaryIO) -> dict[str, np.ndarray]:
     """As `read_legacy`, from an open, seekable binary file positioned at its start."""
     start = file.tell()
     if file.read(4) == b"PK\x03\x04":
-        raise WeightsError("the weight file is a zip archive (torch.save of torch >= 1.6), not the legacy format "
-                           "this reader handles; re-save it with `torch.save(..., _use_new_zipfile_serialization=False)`")
+        raise WeightsError(
+            "the weight file is a zip archive (torch.save of torch >= 1.6), not the legacy format "
+            "this reader handles; re-save it with `torch.save(..., _use_new_zipfile_serialization=False)`"
+        )
     file.seek(start)
     storages: dict[str, _Storage] = {}
     _check_header(file, storages)
@@ -150,8 +153,10 @@ def load_legacy(file: BinaryIO) -> dict[str, np.ndarray]:
 def _check_header(file: BinaryIO, storages: dict[str, _Storage]) -> None:
     magic = _unpickle(file, storages)
     if magic != MAGIC_NUMBER:
-        raise WeightsError("not a legacy torch.save file (wrong magic number); files saved by torch >= 1.6 "
-                           "are zip archives, which this reader does not handle")
+        raise WeightsError(
+            "not a legacy torch.save file (wrong magic number); files saved by torch >= 1.6 "
+            "are zip archives, which this reader does not handle"
+        )
     version = _unpickle(file, storages)
     if version != PROTOCOL_VERSION:
         raise WeightsError(f"unsupported torch.save protocol version {version!r} (expected {PROTOCOL_VERSION})")
@@ -201,6 +206,7 @@ def _tensor_array(name: str, ref: _TensorRef) -> np.ndarray:
     last = ref.offset + sum((n - 1) * s for n, s in zip(ref.shape, ref.stride))
     if last >= data.size:
         raise WeightsError(f"tensor {name!r} reaches past the end of its storage; the file is corrupt")
-    view = np.lib.stride_tricks.as_strided(data[ref.offset:], ref.shape,
-                                           tuple(s * data.itemsize for s in ref.stride), writeable=False)
+    view = np.lib.stride_tricks.as_strided(
+        data[ref.offset :], ref.shape, tuple(s * data.itemsize for s in ref.stride), writeable=False
+    )
     return np.ascontiguousarray(view).astype(data.dtype.newbyteorder("="), copy=False)

@@ -51,9 +51,9 @@ def _sorted_header(blob: bytes) -> bytes:
     """safetensors writes the metadata in hash-map order, which changes from call to call; with the
     header's keys sorted, the same weights give the same bytes (runs compare and report file hashes)."""
     size = int.from_bytes(blob[:8], "little")
-    header = json.dumps(json.loads(blob[8:8 + size]), sort_keys=True, separators=(",", ":")).encode()
+    header = json.dumps(json.loads(blob[8 : 8 + size]), sort_keys=True, separators=(",", ":")).encode()
     header += b" " * (-len(header) % 8)  # safetensors keeps the tensor data 8-byte aligned
-    return len(header).to_bytes(8, "little") + header + blob[8 + size:]
+    return len(header).to_bytes(8, "little") + header + blob[8 + size :]
 
 
 def load_weights(path: str | Path, rebuild: str) -> tuple[dict[str, np.ndarray], dict[str, str]]:
@@ -61,8 +61,12 @@ def load_weights(path: str | Path, rebuild: str) -> tuple[dict[str, np.ndarray],
     tensors, metadata = _read(path, rebuild)
     stored = metadata.pop(HASH_KEY, None)
     if stored is None:
-        log.warning("%s has no content hash (written by an older ocplace), so damage cannot be detected; "
-                    "loading it anyway. To protect it, %s", path, rebuild)
+        log.warning(
+            "%s has no content hash (written by an older ocplace), so damage cannot be detected; "
+            "loading it anyway. To protect it, %s",
+            path,
+            rebuild,
+        )
     elif stored != content_sha256(tensors, metadata):
         raise WeightsError(f"{path} does not match its content hash: the file is damaged or was edited; {rebuild}")
     _check_finite(path, tensors, rebuild)
@@ -92,5 +96,7 @@ def _check_finite(path: str | Path, tensors: dict[str, np.ndarray], rebuild: str
     for name in sorted(tensors):
         array = tensors[name]
         if np.issubdtype(array.dtype, np.floating) and not np.isfinite(array).all():
-            raise WeightsError(f"{path} holds NaN or inf weights ({name}): the run diverged or the file is damaged; "
-                               f"{rebuild} (a run that diverges again needs a lower learning rate)")
+            raise WeightsError(
+                f"{path} holds NaN or inf weights ({name}): the run diverged or the file is damaged; "
+                f"{rebuild} (a run that diverges again needs a lower learning rate)"
+            )

@@ -8,9 +8,11 @@ from pathlib import Path
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     demo = subparsers.add_parser(
-        "demo", help="build the object library and show what ocplace does, in out/demo/",
+        "demo",
+        help="build the object library and show what ocplace does, in out/demo/",
         description="Builds (or reuses) the object library cache, then drops objects on the table in "
-                    "MuJoCo and saves labelled pictures of a seen and an unseen scene.")
+        "MuJoCo and saves labelled pictures of a seen and an unseen scene.",
+    )
     demo.add_argument("--out", type=Path, default=Path("out/demo"), help="folder for the pictures")
     demo.add_argument("--seed", type=int, default=0)
     demo.set_defaults(func=run_demo)

@@ -96,9 +96,11 @@ class GroundingUncertain(OcplaceError):
 
     def __str__(self) -> str:
         best = ", ".join(f"{label} p={probability:.2f}" for label, probability in self.candidates)
-        return (f"cannot ground {self.phrase!r} confidently (best candidates: {best}; threshold "
-                f"{self.threshold:.2f}); the object may not be in the image or not have a box. Rephrase the "
-                "instruction, check the detector's boxes, or lower the threshold (--threshold)")
+        return (
+            f"cannot ground {self.phrase!r} confidently (best candidates: {best}; threshold "
+            f"{self.threshold:.2f}); the object may not be in the image or not have a box. Rephrase the "
+            "instruction, check the detector's boxes, or lower the threshold (--threshold)"
+        )
 
 
 class LLMConfigError(OcplaceError, ValueError):

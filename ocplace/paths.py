@@ -54,8 +54,10 @@ def atomic_path(target: str | os.PathLike):
         os.replace(tmp, target)
     except OSError as error:
         if error.errno in _DISK_FULL:
-            raise OutputError(f"cannot write {target}: the disk is full ({error.strerror}); free some space "
-                              "there or write the output elsewhere") from error
+            raise OutputError(
+                f"cannot write {target}: the disk is full ({error.strerror}); free some space "
+                "there or write the output elsewhere"
+            ) from error
         raise
     finally:
         if tmp is not None:
@@ -75,12 +77,13 @@ def check_writable(target: str | os.PathLike) -> None:
     while not folder.exists() and folder != folder.parent:
         folder = folder.parent
     if not folder.is_dir():
-        raise OutputError(f"cannot write {target}: {folder} is a file, not a folder; choose an output path "
-                          "in a folder")
+        raise OutputError(f"cannot write {target}: {folder} is a file, not a folder; choose an output path in a folder")
     # os.access knows permissions (and that root passes them) but not read-only mounts: ask statvfs too.
     if not os.access(folder, os.W_OK | os.X_OK) or os.statvfs(folder).f_flag & os.ST_RDONLY:
-        raise OutputError(f"cannot write {target}: {folder} is not writable (read-only folder or file system); "
-                          "choose an output path in a folder you can write")
+        raise OutputError(
+            f"cannot write {target}: {folder} is not writable (read-only folder or file system); "
+            "choose an output path in a folder you can write"
+        )
 
 
 def write_bytes_atomic(target: str | os.PathLike, data: bytes) -> None:

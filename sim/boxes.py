@@ -56,7 +56,7 @@ def square_crop(image: np.ndarray, box: np.ndarray, padding: float = 0.1, size: 
     pad = max(0, -left, -top, left + side - width, top + side - height)
     if pad:
         image = cv2.copyMakeBorder(image, pad, pad, pad, pad, cv2.BORDER_REPLICATE)
-    crop = image[top + pad: top + pad + side, left + pad: left + pad + side]
+    crop = image[top + pad : top + pad + side, left + pad : left + pad + side]
     if size is not None:
         interpolation = cv2.INTER_AREA if side > size else cv2.INTER_CUBIC
         crop = cv2.resize(crop, (size, size), interpolation=interpolation)

@@ -31,8 +31,9 @@ def draw_boxes(rgb: np.ndarray, boxes: Boxes, labels: dict[int, str]) -> np.ndar
         (width, height), _ = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, 0.45, 1)
         top = max(int(v0) - height - 6, 0)
         cv2.rectangle(canvas, (int(u0), top), (int(u0) + width + 4, top + height + 6), colour, -1)
-        cv2.putText(canvas, text, (int(u0) + 2, top + height + 2), cv2.FONT_HERSHEY_SIMPLEX, 0.45,
-                    (0, 0, 0), 1, cv2.LINE_AA)
+        cv2.putText(
+            canvas, text, (int(u0) + 2, top + height + 2), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1, cv2.LINE_AA
+        )
     return canvas
 
 
@@ -41,16 +42,16 @@ def colourise_depth(depth: np.ndarray, near: float | None = None, far: float | N
     near = float(np.percentile(depth, 1)) if near is None else near
     far = float(np.percentile(depth, 99)) if far is None else far
     scaled = np.clip((far - depth) / max(far - near, 1e-6), 0.0, 1.0)
-    return cv2.cvtColor(cv2.applyColorMap((scaled * 255).astype(np.uint8), cv2.COLORMAP_VIRIDIS),
-                        cv2.COLOR_BGR2RGB)
+    return cv2.cvtColor(cv2.applyColorMap((scaled * 255).astype(np.uint8), cv2.COLORMAP_VIRIDIS), cv2.COLOR_BGR2RGB)
 
 
 def colourise_segmentation(segmentation: np.ndarray) -> np.ndarray:
     return _palette(int(segmentation.max()) + 1)[segmentation]
 
 
-def scene_panel(rgb: np.ndarray, depth: np.ndarray, segmentation: np.ndarray, boxes: Boxes,
-                labels: dict[int, str], title: str = "") -> np.ndarray:
+def scene_panel(
+    rgb: np.ndarray, depth: np.ndarray, segmentation: np.ndarray, boxes: Boxes, labels: dict[int, str], title: str = ""
+) -> np.ndarray:
     """`(H + title, 3 W, 3)` picture: labelled RGB | depth | segmentation."""
     panels = [draw_boxes(rgb, boxes, labels), colourise_depth(depth), colourise_segmentation(segmentation)]
     picture = np.concatenate(panels, axis=1)

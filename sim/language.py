@@ -9,7 +9,7 @@ examples from the seen side only, so unseen instructions stay unseen.
 from __future__ import annotations
 
 import dataclasses
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -106,9 +106,7 @@ def unseen_expressions(relation: str, is_table: bool) -> tuple[str, ...]:
     return UNSEEN_RELATION_EXPRESSIONS[relations.relation(relation).name]
 
 
-def render_instruction(
-    tuples: Sequence[ReferenceTuple], style: str, rng: np.random.Generator
-) -> str:
+def render_instruction(tuples: Sequence[ReferenceTuple], style: str, rng: np.random.Generator) -> str:
     """The instruction text for 1 or 2 reference tuples in the "seen" or "unseen" style.
 
     Seen instructions are fully determined by the tuples; unseen ones draw a prefix, a verb, a
@@ -150,9 +148,7 @@ def count_unseen_instructions(num_object_names: int) -> dict[str, int]:
         raise ValueError(f"num_object_names must be >= 0, got {num_object_names}")
     leads = len(UNSEEN_PREFIXES) * len(UNSEEN_VERBS) * len(UNSEEN_PRONOUNS)
     table_options = sum(len(unseen_expressions(name, True)) for name in relations.RELATION_NAMES)
-    object_options = sum(
-        len(unseen_expressions(name, False)) for name in relations.OBJECT_RELATION_NAMES
-    )
+    object_options = sum(len(unseen_expressions(name, False)) for name in relations.OBJECT_RELATION_NAMES)
     n = num_object_names
     counts = {
         "table": leads * table_options,
@@ -172,8 +168,7 @@ def seen_examples() -> tuple[tuple[str, tuple[ReferenceTuple, ...]], ...]:
     names = ("green block", "coffee mug", "toy robot", "paper box")
     singles = [ReferenceTuple(TABLE_NAME, name, True) for name in relations.RELATION_NAMES]
     singles += [
-        ReferenceTuple(names[i % len(names)], name, False)
-        for i, name in enumerate(relations.OBJECT_RELATION_NAMES)
+        ReferenceTuple(names[i % len(names)], name, False) for i, name in enumerate(relations.OBJECT_RELATION_NAMES)
     ]
     pairs = [
         (ReferenceTuple(names[0], "left", False), ReferenceTuple(names[1], "back", False)),

@@ -166,9 +166,7 @@ def encode_problem(
         relation_index[index] = relations.relation_index(relation.name)
         if grounded.reference_box is not None:
             if not relation.applies_to_objects:
-                raise InvalidPlacementProblem(
-                    f"relation {relation.name!r} applies to the table only, not to an object"
-                )
+                raise InvalidPlacementProblem(f"relation {relation.name!r} applies to the table only, not to an object")
             box = np.asarray(grounded.reference_box, dtype=FLOAT).reshape(2, 2)
             if np.any(box[0] > box[1]) or not np.all(np.isfinite(box)):
                 raise InvalidPlacementProblem(f"reference box {box.tolist()} is not a valid AABB")

@@ -21,8 +21,7 @@ from ocplace.errors import SceneError
 from ocplace.sim.camera import DEFAULT_CAMERA, Camera
 from ocplace.sim.library.types import ObjectAsset
 from ocplace.sim.render import OffscreenCamera
-from ocplace.sim.scene import (RenderedScene, SceneObject, SceneSpec, retry_seed, sample_drop_poses,
-                               settle_until_still)
+from ocplace.sim.scene import RenderedScene, SceneObject, SceneSpec, retry_seed, sample_drop_poses, settle_until_still
 from ocplace.sim.workspace import DEFAULT_TABLE, Table
 
 VISIBLE_GROUP = 1
@@ -85,15 +84,25 @@ def arena_xml(objects: Sequence[ObjectAsset], textures: dict[str, Path], config:
     camera, table, physics = config.camera, config.table, config.physics
     root = ET.Element("mujoco", model="ocplace_arena")
     ET.SubElement(root, "compiler", angle="radian", autolimits="true")
-    option = ET.SubElement(root, "option", timestep=str(physics.timestep), integrator="implicitfast",
-                           cone=physics.cone, impratio=str(physics.impratio))
+    option = ET.SubElement(
+        root,
+        "option",
+        timestep=str(physics.timestep),
+        integrator="implicitfast",
+        cone=physics.cone,
+        impratio=str(physics.impratio),
+    )
     # One contact point per convex pair lets flat objects rock and slide for seconds; several
     # contacts per pair make them rest at once. Sleeping lets parked objects cost nothing.
     ET.SubElement(option, "flag", multiccd="enable", sleep="enable")
     visual = ET.SubElement(root, "visual")
     ET.SubElement(visual, "global", offwidth=str(camera.width), offheight=str(camera.height))
-    ET.SubElement(visual, "quality", shadowsize="0" if not config.render.shadows else "4096",
-                  offsamples=str(config.render.multisamples))
+    ET.SubElement(
+        visual,
+        "quality",
+        shadowsize="0" if not config.render.shadows else "4096",
+        offsamples=str(config.render.multisamples),
+    )
     ET.SubElement(visual, "headlight", ambient="0.45 0.45 0.45", diffuse="0.45 0.45 0.45", specular="0 0 0")
     # Clipping planes scale with the model extent, which parked objects would inflate: pin it so
     # near = 0.015 m and far = 7.5 m whatever the library holds.
@@ -108,23 +117,57 @@ def arena_xml(objects: Sequence[ObjectAsset], textures: dict[str, Path], config:
     for index, (name, path) in enumerate(sorted(textures.items())):
         ET.SubElement(asset, "texture", name=f"table_tex_{index}", type="2d", file=str(path))
         ET.SubElement(
-            asset, "material", name=f"table_{name}", texture=f"table_tex_{index}",
-            texrepeat=f"{repeat} {repeat}", texuniform="true", specular="0.05", shininess="0.05",
+            asset,
+            "material",
+            name=f"table_{name}",
+            texture=f"table_tex_{index}",
+            texrepeat=f"{repeat} {repeat}",
+            texuniform="true",
+            specular="0.05",
+            shininess="0.05",
         )
     hx, hy = table.half_extents
     first_material = f"table_{sorted(textures)[0]}" if textures else None
     table_geom = ET.SubElement(
-        world, "geom", name="table", type="box", size=f"{hx} {hy} {table.thickness / 2}",
-        pos=f"0 0 {-table.thickness / 2}", group=str(VISIBLE_GROUP),
+        world,
+        "geom",
+        name="table",
+        type="box",
+        size=f"{hx} {hy} {table.thickness / 2}",
+        pos=f"0 0 {-table.thickness / 2}",
+        group=str(VISIBLE_GROUP),
     )
     if first_material:
         table_geom.set("material", first_material)
-    ET.SubElement(world, "geom", name="floor", type="plane", size="3 3 0.1", pos="0 0 -0.75",
-                  rgba="0.25 0.25 0.27 1", group=str(VISIBLE_GROUP))
-    ET.SubElement(world, "light", name="top", directional="true", pos="0 0 2", dir="0.2 0.3 -1",
-                  diffuse="0.5 0.5 0.5", specular="0.05 0.05 0.05", castshadow=str(config.render.shadows).lower())
-    ET.SubElement(world, "camera", name="top", pos=" ".join(map(str, camera.position)),
-                  xyaxes="1 0 0 0 1 0", fovy=f"{camera.fov_y_deg:.6f}")
+    ET.SubElement(
+        world,
+        "geom",
+        name="floor",
+        type="plane",
+        size="3 3 0.1",
+        pos="0 0 -0.75",
+        rgba="0.25 0.25 0.27 1",
+        group=str(VISIBLE_GROUP),
+    )
+    ET.SubElement(
+        world,
+        "light",
+        name="top",
+        directional="true",
+        pos="0 0 2",
+        dir="0.2 0.3 -1",
+        diffuse="0.5 0.5 0.5",
+        specular="0.05 0.05 0.05",
+        castshadow=str(config.render.shadows).lower(),
+    )
+    ET.SubElement(
+        world,
+        "camera",
+        name="top",
+        pos=" ".join(map(str, camera.position)),
+        xyaxes="1 0 0 0 1 0",
+        fovy=f"{camera.fov_y_deg:.6f}",
+    )
 
     for index, obj in enumerate(objects):
         _add_object(asset, world, index, obj, physics.damping)
@@ -150,13 +193,31 @@ def _add_object(asset: ET.Element, world: ET.Element, index: int, obj: ObjectAss
     x, y, z = _parking_position(index)
     body = ET.SubElement(world, "body", name=obj.name, pos=f"{x} {y} {z}", gravcomp="1")
     ET.SubElement(body, "joint", name=f"{obj.name}_joint", type="free", damping=str(damping))
-    ET.SubElement(body, "geom", name=f"{obj.name}_visual", type="mesh", mesh=f"{prefix}_visual",
-                  material=material, contype="0", conaffinity="0", density="0", group=str(HIDDEN_GROUP))
+    ET.SubElement(
+        body,
+        "geom",
+        name=f"{obj.name}_visual",
+        type="mesh",
+        mesh=f"{prefix}_visual",
+        material=material,
+        contype="0",
+        conaffinity="0",
+        density="0",
+        group=str(HIDDEN_GROUP),
+    )
     for hull_index, path in enumerate(obj.hulls):
         mesh_name = f"{prefix}_hull{hull_index}"
         ET.SubElement(asset, "mesh", name=mesh_name, file=str(path))
-        ET.SubElement(body, "geom", name=f"{obj.name}_hull{hull_index}", type="mesh", mesh=mesh_name,
-                      density=f"{density:.6f}", group=str(COLLISION_GROUP), rgba="0 0 0 0")
+        ET.SubElement(
+            body,
+            "geom",
+            name=f"{obj.name}_hull{hull_index}",
+            type="mesh",
+            mesh=mesh_name,
+            density=f"{density:.6f}",
+            group=str(COLLISION_GROUP),
+            rgba="0 0 0 0",
+        )
 
 
 class ObjectsFellOff(SceneError):
@@ -167,15 +228,15 @@ class MujocoScenes:
     """Builds, settles and renders scenes; reuse one instance for many scenes, then `close()`."""
 
     @classmethod
-    def from_library(cls, library, names: Sequence[str] | None = None,
-                     config: ArenaConfig | None = None) -> MujocoScenes:
+    def from_library(
+        cls, library, names: Sequence[str] | None = None, config: ArenaConfig | None = None
+    ) -> MujocoScenes:
         """An arena of `names` (default: every object) and every table texture of `library`."""
         objects = [library.get(name) for name in (library.names() if names is None else names)]
         textures = {name: texture.path for name, texture in library.textures.items()}
         return cls(objects, textures, config)
 
-    def __init__(self, objects: Sequence[ObjectAsset], textures: dict[str, Path],
-                 config: ArenaConfig | None = None):
+    def __init__(self, objects: Sequence[ObjectAsset], textures: dict[str, Path], config: ArenaConfig | None = None):
         self.config = config or default_config()
         self.objects = {obj.name: obj for obj in objects}
         self._order = [obj.name for obj in objects]
@@ -188,8 +249,7 @@ class MujocoScenes:
         self._table_geom = self.model.geom("table").id
         self._visual_geoms = {name: self.model.geom(f"{name}_visual").id for name in self._order}
         self._collision_geoms = {
-            obj.name: [self.model.geom(f"{obj.name}_hull{i}").id for i in range(len(obj.hulls))]
-            for obj in objects
+            obj.name: [self.model.geom(f"{obj.name}_hull{i}").id for i in range(len(obj.hulls))] for obj in objects
         }
         self._scene_option = mujoco.MjvOption()
         self._scene_option.geomgroup[:] = 0
@@ -216,8 +276,9 @@ class MujocoScenes:
     def camera(self) -> OffscreenCamera:
         if self._camera is None:
             camera, render = self.config.camera, self.config.render
-            self._camera = OffscreenCamera(self.model, "top", camera.width, camera.height,
-                                           self._scene_option, render.shadows, render.reflections)
+            self._camera = OffscreenCamera(
+                self.model, "top", camera.width, camera.height, self._scene_option, render.shadows, render.reflections
+            )
         return self._camera
 
     # Scene set-up ----------------------------------------------------------------------------
@@ -230,7 +291,8 @@ class MujocoScenes:
             # Parked objects start every episode asleep; scene objects never sleep, so their
             # physics is what it would be without sleeping.
             self.model.tree_sleep_policy[self._tree[name]] = (
-                mujoco.mjtSleepPolicy.mjSLEEP_NEVER if name in names else mujoco.mjtSleepPolicy.mjSLEEP_INIT)
+                mujoco.mjtSleepPolicy.mjSLEEP_NEVER if name in names else mujoco.mjtSleepPolicy.mjSLEEP_INIT
+            )
         mujoco.mj_resetData(self.model, self.data)
         for name in self._order:
             active = name in names
@@ -253,8 +315,8 @@ class MujocoScenes:
     def set_poses(self, names: Sequence[str], positions: np.ndarray, quaternions: np.ndarray) -> None:
         for name, position, quaternion in zip(names, positions, quaternions, strict=True):
             address = self.model.jnt_qposadr[self.model.body_jntadr[self._body[name]]]
-            self.data.qpos[address:address + 3] = position
-            self.data.qpos[address + 3:address + 7] = quaternion
+            self.data.qpos[address : address + 3] = position
+            self.data.qpos[address + 3 : address + 7] = quaternion
         mujoco.mj_forward(self.model, self.data)
 
     def poses(self, names: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
@@ -268,8 +330,9 @@ class MujocoScenes:
         physics = self.config.physics
         names = self._active if names is None else names
         radii = np.array([0.5 * np.linalg.norm(self.objects[n].extents) for n in names])
-        return settle_until_still(lambda n: mujoco.mj_step(self.model, self.data, nstep=n),
-                                  lambda: self.poses(names), radii, physics)
+        return settle_until_still(
+            lambda n: mujoco.mj_step(self.model, self.data, nstep=n), lambda: self.poses(names), radii, physics
+        )
 
     # Outputs ---------------------------------------------------------------------------------
     def aabbs(self, names: Sequence[str]) -> np.ndarray:

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import dataclasses
 
-import mujoco
 import numpy as np
 from tqdm import tqdm
 
@@ -136,14 +135,21 @@ def run_parity(library, config: ParityConfig | None = None, progress: bool = Tru
     used = sorted({name for spec in specs for name in spec.objects})
     hulls = {name: object_hull_points(library.get(name)) for name in used}
     static_rows, drop_rows = [], []
-    with MujocoScenes.from_library(library, used) as mj, \
-            PybulletScenes([library.get(n) for n in used],
-                           {n: t.path for n, t in library.textures.items()}, mj.config, config.renderer) as pb:
+    with (
+        MujocoScenes.from_library(library, used) as mj,
+        PybulletScenes(
+            [library.get(n) for n in used], {n: t.path for n, t in library.textures.items()}, mj.config, config.renderer
+        ) as pb,
+    ):
         for spec in tqdm(specs, desc="parity", disable=not progress):
             static_rows.append(compare_static(mj, pb, spec, config))
             drop_rows.append(compare_drop(mj, pb, spec, hulls, config))
-    return {"config": dataclasses.asdict(config), "static": static_rows, "drop": drop_rows,
-            "summary": summarise(static_rows, drop_rows, config)}
+    return {
+        "config": dataclasses.asdict(config),
+        "static": static_rows,
+        "drop": drop_rows,
+        "summary": summarise(static_rows, drop_rows, config),
+    }
 
 
 def summarise(static_rows: list[dict], drop_rows: list[dict], config: ParityConfig) -> dict:

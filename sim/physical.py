@@ -39,8 +39,9 @@ def release_height(placement: np.ndarray, half_extents: np.ndarray, aabbs: np.nd
     return float(max(aabbs[under, 1, 2].max(initial=0.0), 0.0) + clearance)
 
 
-def physical_check(arena: MujocoScenes, meta: dict, placement: np.ndarray,
-                   config: PhysicalCheckConfig = PhysicalCheckConfig()) -> PhysicalResult:
+def physical_check(
+    arena: MujocoScenes, meta: dict, placement: np.ndarray, config: PhysicalCheckConfig = PhysicalCheckConfig()
+) -> PhysicalResult:
     """Drops the held object of the scene described by `meta` (a dataset scene.json) at `placement`."""
     placement = np.asarray(placement, dtype=np.float64)
     names = [obj["name"] for obj in meta["objects"]]
@@ -48,8 +49,9 @@ def physical_check(arena: MujocoScenes, meta: dict, placement: np.ndarray,
     positions = np.array([obj["position"] for obj in meta["objects"]])
     quaternions = np.array([obj["quaternion"] for obj in meta["objects"]])
     aabbs = np.array([obj["aabb"] for obj in meta["objects"]])
-    height = release_height(placement, np.asarray(meta["held_object"]["footprint_half_extents"]), aabbs,
-                            config.drop_clearance)
+    height = release_height(
+        placement, np.asarray(meta["held_object"]["footprint_half_extents"]), aabbs, config.drop_clearance
+    )
     arena.activate(names, meta["table_texture"])
     arena.set_poses(names, positions, quaternions)
     arena.settle(names)

@@ -45,8 +45,9 @@ def primitive_set(shapes: Sequence[str], widths: Sequence[float]) -> tuple[Primi
     """Every shape at each of the small, medium and large `widths`."""
     unknown = [shape for shape in shapes if shape not in SHAPES]
     if unknown or len(widths) != len(SIZES):
-        raise SceneError(f"primitives need shapes among {SHAPES} (got unknown {unknown}) and "
-                         f"{len(SIZES)} widths (got {len(widths)})")
+        raise SceneError(
+            f"primitives need shapes among {SHAPES} (got unknown {unknown}) and {len(SIZES)} widths (got {len(widths)})"
+        )
     return tuple(Primitive(shape, size, float(width)) for shape in shapes for size, width in zip(SIZES, widths))
 
 
@@ -122,9 +123,20 @@ def primitive_asset(primitive: Primitive, directory: Path) -> ObjectAsset:
     for path, piece in zip(hulls, pieces, strict=True):
         write_text_atomic(path, _obj_text(piece))
     return ObjectAsset(
-        name=primitive.name, human_name=f"{primitive.size} {primitive.shape}", synonyms=(),
-        category=primitive.shape, split=PRIMITIVE_SPLIT, source="ocplace:primitive", licence="generated",
-        directory=folder, visual_mesh=visual, texture=None, rgba=NEUTRAL_RGBA, hulls=hulls,
-        mjcf=Path(), urdf=Path(),  # arena-only: nothing loads a primitive on its own
-        extents=tuple(float(x) for x in mesh.extents), mass=DENSITY * sum(p.volume for p in pieces),
+        name=primitive.name,
+        human_name=f"{primitive.size} {primitive.shape}",
+        synonyms=(),
+        category=primitive.shape,
+        split=PRIMITIVE_SPLIT,
+        source="ocplace:primitive",
+        licence="generated",
+        directory=folder,
+        visual_mesh=visual,
+        texture=None,
+        rgba=NEUTRAL_RGBA,
+        hulls=hulls,
+        mjcf=Path(),
+        urdf=Path(),  # arena-only: nothing loads a primitive on its own
+        extents=tuple(float(x) for x in mesh.extents),
+        mass=DENSITY * sum(p.volume for p in pieces),
     )

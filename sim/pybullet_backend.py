@@ -44,8 +44,13 @@ class PybulletScenes:
 
     near, far = 0.015, 7.5  # clipping planes, metres: the same as the MuJoCo arena's
 
-    def __init__(self, objects: Sequence[ObjectAsset], textures: dict[str, Path],
-                 config: ArenaConfig | None = None, renderer: str = "tiny"):
+    def __init__(
+        self,
+        objects: Sequence[ObjectAsset],
+        textures: dict[str, Path],
+        config: ArenaConfig | None = None,
+        renderer: str = "tiny",
+    ):
         if renderer not in RENDERERS:
             raise SceneError(f"unknown PyBullet renderer {renderer!r}; choose one of {RENDERERS}")
         config = config or default_config()
@@ -92,21 +97,26 @@ class PybulletScenes:
         visual = self.client.createVisualShape(pybullet.GEOM_BOX, halfExtents=half)
         body = self.client.createMultiBody(0, shape, visual, basePosition=[0, 0, -table.thickness / 2])
         floor = self.client.createCollisionShape(pybullet.GEOM_PLANE)
-        floor_visual = self.client.createVisualShape(pybullet.GEOM_BOX, halfExtents=[3, 3, 0.001],
-                                                     rgbaColor=[0.25, 0.25, 0.27, 1])
+        floor_visual = self.client.createVisualShape(
+            pybullet.GEOM_BOX, halfExtents=[3, 3, 0.001], rgbaColor=[0.25, 0.25, 0.27, 1]
+        )
         self.client.createMultiBody(0, floor, floor_visual, basePosition=[0, 0, -0.75])
         sliding, spinning, _ = self.config.physics.friction
-        self.client.changeDynamics(body, -1, lateralFriction=sliding, spinningFriction=spinning,
-                                   rollingFriction=ROLLING_FRICTION)
+        self.client.changeDynamics(
+            body, -1, lateralFriction=sliding, spinningFriction=spinning, rollingFriction=ROLLING_FRICTION
+        )
         return body
 
     def _camera_matrices(self) -> tuple[list[float], list[float]]:
         camera = self.config.camera
-        view = self.client.computeViewMatrix(cameraEyePosition=list(camera.position),
-                                             cameraTargetPosition=[camera.position[0], camera.position[1], 0.0],
-                                             cameraUpVector=[0, 1, 0])
+        view = self.client.computeViewMatrix(
+            cameraEyePosition=list(camera.position),
+            cameraTargetPosition=[camera.position[0], camera.position[1], 0.0],
+            cameraUpVector=[0, 1, 0],
+        )
         projection = self.client.computeProjectionMatrixFOV(
-            fov=camera.fov_y_deg, aspect=camera.width / camera.height, nearVal=self.near, farVal=self.far)
+            fov=camera.fov_y_deg, aspect=camera.width / camera.height, nearVal=self.near, farVal=self.far
+        )
         return view, projection
 
     def _pixel_centred(self, projection: list[float]) -> list[float]:
@@ -127,14 +137,18 @@ class PybulletScenes:
             asset = self.objects.get(name)
             if asset is None:
                 raise SceneError(f"object {name!r} is not in this PyBullet arena")
-            body = self.client.loadURDF(str(asset.urdf), basePosition=self._parking(len(self._bodies)),
-                                        flags=pybullet.URDF_USE_INERTIA_FROM_FILE)
+            body = self.client.loadURDF(
+                str(asset.urdf),
+                basePosition=self._parking(len(self._bodies)),
+                flags=pybullet.URDF_USE_INERTIA_FROM_FILE,
+            )
             if asset.texture is not None:
                 texture = self.client.loadTexture(str(asset.texture))
                 self.client.changeVisualShape(body, -1, textureUniqueId=texture, rgbaColor=[1, 1, 1, 1])
             sliding, spinning, _ = self.config.physics.friction
-            self.client.changeDynamics(body, -1, lateralFriction=sliding, spinningFriction=spinning,
-                                       rollingFriction=ROLLING_FRICTION, mass=0.0)
+            self.client.changeDynamics(
+                body, -1, lateralFriction=sliding, spinningFriction=spinning, rollingFriction=ROLLING_FRICTION, mass=0.0
+            )
             self._bodies[name] = body
         return self._bodies[name]
 
@@ -162,7 +176,8 @@ class PybulletScenes:
             body = self._body(name)
             # PyBullet poses a URDF base by its inertial frame (centre of mass and principal axes).
             com, orientation = self.client.multiplyTransforms(
-                list(position), _xyzw(quaternion), *self._inertial_frame(body))
+                list(position), _xyzw(quaternion), *self._inertial_frame(body)
+            )
             self.client.resetBasePositionAndOrientation(body, com, orientation)
             self.client.resetBaseVelocity(body, [0, 0, 0], [0, 0, 0])
 
@@ -185,7 +200,8 @@ class PybulletScenes:
     def settle(self, names: Sequence[str] | None = None) -> int:
         physics = self.config.physics
         names = self._active if names is None else names
-        bodies = [self._body(name) for name in names]
+        for name in names:
+            self._body(name)  # loads bodies not yet in the world
         radii = np.array([0.5 * np.linalg.norm(self.objects[name].extents) for name in names])
 
         def step(count: int) -> None:
@@ -208,8 +224,13 @@ class PybulletScenes:
         names = self._active if names is None else names
         camera = self.config.camera
         _, _, rgba, zbuffer, body_ids = self.client.getCameraImage(
-            camera.width, camera.height, viewMatrix=self._view, projectionMatrix=self._render_projection,
-            renderer=self._renderer_flag, shadow=0)
+            camera.width,
+            camera.height,
+            viewMatrix=self._view,
+            projectionMatrix=self._render_projection,
+            renderer=self._renderer_flag,
+            shadow=0,
+        )
         rgb = np.asarray(rgba, dtype=np.uint8).reshape(camera.height, camera.width, 4)[..., :3].copy()
         zbuffer = np.asarray(zbuffer, dtype=np.float64).reshape(camera.height, camera.width)
         depth = (self.far * self.near / (self.far - (self.far - self.near) * zbuffer)).astype(np.float32)
@@ -226,10 +247,10 @@ class PybulletScenes:
         self.activate(names, spec.table_texture)
         extents = [self.objects[name].extents for name in names]
         positions, quaternions = sample_drop_poses(
-            spec.seed, extents, self.config.table.drop_half_extents, self.config.physics.max_tilt)
+            spec.seed, extents, self.config.table.drop_half_extents, self.config.physics.max_tilt
+        )
         self.set_poses(names, positions, quaternions)
         self.settle(names)
         positions, quaternions = self.poses(names)
         aabbs = self.aabbs(names, hull_points)
-        return tuple(SceneObject(i + 1, name, positions[i], quaternions[i], aabbs[i])
-                     for i, name in enumerate(names))
+        return tuple(SceneObject(i + 1, name, positions[i], quaternions[i], aabbs[i]) for i, name in enumerate(names))

@@ -14,8 +14,16 @@ from mujoco import gl_context
 class OffscreenCamera:
     """Renders one named camera of `model`; call `close()` (or use `with`) to free the context."""
 
-    def __init__(self, model: mujoco.MjModel, camera: str, width: int, height: int,
-                 option: mujoco.MjvOption, shadows: bool = False, reflections: bool = False):
+    def __init__(
+        self,
+        model: mujoco.MjModel,
+        camera: str,
+        width: int,
+        height: int,
+        option: mujoco.MjvOption,
+        shadows: bool = False,
+        reflections: bool = False,
+    ):
         self._model = model
         self._option = option
         self._rect = mujoco.MjrRect(0, 0, width, height)
@@ -56,8 +64,9 @@ class OffscreenCamera:
         if self._gl is None:
             raise RuntimeError("render called after close")
         self._gl.make_current()
-        mujoco.mjv_updateScene(self._model, data, self._option, None, self._camera,
-                               mujoco.mjtCatBit.mjCAT_ALL, self._scene)
+        mujoco.mjv_updateScene(
+            self._model, data, self._option, None, self._camera, mujoco.mjtCatBit.mjCAT_ALL, self._scene
+        )
         mujoco.mjr_render(self._rect, self._scene, self._context)
         mujoco.mjr_readPixels(self._rgb, None, self._rect, self._context)
         rgb = np.flipud(self._rgb).copy()
@@ -86,8 +95,11 @@ class OffscreenCamera:
 
     def _geom_ids(self, colours: np.ndarray) -> np.ndarray:
         """Segment colours encode the scene geom index + 1; map them to model geom ids."""
-        segment = colours[..., 0].astype(np.int32) | (colours[..., 1].astype(np.int32) << 8) | (
-            colours[..., 2].astype(np.int32) << 16)
+        segment = (
+            colours[..., 0].astype(np.int32)
+            | (colours[..., 1].astype(np.int32) << 8)
+            | (colours[..., 2].astype(np.int32) << 16)
+        )
         lookup = np.full(self._scene.ngeom + 2, -1, dtype=np.int32)
         for geom in self._scene.geoms[: self._scene.ngeom]:
             if geom.segid >= 0 and geom.objtype == mujoco.mjtObj.mjOBJ_GEOM:

@@ -45,6 +45,7 @@ def tiny_backbone_spec(tmp_path_factory):
 
     config = ob.smoke_config()
     params = ob.init_params(config, jax.random.key(0))
-    directory = ob.save_backbone(tmp_path_factory.mktemp("tiny_backbone"), config, params,
-                                 ob.FrozenTextTower.load(config.text_max_length).digest)
+    directory = ob.save_backbone(
+        tmp_path_factory.mktemp("tiny_backbone"), config, params, ob.FrozenTextTower.load(config.text_max_length).digest
+    )
     return f"offline:{directory}"

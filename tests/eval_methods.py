@@ -24,8 +24,9 @@ def _rng(key) -> np.random.Generator:
 
 def train_oracle(context: TrainContext) -> Path:
     context.out_dir.mkdir(parents=True, exist_ok=True)
-    (context.out_dir / "dataset.json").write_text(json.dumps({"dataset": str(context.dataset_dir),
-                                                              "fraction": context.fraction}))
+    (context.out_dir / "dataset.json").write_text(
+        json.dumps({"dataset": str(context.dataset_dir), "fraction": context.fraction})
+    )
     return context.out_dir
 
 
@@ -46,10 +47,14 @@ class OracleMethod:
         for scene in scenes:
             meta = json.loads((self.dataset_dir / scene.meta["split"] / scene.id / "scene.json").read_text())
             samples = sample_oracle_placements(feasible_grid(problem_from_meta(meta)), 8, rng)
-            outputs.append(MethodOutput(
-                mode=np.asarray(meta["oracle"]["placement"]), samples=samples,
-                parsed=tuple((t["reference_name"], t["relation"]) for t in meta["tuples"]),
-                grounded=tuple(t["token_index"] for t in meta["tuples"])))
+            outputs.append(
+                MethodOutput(
+                    mode=np.asarray(meta["oracle"]["placement"]),
+                    samples=samples,
+                    parsed=tuple((t["reference_name"], t["relation"]) for t in meta["tuples"]),
+                    grounded=tuple(t["token_index"] for t in meta["tuples"]),
+                )
+            )
         return outputs
 
 

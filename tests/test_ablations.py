@@ -38,9 +38,10 @@ def specs():
 @pytest.fixture(scope="module")
 def runs(isolated_cache, specs, smoke_dataset, tiny_backbone_spec, tmp_path_factory):
     """Both methods trained at smoke scale: {name: run directory}."""
-    return {name: spec.train(TrainContext(smoke_dataset, tiny_backbone_spec, tmp_path_factory.mktemp(name),
-                                          scale="smoke"))
-            for name, spec in specs.items()}
+    return {
+        name: spec.train(TrainContext(smoke_dataset, tiny_backbone_spec, tmp_path_factory.mktemp(name), scale="smoke"))
+        for name, spec in specs.items()
+    }
 
 
 @pytest.fixture(scope="module")
@@ -50,8 +51,10 @@ def scenes(smoke_dataset):
 
 @pytest.fixture(scope="module")
 def methods(runs, specs, tiny_backbone_spec):
-    return {name: specs[name].load(LoadContext(runs[name], tiny_backbone_spec, scale="smoke", num_samples=32))
-            for name in specs}
+    return {
+        name: specs[name].load(LoadContext(runs[name], tiny_backbone_spec, scale="smoke", num_samples=32))
+        for name in specs
+    }
 
 
 # ----------------------------------------------------------------------------- GT-ref# pieces
@@ -99,10 +102,14 @@ def test_reference_loss_is_ours_with_the_sentence_for_every_tuple():
     config = gtref.GtRefConfig(dim=8, hidden=4)
     params = gtref.init_params(config, jax.random.key(2))
     rng = np.random.default_rng(3)
-    batch = {"visual": jnp.asarray(rng.normal(size=(3, 6, 8)), jnp.float32), "visual_mask": jnp.ones((3, 6), bool),
-             "sentence": jnp.asarray(rng.normal(size=(3, 8)), jnp.float32),
-             "targets": jnp.array([[0, 0], [1, 2], [5, 0]]), "target_mask": jnp.array([[1, 0], [1, 1], [1, 0]], bool),
-             "relations": jnp.array([[0, 0], [1, 2], [4, 0]])}
+    batch = {
+        "visual": jnp.asarray(rng.normal(size=(3, 6, 8)), jnp.float32),
+        "visual_mask": jnp.ones((3, 6), bool),
+        "sentence": jnp.asarray(rng.normal(size=(3, 8)), jnp.float32),
+        "targets": jnp.array([[0, 0], [1, 2], [5, 0]]),
+        "target_mask": jnp.array([[1, 0], [1, 1], [1, 0]], bool),
+        "relations": jnp.array([[0, 0], [1, 2], [4, 0]]),
+    }
     reference, relation = jax.jit(gtref.loss_terms, static_argnums=0)(config, params, batch, 10.0)
 
     @jax.jit
@@ -126,14 +133,19 @@ def synthetic_scenes(num_scenes: int, dim: int, seed: int) -> dict:
     visual[~mask] = 0.0
     targets = np.stack([rng.integers(n) for n in num_tokens])
     is_table = targets == num_tokens - 1
-    relations = np.where(is_table, rng.integers(9, size=num_scenes),
-                         rng.choice([i for i in range(9) if i != MIDDLE], size=num_scenes))
+    relations = np.where(
+        is_table, rng.integers(9, size=num_scenes), rng.choice([i for i in range(9) if i != MIDDLE], size=num_scenes)
+    )
     sentence = visual[np.arange(num_scenes), targets] + relation_codes[relations]
     pad = np.zeros((num_scenes, 1), np.int32)
-    return {"visual": visual.astype(np.float32), "visual_mask": mask, "sentence": sentence.astype(np.float32),
-            "targets": np.concatenate([targets[:, None], pad], 1).astype(np.int32),
-            "target_mask": np.concatenate([np.ones_like(pad, bool), pad.astype(bool)], 1),
-            "relations": np.concatenate([relations[:, None], pad], 1).astype(np.int32)}
+    return {
+        "visual": visual.astype(np.float32),
+        "visual_mask": mask,
+        "sentence": sentence.astype(np.float32),
+        "targets": np.concatenate([targets[:, None], pad], 1).astype(np.int32),
+        "target_mask": np.concatenate([np.ones_like(pad, bool), pad.astype(bool)], 1),
+        "relations": np.concatenate([relations[:, None], pad], 1).astype(np.int32),
+    }
 
 
 def test_gtref_learns_references_and_relations_when_the_sentence_holds_them(tmp_path):
@@ -167,14 +179,17 @@ def test_training_is_deterministic_and_idempotent(runs, specs, smoke_dataset, ti
     assert load_model(again).sha256 == load_model(runs["no_llm"]).sha256
     model_file = runs["no_llm"] / "model.safetensors"
     before = model_file.stat().st_mtime_ns
-    assert specs["no_llm"].train(TrainContext(smoke_dataset, tiny_backbone_spec, runs["no_llm"], scale="smoke")) \
+    assert (
+        specs["no_llm"].train(TrainContext(smoke_dataset, tiny_backbone_spec, runs["no_llm"], scale="smoke"))
         == runs["no_llm"]
+    )
     assert model_file.stat().st_mtime_ns == before
 
 
 def test_from_scratch_tower_is_deterministic(runs, specs, smoke_dataset, tiny_backbone_spec, tmp_path):
-    again = specs["no_pretrain"].train(TrainContext(smoke_dataset, tiny_backbone_spec, tmp_path / "again",
-                                                    scale="smoke"))
+    again = specs["no_pretrain"].train(
+        TrainContext(smoke_dataset, tiny_backbone_spec, tmp_path / "again", scale="smoke")
+    )
     read = lambda run: (run / "backbone" / "fingerprint.txt").read_text()  # noqa: E731
     assert read(again) == read(runs["no_pretrain"])
     first, second = (load_file(str(run / "adapters.safetensors")) for run in (runs["no_pretrain"], again))
@@ -182,8 +197,9 @@ def test_from_scratch_tower_is_deterministic(runs, specs, smoke_dataset, tiny_ba
 
 
 def test_fraction_trains_on_a_nested_subset(specs, isolated_cache, smoke_dataset, tiny_backbone_spec, tmp_path):
-    run = specs["no_llm"].train(TrainContext(smoke_dataset, tiny_backbone_spec, tmp_path / "half", scale="smoke",
-                                             fraction=0.5))
+    run = specs["no_llm"].train(
+        TrainContext(smoke_dataset, tiny_backbone_spec, tmp_path / "half", scale="smoke", fraction=0.5)
+    )
     assert json.loads((run / "config.json").read_text())["train_scenes"] == 6
 
 
@@ -259,9 +275,8 @@ def test_no_pretrain_is_ours_architecture_from_random_weights():
 def test_calibration_keeps_a_random_trunk_alive(smoke_dataset):
     """A random EfficientNet with identity batch-norm statistics gives near-constant features;
     statistics measured on training images restore their spread across images."""
-    from ocplace.models import efficientnet
+    from ocplace.models import efficientnet, scratch
     from ocplace.models import offline_backbone as ob
-    from ocplace.models import scratch
     from ocplace.models.backbone import PromptConfig
     from ocplace.train.scratch import scratch_inputs
 
@@ -276,5 +291,7 @@ def test_calibration_keeps_a_random_trunk_alive(smoke_dataset):
 
     calibrated = scratch.calibrate(model, params["backbone"], arrays)
     assert spread(params["backbone"]) < 1e-3 < 0.1 < spread(calibrated)
-    assert ob.flatten_params(calibrated["vision"]["params"]).keys() == ob.flatten_params(
-        params["backbone"]["vision"]["params"]).keys()
+    assert (
+        ob.flatten_params(calibrated["vision"]["params"]).keys()
+        == ob.flatten_params(params["backbone"]["vision"]["params"]).keys()
+    )

@@ -19,8 +19,10 @@ def test_parameter_count_for_clip_b32_width():
     params = init_adapters(AdapterConfig(dim=512), jax.random.key(0))
     assert count_parameters(params) == 262_144
     shapes = jax.tree_util.tree_map(np.shape, params)
-    assert shapes == {"visual": {"down": {"kernel": (512, 128)}, "up": {"kernel": (128, 512)}},
-                      "text": {"down": {"kernel": (512, 128)}, "up": {"kernel": (128, 512)}}}
+    assert shapes == {
+        "visual": {"down": {"kernel": (512, 128)}, "up": {"kernel": (128, 512)}},
+        "text": {"down": {"kernel": (512, 128)}, "up": {"kernel": (128, 512)}},
+    }
 
 
 def test_adapter_is_relu_mlp_blended_with_the_input():

@@ -8,8 +8,15 @@ from tiny_clip import build_tiny_clip, write_tokenizer
 
 from ocplace.errors import BackboneError, BackboneUnavailable
 from ocplace.models import backbone as backbone_module
-from ocplace.models.backbone import (Backbone, ImagePreprocessing, PromptConfig, load_backbone, load_clip_backbone,
-                                     normalize_pixels, resize_and_crop)
+from ocplace.models.backbone import (
+    Backbone,
+    ImagePreprocessing,
+    PromptConfig,
+    load_backbone,
+    load_clip_backbone,
+    normalize_pixels,
+    resize_and_crop,
+)
 
 
 @pytest.fixture(scope="module")
@@ -50,7 +57,7 @@ def test_batch_of_eight_equals_eight_singles(clip):
     images = random_images(8, seed=1)
     texts = [f"a photo of a {w}." for w in ("red bowl", "blue mug", "table", "shoe", "apple", "plate", "a", "b")]
     batched_images, batched_texts = clip.encode_images(images), clip.encode_texts(texts)
-    singles_images = np.concatenate([clip.encode_images(images[i:i + 1]) for i in range(8)])
+    singles_images = np.concatenate([clip.encode_images(images[i : i + 1]) for i in range(8)])
     singles_texts = np.concatenate([clip.encode_texts([t]) for t in texts])
     np.testing.assert_allclose(batched_images, singles_images, atol=1e-5)
     np.testing.assert_allclose(batched_texts, singles_texts, atol=1e-5)
@@ -58,10 +65,12 @@ def test_batch_of_eight_equals_eight_singles(clip):
 
 def test_texts_padded_to_a_bucket_equal_texts_padded_to_the_context_length(clip):
     texts = ["a photo of a red bowl.", "to the left of the light brown boot with golden laces"]
-    full = clip._tokenizer(texts, padding="max_length", max_length=clip.context_length, truncation=True,
-                           return_tensors="np")
-    reference = np.asarray(clip._text_fn(clip._params, full["input_ids"].astype(np.int32),
-                                         full["attention_mask"].astype(np.int32)))
+    full = clip._tokenizer(
+        texts, padding="max_length", max_length=clip.context_length, truncation=True, return_tensors="np"
+    )
+    reference = np.asarray(
+        clip._text_fn(clip._params, full["input_ids"].astype(np.int32), full["attention_mask"].astype(np.int32))
+    )
     np.testing.assert_allclose(clip.encode_texts(texts), reference, atol=1e-5)
 
 
@@ -74,9 +83,11 @@ def test_bucket_sizes():
 def test_more_images_than_one_batch(clip_dir):
     small_batches = load_clip_backbone(str(clip_dir), max_batch=4)
     images = random_images(11, seed=2)
-    np.testing.assert_allclose(small_batches.encode_images(images),
-                               np.concatenate([small_batches.encode_images(images[:6]),
-                                               small_batches.encode_images(images[6:])]), atol=1e-5)
+    np.testing.assert_allclose(
+        small_batches.encode_images(images),
+        np.concatenate([small_batches.encode_images(images[:6]), small_batches.encode_images(images[6:])]),
+        atol=1e-5,
+    )
     assert small_batches.encode_images(images[:0]).shape == (0, 16)
 
 

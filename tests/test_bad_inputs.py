@@ -52,10 +52,16 @@ def images(tmp_path):
 
 def _place(images, tmp_path, **changes):
     """`ocplace place` arguments on `images`, each option replaceable (None: left out)."""
-    options = {"rgb": images["rgb"], "depth": images["depth"], "camera": images["camera"],
-               "instruction": "put it on the left", "backbone": NO_MODEL, "out": tmp_path / "place.png", **changes}
-    return ["place", *[part for name, value in options.items() if value is not None
-                       for part in (f"--{name}", value)]]
+    options = {
+        "rgb": images["rgb"],
+        "depth": images["depth"],
+        "camera": images["camera"],
+        "instruction": "put it on the left",
+        "backbone": NO_MODEL,
+        "out": tmp_path / "place.png",
+        **changes,
+    }
+    return ["place", *[part for name, value in options.items() if value is not None for part in (f"--{name}", value)]]
 
 
 def _camera_json(**fields) -> dict:
@@ -95,14 +101,17 @@ def test_camera_principal_point_and_size(cx, cy, width):
             PinholeCamera.from_json(fields)
 
 
-@pytest.mark.parametrize("fields, message", [
-    ({"world_from_camera": np.diag([1.0, 1.0, -1.0, 1.0]).tolist()}, "not a rotation"),  # a mirror: left is right
-    ({"world_from_camera": (np.eye(4) * 2).tolist()}, "last row"),
-    ({"world_from_camera": [[1.0, 0.0], [0.0, 1.0]]}, "world_from_camera must be a 4x4"),
-    ({"intrinsics": [[457.0, 0.0, 319.5], [0.0, 457.0, 239.5], [0.0, 1.0, 1.0]]}, "not a pinhole K"),
-    ({"height": 0}, "height is 0; it must be a positive whole number"),
-    ({"height": 479.5}, "height is 479.5"),
-])
+@pytest.mark.parametrize(
+    "fields, message",
+    [
+        ({"world_from_camera": np.diag([1.0, 1.0, -1.0, 1.0]).tolist()}, "not a rotation"),  # a mirror: left is right
+        ({"world_from_camera": (np.eye(4) * 2).tolist()}, "last row"),
+        ({"world_from_camera": [[1.0, 0.0], [0.0, 1.0]]}, "world_from_camera must be a 4x4"),
+        ({"intrinsics": [[457.0, 0.0, 319.5], [0.0, 457.0, 239.5], [0.0, 1.0, 1.0]]}, "not a pinhole K"),
+        ({"height": 0}, "height is 0; it must be a positive whole number"),
+        ({"height": 479.5}, "height is 479.5"),
+    ],
+)
 def test_camera_pose_and_size_are_checked(fields, message):
     with pytest.raises(PolicyInputError, match=message):
         PinholeCamera.from_json({**_camera_json(), **fields})
@@ -115,8 +124,9 @@ def test_camera_fields_that_repeat_k_must_agree_with_it():
         PinholeCamera.from_json(fields)
 
 
-@pytest.mark.parametrize("focal, message", [(-457.0, "fx \\(intrinsics\\[0, 0\\]\\) is -457"),
-                                            (0.0, "fx \\(intrinsics\\[0, 0\\]\\) is 0")])
+@pytest.mark.parametrize(
+    "focal, message", [(-457.0, "fx \\(intrinsics\\[0, 0\\]\\) is -457"), (0.0, "fx \\(intrinsics\\[0, 0\\]\\) is 0")]
+)
 def test_cli_refuses_a_non_positive_focal_length(images, tmp_path, capsys, focal, message):
     images["camera"].write_text(json.dumps(_camera_json(fx=focal)))
     code, out, err = _cli(capsys, *_place(images, tmp_path))
@@ -125,12 +135,15 @@ def test_cli_refuses_a_non_positive_focal_length(images, tmp_path, capsys, focal
     assert re.search(message, err)
 
 
-@pytest.mark.parametrize("content, message", [
-    (None, "cannot read the camera file .*camera.json: No such file"),
-    ('{"intrinsics": [[457.0, 0.0, 319.5], [0.0, 4', "the camera file .* is not valid JSON"),
-    ("[1, 2, 3]", "a camera JSON is an object, not list"),
-    ('{"width": 640, "height": 480}', "camera JSON lacks \\['intrinsics', 'world_from_camera'\\]"),
-])
+@pytest.mark.parametrize(
+    "content, message",
+    [
+        (None, "cannot read the camera file .*camera.json: No such file"),
+        ('{"intrinsics": [[457.0, 0.0, 319.5], [0.0, 4', "the camera file .* is not valid JSON"),
+        ("[1, 2, 3]", "a camera JSON is an object, not list"),
+        ('{"width": 640, "height": 480}', "camera JSON lacks \\['intrinsics', 'world_from_camera'\\]"),
+    ],
+)
 def test_cli_refuses_a_missing_or_truncated_camera_file(images, tmp_path, capsys, content, message):
     if content is None:
         images["camera"].unlink()
@@ -144,24 +157,30 @@ def test_cli_refuses_a_missing_or_truncated_camera_file(images, tmp_path, capsys
 # --- the instruction -------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("instruction, relations", [
-    ("put it to the left and right of the mug", "'left' and 'right' on 'mug'"),
-    ("put it to the left and to the right of the mug", "'left' and 'right' on 'mug'"),
-    ("put it in front of and behind the mug", "'front' and 'back' on 'mug'"),
-    ("put it in the back left and front right corners of the mug", "'back left' and 'front right' on 'mug'"),
-    ("put it behind the cup and to the left and right of the bowl", "'left' and 'right' on 'bowl'"),
-])
+@pytest.mark.parametrize(
+    "instruction, relations",
+    [
+        ("put it to the left and right of the mug", "'left' and 'right' on 'mug'"),
+        ("put it to the left and to the right of the mug", "'left' and 'right' on 'mug'"),
+        ("put it in front of and behind the mug", "'front' and 'back' on 'mug'"),
+        ("put it in the back left and front right corners of the mug", "'back left' and 'front right' on 'mug'"),
+        ("put it behind the cup and to the left and right of the bowl", "'left' and 'right' on 'bowl'"),
+    ],
+)
 def test_opposite_relations_on_one_reference_contradict(instruction, relations):
     with pytest.raises(ParseError, match=f"the relations {relations} contradict"):
         make_parser("offline").parse(instruction)
 
 
-@pytest.mark.parametrize("instruction, expected", [
-    ("put it to the left of and behind the mug", [("mug", "back left")]),
-    ("put it on the left and behind the mug", [("mug", "back left")]),
-    ("put it to the left of the mug and to the right of the bowl", [("bowl", "right"), ("mug", "left")]),
-    ("put it in the left part of the table and to the right of the lemon", [("lemon", "right"), ("table", "left")]),
-])
+@pytest.mark.parametrize(
+    "instruction, expected",
+    [
+        ("put it to the left of and behind the mug", [("mug", "back left")]),
+        ("put it on the left and behind the mug", [("mug", "back left")]),
+        ("put it to the left of the mug and to the right of the bowl", [("bowl", "right"), ("mug", "left")]),
+        ("put it in the left part of the table and to the right of the lemon", [("lemon", "right"), ("table", "left")]),
+    ],
+)
 def test_relations_that_do_not_contradict_still_parse(instruction, expected):
     assert sorted(as_pairs(make_parser("offline").parse(instruction))) == expected
 
@@ -173,9 +192,20 @@ def test_cli_refuses_a_contradictory_instruction_before_the_model(images, tmp_pa
 
 @pytest.mark.parametrize("instruction", ["", "   ", "\t\n"])
 def test_cli_refuses_an_empty_instruction(images, tmp_path, capsys, instruction):
-    for source in (_place(images, tmp_path, instruction=instruction),
-                   ["place", "--dataset", tmp_path / "no-dataset", "--id", "0", "--instruction", instruction,
-                    "--backbone", NO_MODEL]):  # not the scene's own instruction instead
+    for source in (
+        _place(images, tmp_path, instruction=instruction),
+        [
+            "place",
+            "--dataset",
+            tmp_path / "no-dataset",
+            "--id",
+            "0",
+            "--instruction",
+            instruction,
+            "--backbone",
+            NO_MODEL,
+        ],
+    ):  # not the scene's own instruction instead
         code, _, err = _cli(capsys, *source)
         assert code == 2 and err.startswith("ocplace place: error: --instruction is empty"), err
 
@@ -183,12 +213,15 @@ def test_cli_refuses_an_empty_instruction(images, tmp_path, capsys, instruction)
 # --- depth files -----------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("array, message", [
-    (np.array([{"depth": 0.6}, None], dtype=object), "cannot read the depth .* as a .npy array of numbers"),
-    (np.full((480, 640), "far"), "depth must hold numbers .* got dtype <U3"),
-    (np.ones((480, 640), bool), "depth must hold numbers .* got dtype bool"),
-    (np.ones((480, 640, 3), np.float32), "depth must be an \\(H, W\\) image, got shape \\(480, 640, 3\\)"),
-])
+@pytest.mark.parametrize(
+    "array, message",
+    [
+        (np.array([{"depth": 0.6}, None], dtype=object), "cannot read the depth .* as a .npy array of numbers"),
+        (np.full((480, 640), "far"), "depth must hold numbers .* got dtype <U3"),
+        (np.ones((480, 640), bool), "depth must hold numbers .* got dtype bool"),
+        (np.ones((480, 640, 3), np.float32), "depth must be an \\(H, W\\) image, got shape \\(480, 640, 3\\)"),
+    ],
+)
 def test_cli_refuses_a_pickled_or_non_numeric_depth(images, tmp_path, capsys, array, message):
     np.save(images["depth"], array, allow_pickle=True)
     code, _, err = _cli(capsys, *_place(images, tmp_path))
@@ -197,7 +230,7 @@ def test_cli_refuses_a_pickled_or_non_numeric_depth(images, tmp_path, capsys, ar
 
 def test_cli_refuses_a_truncated_or_missing_depth(images, tmp_path, capsys):
     data = images["depth"].read_bytes()
-    images["depth"].write_bytes(data[:len(data) // 2])
+    images["depth"].write_bytes(data[: len(data) // 2])
     code, _, err = _cli(capsys, *_place(images, tmp_path))
     assert code == 2 and "error: cannot read the depth" in err
     code, _, err = _cli(capsys, *_place(images, tmp_path, depth=tmp_path / "missing.npy"))
@@ -209,16 +242,27 @@ def test_cli_refuses_a_truncated_or_missing_depth(images, tmp_path, capsys):
 
 def _results(tmp_path, **body) -> Path:
     path = tmp_path / "results.json"
-    path.write_text(json.dumps({"schema": "ocplace.evaluation/1", "dataset": {"dir": str(tmp_path)},
-                                "settings": {"subsets": ["seen"]}, **body}))
+    path.write_text(
+        json.dumps(
+            {
+                "schema": "ocplace.evaluation/1",
+                "dataset": {"dir": str(tmp_path)},
+                "settings": {"subsets": ["seen"]},
+                **body,
+            }
+        )
+    )
     return path
 
 
-@pytest.mark.parametrize("body, named", [
-    ({}, "evaluations"),
-    ({"evaluations": {"ours": 1}}, "evaluations"),
-    ({"evaluations": [{"method": "ours"}]}, "evaluations\\[0\\]"),
-])
+@pytest.mark.parametrize(
+    "body, named",
+    [
+        ({}, "evaluations"),
+        ({"evaluations": {"ours": 1}}, "evaluations"),
+        ({"evaluations": [{"method": "ours"}]}, "evaluations\\[0\\]"),
+    ],
+)
 def test_results_without_evaluations_are_refused(tmp_path, capsys, body, named):
     path = _results(tmp_path, **body)
     with pytest.raises(ResultsError, match=f"not a complete evaluation: {named} missing or malformed"):
@@ -242,8 +286,11 @@ def test_truncated_results_are_refused(tmp_path, capsys):
 def _tmpfs(folder: Path, options: str):
     """A small file system mounted on `folder`. Needs the right to mount (root in a container); else skips."""
     folder.mkdir()
-    if shutil.which("mount") is None or subprocess.run(
-            ["mount", "-t", "tmpfs", "-o", options, "tmpfs", str(folder)], capture_output=True).returncode != 0:
+    if (
+        shutil.which("mount") is None
+        or subprocess.run(["mount", "-t", "tmpfs", "-o", options, "tmpfs", str(folder)], capture_output=True).returncode
+        != 0
+    ):
         pytest.skip("cannot mount a file system here")
     try:
         yield folder
@@ -267,9 +314,11 @@ def read_only_dir(tmp_path):
 def test_out_under_a_file_or_in_a_read_only_folder_fails_first(images, tmp_path, capsys, read_only_dir):
     a_file = tmp_path / "a-file.txt"
     a_file.write_text("not a folder")
-    for out, message in ((a_file / "place.png", f"{a_file} is a file, not a folder"),
-                         (a_file / "deeper" / "place.png", f"{a_file} is a file, not a folder"),
-                         (read_only_dir / "new" / "place.png", f"{read_only_dir} is not writable")):
+    for out, message in (
+        (a_file / "place.png", f"{a_file} is a file, not a folder"),
+        (a_file / "deeper" / "place.png", f"{a_file} is a file, not a folder"),
+        (read_only_dir / "new" / "place.png", f"{read_only_dir} is not writable"),
+    ):
         # an otherwise bad input too: the output is checked before everything else
         code, _, err = _cli(capsys, *_place(images, tmp_path, out=out, instruction=""))
         assert code == 2 and err.startswith(f"ocplace place: error: cannot write {out}: {message}"), err
@@ -281,10 +330,9 @@ def test_out_under_a_file_or_in_a_read_only_folder_fails_first(images, tmp_path,
 
 def test_a_full_disk_is_a_typed_error_naming_the_file(tmp_path):
     target = tmp_path / "out" / "results.json"
-    with pytest.raises(OutputError, match=f"cannot write {target}: the disk is full"):
-        with atomic_path(target) as tmp:
-            tmp.write_text("{")
-            raise OSError(errno.ENOSPC, "No space left on device")  # what a write to a full disk raises
+    with pytest.raises(OutputError, match=f"cannot write {target}: the disk is full"), atomic_path(target) as tmp:
+        tmp.write_text("{")
+        raise OSError(errno.ENOSPC, "No space left on device")  # what a write to a full disk raises
     assert list(target.parent.iterdir()) == []  # neither the target nor the temporary file
 
 
@@ -310,36 +358,48 @@ def saved_cache(tmp_path_factory):
 
     cache = tmp_path_factory.mktemp("cache")
     config = ob.smoke_config()
-    directory = ob.save_backbone(cache / ob.BACKBONES_DIR / "offline-tiny", config,
-                                 ob.init_params(config, jax.random.key(7)),  # not tiny_backbone_spec's
-                                 ob.FrozenTextTower.load(config.text_max_length).digest)
+    directory = ob.save_backbone(
+        cache / ob.BACKBONES_DIR / "offline-tiny",
+        config,
+        ob.init_params(config, jax.random.key(7)),  # not tiny_backbone_spec's
+        ob.FrozenTextTower.load(config.text_max_length).digest,
+    )
     fingerprint = (directory / ob.FINGERPRINT_FILE).read_text().strip()
     runs = {}
     for name, recorded in (("matching", fingerprint), ("orphan", "0" * 64)):
         adapters = AdapterConfig(dim=config.embed_dim)
         runs[name] = tmp_path_factory.mktemp(name)
-        save_adapters(runs[name] / ADAPTERS_FILE, init_adapters(adapters, jax.random.key(1)), adapters, 10.0,
-                      backbone_fingerprint=recorded, prompt=PromptConfig(), features_key="test", steps=0,
-                      train_config_json="{}")
+        save_adapters(
+            runs[name] / ADAPTERS_FILE,
+            init_adapters(adapters, jax.random.key(1)),
+            adapters,
+            10.0,
+            backbone_fingerprint=recorded,
+            prompt=PromptConfig(),
+            features_key="test",
+            steps=0,
+            train_config_json="{}",
+        )
     return cache, directory, runs
 
 
-def test_place_finds_the_backbone_the_adapters_were_trained_with(saved_cache, images, tmp_path, capsys,
-                                                                 monkeypatch):
+def test_place_finds_the_backbone_the_adapters_were_trained_with(saved_cache, images, tmp_path, capsys, monkeypatch):
     cache, _, runs = saved_cache
     monkeypatch.setenv("OCPLACE_CACHE", str(cache))
-    code, out, err = _cli(capsys, *_place(images, tmp_path, backbone=None, adapters=runs["matching"],
-                                          samples=64))
+    code, out, err = _cli(capsys, *_place(images, tmp_path, backbone=None, adapters=runs["matching"], samples=64))
     assert code == 0 and "error" not in err and "mode:" in out and (tmp_path / "place.png").stat().st_size > 1000
 
 
-def test_place_says_how_to_get_a_missing_or_mismatched_backbone(saved_cache, images, tmp_path, capsys,
-                                                                monkeypatch, tiny_backbone_spec):
+def test_place_says_how_to_get_a_missing_or_mismatched_backbone(
+    saved_cache, images, tmp_path, capsys, monkeypatch, tiny_backbone_spec
+):
     cache, directory, runs = saved_cache
     monkeypatch.setenv("OCPLACE_CACHE", str(cache))
     code, _, err = _cli(capsys, *_place(images, tmp_path, backbone=None, adapters=runs["orphan"]))
-    assert code == 2 and err.startswith(f"ocplace place: error: the adapters in {runs['orphan']} were trained on "
-                                        "the backbone with fingerprint 000000000000; no saved offline backbone in")
+    assert code == 2 and err.startswith(
+        f"ocplace place: error: the adapters in {runs['orphan']} were trained on "
+        "the backbone with fingerprint 000000000000; no saved offline backbone in"
+    )
     assert "--backbone SPEC" in err
     code, _, err = _cli(capsys, *_place(images, tmp_path, backbone=tiny_backbone_spec, adapters=runs["matching"]))
     assert code == 2 and "were trained on features of another backbone" in err
@@ -352,8 +412,9 @@ def test_a_full_disk_still_prints_the_placement(saved_cache, images, tmp_path, c
     cache, _, runs = saved_cache
     monkeypatch.setenv("OCPLACE_CACHE", str(cache))
     out = full_disk / "place.png"
-    code, printed, err = _cli(capsys, *_place(images, tmp_path, backbone=None, adapters=runs["matching"],
-                                              samples=64, out=out))
+    code, printed, err = _cli(
+        capsys, *_place(images, tmp_path, backbone=None, adapters=runs["matching"], samples=64, out=out)
+    )
     assert code == 2 and "mode:" in printed and f"wrote {out}" not in printed
     assert err.startswith(f"ocplace place: error: cannot write {out}: the disk is full")
     assert sorted(p.name for p in full_disk.iterdir()) == ["filler"]

@@ -55,7 +55,7 @@ def test_cell_pixel_boxes_tile_the_table_in_the_image():
     np.testing.assert_allclose(boxes[grids.cell_of([-0.35, 0.25], GRID), :2], table_top_left)
     assert np.all(boxes[:, 2] > boxes[:, 0]) and np.all(boxes[:, 3] > boxes[:, 1])
     # neighbours along x share an edge: cell (ix + 1, iy)'s left is cell (ix, iy)'s right
-    np.testing.assert_allclose(boxes[GRID.rows:, 0], boxes[:-GRID.rows, 2])
+    np.testing.assert_allclose(boxes[GRID.rows :, 0], boxes[: -GRID.rows, 2])
 
 
 def test_positional_encoding_is_nerf_features_of_the_scaled_centre():
@@ -121,8 +121,10 @@ def test_cliport_output_is_a_distribution_over_table_pixels_and_its_argmax_round
 def _test_scenes(dataset, split="seen"):
     """Test records without the ground truth, so a method that reads it fails."""
     records = [read_scene(d) for d in scene_dirs(dataset, split)]
-    return [SceneRecord({k: v for k, v in r.meta.items() if k not in ("tuples", "oracle")}, r.rgb, r.depth,
-                        r.segmentation) for r in records]
+    return [
+        SceneRecord({k: v for k, v in r.meta.items() if k not in ("tuples", "oracle")}, r.rgb, r.depth, r.segmentation)
+        for r in records
+    ]
 
 
 def _losses(run_dir):
@@ -158,8 +160,7 @@ def test_grids_trains_resumes_and_places_in_the_chosen_cell(specs, smoke_dataset
     spec.train(TrainContext(smoke_dataset, tiny_backbone_spec, resumed, scale="smoke"))
     assert (resumed / "weights.safetensors").read_bytes() == weights and _losses(resumed) == losses
 
-    half = spec.train(TrainContext(smoke_dataset, tiny_backbone_spec, tmp_path / "half", scale="smoke",
-                                   fraction=0.5))
+    half = spec.train(TrainContext(smoke_dataset, tiny_backbone_spec, tmp_path / "half", scale="smoke", fraction=0.5))
     assert json.loads((half / "config.json").read_text())["train_scenes"] == 6
 
     method = spec.load(LoadContext(run_dir, tiny_backbone_spec, scale="smoke", num_samples=16))
@@ -200,10 +201,9 @@ def test_cliport_trains_and_places_from_its_pixel_distribution(specs, smoke_data
     assert len(outputs) == len(scenes)
     distributions = method.distributions(scenes)
     np.testing.assert_allclose(distributions.sum(axis=-1), 1.0, rtol=1e-5)
-    for scene, output, probabilities in zip(scenes, outputs, distributions):
+    for output, probabilities in zip(outputs, distributions):
         assert output.failure is None and output.parsed is None and output.grounded is None
         assert output.samples.shape == (16, 2) and _on_table(output.mode) and np.all(_on_table(output.samples))
         pixel = cliport.table_to_pixel(output.mode, Camera(), method.config)
-        np.testing.assert_allclose(pixel, cliport.flat_to_pixel(int(np.argmax(probabilities)), method.config),
-                                   atol=1.0)
+        np.testing.assert_allclose(pixel, cliport.flat_to_pixel(int(np.argmax(probabilities)), method.config), atol=1.0)
     assert method.describe()["weights_sha256"]

@@ -24,7 +24,7 @@ def test_boxes_are_tight_around_each_object():
 @given(u0=st.integers(0, 60), v0=st.integers(0, 40), w=st.integers(1, 40), h=st.integers(1, 40))
 def test_every_box_holds_all_pixels_of_its_object(u0, v0, w, h):
     segmentation = np.zeros((48, 64), np.int32)
-    segmentation[v0:v0 + h, u0:u0 + w] = 7
+    segmentation[v0 : v0 + h, u0 : u0 + w] = 7
     boxes = boxes_from_segmentation(segmentation, min_pixels=1)
     u_0, v_0, u_1, v_1 = boxes.box_of(7)
     inside = np.zeros_like(segmentation, bool)

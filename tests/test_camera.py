@@ -50,7 +50,7 @@ def empty_arena():
 def test_rendered_depth_back_projects_onto_the_table_plane(empty_arena):
     rgb, depth, segmentation = empty_arena.render(())
     camera = empty_arena.config.camera
-    vs, us = np.mgrid[0:camera.height, 0:camera.width]
+    vs, us = np.mgrid[0 : camera.height, 0 : camera.width]
     world = camera.pixel_to_world(np.stack([us, vs], axis=-1), depth)
     on_table = np.all(np.abs(world[..., :2]) < np.asarray(DEFAULT_TABLE.half_extents) - 0.005, axis=-1)
     assert on_table.mean() > 0.85
@@ -65,5 +65,5 @@ def test_table_edges_land_where_the_model_projects_them(empty_arena):
     hx, _ = DEFAULT_TABLE.half_extents
     u_edge = camera.table_to_pixel(np.array([hx, 0.0]))[0]
     row = depth[int(camera.cy)]
-    first_off_table = int(np.argmax(row[int(camera.cx):] > 1.0)) + int(camera.cx)
+    first_off_table = int(np.argmax(row[int(camera.cx) :] > 1.0)) + int(camera.cx)
     assert abs(first_off_table - u_edge) <= 1.0

@@ -93,7 +93,9 @@ def test_loader_yields_crops_and_targets(dataset):
         assert np.all(example.targets <= len(example.crops))
     batch = next(batches(dataset, "seen", batch_size=3, crop_size=32))
     assert batch["crops"].shape == (3, 5, 32, 32, 3) and batch["targets"].shape == (3, 4)
-    assert np.all(batch["targets"][batch["tuple_mask"]] <= batch["num_boxes"].repeat(4).reshape(3, 4)[batch["tuple_mask"]])
+    assert np.all(
+        batch["targets"][batch["tuple_mask"]] <= batch["num_boxes"].repeat(4).reshape(3, 4)[batch["tuple_mask"]]
+    )
 
 
 def test_same_seed_same_bytes_with_one_or_two_workers(tmp_path, library, dataset):
@@ -104,14 +106,29 @@ def test_same_seed_same_bytes_with_one_or_two_workers(tmp_path, library, dataset
 
 
 def _generate_command(out):
-    return [sys.executable, "-m", "ocplace.cli", "generate", "--out", str(out), "--smoke", "--split", "train",
-            "--workers", "1"]
+    return [
+        sys.executable,
+        "-m",
+        "ocplace.cli",
+        "generate",
+        "--out",
+        str(out),
+        "--smoke",
+        "--split",
+        "train",
+        "--workers",
+        "1",
+    ]
 
 
 def test_killed_generation_resumes_without_duplicates_or_corruption(tmp_path, library, dataset):
     out = tmp_path / "killed"
-    process = subprocess.Popen(_generate_command(out), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                               env=os.environ | {"PYTHONUNBUFFERED": "1"})
+    process = subprocess.Popen(
+        _generate_command(out),
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        env=os.environ | {"PYTHONUNBUFFERED": "1"},
+    )
     deadline = time.time() + 240
     while time.time() < deadline and len(list((out / "train").glob("train-*"))) < 3:
         time.sleep(0.2)

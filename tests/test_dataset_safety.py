@@ -68,8 +68,16 @@ def _with_entries(ds: Path, tiny: Path, entries) -> None:
     (ds / MANIFEST_FILE).write_text(json.dumps(manifest))
 
 
-HOSTILE = ["../scene.json", "../../x", "../../canary.txt", "scene.json", "train/train-00000/../../../canary.txt",
-           "train/train-00009/scene.json", "evil/evil-00000/scene.json", "train/train-00000/../../ds/x"]
+HOSTILE = [
+    "../scene.json",
+    "../../x",
+    "../../canary.txt",
+    "scene.json",
+    "train/train-00000/../../../canary.txt",
+    "train/train-00009/scene.json",
+    "evil/evil-00000/scene.json",
+    "train/train-00000/../../ds/x",
+]
 
 
 @pytest.mark.parametrize("entry", [*HOSTILE, "ABSOLUTE"])
@@ -78,8 +86,11 @@ def test_a_hostile_manifest_entry_is_refused_and_nothing_is_touched(tmp_path, ti
     entry = str(tmp_path / "trav" / "a" / "canary.txt") if entry == "ABSOLUTE" else entry
     _with_entries(ds, tiny, [entry])
     before = _snapshot(tmp_path)
-    refusals = [_refusal(lambda: generate_dataset(ds, CONFIG, progress=False)), _refusal(lambda: verify_dataset(ds)),
-                _refusal(lambda: list(iter_examples(ds, "train")))]
+    refusals = [
+        _refusal(lambda: generate_dataset(ds, CONFIG, progress=False)),
+        _refusal(lambda: verify_dataset(ds)),
+        _refusal(lambda: list(iter_examples(ds, "train"))),
+    ]
     code = main(["dataset", "verify", str(ds)])
     assert _snapshot(tmp_path) == before
     assert all(refusal.startswith("corrupt dataset") and repr(entry) in refusal for refusal in refusals), refusals
@@ -99,8 +110,23 @@ def test_cli_generate_refuses_a_traversal_manifest_with_exit_2(tmp_path, capsys)
     assert code == 2 and "ocplace generate: error: corrupt dataset" in capsys.readouterr().err
 
 
-_SEGMENTS = st.sampled_from(["..", ".", "", "train", "train-00000", "train-00009", "evil", "evil-00000", "ds",
-                             "scene.json", "rgb.png", "canary.txt", "x"])
+_SEGMENTS = st.sampled_from(
+    [
+        "..",
+        ".",
+        "",
+        "train",
+        "train-00000",
+        "train-00009",
+        "evil",
+        "evil-00000",
+        "ds",
+        "scene.json",
+        "rgb.png",
+        "canary.txt",
+        "x",
+    ]
+)
 _PATHS = st.lists(_SEGMENTS, min_size=1, max_size=6).map("/".join)
 _HOSTILE = st.one_of(
     st.sampled_from(HOSTILE),
@@ -108,7 +134,8 @@ _HOSTILE = st.one_of(
     _PATHS.map(lambda path: f"{path}/../.."),
     _PATHS.map(lambda path: f"/{path}"),  # absolute
     st.sampled_from(["train/train-00009", "evil/evil-00000"]).flatmap(  # under a symlink out of the dataset
-        lambda folder: st.sampled_from(["scene.json", "rgb.png", "depth.png"]).map(lambda name: f"{folder}/{name}")),
+        lambda folder: st.sampled_from(["scene.json", "rgb.png", "depth.png"]).map(lambda name: f"{folder}/{name}")
+    ),
 )
 
 
@@ -120,8 +147,10 @@ def test_no_hostile_manifest_touches_a_file_outside_the_dataset(tiny, hostile, n
         ds = _sandbox(base, tiny)
         _with_entries(ds, tiny, [*noise, *hostile])
         before = _snapshot(base)  # the dataset's parent tree and the dataset itself: nothing may change
-        refusals = [_refusal(lambda: generate_dataset(ds, CONFIG, progress=False)),
-                    _refusal(lambda: verify_dataset(ds))]
+        refusals = [
+            _refusal(lambda: generate_dataset(ds, CONFIG, progress=False)),
+            _refusal(lambda: verify_dataset(ds)),
+        ]
         assert _snapshot(base) == before
         assert all(refusals), refusals
 
@@ -134,8 +163,20 @@ def test_inside_refuses_every_way_out(tmp_path):
     (root / "self").symlink_to(root)
     assert inside(root, "a/b") == root / "a" / "b"
     assert inside(root, "in/b") == root / "in" / "b"  # a symlink that stays inside is fine
-    for bad in ("", ".", "./", "/etc/passwd", str(root / "a"), "..", "../root/a", "a/../../x", "a/..", "out/x",
-                "self", None):
+    for bad in (
+        "",
+        ".",
+        "./",
+        "/etc/passwd",
+        str(root / "a"),
+        "..",
+        "../root/a",
+        "a/../../x",
+        "a/..",
+        "out/x",
+        "self",
+        None,
+    ):
         with pytest.raises(ValueError):
             inside(root, bad)
 
@@ -159,8 +200,17 @@ def test_unlisted_scenes_and_files_are_reported_and_never_read(tmp_path, tiny, c
     assert (ds / "train" / "train-00099" / "scene.json").is_file()  # ...and deletes nothing it did not write
 
 
-@pytest.mark.parametrize("text", ["[]", '"a string"', '{"files": ', "{}", '{"files": ["train/train-00000/rgb.png"]}',
-                                  '{"files": {"train/train-00000/rgb.png": 3}}'])
+@pytest.mark.parametrize(
+    "text",
+    [
+        "[]",
+        '"a string"',
+        '{"files": ',
+        "{}",
+        '{"files": ["train/train-00000/rgb.png"]}',
+        '{"files": {"train/train-00000/rgb.png": 3}}',
+    ],
+)
 def test_a_manifest_that_is_not_a_manifest_is_a_corrupt_dataset(tmp_path, tiny, text):
     from ocplace.eval.results import dataset_identity
     from ocplace.train.commands import dataset_hash
@@ -169,8 +219,13 @@ def test_a_manifest_that_is_not_a_manifest_is_a_corrupt_dataset(tmp_path, tiny, 
     shutil.copytree(tiny, ds)
     (ds / MANIFEST_FILE).write_text(text)
     before = _snapshot(tmp_path)
-    for read in (verify_dataset, lambda d: generate_dataset(d, CONFIG, progress=False),
-                 lambda d: list(iter_examples(d, "train")), lambda d: dataset_hash(d, "train"), dataset_identity):
+    for read in (
+        verify_dataset,
+        lambda d: generate_dataset(d, CONFIG, progress=False),
+        lambda d: list(iter_examples(d, "train")),
+        lambda d: dataset_hash(d, "train"),
+        dataset_identity,
+    ):
         with pytest.raises(DatasetError, match=r"corrupt dataset: .* rerun `ocplace generate --out"):
             read(ds)
     assert _snapshot(tmp_path) == before

@@ -6,7 +6,6 @@ import struct
 from pathlib import Path
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -39,14 +38,29 @@ def _ints(values):
 
 def legacy_bytes(storages, tensors):
     """A legacy torch.save file. `storages`: {key: 1-d array}; `tensors`: {name: (key, offset, shape, stride)}."""
-    out = [pickle.dumps(0x1950A86A20F9469CFC6C, protocol=2), pickle.dumps(1001, protocol=2),
-           pickle.dumps({"protocol_version": 1001, "little_endian": True}, protocol=2)]
+    out = [
+        pickle.dumps(0x1950A86A20F9469CFC6C, protocol=2),
+        pickle.dumps(1001, protocol=2),
+        pickle.dumps({"protocol_version": 1001, "little_endian": True}, protocol=2),
+    ]
     ops = [b"\x80\x02ccollections\nOrderedDict\n)R("]
     for name, (key, offset, shape, stride) in tensors.items():
         storage = storages[key]
-        ops += [_str(name), b"ctorch._utils\n_rebuild_tensor_v2\n(", b"(", _str("storage"),
-                f"ctorch\n{STORAGES[storage.dtype]}\n".encode(), _str(key), _str("cpu"), _int(storage.size),
-                b"NtQ", _int(offset), _ints(shape), _ints(stride), b"\x89ccollections\nOrderedDict\n)RtR"]
+        ops += [
+            _str(name),
+            b"ctorch._utils\n_rebuild_tensor_v2\n(",
+            b"(",
+            _str("storage"),
+            f"ctorch\n{STORAGES[storage.dtype]}\n".encode(),
+            _str(key),
+            _str("cpu"),
+            _int(storage.size),
+            b"NtQ",
+            _int(offset),
+            _ints(shape),
+            _ints(stride),
+            b"\x89ccollections\nOrderedDict\n)RtR",
+        ]
     out.append(b"".join(ops) + b"u.")
     out.append(pickle.dumps(list(storages), protocol=2))
     for storage in storages.values():
@@ -57,8 +71,10 @@ def legacy_bytes(storages, tensors):
 def contiguous(state):
     """`legacy_bytes` arguments that store each array of `state` in its own storage."""
     storages = {str(i): np.ascontiguousarray(a).reshape(-1) for i, a in enumerate(state.values())}
-    tensors = {name: (str(i), 0, a.shape, [s // a.itemsize for s in np.ascontiguousarray(a).strides])
-               for i, (name, a) in enumerate(state.items())}
+    tensors = {
+        name: (str(i), 0, a.shape, [s // a.itemsize for s in np.ascontiguousarray(a).strides])
+        for i, (name, a) in enumerate(state.items())
+    }
     return storages, tensors
 
 
@@ -108,7 +124,9 @@ class _Exploit:
 def test_reader_refuses_code_in_the_pickle(tmp_path, where):
     canary = tmp_path / "canary"
     exploit = pickle.dumps(_Exploit(canary), protocol=2)
-    header = pickle.dumps(0x1950A86A20F9469CFC6C, protocol=2) + pickle.dumps(1001, protocol=2) + pickle.dumps({}, protocol=2)
+    header = (
+        pickle.dumps(0x1950A86A20F9469CFC6C, protocol=2) + pickle.dumps(1001, protocol=2) + pickle.dumps({}, protocol=2)
+    )
     path = tmp_path / "evil.pth"
     path.write_bytes(exploit if where == "header" else header + exploit)
     with pytest.raises(WeightsError, match="system"):
@@ -126,8 +144,14 @@ def test_shifted_slice_depthwise_equals_grouped_conv(kernel, stride, size):
     x = jax.random.normal(jax.random.key(0), (2, *size, 8))
     weights = jax.random.normal(jax.random.key(1), (kernel, kernel, 8))
     ours = en.depthwise_conv(x, weights, stride)
-    reference = jax.lax.conv_general_dilated(x, weights[:, :, None, :], (stride, stride), "SAME",
-                                             dimension_numbers=("NHWC", "HWIO", "NHWC"), feature_group_count=8)
+    reference = jax.lax.conv_general_dilated(
+        x,
+        weights[:, :, None, :],
+        (stride, stride),
+        "SAME",
+        dimension_numbers=("NHWC", "HWIO", "NHWC"),
+        feature_group_count=8,
+    )
     assert ours.shape == reference.shape
     np.testing.assert_allclose(ours, reference, atol=1e-5)
 
@@ -226,7 +250,9 @@ def test_a_damaged_or_outdated_cache_file_is_rebuilt(cache, lite0, monkeypatch):
     monkeypatch.setattr(iw, "FORMAT", "ocplace-efficientnet-v0")
     iw.load_pretrained("lite0")
     assert calls == [1, 1]
-    np.testing.assert_array_equal(rebuilt["batch_stats"]["head"]["bn"]["var"], lite0["batch_stats"]["head"]["bn"]["var"])
+    np.testing.assert_array_equal(
+        rebuilt["batch_stats"]["head"]["bn"]["var"], lite0["batch_stats"]["head"]["bn"]["var"]
+    )
 
 
 def test_missing_weights_package_names_the_pip_line(monkeypatch):

@@ -2,10 +2,10 @@
 
 import json
 
+import eval_methods
 import numpy as np
 import pytest
 
-import eval_methods
 from ocplace.eval import harness, registry, results, table
 from ocplace.eval.api import MethodOutput, TrainContext
 from ocplace.eval.harness import EvalSettings, MethodRun
@@ -23,14 +23,15 @@ def oracle_run(smoke_dataset, tmp_path_factory):
 
 
 def evaluate(name, dataset, settings=SETTINGS, run_dir=None, arena=None):
-    return harness.evaluate_run(MethodRun(eval_methods.SPECS[name], run_dir), dataset, settings, arena,
-                                progress=False)
+    return harness.evaluate_run(MethodRun(eval_methods.SPECS[name], run_dir), dataset, settings, arena, progress=False)
 
 
 @pytest.fixture(scope="module")
 def evaluations(smoke_dataset, oracle_run):
-    return [harness.evaluate_run(oracle_run, smoke_dataset, SETTINGS, progress=False),
-            *(evaluate(name, smoke_dataset) for name in ("centre", "failing", "flaky", "random"))]
+    return [
+        harness.evaluate_run(oracle_run, smoke_dataset, SETTINGS, progress=False),
+        *(evaluate(name, smoke_dataset) for name in ("centre", "failing", "flaky", "random")),
+    ]
 
 
 @pytest.fixture(scope="module")
@@ -67,8 +68,16 @@ def hand_checked_centre_success(meta) -> bool:
             continue
         (x0, y0, _), (x1, y1, _) = meta["objects"][t["reference_object_id"] - 1]["aabb"]
         offset = -np.array([(x0 + x1) / 2, (y0 + y1) / 2])
-        direction = {"left": (-1, 0), "right": (1, 0), "back": (0, 1), "front": (0, -1), "back left": (-1, 1),
-                     "back right": (1, 1), "front left": (-1, -1), "front right": (1, -1)}[t["relation"]]
+        direction = {
+            "left": (-1, 0),
+            "right": (1, 0),
+            "back": (0, 1),
+            "front": (0, -1),
+            "back left": (-1, 1),
+            "back right": (1, 1),
+            "front left": (-1, -1),
+            "front right": (1, -1),
+        }[t["relation"]]
         direction = np.array(direction) / np.linalg.norm(direction)
         distance = np.linalg.norm(offset)
         if not 0.10 <= distance <= 0.30 or offset @ direction < distance * np.cos(np.pi / 4) - 1e-9:
@@ -98,7 +107,10 @@ def test_failures_score_zero_and_are_listed(results_json):
         assert overall["failures"] == overall["stages"]["failure"] == 8
         assert all(s["failure"] == "no reference found (test method)" for s in failing["subsets"][subset]["scenes"])
     listed = table.failure_list(results_json)
-    assert f"Always fails (failing): {8 * len(harness.SUBSETS)} scenes" in listed and "`seen-00000`: no reference found" in listed
+    assert (
+        f"Always fails (failing): {8 * len(harness.SUBSETS)} scenes" in listed
+        and "`seen-00000`: no reference found" in listed
+    )
 
 
 def test_an_exception_fails_only_its_scene(results_json):
@@ -122,8 +134,13 @@ def test_methods_never_see_the_ground_truth(smoke_dataset):
             seen_meta.extend(scene.meta for scene in scenes)
             return super().run(scenes, key)
 
-    harness.evaluate_run(MethodRun(eval_methods.SPECS["centre"]), smoke_dataset,
-                         EvalSettings(subsets=("seen",), physical_scenes=0), progress=False, method=Spy())
+    harness.evaluate_run(
+        MethodRun(eval_methods.SPECS["centre"]),
+        smoke_dataset,
+        EvalSettings(subsets=("seen",), physical_scenes=0),
+        progress=False,
+        method=Spy(),
+    )
     assert len(seen_meta) == 8
     assert all(meta["tuples"] == [] and "oracle" not in meta and meta["boxes"] for meta in seen_meta)
 
@@ -147,9 +164,13 @@ def test_grounding_and_parse_are_judged_through_box_order(smoke_dataset):
     assert not scored.parse_ok and scored.grounding_ok and scored.stage == "parse"
     scored = harness.score_scene(record, MethodOutput(np.array([9.0, 9.0]), None, right, tokens))
     assert scored.program_ok and scored.stage == "sampling"
-    for malformed in (MethodOutput(np.array([np.nan, 0.0]), None), MethodOutput(np.zeros((1, 2)), None),
-                      MethodOutput(mode, np.zeros(3)), MethodOutput(mode, None, parsed=("a",)),
-                      MethodOutput(mode, None, grounded=(object(),))):
+    for malformed in (
+        MethodOutput(np.array([np.nan, 0.0]), None),
+        MethodOutput(np.zeros((1, 2)), None),
+        MethodOutput(mode, np.zeros(3)),
+        MethodOutput(mode, None, parsed=("a",)),
+        MethodOutput(mode, None, grounded=(object(),)),
+    ):
         scored = harness.score_scene(record, malformed)
         assert scored.failure.startswith("malformed output") and scored.stage == "failure" and not scored.success
     scored = harness.score_scene(record, MethodOutput(None, None))
@@ -162,8 +183,9 @@ def test_sampling_is_deterministic_and_keyed_per_subset(smoke_dataset):
     assert first.subsets == again.subsets
     modes = {subset: [o.mode for o in outcomes] for subset, outcomes in first.subsets.items()}
     assert modes["seen"] != modes["unseen_obj"]
-    other_seed = evaluate("random", smoke_dataset, EvalSettings(**(SETTINGS.to_json() | {"seed": 1,
-                                                                                       "subsets": ("seen",)})))
+    other_seed = evaluate(
+        "random", smoke_dataset, EvalSettings(**(SETTINGS.to_json() | {"seed": 1, "subsets": ("seen",)}))
+    )
     assert [o.mode for o in other_seed.subsets["seen"]] != modes["seen"]
 
 
@@ -187,7 +209,8 @@ def test_results_json_round_trip(results_json, evaluations, tmp_path):
     assert loaded["dataset"]["dataset_hash"] and len(loaded["dataset"]["manifest_hash"]) == 64
     assert loaded["environment"]["packages"]["jax"] and loaded["environment"]["packages"]["mujoco"]
     assert results.evaluations(loaded) == [
-        results.evaluation_from_json(results.evaluation_to_json(e)) for e in evaluations]
+        results.evaluation_from_json(results.evaluation_to_json(e)) for e in evaluations
+    ]
     assert [e.subsets for e in results.evaluations(loaded)] == [e.subsets for e in evaluations]
     assert results.settings_of(loaded) == SETTINGS
     (tmp_path / "bad.json").write_text(json.dumps({"schema": "other"}))
@@ -205,8 +228,14 @@ def test_table_one_layout(results_json):
     centre = by_key(results_json, "centre")["subsets"]["seen"]["aggregate"]["overall"]["success"]
     assert rows["Table centre"][3] == f"{100 * centre:.2f}"
     document = table.render(results_json)
-    for title in ("Table I", "Mean success over samples", "Physical success", "Parse, grounding",
-                  "Unsuccessful scenes by stage", "Method failures"):
+    for title in (
+        "Table I",
+        "Mean success over samples",
+        "Physical success",
+        "Parse, grounding",
+        "Unsuccessful scenes by stage",
+        "Method failures",
+    ):
         assert title in document
 
 
@@ -218,7 +247,8 @@ def test_rerun_reproduces_exactly(results_json, oracle_run):
     scene["mode"][0] += 1e-7
     assert results.compare(results_json, tampered) == [
         f"random/seen/{scene['id']}: mode {by_key(results_json, 'random')['subsets']['seen']['scenes'][3]['mode']!r}"
-        f" != {scene['mode']!r}"]
+        f" != {scene['mode']!r}"
+    ]
 
 
 def test_cli_evaluate_and_rerun(smoke_dataset, oracle_run, tmp_path, monkeypatch, capsys):
@@ -226,14 +256,41 @@ def test_cli_evaluate_and_rerun(smoke_dataset, oracle_run, tmp_path, monkeypatch
 
     monkeypatch.setattr(registry, "METHOD_MODULES", ("eval_methods",))
     out = tmp_path / "results.json"
-    common = ["--dataset", str(smoke_dataset), "--backbone", "none", "--physical", "0", "--limit", "4",
-              "--no-progress", "--num-samples", "8"]
+    common = [
+        "--dataset",
+        str(smoke_dataset),
+        "--backbone",
+        "none",
+        "--physical",
+        "0",
+        "--limit",
+        "4",
+        "--no-progress",
+        "--num-samples",
+        "8",
+    ]
     assert main(["evaluate", *common, "--methods", "oracle", "--out", str(out)]) == 2
     assert "pass --run oracle=RUN_DIR" in capsys.readouterr().err
     assert main(["evaluate", *common, "--methods", "oracle,nope", "--out", str(out)]) == 2
     assert "unknown method" in capsys.readouterr().err
-    assert main(["evaluate", *common, "--methods", "all", "--run", f"oracle={oracle_run.run_dir}",
-                 "--subsets", "seen", "unseen_inst", "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "evaluate",
+                *common,
+                "--methods",
+                "all",
+                "--run",
+                f"oracle={oracle_run.run_dir}",
+                "--subsets",
+                "seen",
+                "unseen_inst",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     printed = capsys.readouterr().out
     assert "| Oracle | 100.00 | 100.00 | 100.00 | 100.00 |" in printed
     saved = results.read_results(out)
@@ -243,8 +300,23 @@ def test_cli_evaluate_and_rerun(smoke_dataset, oracle_run, tmp_path, monkeypatch
     assert out.with_suffix(".md").read_text().startswith("Dataset ")
     pipeline_out = tmp_path / "reproduce"
     eval_methods.train_oracle(TrainContext(smoke_dataset, "none", pipeline_out / "runs/oracle/fraction-1.00"))
-    assert main(["evaluate", *common, "--methods", "oracle", "--runs-from", str(pipeline_out), "--subsets", "seen",
-                 "--out", str(tmp_path / "from_runs.json")]) == 0
+    assert (
+        main(
+            [
+                "evaluate",
+                *common,
+                "--methods",
+                "oracle",
+                "--runs-from",
+                str(pipeline_out),
+                "--subsets",
+                "seen",
+                "--out",
+                str(tmp_path / "from_runs.json"),
+            ]
+        )
+        == 0
+    )
     assert "| Oracle | 100.00 | 100.00 | 100.00 | 100.00 |" in capsys.readouterr().out
     assert main(["evaluate", "--rerun", str(out), "--no-progress"]) == 0
     assert "reproduced exactly" in capsys.readouterr().out

@@ -6,8 +6,7 @@ from tiny_clip import build_tiny_clip, write_tokenizer
 
 from ocplace.errors import FeaturesError
 from ocplace.models.backbone import PromptConfig, load_clip_backbone
-from ocplace.models.features import (FeaturizeConfig, SceneExample, featurize, load_features, read_info,
-                                     save_features)
+from ocplace.models.features import FeaturizeConfig, SceneExample, featurize, load_features, read_info, save_features
 
 CONFIG = FeaturizeConfig(chunk_scenes=2)
 
@@ -21,14 +20,16 @@ def tokenizer_dir(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def backbone(tmp_path_factory, tokenizer_dir):
-    return load_clip_backbone(str(build_tiny_clip(tmp_path_factory.mktemp("clip0"), seed=0,
-                                                  tokenizer_dir=tokenizer_dir)), max_batch=8)
+    return load_clip_backbone(
+        str(build_tiny_clip(tmp_path_factory.mktemp("clip0"), seed=0, tokenizer_dir=tokenizer_dir)), max_batch=8
+    )
 
 
 @pytest.fixture(scope="module")
 def other_backbone(tmp_path_factory, tokenizer_dir):
-    return load_clip_backbone(str(build_tiny_clip(tmp_path_factory.mktemp("clip1"), seed=1,
-                                                  tokenizer_dir=tokenizer_dir)), max_batch=8)
+    return load_clip_backbone(
+        str(build_tiny_clip(tmp_path_factory.mktemp("clip1"), seed=1, tokenizer_dir=tokenizer_dir)), max_batch=8
+    )
 
 
 def make_examples(count=5, seed=0):
@@ -38,8 +39,15 @@ def make_examples(count=5, seed=0):
         n = int(rng.integers(1, 6))
         texts = ("red bowl",) if index % 2 else ("table", "blue mug")
         targets = np.array([0] if index % 2 else [n, n - 1], np.int32)
-        examples.append(SceneExample(f"train-{index:05d}", rng.integers(0, 256, (n, 24, 24, 3), dtype=np.uint8),
-                                     rng.integers(0, 256, (30, 40, 3), dtype=np.uint8), texts, targets))
+        examples.append(
+            SceneExample(
+                f"train-{index:05d}",
+                rng.integers(0, 256, (n, 24, 24, 3), dtype=np.uint8),
+                rng.integers(0, 256, (30, 40, 3), dtype=np.uint8),
+                texts,
+                targets,
+            )
+        )
     return examples
 
 
@@ -67,8 +75,9 @@ def crashing_after(examples, count):
 
 def test_layout_matches_the_backbone(tmp_path, backbone):
     examples = make_examples()
-    features = load_features(featurize(examples, backbone, tmp_path / "f.safetensors", dataset_hash="d1",
-                                       config=CONFIG, progress=False))
+    features = load_features(
+        featurize(examples, backbone, tmp_path / "f.safetensors", dataset_hash="d1", config=CONFIG, progress=False)
+    )
     assert features.visual.shape == (5, 6, 16) and features.text.shape == (5, 2, 16)
     assert features.scene_ids == tuple(e.scene_id for e in examples)
     assert features.phrases[0] == ("table", "blue mug")
@@ -79,9 +88,10 @@ def test_layout_matches_the_backbone(tmp_path, backbone):
         np.testing.assert_array_equal(features.text_mask[row], np.arange(2) < num_texts)
         np.testing.assert_array_equal(features.targets[row, :num_texts], example.targets)
         np.testing.assert_allclose(features.visual[row, :n], backbone.encode_images(example.crops), atol=1e-5)
-        np.testing.assert_allclose(features.visual[row, n], backbone.encode_images(example.workspace[None])[0],
-                                   atol=1e-5)
-        assert np.all(features.visual[row, n + 1:] == 0)
+        np.testing.assert_allclose(
+            features.visual[row, n], backbone.encode_images(example.workspace[None])[0], atol=1e-5
+        )
+        assert np.all(features.visual[row, n + 1 :] == 0)
         texts = [prompt.text_for(t) for t in example.texts]
         np.testing.assert_allclose(features.text[row, :num_texts], backbone.encode_texts(texts), atol=1e-5)
     assert features.info.backbone_fingerprint == backbone.fingerprint and features.info.dataset_hash == "d1"
@@ -89,8 +99,9 @@ def test_layout_matches_the_backbone(tmp_path, backbone):
 
 
 def test_second_run_is_a_no_op(tmp_path, backbone):
-    out = featurize(make_examples(), backbone, tmp_path / "f.safetensors", dataset_hash="d1", config=CONFIG,
-                    progress=False)
+    out = featurize(
+        make_examples(), backbone, tmp_path / "f.safetensors", dataset_hash="d1", config=CONFIG, progress=False
+    )
     before = out.stat().st_mtime_ns
     assert featurize(crashing_after([], 0), backbone, out, dataset_hash="d1", config=CONFIG, progress=False) == out
     assert out.stat().st_mtime_ns == before
@@ -108,8 +119,9 @@ def test_resumes_after_a_crash_without_redoing_chunks(tmp_path, backbone):
     featurize(examples, counting, out, dataset_hash="d1", config=CONFIG, progress=False)
     assert counting.images - done == sum(len(e.crops) + 1 for e in examples[2:])
     assert not list(tmp_path.glob(".f.safetensors.parts-*"))
-    uninterrupted = featurize(examples, backbone, tmp_path / "g.safetensors", dataset_hash="d1", config=CONFIG,
-                              progress=False)
+    uninterrupted = featurize(
+        examples, backbone, tmp_path / "g.safetensors", dataset_hash="d1", config=CONFIG, progress=False
+    )
     resumed, whole = load_features(out), load_features(uninterrupted)
     for name in ("visual", "visual_mask", "text", "text_mask", "targets"):
         np.testing.assert_array_equal(getattr(resumed, name), getattr(whole, name))
@@ -131,9 +143,11 @@ def test_a_new_backbone_or_dataset_invalidates_the_cache(tmp_path, backbone, oth
 
 def test_bad_examples_are_named(tmp_path, backbone):
     good = make_examples(1)[0]
-    bad = [SceneExample("train-00007", good.crops, good.workspace, ("red bowl",), np.array([9], np.int32)),
-           SceneExample("train-00008", good.crops.astype(np.float32), good.workspace, ("x",), np.array([0], np.int32)),
-           SceneExample("train-00009", good.crops, good.workspace, ("a", "b", "c"), np.zeros(3, np.int32))]
+    bad = [
+        SceneExample("train-00007", good.crops, good.workspace, ("red bowl",), np.array([9], np.int32)),
+        SceneExample("train-00008", good.crops.astype(np.float32), good.workspace, ("x",), np.array([0], np.int32)),
+        SceneExample("train-00009", good.crops, good.workspace, ("a", "b", "c"), np.zeros(3, np.int32)),
+    ]
     for example in bad:
         with pytest.raises(FeaturesError, match=example.scene_id):
             featurize([example], backbone, tmp_path / "f.safetensors", dataset_hash="d", progress=False)
@@ -149,8 +163,11 @@ def test_unreadable_files_are_reported(tmp_path):
 
 
 def test_save_and_load_round_trip(tmp_path, backbone):
-    features = load_features(featurize(make_examples(), backbone, tmp_path / "f.safetensors", dataset_hash="d1",
-                                       config=CONFIG, progress=False))
+    features = load_features(
+        featurize(
+            make_examples(), backbone, tmp_path / "f.safetensors", dataset_hash="d1", config=CONFIG, progress=False
+        )
+    )
     subset = features.subset([4, 1])
     again = load_features(save_features(subset, tmp_path / "subset.safetensors"))
     assert again.scene_ids == ("train-00004", "train-00001") and again.info == features.info

@@ -26,16 +26,26 @@ def test_grounding_notebook_executes(tmp_path, library, monkeypatch):
     dataset, features_path, run = tmp_path / "dataset", tmp_path / "seen.safetensors", tmp_path / "run"
     generate_dataset(dataset, dataset_smoke_config(), splits=["seen"], progress=False)
     backbone = load_clip_backbone(str(build_tiny_clip(tmp_path / "clip")), max_batch=8)
-    featurize(iter_examples(dataset, "seen"), backbone, features_path, dataset_hash=dataset_hash(dataset, "seen"),
-              progress=False)
+    featurize(
+        iter_examples(dataset, "seen"),
+        backbone,
+        features_path,
+        dataset_hash=dataset_hash(dataset, "seen"),
+        progress=False,
+    )
     train(load_features(features_path), run, dataclasses.replace(smoke_config(), steps=100), progress=False)
 
-    for name, value in {"OCPLACE_DATASET": dataset, "OCPLACE_SPLIT": "seen", "OCPLACE_FEATURES": features_path,
-                        "OCPLACE_RUN": run}.items():
+    for name, value in {
+        "OCPLACE_DATASET": dataset,
+        "OCPLACE_SPLIT": "seen",
+        "OCPLACE_FEATURES": features_path,
+        "OCPLACE_RUN": run,
+    }.items():
         monkeypatch.setenv(name, str(value))
     notebook = nbformat.read(NOTEBOOK, as_version=4)
-    NotebookClient(notebook, timeout=600, kernel_name="python3",
-                   resources={"metadata": {"path": str(tmp_path)}}).execute()
+    NotebookClient(
+        notebook, timeout=600, kernel_name="python3", resources={"metadata": {"path": str(tmp_path)}}
+    ).execute()
     outputs = [output for cell in notebook.cells if cell.cell_type == "code" for output in cell.outputs]
     assert not [o for o in outputs if o.output_type == "error"]
     text = "".join(o.get("text", "") for o in outputs if o.output_type == "stream")

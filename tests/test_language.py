@@ -48,14 +48,17 @@ def test_seen_rendering_is_the_template(tuples, expected):
     assert language.render_instruction(tuples, "seen", np.random.default_rng(0)) == expected
 
 
+def _alternatives(options) -> str:
+    return "|".join(re.escape(o) for o in options)
+
+
 def _unseen_pattern(count: int) -> re.Pattern:
-    alternatives = lambda options: "|".join(re.escape(o) for o in options)
     expressions = [e for group in language.UNSEEN_RELATION_EXPRESSIONS.values() for e in group]
-    relation = f"(?P<rel{{i}}>{alternatives(expressions)}) the (?P<ref{{i}}>[a-z' ]+?)"
+    relation = f"(?P<rel{{i}}>{_alternatives(expressions)}) the (?P<ref{{i}}>[a-z' ]+?)"
     body = " and ".join(relation.format(i=i) for i in range(count))
     return re.compile(
-        f"^(?:{alternatives(language.UNSEEN_PREFIXES[1:])})?(?:{alternatives(language.UNSEEN_VERBS)}) "
-        f"(?:{alternatives(language.UNSEEN_PRONOUNS)}) {body}\\.$"
+        f"^(?:{_alternatives(language.UNSEEN_PREFIXES[1:])})?(?:{_alternatives(language.UNSEEN_VERBS)}) "
+        f"(?:{_alternatives(language.UNSEEN_PRONOUNS)}) {body}\\.$"
     )
 
 
@@ -65,10 +68,7 @@ def test_unseen_instructions_match_their_template_and_tuples():
     for _ in range(300):
         count = int(rng.integers(1, 3))
         picked = rng.choice(len(names), size=count, replace=False)
-        tuples = [
-            ReferenceTuple(names[i], relations.OBJECT_RELATION_NAMES[rng.integers(8)], False)
-            for i in picked
-        ]
+        tuples = [ReferenceTuple(names[i], relations.OBJECT_RELATION_NAMES[rng.integers(8)], False) for i in picked]
         if count == 1 and rng.random() < 0.5:
             tuples = [ReferenceTuple("table", relations.RELATION_NAMES[rng.integers(9)], True)]
         instruction = language.render_instruction(tuples, "unseen", rng)
@@ -93,8 +93,7 @@ def test_invalid_tuples_and_styles_are_rejected():
     with pytest.raises(KeyError, match="canonical relations"):
         ReferenceTuple("red bowl", "under", False)
     with pytest.raises(ValueError, match="style"):
-        language.render_instruction((ReferenceTuple("table", "left", True),), "poetic",
-                                    np.random.default_rng(0))
+        language.render_instruction((ReferenceTuple("table", "left", True),), "poetic", np.random.default_rng(0))
     with pytest.raises(ValueError, match="1 or 2"):
         language.render_instruction((), "seen", np.random.default_rng(0))
 
@@ -111,14 +110,20 @@ def test_unseen_instruction_count_matches_enumeration():
     names = ["red bowl", "blue mug", "rubber duck"]
     leads = [
         f"{p}{v} {n}"
-        for p, v, n in itertools.product(
-            language.UNSEEN_PREFIXES, language.UNSEEN_VERBS, language.UNSEEN_PRONOUNS
-        )
+        for p, v, n in itertools.product(language.UNSEEN_PREFIXES, language.UNSEEN_VERBS, language.UNSEEN_PRONOUNS)
     ]
-    table = {f"{lead} {e} the table." for lead in leads
-             for r in relations.RELATION_NAMES for e in language.unseen_expressions(r, True)}
-    object_phrases = [f"{e} the {name}" for name in names for r in relations.OBJECT_RELATION_NAMES
-                      for e in language.unseen_expressions(r, False)]
+    table = {
+        f"{lead} {e} the table."
+        for lead in leads
+        for r in relations.RELATION_NAMES
+        for e in language.unseen_expressions(r, True)
+    }
+    object_phrases = [
+        f"{e} the {name}"
+        for name in names
+        for r in relations.OBJECT_RELATION_NAMES
+        for e in language.unseen_expressions(r, False)
+    ]
     one = {f"{lead} {phrase}." for lead in leads for phrase in object_phrases}
     two = {
         f"{lead} {a} and {b}."

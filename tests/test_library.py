@@ -13,8 +13,7 @@ import trimesh
 from PIL import Image
 
 from ocplace.errors import MissingAssetPackage, UnknownObject
-from ocplace.sim.library import build_library, load_library, smoke_config
-from ocplace.sim.library import sources
+from ocplace.sim.library import build_library, smoke_config, sources
 
 FAST = dataclasses.replace(smoke_config(), objects=("butter", "cookies"), workers=1)
 
@@ -127,8 +126,13 @@ def test_a_missing_package_names_what_to_install(monkeypatch):
 
 def test_assets_list_command(built):
     cache, _, _ = built
-    result = subprocess.run([sys.executable, "-m", "ocplace.cli", "assets", "list"], capture_output=True,
-                            text=True, timeout=120, env={**__import__("os").environ, "OCPLACE_CACHE": str(cache)})
+    result = subprocess.run(
+        [sys.executable, "-m", "ocplace.cli", "assets", "list"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env={**__import__("os").environ, "OCPLACE_CACHE": str(cache)},
+    )
     assert result.returncode == 0, result.stderr
     assert "butter box" in result.stdout and "FAILED" in result.stdout
 

@@ -55,10 +55,8 @@ FAULTS = {
     "drip body": lambda h: _drip(h, b"HTTP/1.0 200 OK\r\nContent-Length: 100000\r\n\r\n{"),
     "drip headers": lambda h: _drip(h, b"HTTP/1.0 200 OK\r\nX-Slow: "),
     "oversized": lambda h: _send(h, 200, _completion("x" * ONE_MB)),
-    "oversized, no length": lambda h: _send(h, 200, _completion("x" * ONE_MB),
-                                            announce_length=False),
-    "busy": lambda h: _send(h, h.server.options["status"], b"busy",
-                            [("Retry-After", h.server.options["retry_after"])]),
+    "oversized, no length": lambda h: _send(h, 200, _completion("x" * ONE_MB), announce_length=False),
+    "busy": lambda h: _send(h, h.server.options["status"], b"busy", [("Retry-After", h.server.options["retry_after"])]),
     "redirect": lambda h: _send(h, 302, b"", [("Location", h.server.options["location"])]),
     "echo in error": lambda h: _send(h, 500, _echo(h).encode(), message=h.headers["Authorization"]),
     "echo as body": lambda h: _send(h, 200, _echo(h).encode()),
@@ -125,10 +123,8 @@ def llm(offline):
     """`llm(server, sleep=..., **config)`: an LLM parser for `server`, small limits by default."""
 
     def build(server, sleep=time.sleep, **changes):
-        config = LLMConfig(base_url=url(server), model="canned", timeout_s=1.0,
-                           deadline_s=DEADLINE_S, backoff_s=0.01)
-        return LLMParser(dataclasses.replace(config, **changes), offline,
-                         lambda: offline.snapper, sleep=sleep)
+        config = LLMConfig(base_url=url(server), model="canned", timeout_s=1.0, deadline_s=DEADLINE_S, backoff_s=0.01)
+        return LLMParser(dataclasses.replace(config, **changes), offline, lambda: offline.snapper, sleep=sleep)
 
     return build
 
@@ -138,8 +134,7 @@ def llm(offline):
 
 @pytest.mark.parametrize("fault", ["drip body", "drip headers"])
 @pytest.mark.parametrize("timeout_s, max_attempts", [(10.0, 3), (0.5, 10)])
-def test_a_dripping_endpoint_falls_back_within_the_deadline(serve, llm, fault, timeout_s,
-                                                            max_attempts):
+def test_a_dripping_endpoint_falls_back_within_the_deadline(serve, llm, fault, timeout_s, max_attempts):
     server = serve(fault)
     parser = llm(server, timeout_s=timeout_s, max_attempts=max_attempts, backoff_s=0.05)
     start = time.monotonic()
@@ -202,10 +197,8 @@ def test_a_redirect_is_not_followed(serve, llm):
 # --- the API key never leaves -----------------------------------------------------------------
 
 
-@pytest.mark.parametrize("fault", ["echo in error", "echo as body", "echo as answer",
-                                   "echo as status line"])
-def test_an_echoing_endpoint_never_puts_the_api_key_in_reasons_or_logs(serve, llm, caplog,
-                                                                       fault):
+@pytest.mark.parametrize("fault", ["echo in error", "echo as body", "echo as answer", "echo as status line"])
+def test_an_echoing_endpoint_never_puts_the_api_key_in_reasons_or_logs(serve, llm, caplog, fault):
     server = serve(fault)
     with caplog.at_level(logging.DEBUG):
         (item,) = llm(server).parse(INSTRUCTION)
@@ -220,8 +213,7 @@ def test_an_echoing_endpoint_never_puts_the_api_key_in_reasons_or_logs(serve, ll
 
 def test_the_cache_key_includes_the_base_url(serve, llm):
     left = serve("answer")
-    right = serve("answer", answer=json.dumps({"tuples": [{"reference": "red bowl",
-                                                           "relation": "right"}]}))
+    right = serve("answer", answer=json.dumps({"tuples": [{"reference": "red bowl", "relation": "right"}]}))
     assert as_pairs(llm(left).parse(INSTRUCTION)) == [("red bowl", "left")]
     assert as_pairs(llm(right).parse(INSTRUCTION)) == [("red bowl", "right")]
     assert as_pairs(llm(left).parse(INSTRUCTION)) == [("red bowl", "left")]
@@ -266,9 +258,15 @@ def test_a_reference_is_a_phrase_of_the_instruction(serve, llm, instruction, ref
 
 
 def _bad_urls(port: int) -> list[str]:
-    return [f"localhost:{port}/v1", f"ftp://127.0.0.1:{port}/v1", "file:///etc/passwd", "http://",
-            f"http://127.0.0.1:{port}/v1?x=1", f"http://user:pw@127.0.0.1:{port}/v1",
-            f"http://127.0.0.1:{port}:x/v1"]
+    return [
+        f"localhost:{port}/v1",
+        f"ftp://127.0.0.1:{port}/v1",
+        "file:///etc/passwd",
+        "http://",
+        f"http://127.0.0.1:{port}/v1?x=1",
+        f"http://user:pw@127.0.0.1:{port}/v1",
+        f"http://127.0.0.1:{port}:x/v1",
+    ]
 
 
 def test_only_http_urls_are_accepted_and_nothing_is_sent(serve, capsys):

@@ -87,7 +87,6 @@ def test_object_relation_cone_is_45_degrees_inclusive(name):
         assert not holds(beyond, problem)[0]
 
 
-
 def test_just_outside_a_cone_fails():
     right = encode_problem([GroundedTuple("right", CENTRED)], [], SMALL)
     assert holds([0.15, 0.15], right)[0] and not holds([0.15, up(0.15)], right)[0]

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from ocplace.errors import BackboneError, BackboneUnavailable, TrainingError
-from ocplace.models.backbone import Backbone, PromptConfig, load_backbone
 from ocplace.models import offline_backbone as ob
+from ocplace.models.backbone import Backbone, PromptConfig, load_backbone
 from ocplace.models.offline_backbone import (
     FINGERPRINT_FILE,
     WEIGHTS_FILE,
@@ -22,6 +22,8 @@ from ocplace.models.offline_backbone import (
     init_params,
     load_saved_backbone,
     minilm_digest,
+)
+from ocplace.models.offline_backbone import (
     smoke_config as smoke_model,
 )
 from ocplace.train.pretrain.captions import ObjectDescription, build_caption_bank
@@ -37,7 +39,8 @@ def _bowl(name, colour):
 def _leaves_equal(a, b) -> bool:
     pairs = zip(jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b), strict=True)
     return jax.tree_util.tree_structure(a) == jax.tree_util.tree_structure(b) and all(
-        np.asarray(x).dtype == np.asarray(y).dtype and np.array_equal(x, y) for x, y in pairs)
+        np.asarray(x).dtype == np.asarray(y).dtype and np.array_equal(x, y) for x, y in pairs
+    )
 
 
 # ----------------------------------------------------------------------------- captions and loss
@@ -157,7 +160,9 @@ def test_saved_backbone_reloads_bit_identically(smoke_run):
     loaded = load_saved_backbone(result.directory)
     assert isinstance(loaded, Backbone)
     assert _leaves_equal(loaded.params, result.backbone.params)
-    assert loaded.fingerprint == result.backbone.fingerprint == (result.directory / FINGERPRINT_FILE).read_text().strip()
+    assert (
+        loaded.fingerprint == result.backbone.fingerprint == (result.directory / FINGERPRINT_FILE).read_text().strip()
+    )
     images = np.random.default_rng(0).integers(0, 256, size=(3, 57, 41, 3), dtype=np.uint8)
     texts = ["a photo of a red bowl.", "a photo of a table.", "ketchup"]
     assert np.array_equal(loaded.encode_images(images), result.backbone.encode_images(images))
@@ -319,8 +324,9 @@ def test_backbone_path_command_prints_the_recipe_directory(tmp_path, monkeypatch
 
 def test_a_vit_trunk_still_builds_encodes_and_round_trips(tmp_path):
     """The first offline backbone's ViT trunk (`vit_config`) still builds, encodes, saves and loads."""
-    vit = dataclasses.replace(ob.vit_config(), image_size=32, patch_size=8, width=32, layers=1, heads=2, mlp_dim=64,
-                              embed_dim=16)
+    vit = dataclasses.replace(
+        ob.vit_config(), image_size=32, patch_size=8, width=32, layers=1, heads=2, mlp_dim=64, embed_dim=16
+    )
     params = init_params(vit, jax.random.key(0))
     assert params["visual_projection"].shape == (32, 16)
     assert all(jax.tree_util.tree_leaves(ob.trainable_mask(vit, params)))
@@ -328,8 +334,10 @@ def test_a_vit_trunk_still_builds_encodes_and_round_trips(tmp_path):
     features = backbone.encode_images(np.random.default_rng(0).integers(0, 256, (3, 40, 50, 3), dtype=np.uint8))
     assert features.shape == (3, 16) and np.allclose(np.linalg.norm(features, axis=1), 1.0, atol=1e-5)
     loaded = load_saved_backbone(backbone.save(tmp_path / "vit"))
-    assert loaded.config == vit and np.array_equal(loaded.encode_images(np.zeros((1, 32, 32, 3), np.uint8)),
-                                                   backbone.encode_images(np.zeros((1, 32, 32, 3), np.uint8)))
+    assert loaded.config == vit and np.array_equal(
+        loaded.encode_images(np.zeros((1, 32, 32, 3), np.uint8)),
+        backbone.encode_images(np.zeros((1, 32, 32, 3), np.uint8)),
+    )
 
 
 def test_the_vit_depth_does_not_change_an_efficientnet_recipe_key():

@@ -31,9 +31,16 @@ def trained_run(smoke_dataset, tiny_backbone_spec, tmp_path_factory):
     cache = tmp_path_factory.mktemp("ours_cache")
     with pytest.MonkeyPatch.context() as patch:
         patch.setenv("OCPLACE_CACHE", str(cache))
-        run = method_specs()["ours"].train(TrainContext(smoke_dataset, tiny_backbone_spec,
-                                                        tmp_path_factory.mktemp("ours") / "run", scale="smoke",
-                                                        fraction=0.5, seed=3))
+        run = method_specs()["ours"].train(
+            TrainContext(
+                smoke_dataset,
+                tiny_backbone_spec,
+                tmp_path_factory.mktemp("ours") / "run",
+                scale="smoke",
+                fraction=0.5,
+                seed=3,
+            )
+        )
         features = sorted((cache / "features").glob("*.safetensors"))
     return run, features
 
@@ -108,7 +115,8 @@ def test_pipeline_draws_ours_on_the_first_seen_scene(trained_run, smoke_dataset,
     from ocplace.eval import pipeline
 
     path = tmp_path / "placement.png"
-    detail = pipeline.placement_figure_step(trained_run[0], pipeline.smoke_config(), smoke_dataset,
-                                            tiny_backbone_spec, path)
+    detail = pipeline.placement_figure_step(
+        trained_run[0], pipeline.smoke_config(), smoke_dataset, tiny_backbone_spec, path
+    )
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert detail.startswith(f"{path} (seen-00000, ")

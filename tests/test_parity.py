@@ -22,7 +22,11 @@ def test_engines_agree_on_three_scenes(library):
 
 def test_parity_command_reports_and_passes(tmp_path):
     out = tmp_path / "parity.json"
-    result = subprocess.run([sys.executable, "-m", "ocplace.cli", "parity", "--scenes", "2", "--out", str(out)],
-                            capture_output=True, text=True, timeout=600)
+    result = subprocess.run(
+        [sys.executable, "-m", "ocplace.cli", "parity", "--scenes", "2", "--out", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert result.returncode == 0, result.stdout + result.stderr
     assert "PASS" in result.stdout and out.exists()

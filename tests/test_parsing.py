@@ -53,8 +53,7 @@ def test_generated_instructions_meet_the_accuracy_target(offline, style):
 
 
 def test_every_unseen_vocabulary_combination_parses(offline):
-    leads = itertools.product(language.UNSEEN_PREFIXES, language.UNSEEN_VERBS,
-                              language.UNSEEN_PRONOUNS)
+    leads = itertools.product(language.UNSEEN_PREFIXES, language.UNSEEN_VERBS, language.UNSEEN_PRONOUNS)
     for prefix, verb, pronoun in leads:
         for relation in relations.RELATION_NAMES:
             for is_table, name in ((True, "table"), (False, "black shoe with green stripes")):
@@ -67,8 +66,9 @@ def test_freeform_set_is_large_varied_and_parsed(offline):
     cases = evaluation.freeform_cases()
     assert len(cases) >= 200
     assert sum(len(c.expected) >= 3 for c in cases) >= 8
-    assert {"dev", "test", "blind"} == {json.loads(line)["split"] for line in
-                               evaluation.FREEFORM_PATH.read_text().splitlines()}
+    assert {"dev", "test", "blind"} == {
+        json.loads(line)["split"] for line in evaluation.FREEFORM_PATH.read_text().splitlines()
+    }
     for case in cases:
         assert all(r in relations.RELATION_NAMES for _, r in case.expected)
     report = evaluation.evaluate(offline, cases, "freeform")
@@ -79,8 +79,10 @@ def test_freeform_set_is_large_varied_and_parsed(offline):
     "instruction, expected",
     [
         ("Next to the cup, on its left side, put it.", [("cup", "left")]),
-        ("put it to the left of the black shoe with orange and black stripes",
-         [("black shoe with orange and black stripes", "left")]),
+        (
+            "put it to the left of the black shoe with orange and black stripes",
+            [("black shoe with orange and black stripes", "left")],
+        ),
         ("Place this in front of the can of alphabet soup.", [("can of alphabet soup", "front")]),
         ("put it on the duck's left and the mug's right", [("duck", "left"), ("mug", "right")]),
         ("put it behind and to the left of the tape roll", [("tape roll", "back left")]),
@@ -92,9 +94,10 @@ def test_freeform_set_is_large_varied_and_parsed(offline):
         ("put it right behind the black shoe", [("black shoe", "back")]),
         ("put it closer to me than the bowl", [("bowl", "front")]),
         ("slide it over to the right of the rubik's cube", [("rubik's cube", "right")]),
-        ("put it to the left of the plum, to the right of the peach, behind the orange, "
-         "and in front of the lemon",
-         [("lemon", "front"), ("orange", "back"), ("peach", "right"), ("plum", "left")]),
+        (
+            "put it to the left of the plum, to the right of the peach, behind the orange, and in front of the lemon",
+            [("lemon", "front"), ("orange", "back"), ("peach", "right"), ("plum", "left")],
+        ),
     ],
 )
 def test_offline_parser_reads_free_form_structure(offline, instruction, expected):
@@ -103,8 +106,7 @@ def test_offline_parser_reads_free_form_structure(offline, instruction, expected
 
 def test_parsed_tuples_carry_phrase_and_provenance(offline):
     (item,) = offline.parse("Put it on the left-hand side of the Red Bowl, please")
-    assert (item.reference, item.relation, item.provenance, item.similarity) == (
-        "red bowl", "left", "direct", None)
+    assert (item.reference, item.relation, item.provenance, item.similarity) == ("red bowl", "left", "direct", None)
     assert item.relation_phrase == "on the left-hand side of"
     assert not item.is_table and item.parser == "offline"
 
@@ -183,7 +185,7 @@ def _check_parse(parser, instruction):
     except ParseError as error:
         assert str(error)
         return
-    assert 1 <= len(tuples)
+    assert len(tuples) >= 1
     for item in tuples:
         assert item.relation in relations.RELATION_NAMES and item.reference
         assert item.is_table or relations.relation(item.relation).applies_to_objects
@@ -258,8 +260,13 @@ def llm(server, offline, tmp_path, monkeypatch):
     monkeypatch.setenv("OCPLACE_CACHE", str(tmp_path))
     monkeypatch.setenv("OCPLACE_LLM_API_KEY", "test-key")
     sleeps = []
-    config = LLMConfig(base_url=f"http://127.0.0.1:{server.server_port}/v1", model="canned",
-                       timeout_s=0.5, max_attempts=3, backoff_s=0.01)
+    config = LLMConfig(
+        base_url=f"http://127.0.0.1:{server.server_port}/v1",
+        model="canned",
+        timeout_s=0.5,
+        max_attempts=3,
+        backoff_s=0.01,
+    )
     parser = LLMParser(config, offline, lambda: offline.snapper, sleep=sleeps.append)
     parser.sleeps = sleeps
     return parser
@@ -270,8 +277,7 @@ INSTRUCTION = "could you put it on the left of the red bowl"
 
 def test_llm_parses_and_sends_a_seen_only_few_shot_prompt(llm, server):
     (item,) = llm.parse(INSTRUCTION)
-    assert (item.reference, item.relation, item.parser, item.fallback_reason) == (
-        "red bowl", "left", "llm", None)
+    assert (item.reference, item.relation, item.parser, item.fallback_reason) == ("red bowl", "left", "llm", None)
     headers, body = server.requests[0]
     assert headers["Authorization"] == "Bearer test-key"
     assert body["model"] == "canned" and body["temperature"] == 0.0
@@ -341,8 +347,7 @@ def test_llm_unreachable_endpoint_falls_back(llm):
     ],
 )
 @pytest.mark.parametrize("temperature, requests", [(0.0, 1), (0.7, 3)])
-def test_llm_invalid_answers_fall_back_retried_only_above_temperature_0(
-        llm, server, answer, temperature, requests):
+def test_llm_invalid_answers_fall_back_retried_only_above_temperature_0(llm, server, answer, temperature, requests):
     llm.config = dataclasses.replace(llm.config, temperature=temperature)
     server.default = ("content", answer)
     (item,) = llm.parse(INSTRUCTION)
@@ -352,8 +357,10 @@ def test_llm_invalid_answers_fall_back_retried_only_above_temperature_0(
 
 
 def test_llm_off_list_relation_is_snapped(llm, server):
-    server.default = ("content", "```json\n" + json.dumps(
-        {"tuples": [{"reference": "the red bowl", "relation": "to the left of"}]}) + "\n```")
+    server.default = (
+        "content",
+        "```json\n" + json.dumps({"tuples": [{"reference": "the red bowl", "relation": "to the left of"}]}) + "\n```",
+    )
     (item,) = llm.parse(INSTRUCTION)
     assert (item.reference, item.relation, item.provenance) == ("red bowl", "left", "snapped")
 
@@ -375,8 +382,9 @@ def test_prompt_examples_are_seen_templates():
     messages = prompt_messages("put it somewhere")
     users = [m["content"] for m in messages[1:-1] if m["role"] == "user"]
     assert all(u.startswith("put it ") for u in users)
-    assert {json.loads(m["content"])["tuples"][0]["relation"]
-            for m in messages if m["role"] == "assistant"} == set(relations.RELATION_NAMES)
+    assert {json.loads(m["content"])["tuples"][0]["relation"] for m in messages if m["role"] == "assistant"} == set(
+        relations.RELATION_NAMES
+    )
 
 
 @pytest.fixture(scope="module")

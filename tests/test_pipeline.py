@@ -9,11 +9,11 @@ import dataclasses
 import json
 from pathlib import Path
 
+import eval_methods
 import pytest
 
-import eval_methods
-from ocplace.eval import figures, pipeline, registry, results
 from ocplace.errors import OcplaceError
+from ocplace.eval import figures, pipeline, registry, results
 
 LOCAL = ("oracle", "centre", "failing")
 PNG = b"\x89PNG\r\n\x1a\n"
@@ -27,9 +27,15 @@ def specs():
 
 @pytest.fixture(scope="module")
 def config(smoke_dataset, tiny_backbone_spec):
-    return dataclasses.replace(pipeline.smoke_config(), dataset=smoke_dataset, backbone=tiny_backbone_spec,
-                               fractions=(0.5, 1.0), fraction_methods=("oracle",), physical_scenes=1,
-                               progress=False)
+    return dataclasses.replace(
+        pipeline.smoke_config(),
+        dataset=smoke_dataset,
+        backbone=tiny_backbone_spec,
+        fractions=(0.5, 1.0),
+        fraction_methods=("oracle",),
+        physical_scenes=1,
+        progress=False,
+    )
 
 
 @pytest.fixture(scope="module")
@@ -65,14 +71,13 @@ def test_smoke_pipeline_trains_and_evaluates_every_method(first_run, specs):
 
 
 def test_smoke_pipeline_resumes_without_redoing_work(first_run, config, specs, library, arena):
-    again = pipeline.run_pipeline(config, first_run.out, specs=specs, library=library, arena=arena,
-                                  command=["pytest"])
+    again = pipeline.run_pipeline(config, first_run.out, specs=specs, library=library, arena=arena, command=["pytest"])
     assert again.errors == []
     assert all(step.detail.startswith("stored") for step in again.steps if step.name.startswith("evaluate"))
-    assert all(step.detail.startswith(("done before", "nothing")) for step in again.steps
-               if step.name.startswith("train"))
-    assert results.compare(results.read_results(first_run.results_path),
-                           results.read_results(again.results_path)) == []
+    assert all(
+        step.detail.startswith(("done before", "nothing")) for step in again.steps if step.name.startswith("train")
+    )
+    assert results.compare(results.read_results(first_run.results_path), results.read_results(again.results_path)) == []
 
 
 def test_summary_keeps_every_table_and_counts_the_scenes(first_run):
@@ -88,8 +93,10 @@ def test_summary_keeps_every_table_and_counts_the_scenes(first_run):
             assert kept["subsets"][subset]["omitted_scenes"] == len(body["scenes"])
             assert kept["subsets"][subset]["failed_scenes"] == sum(s["failure"] is not None for s in body["scenes"])
     failing = next(e for e in summary["evaluations"] if e["method"] == "failing")
-    assert f"- {failing['label']} (failing): {8 * len(pipeline.SUBSETS)} scenes (listed in the full results JSON)" in \
-        table.failure_list(summary)
+    assert (
+        f"- {failing['label']} (failing): {8 * len(pipeline.SUBSETS)} scenes (listed in the full results JSON)"
+        in table.failure_list(summary)
+    )
     assert len(first_run.results_path.read_bytes()) > 2 * len((first_run.out / pipeline.SUMMARY_FILE).read_bytes())
     with pytest.raises(OcplaceError, match="summary without per-scene outcomes"):
         results.rerun(summary)
@@ -98,8 +105,12 @@ def test_summary_keeps_every_table_and_counts_the_scenes(first_run):
 def test_fig6_cases_prefer_scenes_where_the_methods_disagree(first_run, tmp_path):
     saved = results.read_results(first_run.results_path)
     cases = figures.choose_cases(saved, methods=("oracle", "centre"))
-    outcomes = {(e["method"], s): {o["id"]: o for o in e["subsets"][s]["scenes"]}
-                for e in saved["evaluations"] if e["fraction"] == 1.0 for s in pipeline.SUBSETS}
+    outcomes = {
+        (e["method"], s): {o["id"]: o for o in e["subsets"][s]["scenes"]}
+        for e in saved["evaluations"]
+        if e["fraction"] == 1.0
+        for s in pipeline.SUBSETS
+    }
     for subset in pipeline.SUBSETS:
         oracle, centre = outcomes["oracle", subset], outcomes["centre", subset]
         chosen = [scene_id for s, scene_id in cases if s == subset]
@@ -128,15 +139,15 @@ def test_figures_command_writes_what_the_results_allow(first_run, tmp_path, caps
 
 
 @pytest.mark.parametrize("file_name, images_expected", [("results.json", 4), (pipeline.SUMMARY_FILE, 3)])
-def test_results_notebook_executes_on_the_smoke_results(first_run, tmp_path, monkeypatch, file_name,
-                                                        images_expected):
+def test_results_notebook_executes_on_the_smoke_results(first_run, tmp_path, monkeypatch, file_name, images_expected):
     import nbformat
     from nbclient import NotebookClient
 
     notebook = nbformat.read(NOTEBOOK, as_version=4)
     monkeypatch.setenv("OCPLACE_RESULTS", str(first_run.out / file_name))
-    NotebookClient(notebook, timeout=600, kernel_name="python3",
-                   resources={"metadata": {"path": str(tmp_path)}}).execute()
+    NotebookClient(
+        notebook, timeout=600, kernel_name="python3", resources={"metadata": {"path": str(tmp_path)}}
+    ).execute()
     outputs = [output for cell in notebook.cells if cell.cell_type == "code" for output in cell.outputs]
     assert not [o for o in outputs if o.output_type == "error"]
     text = "".join(o.get("text", "") for o in outputs if o.output_type == "stream")
@@ -157,8 +168,13 @@ def test_scale_configs():
     assert [s.name for s in pipeline.selected_specs(demo, specs)] == ["ours", "no_adapter", "no_llm", "no_pretrain"]
     assert [s.name for s in pipeline.selected_specs(default, specs)] == list(specs)
     runs = pipeline.planned_runs(default, list(eval_methods.SPECS.values()))
-    assert [(s.name, f) for s, f in runs] == [("oracle", 1.0), ("centre", 1.0), ("failing", 1.0), ("flaky", 1.0),
-                                               ("random", 1.0)]
+    assert [(s.name, f) for s, f in runs] == [
+        ("oracle", 1.0),
+        ("centre", 1.0),
+        ("failing", 1.0),
+        ("flaky", 1.0),
+        ("random", 1.0),
+    ]
     ours_like = dataclasses.replace(eval_methods.SPECS["oracle"], name="ours")
     assert [f for _, f in pipeline.planned_runs(default, [ours_like])] == [0.25, 0.5, 0.75, 1.0]
 
@@ -183,8 +199,9 @@ def test_reproduce_smoke_from_nothing_with_every_registered_method(tmp_path, cap
 def test_reproduce_options_reach_the_config(tmp_path):
     from ocplace.cli import build_parser
 
-    args = build_parser().parse_args(["reproduce", "--scale", "default", "--dataset", str(tmp_path),
-                                      "--fractions", "1", "0.5", "1"])
+    args = build_parser().parse_args(
+        ["reproduce", "--scale", "default", "--dataset", str(tmp_path), "--fractions", "1", "0.5", "1"]
+    )
     assert args.dataset == tmp_path and args.fractions == [1.0, 0.5, 1.0]
     with pytest.raises(SystemExit):
         build_parser().parse_args(["reproduce", "--fractions", "0"])

@@ -116,8 +116,9 @@ def test_composition_is_the_renormalised_average_of_single_tuple_densities(tuple
     np.testing.assert_allclose(result.heatmap[0], expected, rtol=2e-4, atol=1e-6 * expected.max())
     for k, single in enumerate(singles):  # each tuple alone: its density, restricted and renormalised
         alone = np.where(metric.feasible_grid(encode([tuples[k]]), GRID), single, 0.0)
-        np.testing.assert_allclose(result.heatmap[k + 1], alone / (alone.sum() * GRID.cell_area), rtol=2e-4,
-                                   atol=1e-6 * alone.max())
+        np.testing.assert_allclose(
+            result.heatmap[k + 1], alone / (alone.sum() * GRID.cell_area), rtol=2e-4, atol=1e-6 * alone.max()
+        )
 
 
 def test_same_key_same_result_and_another_key_other_samples():
@@ -133,8 +134,14 @@ def test_same_key_same_result_and_another_key_other_samples():
 
 def test_padded_tuples_change_nothing():
     two = encode([GroundedTuple("left", BOX_B), GroundedTuple("front", BOX_A)])
-    four = encode([GroundedTuple("left", BOX_B), GroundedTuple("front", BOX_A), GroundedTuple("left"),
-                   GroundedTuple("back right", BOX_A)])
+    four = encode(
+        [
+            GroundedTuple("left", BOX_B),
+            GroundedTuple("front", BOX_A),
+            GroundedTuple("left"),
+            GroundedTuple("back right", BOX_A),
+        ]
+    )
     alone, _ = run([two, two], seed=9)  # the loop stops after 2 tuples
     mixed, _ = run([two, four], seed=9)  # the loop runs 4 tuples; the first scene pads 2
     for a, b in zip(alone, mixed):
@@ -273,8 +280,16 @@ def test_fig5_panels_draw_on_any_image(tmp_path):
     image = np.zeros((150, 200, 3), np.uint8)
     image[..., 1] = 90
     boxes = np.stack([BOX_A, BOX_B])
-    figure = figures.fig5(jax.random.key(0), image, _orthographic, boxes, HALF, rng=np.random.default_rng(0),
-                          names=["mug", "shoe"], config=CONFIG)
+    figure = figures.fig5(
+        jax.random.key(0),
+        image,
+        _orthographic,
+        boxes,
+        HALF,
+        rng=np.random.default_rng(0),
+        names=["mug", "shoe"],
+        config=CONFIG,
+    )
     path = figures.save_figure(figure, tmp_path / "fig5.png")
     from PIL import Image
 

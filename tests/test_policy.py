@@ -60,8 +60,11 @@ class OracleBackbone:
         self.dim, self.logit_scale, self.fingerprint = len(self.names), 100.0, "oracle"
 
     def _embed(self, name):
-        vector = np.full(self.dim, 1.0, np.float32) if name not in self.names else \
-            np.eye(self.dim, dtype=np.float32)[self.names.index(name)]
+        vector = (
+            np.full(self.dim, 1.0, np.float32)
+            if name not in self.names
+            else np.eye(self.dim, dtype=np.float32)[self.names.index(name)]
+        )
         return vector / np.linalg.norm(vector)
 
     def encode_images(self, images):
@@ -84,21 +87,30 @@ def parser():
 @pytest.fixture(scope="module")
 def oracle_policy(records, parser):
     backbone = OracleBackbone(records)
-    return PlacementPolicy(backbone, GroundingModel.zero_shot(backbone.dim, backbone.logit_scale), PromptConfig(),
-                           parser, sampler=SAMPLER)
+    return PlacementPolicy(
+        backbone, GroundingModel.zero_shot(backbone.dim, backbone.logit_scale), PromptConfig(), parser, sampler=SAMPLER
+    )
 
 
 @pytest.fixture(scope="module")
 def tiny_policy(tiny_backbone_spec, parser):
-    return PlacementPolicy.from_run(load_backbone(tiny_backbone_spec), None, parser=parser, sampler=SAMPLER,
-                                    threshold=0.0)
+    return PlacementPolicy.from_run(
+        load_backbone(tiny_backbone_spec), None, parser=parser, sampler=SAMPLER, threshold=0.0
+    )
 
 
 def _place(policy, record, **changes):
     scene = scene_input(record)
-    arguments = dict(rgb=scene.rgb, depth=scene.depth, boxes_or_segmentation=scene.boxes_or_segmentation,
-                     instruction=scene.instruction, held_footprint=scene.held_footprint, key=jax.random.key(0),
-                     camera=scene.camera, object_aabbs=scene.object_aabbs)
+    arguments = dict(
+        rgb=scene.rgb,
+        depth=scene.depth,
+        boxes_or_segmentation=scene.boxes_or_segmentation,
+        instruction=scene.instruction,
+        held_footprint=scene.held_footprint,
+        key=jax.random.key(0),
+        camera=scene.camera,
+        object_aabbs=scene.object_aabbs,
+    )
     return policy.place(**{**arguments, **changes})
 
 
@@ -125,7 +137,9 @@ def test_place_with_segmentation_or_detector_lands_on_the_table(tiny_policy, rec
         assert len(placement.boxes) == len(placement.aabbs) >= 3
         assert np.all((placement.samples >= bounds[0]) & (placement.samples <= bounds[1]))
         assert placement.samples.shape == (SAMPLER.num_samples, 2)
-        assert np.allclose(placement.mode_px, PinholeCamera.from_any(record.meta["camera"]).table_to_pixel(placement.mode))
+        assert np.allclose(
+            placement.mode_px, PinholeCamera.from_any(record.meta["camera"]).table_to_pixel(placement.mode)
+        )
         half = np.asarray(record.meta["held_object"]["footprint_half_extents"])
         for box in placement.aabbs:  # the footprint avoids every (estimated) obstacle
             overlap = np.all((placement.mode + half > box[0]) & (placement.mode - half < box[1]))
@@ -183,8 +197,9 @@ def test_reference_not_in_the_scene_is_reported_not_placed(oracle_policy, record
 
 
 def test_low_confidence_threshold_is_configurable(tiny_backbone_spec, parser, records):
-    cautious = PlacementPolicy.from_run(load_backbone(tiny_backbone_spec), None, parser=parser, sampler=SAMPLER,
-                                        threshold=0.9)
+    cautious = PlacementPolicy.from_run(
+        load_backbone(tiny_backbone_spec), None, parser=parser, sampler=SAMPLER, threshold=0.9
+    )
     with pytest.raises(GroundingUncertain, match="threshold 0.90"):
         _place(cautious, records[0])
 
@@ -193,21 +208,29 @@ def test_image_without_boxes(oracle_policy, records):
     record = records[0]
     with pytest.raises(NoObjectBoxes, match="no object box"):
         _place(oracle_policy, record, boxes_or_segmentation=np.zeros((0, 4)), object_aabbs=np.zeros((0, 2, 2)))
-    table_only = _place(oracle_policy, record, boxes_or_segmentation=np.zeros((0, 4)),
-                        object_aabbs=np.zeros((0, 2, 2)), instruction="put it to the left part of the table.")
+    table_only = _place(
+        oracle_policy,
+        record,
+        boxes_or_segmentation=np.zeros((0, 4)),
+        object_aabbs=np.zeros((0, 2, 2)),
+        instruction="put it to the left part of the table.",
+    )
     assert "no_boxes" in table_only.flags and table_only.references[0].is_table
     assert table_only.mode[0] < DEFAULT_TABLE.bounds[0, 0] / 3
 
 
-@pytest.mark.parametrize("change, message", [
-    ({"depth": np.zeros((240, 320), np.float32)}, "depth is 320x240"),
-    ({"boxes_or_segmentation": np.zeros((240, 320), np.int32)}, "segmentation image of the image's size"),
-    ({"camera": {**DEFAULT_CAMERA.to_json(), "width": 320}}, "camera is 320x480"),
-    ({"boxes_or_segmentation": np.array([[10, 10, 5, 20]])}, "is empty or leaves"),
-    ({"object_aabbs": np.zeros((1, 2, 2))}, "one per pixel box"),
-    ({"held_footprint": (0.1, -0.1)}, "half-extents"),
-    ({"rgb": np.zeros((480, 640), np.uint8)}, "uint8 \\(H, W, 3\\)"),
-])
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        ({"depth": np.zeros((240, 320), np.float32)}, "depth is 320x240"),
+        ({"boxes_or_segmentation": np.zeros((240, 320), np.int32)}, "segmentation image of the image's size"),
+        ({"camera": {**DEFAULT_CAMERA.to_json(), "width": 320}}, "camera is 320x480"),
+        ({"boxes_or_segmentation": np.array([[10, 10, 5, 20]])}, "is empty or leaves"),
+        ({"object_aabbs": np.zeros((1, 2, 2))}, "one per pixel box"),
+        ({"held_footprint": (0.1, -0.1)}, "half-extents"),
+        ({"rgb": np.zeros((480, 640), np.uint8)}, "uint8 \\(H, W, 3\\)"),
+    ],
+)
 def test_bad_input_raises_a_clear_error(tiny_policy, records, change, message):
     with pytest.raises(PolicyInputError, match=message):
         _place(tiny_policy, records[0], **change)
@@ -222,11 +245,30 @@ def test_empty_feasible_region_and_unparseable_instruction(oracle_policy, record
 
 def test_place_many_flags_failures_per_scene(oracle_policy, records):
     good = scene_input(records[0])
-    scenes = [good, SceneInput(good.rgb, good.depth[:10], good.boxes_or_segmentation, good.instruction,
-                               good.held_footprint, good.camera, good.object_aabbs, name="bad-depth"),
-              SceneInput(good.rgb, good.depth, good.boxes_or_segmentation, "put it left of the unicorn.",
-                         good.held_footprint, good.camera, good.object_aabbs, name="unicorn"),
-              good]
+    scenes = [
+        good,
+        SceneInput(
+            good.rgb,
+            good.depth[:10],
+            good.boxes_or_segmentation,
+            good.instruction,
+            good.held_footprint,
+            good.camera,
+            good.object_aabbs,
+            name="bad-depth",
+        ),
+        SceneInput(
+            good.rgb,
+            good.depth,
+            good.boxes_or_segmentation,
+            "put it left of the unicorn.",
+            good.held_footprint,
+            good.camera,
+            good.object_aabbs,
+            name="unicorn",
+        ),
+        good,
+    ]
     placements = oracle_policy.place_many(scenes, jax.random.key(0))
     assert [p.ok for p in placements] == [True, False, False, True]
     assert "PolicyInputError" in placements[1].failure and placements[1].mode is None
@@ -243,8 +285,23 @@ def test_cli_place_on_a_dataset_scene_and_on_images(smoke_dataset, tiny_backbone
     from ocplace.cli import main
 
     figure = tmp_path / "dataset.png"
-    code = main(["place", "--dataset", str(smoke_dataset), "--id", "1", "--backbone", tiny_backbone_spec,
-                 "--threshold", "0", "--samples", "128", "--out", str(figure)])
+    code = main(
+        [
+            "place",
+            "--dataset",
+            str(smoke_dataset),
+            "--id",
+            "1",
+            "--backbone",
+            tiny_backbone_spec,
+            "--threshold",
+            "0",
+            "--samples",
+            "128",
+            "--out",
+            str(figure),
+        ]
+    )
     out = capsys.readouterr().out
     assert code == 0 and figure.stat().st_size > 10_000
     assert "zero-shot" in out and "mode:" in out and "ground truth" in out
@@ -255,9 +312,30 @@ def test_cli_place_on_a_dataset_scene_and_on_images(smoke_dataset, tiny_backbone
     camera = tmp_path / "camera.json"
     camera.write_text(json.dumps(record.meta["camera"]))
     figure = tmp_path / "images.png"
-    code = main(["place", "--rgb", str(rgb), "--depth", str(depth), "--camera", str(camera), "--instruction",
-                 record.meta["instruction"], "--held-footprint", "0.03", "0.03", "--backbone", tiny_backbone_spec,
-                 "--threshold", "0.9", "--samples", "128", "--out", str(figure)])
+    code = main(
+        [
+            "place",
+            "--rgb",
+            str(rgb),
+            "--depth",
+            str(depth),
+            "--camera",
+            str(camera),
+            "--instruction",
+            record.meta["instruction"],
+            "--held-footprint",
+            "0.03",
+            "0.03",
+            "--backbone",
+            tiny_backbone_spec,
+            "--threshold",
+            "0.9",
+            "--samples",
+            "128",
+            "--out",
+            str(figure),
+        ]
+    )
     out = capsys.readouterr().out
     assert code == 2 and figure.exists()  # not placed (threshold), and the figure says why
     assert "boxes_detected" in out and "GroundingUncertain" in out

@@ -130,9 +130,8 @@ def test_primitive_meshes_rest_on_the_table_frame(shape):
 
 
 def test_primitives_settle_on_the_table_with_boxes_in_their_colour(setup, scene):
-    pool, classes, _ = setup
     spec, painted, _, segmentation = scene
-    assert len(painted) == RENDER.primitives_per_scene and spec.objects[-len(painted):] == tuple(painted)
+    assert len(painted) == RENDER.primitives_per_scene and spec.objects[-len(painted) :] == tuple(painted)
     boxes = boxes_from_segmentation(segmentation)
     hsv = _hsv(scene[2])
     for body, colour in painted.items():
@@ -194,8 +193,9 @@ def test_colour_words_are_rewritten_not_stacked():
     assert with_colour("black and white bowl", "blue") == "blue bowl"
     assert with_colour("red ketchup bottle", "green") == "green ketchup bottle"
     assert with_colour("orange juice carton", "blue") == "blue orange juice carton"  # juice, not a colour
-    bowl = recoloured(ObjectDescription("akita_black_bowl", "black patterned bowl", ("black and white bowl",), "bowl"),
-                      "pink")
+    bowl = recoloured(
+        ObjectDescription("akita_black_bowl", "black patterned bowl", ("black and white bowl",), "bowl"), "pink"
+    )
     assert bowl.colours == ("pink",) and bowl.kind == RECOLOURED and bowl.name == "akita_black_bowl:pink"
 
 
@@ -293,6 +293,11 @@ def test_rendering_builds_only_seen_objects_and_primitives(library, tmp_path):
 
 def test_render_knobs_are_validated():
     assert not RENDER.validate() and not default_config().render.validate()
-    for bad in ({"colours": ("teal",)}, {"primitives_per_scene": 10}, {"recolour_share": 1.5},
-                {"primitive_widths": (0.1, 0.05, 0.2)}, {"primitive_shapes": ("star",)}):
+    for bad in (
+        {"colours": ("teal",)},
+        {"primitives_per_scene": 10},
+        {"recolour_share": 1.5},
+        {"primitive_widths": (0.1, 0.05, 0.2)},
+        {"primitive_shapes": ("star",)},
+    ):
         assert dataclasses.replace(RENDER, **bad).validate(), bad

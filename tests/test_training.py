@@ -53,8 +53,10 @@ def test_adapters_file_round_trip(fitted, features):
     trained = checkpoints.load_adapters(fitted.run_dir)
     assert trained.steps == 300 and trained.features_key == features.info.key
     assert trained.model.config == fitted.model.config and trained.model.logit_scale == 100.0
-    np.testing.assert_array_equal(trained.model.logits(features.text, features.visual, features.visual_mask),
-                                  fitted.model.logits(features.text, features.visual, features.visual_mask))
+    np.testing.assert_array_equal(
+        trained.model.logits(features.text, features.visual, features.visual_mask),
+        fitted.model.logits(features.text, features.visual, features.visual_mask),
+    )
 
 
 def test_checkpoint_round_trip(fitted):
@@ -146,7 +148,7 @@ def test_fraction_subsets_are_seeded_and_nested():
 def test_batch_indices_shuffle_each_epoch_and_depend_only_on_the_step():
     indices = batch_indices(10, seed=0, start_step=0, num_steps=30, batch_size=1)[:, 0]
     for epoch in range(3):
-        assert sorted(indices[10 * epoch:10 * epoch + 10]) == list(range(10))
+        assert sorted(indices[10 * epoch : 10 * epoch + 10]) == list(range(10))
     assert not np.array_equal(indices[:10], indices[10:20])
     np.testing.assert_array_equal(batch_indices(10, 0, 7, 13, 1)[:, 0], indices[7:20])
     assert batch_indices(10, 0, 0, 5, 2).shape == (5, 2)
@@ -157,8 +159,22 @@ def test_train_command(tmp_path, features):
     run = tmp_path / "run"
     parser = argparse.ArgumentParser()
     commands.register(parser.add_subparsers())
-    args = parser.parse_args(["train", "--features", str(path), "--out", str(run), "--smoke", "--steps", "100",
-                              "--fraction", "0.5", "--cpus", "0"])  # 0: do not pin the test process
+    args = parser.parse_args(
+        [
+            "train",
+            "--features",
+            str(path),
+            "--out",
+            str(run),
+            "--smoke",
+            "--steps",
+            "100",
+            "--fraction",
+            "0.5",
+            "--cpus",
+            "0",
+        ]
+    )  # 0: do not pin the test process
     assert args.func(args) == 0
     meta = json.loads((run / "config.json").read_text())
     assert meta["train_scenes"] == 24 and meta["train_config"]["steps"] == 100

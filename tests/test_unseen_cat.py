@@ -87,8 +87,14 @@ def test_table_one_keeps_the_papers_unseen_mean():
     def subset(success):
         return {"aggregate": {"overall": {"success": success}}}
 
-    entry = {"subsets": {"seen": subset(0.9), "unseen_obj": subset(0.6), "unseen_inst": subset(0.8),
-                         "unseen_cat": subset(0.0)}}
+    entry = {
+        "subsets": {
+            "seen": subset(0.9),
+            "unseen_obj": subset(0.6),
+            "unseen_inst": subset(0.8),
+            "unseen_cat": subset(0.0),
+        }
+    }
     assert table.unseen_mean(entry) == pytest.approx(0.7)  # unseen_cat is reported, never averaged in
 
 

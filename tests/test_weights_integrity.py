@@ -49,8 +49,7 @@ def _random_like(init):
     """Random weights shaped like `init()`'s, drawn in NumPy: eager Flax init of CLIPort's U-Net alone
     takes over 20 s on a busy CPU, and the values do not matter here."""
     rng = np.random.default_rng(0)
-    return jax.tree_util.tree_map(lambda leaf: rng.standard_normal(leaf.shape).astype(leaf.dtype),
-                                  jax.eval_shape(init))
+    return jax.tree_util.tree_map(lambda leaf: rng.standard_normal(leaf.shape).astype(leaf.dtype), jax.eval_shape(init))
 
 
 def _checkpoint(run_dir):
@@ -64,8 +63,17 @@ def _adapters(run_dir):
     config = AdapterConfig(dim=DIM)
     params = _random_like(lambda: init_adapters(config, KEY))
     path = run_dir / checkpoints.ADAPTERS_FILE
-    checkpoints.save_adapters(path, params, config, 30.0, backbone_fingerprint="f", prompt=PromptConfig(),
-                              features_key="k", steps=1, train_config_json="{}")
+    checkpoints.save_adapters(
+        path,
+        params,
+        config,
+        30.0,
+        backbone_fingerprint="f",
+        prompt=PromptConfig(),
+        features_key="k",
+        steps=1,
+        train_config_json="{}",
+    )
     return path, lambda: checkpoints.load_adapters(run_dir).model.params, params
 
 
@@ -89,8 +97,9 @@ def _no_llm(run_dir):
     config = GtRefConfig(dim=DIM, hidden=8)
     params = _random_like(lambda: init_gtref(config, KEY))
     path = run_dir / gtref.MODEL_FILE
-    gtref.save_model(path, GtRefModel(config, params, 30.0), backbone_fingerprint="f",
-                     train_config=gtref.GtRefTrainConfig())
+    gtref.save_model(
+        path, GtRefModel(config, params, 30.0), backbone_fingerprint="f", train_config=gtref.GtRefTrainConfig()
+    )
     return path, lambda: gtref.load_model(run_dir).model.params, params
 
 
@@ -98,8 +107,12 @@ def _no_llm(run_dir):
 def saved_backbone(tmp_path_factory):
     config = ob.smoke_config()
     params = ob.init_params(config, KEY)
-    directory = ob.save_backbone(tmp_path_factory.mktemp("backbone") / "backbone", config, params,
-                                 ob.FrozenTextTower.load(config.text_max_length).digest)
+    directory = ob.save_backbone(
+        tmp_path_factory.mktemp("backbone") / "backbone",
+        config,
+        params,
+        ob.FrozenTextTower.load(config.text_max_length).digest,
+    )
     return directory, params
 
 
@@ -140,7 +153,7 @@ def _data_offset(path) -> int:
 
 
 def test_an_intact_file_round_trips(kind, caplog):
-    _, path, load, saved = kind
+    _, _, load, saved = kind
     with caplog.at_level(logging.WARNING):
         _assert_same_tree(load(), saved)
     assert not caplog.records  # hashed, so no "older ocplace" warning
@@ -163,7 +176,7 @@ def test_a_flipped_byte_in_the_tensor_data_is_refused(kind):
 def test_a_truncated_file_is_refused(kind):
     _, path, load, _ = kind
     data = path.read_bytes()
-    path.write_bytes(data[:(_data_offset(path) + len(data)) // 2])
+    path.write_bytes(data[: (_data_offset(path) + len(data)) // 2])
     with pytest.raises(WeightsError, match=re.escape(str(path)) + ".*truncated or damaged") as caught:
         load()
     assert "delete" in str(caught.value)
@@ -211,23 +224,35 @@ def test_the_same_weights_give_the_same_bytes(tmp_path):
     tensors = {"b": np.ones((2, 3), np.float32), "a": np.arange(4, dtype=np.int32)}
     metadata = {key: str(value) for value, key in enumerate("zyxwvutsrq")}  # hash-map order varies per call
     first = weights_file.save_weights(tmp_path / "1.safetensors", tensors, metadata).read_bytes()
-    assert all(weights_file.save_weights(tmp_path / "2.safetensors", tensors, metadata).read_bytes() == first
-               for _ in range(5))
+    assert all(
+        weights_file.save_weights(tmp_path / "2.safetensors", tensors, metadata).read_bytes() == first for _ in range(5)
+    )
 
 
 # ----------------------------------------------------------------------------- grounding and resume
 
 
 def test_a_nan_grounding_probability_never_passes_the_threshold():
-    model = GroundingModel(AdapterConfig(dim=DIM), jax.tree_util.tree_map(lambda a: np.full_like(a, np.nan),
-                                                                          init_adapters(AdapterConfig(dim=DIM), KEY)),
-                           30.0)
+    model = GroundingModel(
+        AdapterConfig(dim=DIM),
+        jax.tree_util.tree_map(lambda a: np.full_like(a, np.nan), init_adapters(AdapterConfig(dim=DIM), KEY)),
+        30.0,
+    )
     probabilities = model.probabilities(np.ones((1, DIM), np.float32), np.eye(3, DIM, dtype=np.float32))
     assert np.isnan(probabilities).all()  # real jitted adapters with NaN weights
     boxes = np.array([[0, 0, 4, 4], [5, 5, 9, 9]], np.int32)
-    scene = PreparedScene("s", "put it left of the cup", np.zeros((10, 10, 3), np.uint8), None, boxes,
-                          np.zeros((2, 2, 2)), np.zeros((2, 8, 8, 3), np.uint8), np.zeros((8, 8, 3), np.uint8),
-                          np.zeros(2), ())
+    scene = PreparedScene(
+        "s",
+        "put it left of the cup",
+        np.zeros((10, 10, 3), np.uint8),
+        None,
+        boxes,
+        np.zeros((2, 2, 2)),
+        np.zeros((2, 8, 8, 3), np.uint8),
+        np.zeros((8, 8, 3), np.uint8),
+        np.zeros(2),
+        (),
+    )
     policy = PlacementPolicy(backbone=None, grounding=model, prompt=PromptConfig(), parser=None, threshold=0.0)
     references = policy.decide(scene, [SimpleNamespace(reference="cup", relation="left")], probabilities)
     assert np.isnan(references[0].probability)
@@ -253,8 +278,10 @@ def test_a_torn_last_metrics_line_is_dropped_and_the_run_resumes(tmp_path, caplo
     assert "torn last line" in caplog.text
     assert [r["step"] for r in MetricsLog(metrics).records()] == [50, 100]
     train(features, tmp_path / "whole", config, progress=False)
-    _assert_same_tree(checkpoints.load_adapters(tmp_path / "torn").model.params,
-                      checkpoints.load_adapters(tmp_path / "whole").model.params)
+    _assert_same_tree(
+        checkpoints.load_adapters(tmp_path / "torn").model.params,
+        checkpoints.load_adapters(tmp_path / "whole").model.params,
+    )
 
 
 def test_a_bad_metrics_line_before_the_last_is_refused(tmp_path):

@@ -16,10 +16,18 @@ import numpy as np
 from ocplace.models.backbone import random_clip_params
 
 CORPUS = (
-    "a photo of a red bowl.", "a photo of a blue mug.", "a photo of a table.", "a photo of a black shoe.",
-    "a photo of a spiderman figure.", "a photo of a green apple.", "a photo of a yellow banana.",
-    "a photo of a white plate.", "a photo of a wooden block.", "put it to the left of the bowl.",
-    "put it behind the mug and in front of the shoe.", "the thing on the table.",
+    "a photo of a red bowl.",
+    "a photo of a blue mug.",
+    "a photo of a table.",
+    "a photo of a black shoe.",
+    "a photo of a spiderman figure.",
+    "a photo of a green apple.",
+    "a photo of a yellow banana.",
+    "a photo of a white plate.",
+    "a photo of a wooden block.",
+    "put it to the left of the bowl.",
+    "put it behind the mug and in front of the shoe.",
+    "the thing on the table.",
 )
 BOS, EOS = "<|startoftext|>", "<|endoftext|>"
 FORMATS = ("flax-msgpack", "flax-safetensors", "pt-safetensors")
@@ -31,15 +39,23 @@ def train_merges(corpus=CORPUS, num_merges: int = 120) -> list[tuple[str, str]]:
 
     tokenizer = Tokenizer(models.BPE(end_of_word_suffix="</w>", continuing_subword_prefix=""))
     tokenizer.normalizer = normalizers.Sequence(
-        [normalizers.NFC(), normalizers.Replace(Regex(r"\s+"), " "), normalizers.Lowercase()])
-    tokenizer.pre_tokenizer = pre_tokenizers.Sequence([
-        pre_tokenizers.Split(Regex(r"""'s|'t|'re|'ve|'m|'ll|'d|[\p{L}]+|[\p{N}]|[^\s\p{L}\p{N}]+"""),
-                             behavior="removed", invert=True),
-        pre_tokenizers.ByteLevel(add_prefix_space=False),
-    ])
+        [normalizers.NFC(), normalizers.Replace(Regex(r"\s+"), " "), normalizers.Lowercase()]
+    )
+    tokenizer.pre_tokenizer = pre_tokenizers.Sequence(
+        [
+            pre_tokenizers.Split(
+                Regex(r"""'s|'t|'re|'ve|'m|'ll|'d|[\p{L}]+|[\p{N}]|[^\s\p{L}\p{N}]+"""), behavior="removed", invert=True
+            ),
+            pre_tokenizers.ByteLevel(add_prefix_space=False),
+        ]
+    )
     alphabet = pre_tokenizers.ByteLevel.alphabet()
-    trainer = trainers.BpeTrainer(vocab_size=2 * len(alphabet) + num_merges, initial_alphabet=alphabet,
-                                  end_of_word_suffix="</w>", show_progress=False)
+    trainer = trainers.BpeTrainer(
+        vocab_size=2 * len(alphabet) + num_merges,
+        initial_alphabet=alphabet,
+        end_of_word_suffix="</w>",
+        show_progress=False,
+    )
     tokenizer.train_from_iterator(corpus, trainer)
     merges = json.loads(tokenizer.to_str())["model"]["merges"]
     return [tuple(m.split(" ")) if isinstance(m, str) else tuple(m) for m in merges]
@@ -60,27 +76,60 @@ def write_tokenizer(directory: Path, corpus=CORPUS):
     vocab += [BOS, EOS]
     (directory / "vocab.json").write_text(json.dumps({token: i for i, token in enumerate(vocab)}))
     (directory / "merges.txt").write_text("#version: 0.2\n" + "".join(f"{a} {b}\n" for a, b in merges))
-    tokenizer = CLIPTokenizerFast(vocab_file=str(directory / "vocab.json"),
-                                  merges_file=str(directory / "merges.txt"),
-                                  bos_token=BOS, eos_token=EOS, pad_token=EOS, unk_token=EOS)
+    tokenizer = CLIPTokenizerFast(
+        vocab_file=str(directory / "vocab.json"),
+        merges_file=str(directory / "merges.txt"),
+        bos_token=BOS,
+        eos_token=EOS,
+        pad_token=EOS,
+        unk_token=EOS,
+    )
     tokenizer.save_pretrained(directory)
     return tokenizer
 
 
-def tiny_config(vocab_size: int, bos_id: int, eos_id: int, image_size: int = 32, width: int = 32,
-                projection_dim: int = 16, layers: int = 2, context_length: int = 16):
+def tiny_config(
+    vocab_size: int,
+    bos_id: int,
+    eos_id: int,
+    image_size: int = 32,
+    width: int = 32,
+    projection_dim: int = 16,
+    layers: int = 2,
+    context_length: int = 16,
+):
     from transformers import CLIPConfig
 
-    text = dict(vocab_size=vocab_size, hidden_size=width, intermediate_size=2 * width, num_hidden_layers=layers,
-                num_attention_heads=2, max_position_embeddings=context_length, bos_token_id=bos_id,
-                eos_token_id=eos_id, pad_token_id=eos_id)
-    vision = dict(image_size=image_size, patch_size=image_size // 4, hidden_size=width,
-                  intermediate_size=2 * width, num_hidden_layers=layers, num_attention_heads=2)
+    text = dict(
+        vocab_size=vocab_size,
+        hidden_size=width,
+        intermediate_size=2 * width,
+        num_hidden_layers=layers,
+        num_attention_heads=2,
+        max_position_embeddings=context_length,
+        bos_token_id=bos_id,
+        eos_token_id=eos_id,
+        pad_token_id=eos_id,
+    )
+    vision = dict(
+        image_size=image_size,
+        patch_size=image_size // 4,
+        hidden_size=width,
+        intermediate_size=2 * width,
+        num_hidden_layers=layers,
+        num_attention_heads=2,
+    )
     return CLIPConfig(text_config=text, vision_config=vision, projection_dim=projection_dim)
 
 
-def build_tiny_clip(directory: Path, seed: int = 0, weights: str = "flax-msgpack", image_size: int = 32,
-                    tokenizer_dir: Path | None = None, **config_kwargs) -> Path:
+def build_tiny_clip(
+    directory: Path,
+    seed: int = 0,
+    weights: str = "flax-msgpack",
+    image_size: int = 32,
+    tokenizer_dir: Path | None = None,
+    **config_kwargs,
+) -> Path:
     """A complete CLIP checkpoint directory with random weights; `weights` is one of FORMATS.
 
     BPE training breaks frequency ties arbitrarily, so checkpoints meant to share a tokenizer copy
@@ -94,8 +143,9 @@ def build_tiny_clip(directory: Path, seed: int = 0, weights: str = "flax-msgpack
     else:
         shutil.copytree(tokenizer_dir, directory, dirs_exist_ok=True)
         tokenizer = CLIPTokenizerFast.from_pretrained(directory)
-    config = tiny_config(len(tokenizer), tokenizer.bos_token_id, tokenizer.eos_token_id,
-                         image_size=image_size, **config_kwargs)
+    config = tiny_config(
+        len(tokenizer), tokenizer.bos_token_id, tokenizer.eos_token_id, image_size=image_size, **config_kwargs
+    )
     model = FlaxCLIPModel(config, _do_init=False)
     params = random_clip_params(model.params_shape_tree, seed)
     if weights == "pt-safetensors":
@@ -103,8 +153,9 @@ def build_tiny_clip(directory: Path, seed: int = 0, weights: str = "flax-msgpack
         save_as_pytorch_safetensors(params, directory / "model.safetensors")
     else:
         model.save_pretrained(directory, params=params, safe_serialization=weights == "flax-safetensors")
-    CLIPImageProcessor(size={"shortest_edge": image_size},
-                       crop_size={"height": image_size, "width": image_size}).save_pretrained(directory)
+    CLIPImageProcessor(
+        size={"shortest_edge": image_size}, crop_size={"height": image_size, "width": image_size}
+    ).save_pretrained(directory)
     return directory
 
 

@@ -47,22 +47,31 @@ class Schedule:
     keep_checkpoints: int = 2
 
     def validate(self) -> None:
-        if min(self.steps, self.batch_size, self.chunk_steps, self.keep_checkpoints) < 1 or \
-                self.checkpoint_every % self.chunk_steps:
-            raise TrainingError(f"invalid schedule {self}: positive sizes, checkpoint_every a multiple of "
-                                "chunk_steps")
+        if (
+            min(self.steps, self.batch_size, self.chunk_steps, self.keep_checkpoints) < 1
+            or self.checkpoint_every % self.chunk_steps
+        ):
+            raise TrainingError(f"invalid schedule {self}: positive sizes, checkpoint_every a multiple of chunk_steps")
 
     def learning_rate_schedule(self) -> optax.Schedule:
-        return optax.warmup_cosine_decay_schedule(0.0, self.learning_rate, self.warmup_steps,
-                                                  max(self.steps, self.warmup_steps + 1), 0.0)
+        return optax.warmup_cosine_decay_schedule(
+            0.0, self.learning_rate, self.warmup_steps, max(self.steps, self.warmup_steps + 1), 0.0
+        )
 
 
 def is_finished(run_dir: Path) -> bool:
     return (Path(run_dir) / WEIGHTS_FILE).is_file()
 
 
-def run_chunks(run_dir: Path, run_meta: dict, state, chunk: Callable, schedule: Schedule,
-               progress: bool = True, desc: str = "train"):
+def run_chunks(
+    run_dir: Path,
+    run_meta: dict,
+    state,
+    chunk: Callable,
+    schedule: Schedule,
+    progress: bool = True,
+    desc: str = "train",
+):
     """Runs `chunk(state, start_step, num_steps) -> (state, losses)` up to `schedule.steps`; returns the state.
 
     `state` is the freshly initialised `(params, opt_state)`: the template a checkpoint is restored into.
@@ -85,8 +94,12 @@ def run_chunks(run_dir: Path, run_meta: dict, state, chunk: Callable, schedule: 
             count = min(schedule.chunk_steps, schedule.steps - step)
             state, losses = chunk(state, step, count)
             step += count
-            record = {"step": step, "loss": float(np.mean(np.asarray(losses))),
-                      "learning_rate": float(learning_rate(step)), "elapsed_s": round(time.perf_counter() - began, 3)}
+            record = {
+                "step": step,
+                "loss": float(np.mean(np.asarray(losses))),
+                "learning_rate": float(learning_rate(step)),
+                "elapsed_s": round(time.perf_counter() - began, 3),
+            }
             if step % schedule.checkpoint_every == 0 or step == schedule.steps:
                 checkpoints.save_checkpoint(run_dir, step, state, {"step": str(step)}, schedule.keep_checkpoints)
             metrics.append(record)
@@ -103,10 +116,12 @@ def load_weights(run_dir: Path) -> tuple[dict[str, np.ndarray], str]:
     """`(flat arrays, sha256 of the file)`, verified; `checkpoints.unflatten_state` makes the tree of them."""
     path = Path(run_dir) / WEIGHTS_FILE
     if not path.is_file():
-        raise TrainingError(f"no trained weights at {path}; train the method first (`ocplace evaluate` "
-                            "trains missing runs)")
-    arrays, _ = weights_file.load_weights(path, f"delete {path.parent} and rerun `ocplace evaluate` or "
-                                                "`ocplace reproduce` (they train missing runs)")
+        raise TrainingError(
+            f"no trained weights at {path}; train the method first (`ocplace evaluate` trains missing runs)"
+        )
+    arrays, _ = weights_file.load_weights(
+        path, f"delete {path.parent} and rerun `ocplace evaluate` or `ocplace reproduce` (they train missing runs)"
+    )
     return arrays, hashlib.sha256(path.read_bytes()).hexdigest()
 
 

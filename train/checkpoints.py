@@ -28,8 +28,7 @@ CHECKPOINT_DIR = "checkpoints"
 
 
 def flatten_state(state) -> dict[str, np.ndarray]:
-    return {jax.tree_util.keystr(path): np.array(leaf)
-            for path, leaf in jax.tree_util.tree_leaves_with_path(state)}
+    return {jax.tree_util.keystr(path): np.array(leaf) for path, leaf in jax.tree_util.tree_leaves_with_path(state)}
 
 
 def unflatten_state(arrays: dict[str, np.ndarray], template):
@@ -37,11 +36,15 @@ def unflatten_state(arrays: dict[str, np.ndarray], template):
     paths, treedef = jax.tree_util.tree_flatten_with_path(template)
     expected = {jax.tree_util.keystr(path): leaf for path, leaf in paths}
     mismatched = sorted(set(arrays) ^ set(expected)) + sorted(
-        key for key, leaf in expected.items() if key in arrays and
-        (arrays[key].shape != tuple(leaf.shape) or arrays[key].dtype != np.dtype(leaf.dtype)))
+        key
+        for key, leaf in expected.items()
+        if key in arrays and (arrays[key].shape != tuple(leaf.shape) or arrays[key].dtype != np.dtype(leaf.dtype))
+    )
     if mismatched:
-        raise TrainingError(f"checkpoint does not match the model ({', '.join(mismatched[:3])} ...); start a new "
-                            "run directory (--out) for a different configuration")
+        raise TrainingError(
+            f"checkpoint does not match the model ({', '.join(mismatched[:3])} ...); start a new "
+            "run directory (--out) for a different configuration"
+        )
     return jax.tree_util.tree_unflatten(treedef, [arrays[jax.tree_util.keystr(path)] for path, _ in paths])
 
 
@@ -64,8 +67,11 @@ def list_checkpoints(run_dir: Path) -> list[Path]:
 def load_checkpoint(path: Path, template) -> tuple[object, int, dict[str, str]]:
     """`(state, step, metadata)` of a verified checkpoint, restored into `template`'s structure."""
     path = Path(path)
-    arrays, metadata = load_weights(path, f"delete {path.name} to resume from the checkpoint before it (or from "
-                                          f"the start), or delete {path.parent.parent} to start the run over")
+    arrays, metadata = load_weights(
+        path,
+        f"delete {path.name} to resume from the checkpoint before it (or from "
+        f"the start), or delete {path.parent.parent} to start the run over",
+    )
     return unflatten_state(arrays, template), int(metadata["step"]), metadata
 
 
@@ -80,11 +86,27 @@ class TrainedAdapters:
     steps: int
 
 
-def save_adapters(path: Path, params, config: AdapterConfig, logit_scale: float, *, backbone_fingerprint: str,
-                  prompt: PromptConfig, features_key: str, steps: int, train_config_json: str) -> None:
-    metadata = {"adapter_config": json.dumps(dataclasses.asdict(config)), "logit_scale": repr(logit_scale),
-                "backbone_fingerprint": backbone_fingerprint, "prompt": prompt.to_json(),
-                "features_key": features_key, "steps": str(steps), "train_config": train_config_json}
+def save_adapters(
+    path: Path,
+    params,
+    config: AdapterConfig,
+    logit_scale: float,
+    *,
+    backbone_fingerprint: str,
+    prompt: PromptConfig,
+    features_key: str,
+    steps: int,
+    train_config_json: str,
+) -> None:
+    metadata = {
+        "adapter_config": json.dumps(dataclasses.asdict(config)),
+        "logit_scale": repr(logit_scale),
+        "backbone_fingerprint": backbone_fingerprint,
+        "prompt": prompt.to_json(),
+        "features_key": features_key,
+        "steps": str(steps),
+        "train_config": train_config_json,
+    }
     save_weights(path, flatten_state(params), metadata)
 
 
@@ -97,14 +119,22 @@ def load_adapters(path) -> TrainedAdapters:
         path = path / ADAPTERS_FILE
     if not path.exists():
         raise TrainingError(f"no trained adapters at {path}; train them with `ocplace train`")
-    arrays, metadata = load_weights(path, f"delete {path.parent} and train it again (`ocplace train ... --out "
-                                          f"{path.parent}`, or `ocplace reproduce`, which retrains missing runs)")
+    arrays, metadata = load_weights(
+        path,
+        f"delete {path.parent} and train it again (`ocplace train ... --out "
+        f"{path.parent}`, or `ocplace reproduce`, which retrains missing runs)",
+    )
     config = AdapterConfig(**json.loads(metadata["adapter_config"]))
     template = jax.eval_shape(lambda: init_adapters(config, jax.random.key(0)))
     params = unflatten_state(arrays, template)
     model = GroundingModel(config, params, float(metadata["logit_scale"]))
-    return TrainedAdapters(model, metadata["backbone_fingerprint"], PromptConfig.from_json(metadata["prompt"]),
-                           metadata["features_key"], int(metadata["steps"]))
+    return TrainedAdapters(
+        model,
+        metadata["backbone_fingerprint"],
+        PromptConfig.from_json(metadata["prompt"]),
+        metadata["features_key"],
+        int(metadata["steps"]),
+    )
 
 
 def claim_run_dir(run_dir: Path, run_meta: dict, filename: str) -> None:
@@ -114,8 +144,10 @@ def claim_run_dir(run_dir: Path, run_meta: dict, filename: str) -> None:
         existing = json.loads(path.read_text())
         if existing != run_meta:
             changed = sorted(k for k in run_meta if existing.get(k) != run_meta[k])
-            raise TrainingError(f"{run_dir} holds another run ({', '.join(changed)} differ); pass a new --out "
-                                "directory, or delete the old run to start over")
+            raise TrainingError(
+                f"{run_dir} holds another run ({', '.join(changed)} differ); pass a new --out "
+                "directory, or delete the old run to start over"
+            )
         return
     run_dir.mkdir(parents=True, exist_ok=True)
     write_text_atomic(path, json.dumps(run_meta, indent=2, sort_keys=True) + "\n")

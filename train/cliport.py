@@ -65,8 +65,9 @@ def target_pixels(record, num_targets: int, seed: int, config: cliport.CliportCo
     return cliport.pixel_to_flat(cliport.table_to_pixel(points, camera, config), config)
 
 
-def scene_arrays(dataset_dir: Path, split: str, recipe_: CliportRecipe, backbone: Backbone, progress: bool
-                 ) -> tuple[dict[str, np.ndarray], list[str]]:
+def scene_arrays(
+    dataset_dir: Path, split: str, recipe_: CliportRecipe, backbone: Backbone, progress: bool
+) -> tuple[dict[str, np.ndarray], list[str]]:
     from tqdm import tqdm
 
     config = recipe_.network
@@ -79,13 +80,18 @@ def scene_arrays(dataset_dir: Path, split: str, recipe_: CliportRecipe, backbone
         targets.append(target_pixels(record, recipe_.num_targets, 0, config))
         instructions.append(record.meta["instruction"])
         ids.append(record.id)
-    arrays = {"rgb": np.stack(rgbs), "height": np.stack(heights),
-              "text": backbone.encode_texts(instructions).astype(np.float32), "targets": np.stack(targets)}
+    arrays = {
+        "rgb": np.stack(rgbs),
+        "height": np.stack(heights),
+        "text": backbone.encode_texts(instructions).astype(np.float32),
+        "targets": np.stack(targets),
+    }
     return arrays, ids
 
 
-def training_data(dataset_dir: Path, backbone: Backbone, recipe_: CliportRecipe, split: str = "train",
-                  progress: bool = True) -> tuple[dict[str, np.ndarray], str]:
+def training_data(
+    dataset_dir: Path, backbone: Backbone, recipe_: CliportRecipe, split: str = "train", progress: bool = True
+) -> tuple[dict[str, np.ndarray], str]:
     """`(arrays, key)` of the split, from the cache (built on first use); arrays as in DATA_ARRAYS."""
     from safetensors import safe_open
     from safetensors.numpy import load_file, save_file
@@ -93,8 +99,11 @@ def training_data(dataset_dir: Path, backbone: Backbone, recipe_: CliportRecipe,
     from ocplace.train.commands import dataset_hash
 
     digest = dataset_hash(dataset_dir, split)
-    key = hashlib.sha256(json.dumps([CACHE_FORMAT, digest, backbone.fingerprint, recipe_.network.to_json(),
-                                     recipe_.num_targets]).encode()).hexdigest()
+    key = hashlib.sha256(
+        json.dumps(
+            [CACHE_FORMAT, digest, backbone.fingerprint, recipe_.network.to_json(), recipe_.num_targets]
+        ).encode()
+    ).hexdigest()
     path = cache_dir() / "baselines" / f"cliport-{digest[:16]}-{split}-{key[:16]}.safetensors"
     if path.is_file():
         with safe_open(str(path), framework="numpy") as handle:
@@ -132,8 +141,15 @@ def train_chunk(config: cliport.CliportConfig, schedule: Schedule, state, data, 
     return state, jnp.stack(losses)
 
 
-def train_cliport(dataset_dir: Path, backbone_spec: str, out_dir: Path, scale: str = "default",
-                  fraction: float = 1.0, seed: int = 0, progress: bool = True) -> Path:
+def train_cliport(
+    dataset_dir: Path,
+    backbone_spec: str,
+    out_dir: Path,
+    scale: str = "default",
+    fraction: float = 1.0,
+    seed: int = 0,
+    progress: bool = True,
+) -> Path:
     """Trains CLIPort-Place into `out_dir` (skipped when finished, resumed when interrupted)."""
     from ocplace.models.backbone import load_backbone
 
@@ -147,11 +163,20 @@ def train_cliport(dataset_dir: Path, backbone_spec: str, out_dir: Path, scale: s
     num_scenes = len(arrays["rgb"])
     subset = subset_indices(num_scenes, fraction, 0)
     camera = camera_from_meta(read_scene(scene_dirs(dataset_dir, "train")[0]).meta)
-    run_meta = {"method": "cliport", "scale": scale, "fraction": fraction, "seed": seed,
-                "network": json.loads(config.to_json()), "schedule": dataclasses.asdict(chosen.schedule),
-                "num_targets": chosen.num_targets, "data_key": data_key, "dim": int(backbone.dim),
-                "backbone_fingerprint": backbone.fingerprint, "train_scenes": len(subset),
-                "camera": camera.to_json()}
+    run_meta = {
+        "method": "cliport",
+        "scale": scale,
+        "fraction": fraction,
+        "seed": seed,
+        "network": json.loads(config.to_json()),
+        "schedule": dataclasses.asdict(chosen.schedule),
+        "num_targets": chosen.num_targets,
+        "data_key": data_key,
+        "dim": int(backbone.dim),
+        "backbone_fingerprint": backbone.fingerprint,
+        "train_scenes": len(subset),
+        "camera": camera.to_json(),
+    }
     params = cliport.init_network(config, backbone.dim, jax.random.key(seed))
     state = (params, optim.adam(chosen.schedule.learning_rate_schedule()).init(params))
     data = jax.device_put({name: arrays[name][subset] for name in DATA_ARRAYS})

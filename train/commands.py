@@ -31,13 +31,16 @@ def read_dataset(dataset_dir: Path, split: str) -> Iterable:
 
 def _register_featurize(subparsers, reader: Callable[[Path, str], Iterable]) -> None:
     parser = subparsers.add_parser(
-        "featurize", help="encode a dataset split with a frozen backbone into a feature file",
+        "featurize",
+        help="encode a dataset split with a frozen backbone into a feature file",
         description="Encodes every scene's crops, workspace image and reference phrases once. The file is "
-                    "keyed by the backbone fingerprint and the dataset manifest; a second run is a no-op, an "
-                    "interrupted one resumes.")
+        "keyed by the backbone fingerprint and the dataset manifest; a second run is a no-op, an "
+        "interrupted one resumes.",
+    )
     parser.add_argument("dataset", type=Path, help="dataset directory (written by `ocplace generate`)")
-    parser.add_argument("--backbone", required=True,
-                        help="clip:HUB_ID_OR_DIR (e.g. clip:openai/clip-vit-base-patch32) or another kind")
+    parser.add_argument(
+        "--backbone", required=True, help="clip:HUB_ID_OR_DIR (e.g. clip:openai/clip-vit-base-patch32) or another kind"
+    )
     parser.add_argument("--split", default="train")
     parser.add_argument("--out", type=Path, help="feature file (default: in the cache, printed at the end)")
     parser.add_argument("--chunk-scenes", type=int, default=64)
@@ -53,8 +56,14 @@ def run_featurize(args, read_examples: Callable[[Path, str], Iterable]) -> int:
     digest = dataset_hash(args.dataset, args.split)
     num_scenes = len({Path(name).parent for name, _ in split_files(args.dataset, args.split)})
     out = args.out or cache_dir() / "features" / f"{digest[:16]}-{args.split}-{backbone.fingerprint[:16]}.safetensors"
-    path = featurize(read_examples(args.dataset, args.split), backbone, out, dataset_hash=digest,
-                     config=FeaturizeConfig(chunk_scenes=args.chunk_scenes), total=num_scenes)
+    path = featurize(
+        read_examples(args.dataset, args.split),
+        backbone,
+        out,
+        dataset_hash=digest,
+        config=FeaturizeConfig(chunk_scenes=args.chunk_scenes),
+        total=num_scenes,
+    )
     print(path)
     return 0
 
@@ -71,23 +80,31 @@ def split_files(dataset_dir: Path, split: str) -> list[tuple[str, str]]:
     files = read_manifest(dataset_dir)["files"]
     chosen = sorted((name, digest) for name, digest in files.items() if name.startswith(f"{split}/"))
     if not chosen:
-        raise FeaturesError(f"{dataset_dir} has no scenes in split {split!r}; generate it with "
-                            f"`ocplace generate --out {dataset_dir} --split {split}`")
+        raise FeaturesError(
+            f"{dataset_dir} has no scenes in split {split!r}; generate it with "
+            f"`ocplace generate --out {dataset_dir} --split {split}`"
+        )
     return chosen
 
 
 def _register_train(subparsers) -> None:
     parser = subparsers.add_parser(
-        "train", help="train the CLIP-Adapters on cached features",
+        "train",
+        help="train the CLIP-Adapters on cached features",
         description="Adam on cached backbone features, steps fused with lax.scan. Resumes from the newest "
-                    "checkpoint in --out; the same seed gives the same weights.")
+        "checkpoint in --out; the same seed gives the same weights.",
+    )
     parser.add_argument("--features", required=True, type=Path, help="training feature file")
     parser.add_argument("--out", required=True, type=Path, help="run directory")
     parser.add_argument("--val-features", type=Path, help="feature file to report validation accuracy on")
     parser.add_argument("--smoke", action="store_true", help="start from the tiny smoke configuration")
-    parser.add_argument("--cpus", type=int, default=1,
-                        help="CPUs XLA may use (default 1: batch-1 steps are too small to gain from splitting "
-                             "them across cores, and waiting for a busy core stalls every step; 0: all)")
+    parser.add_argument(
+        "--cpus",
+        type=int,
+        default=1,
+        help="CPUs XLA may use (default 1: batch-1 steps are too small to gain from splitting "
+        "them across cores, and waiting for a busy core stalls every step; 0: all)",
+    )
     overrides = parser.add_argument_group("configuration overrides (defaults: the paper's schedule)")
     overrides.add_argument("--steps", type=int)
     overrides.add_argument("--batch-size", type=int)
@@ -114,7 +131,7 @@ def train_config_from_args(args: argparse.Namespace):
 
 def run_train(args) -> int:
     if args.cpus:  # before JAX starts: XLA sizes its thread pool to the CPUs it may run on
-        os.sched_setaffinity(0, sorted(os.sched_getaffinity(0))[:args.cpus])
+        os.sched_setaffinity(0, sorted(os.sched_getaffinity(0))[: args.cpus])
     from ocplace.models.features import load_features
     from ocplace.train.loop import train
 
@@ -123,9 +140,13 @@ def run_train(args) -> int:
     features = load_features(args.features)
     val_features = load_features(args.val_features, features.info.backbone_fingerprint) if args.val_features else None
     result = train(features, args.out, config, val_features=val_features)
-    print(f"{result.run_dir}: {result.steps} steps, train grounding accuracy "
-          f"{result.train_accuracy.tuple_accuracy:.4f} per tuple, {result.train_accuracy.scene_accuracy:.4f} per scene")
+    print(
+        f"{result.run_dir}: {result.steps} steps, train grounding accuracy "
+        f"{result.train_accuracy.tuple_accuracy:.4f} per tuple, {result.train_accuracy.scene_accuracy:.4f} per scene"
+    )
     if result.val_accuracy is not None:
-        print(f"validation: {result.val_accuracy.tuple_accuracy:.4f} per tuple, "
-              f"{result.val_accuracy.scene_accuracy:.4f} per scene")
+        print(
+            f"validation: {result.val_accuracy.tuple_accuracy:.4f} per tuple, "
+            f"{result.val_accuracy.scene_accuracy:.4f} per scene"
+        )
     return 0

@@ -58,5 +58,6 @@ def default_config() -> TrainConfig:
 
 def smoke_config() -> TrainConfig:
     """A few hundred steps: enough to fit a tiny synthetic problem in tests."""
-    return TrainConfig(steps=300, learning_rate=1e-2, warmup_steps=10, chunk_steps=50, eval_every=100,
-                       checkpoint_every=100)
+    return TrainConfig(
+        steps=300, learning_rate=1e-2, warmup_steps=10, chunk_steps=50, eval_every=100, checkpoint_every=100
+    )

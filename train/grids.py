@@ -66,13 +66,17 @@ def scene_examples(dataset_dir: Path, split: str, config: grids.GridConfig) -> I
         texts = tuple(grids.tuple_text(t["reference_name"], t["relation"]) for t in meta["tuples"])
         target = int(grids.cell_of(meta["oracle"]["placement"], config))
         yield feature_cache.SceneExample(
-            scene_id=record.id, crops=grids.cell_crops(record.rgb, camera_from_meta(meta), config),
-            workspace=letterbox(record.rgb, config.crop_size), texts=texts,
-            targets=np.full(len(texts), target, np.int32))
+            scene_id=record.id,
+            crops=grids.cell_crops(record.rgb, camera_from_meta(meta), config),
+            workspace=letterbox(record.rgb, config.crop_size),
+            texts=texts,
+            targets=np.full(len(texts), target, np.int32),
+        )
 
 
-def cell_features(dataset_dir: Path, backbone: Backbone, config: grids.GridConfig, split: str = "train",
-                  progress: bool = True) -> feature_cache.Features:
+def cell_features(
+    dataset_dir: Path, backbone: Backbone, config: grids.GridConfig, split: str = "train", progress: bool = True
+) -> feature_cache.Features:
     """The split's cell features, from the cache (computed on first use)."""
     from ocplace.train.commands import dataset_hash
 
@@ -80,17 +84,24 @@ def cell_features(dataset_dir: Path, backbone: Backbone, config: grids.GridConfi
     grid_key = hashlib.sha256(config.to_json().encode()).hexdigest()
     name = f"grids-{digest[:16]}-{split}-{backbone.fingerprint[:16]}-{grid_key[:8]}.safetensors"
     path = cache_dir() / "baselines" / name
-    featurize_config = feature_cache.FeaturizeConfig(max_objects=config.num_cells, max_tuples=MAX_TUPLES,
-                                                     prompt=grids.PLAIN_PROMPT)
-    feature_cache.featurize(scene_examples(dataset_dir, split, config), backbone, path,
-                            dataset_hash=f"{digest}|grids|{config.to_json()}", config=featurize_config,
-                            total=len(scene_dirs(dataset_dir, split)), progress=progress)
+    featurize_config = feature_cache.FeaturizeConfig(
+        max_objects=config.num_cells, max_tuples=MAX_TUPLES, prompt=grids.PLAIN_PROMPT
+    )
+    feature_cache.featurize(
+        scene_examples(dataset_dir, split, config),
+        backbone,
+        path,
+        dataset_hash=f"{digest}|grids|{config.to_json()}",
+        config=featurize_config,
+        total=len(scene_dirs(dataset_dir, split)),
+        progress=progress,
+    )
     return feature_cache.load_features(path, expected_fingerprint=backbone.fingerprint)
 
 
 def training_arrays(features: feature_cache.Features, config: grids.GridConfig) -> tuple[np.ndarray, ...]:
     """`(cells (S, C, D), text (S, L, D), text_mask (S, L), targets (S,))` from cached features."""
-    return (features.visual[:, :config.num_cells], features.text, features.text_mask, features.targets[:, 0])
+    return (features.visual[:, : config.num_cells], features.text, features.text_mask, features.targets[:, 0])
 
 
 def train_step(config: grids.GridConfig, schedule: Schedule, logit_scale: float, state, data, indices):
@@ -108,8 +119,15 @@ def train_chunk(config: grids.GridConfig, schedule: Schedule, logit_scale: float
     return jax.lax.scan(lambda carry, step_indices: step(carry, data, step_indices), state, indices)
 
 
-def train_grids(dataset_dir: Path, backbone_spec: str, out_dir: Path, scale: str = "default",
-                fraction: float = 1.0, seed: int = 0, progress: bool = True) -> Path:
+def train_grids(
+    dataset_dir: Path,
+    backbone_spec: str,
+    out_dir: Path,
+    scale: str = "default",
+    fraction: float = 1.0,
+    seed: int = 0,
+    progress: bool = True,
+) -> Path:
     """Trains Raw Image Grids into `out_dir` (skipped when finished, resumed when interrupted)."""
     from ocplace.models.backbone import load_backbone
 
@@ -121,10 +139,18 @@ def train_grids(dataset_dir: Path, backbone_spec: str, out_dir: Path, scale: str
     features = cell_features(Path(dataset_dir), backbone, chosen.grid, progress=progress)
     subset = features.subset(subset_indices(features.num_scenes, fraction, 0))
     logit_scale = float(features.info.logit_scale)
-    run_meta = {"method": "grids", "scale": scale, "fraction": fraction, "seed": seed,
-                "grid": json.loads(chosen.grid.to_json()), "schedule": dataclasses.asdict(chosen.schedule),
-                "features_key": features.info.key, "backbone_fingerprint": backbone.fingerprint,
-                "logit_scale": logit_scale, "train_scenes": subset.num_scenes}
+    run_meta = {
+        "method": "grids",
+        "scale": scale,
+        "fraction": fraction,
+        "seed": seed,
+        "grid": json.loads(chosen.grid.to_json()),
+        "schedule": dataclasses.asdict(chosen.schedule),
+        "features_key": features.info.key,
+        "backbone_fingerprint": backbone.fingerprint,
+        "logit_scale": logit_scale,
+        "train_scenes": subset.num_scenes,
+    }
     params = grids.init_grids(chosen.grid, features.dim, jax.random.key(seed))
     state = (params, optim.adam(chosen.schedule.learning_rate_schedule()).init(params))
     data = jax.device_put(training_arrays(subset, chosen.grid))

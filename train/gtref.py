@@ -77,8 +77,9 @@ class GtRefTrainConfig:
 
 
 RECIPES = {
-    "smoke": GtRefTrainConfig(steps=120, batch_size=8, learning_rate=3e-3, warmup_steps=10, chunk_steps=40,
-                              checkpoint_every=40, hidden=32),
+    "smoke": GtRefTrainConfig(
+        steps=120, batch_size=8, learning_rate=3e-3, warmup_steps=10, chunk_steps=40, checkpoint_every=40, hidden=32
+    ),
     "demo": GtRefTrainConfig(steps=3_000, warmup_steps=200, chunk_steps=500, checkpoint_every=1_500),
     "default": GtRefTrainConfig(),
 }
@@ -100,8 +101,15 @@ def split_features(dataset_dir: Path, split: str, backbone: Backbone, progress: 
     digest = dataset_hash(dataset_dir, split)
     total = len({Path(name).parent for name, _ in split_files(dataset_dir, split)})
     out = cache_dir() / "features" / f"{digest[:16]}-{split}-{backbone.fingerprint[:16]}.safetensors"
-    featurize(read_dataset(dataset_dir, split), backbone, out, dataset_hash=digest, config=FeaturizeConfig(),
-              total=total, progress=progress)
+    featurize(
+        read_dataset(dataset_dir, split),
+        backbone,
+        out,
+        dataset_hash=digest,
+        config=FeaturizeConfig(),
+        total=total,
+        progress=progress,
+    )
     return load_features(out, backbone.fingerprint)
 
 
@@ -129,7 +137,7 @@ def encode_sentences(backbone: Backbone, config: GtRefConfig, instructions, batc
     texts = [config.sentence_text(text) for text in instructions]
     if not texts:
         return np.zeros((0, backbone.dim), np.float32)
-    return np.concatenate([backbone.encode_texts(texts[i:i + batch]) for i in range(0, len(texts), batch)])
+    return np.concatenate([backbone.encode_texts(texts[i : i + batch]) for i in range(0, len(texts), batch)])
 
 
 def split_sentences(dataset_dir: Path, split: str, backbone: Backbone, config: GtRefConfig) -> Sentences:
@@ -153,30 +161,42 @@ def split_sentences(dataset_dir: Path, split: str, backbone: Backbone, config: G
     metas = [read_meta(d) for d in scene_dirs(dataset_dir, split)]
     relations = np.zeros((len(metas), 2), np.int32)
     for row, meta in enumerate(metas):
-        relations[row, :len(meta["tuples"])] = [relation_index(t["relation"]) for t in meta["tuples"]]
+        relations[row, : len(meta["tuples"])] = [relation_index(t["relation"]) for t in meta["tuples"]]
     sentence = encode_sentences(backbone, config, [meta["instruction"] for meta in metas])
     scene_ids = tuple(meta["id"] for meta in metas)
     with atomic_path(path) as tmp:
-        save_file({"sentence": sentence, "relations": relations}, str(tmp),
-                  metadata={"key": key, "scene_ids": json.dumps(scene_ids)})
+        save_file(
+            {"sentence": sentence, "relations": relations},
+            str(tmp),
+            metadata={"key": key, "scene_ids": json.dumps(scene_ids)},
+        )
     return Sentences(scene_ids, sentence, relations, key)
 
 
 def training_arrays(features: Features, sentences: Sentences) -> dict[str, np.ndarray]:
     """The batch dictionary `models.gtref.loss_terms` reads, one row per scene."""
     if features.scene_ids != sentences.scene_ids:
-        raise FeaturesError("the feature file and the sentence cache list different scenes; delete the sentence "
-                            f"cache ({len(sentences.scene_ids)} scenes) so it is rebuilt")
-    return {"visual": features.visual, "visual_mask": features.visual_mask, "sentence": sentences.sentence,
-            "targets": features.targets, "target_mask": features.text_mask, "relations": sentences.relations}
+        raise FeaturesError(
+            "the feature file and the sentence cache list different scenes; delete the sentence "
+            f"cache ({len(sentences.scene_ids)} scenes) so it is rebuilt"
+        )
+    return {
+        "visual": features.visual,
+        "visual_mask": features.visual_mask,
+        "sentence": sentences.sentence,
+        "targets": features.targets,
+        "target_mask": features.text_mask,
+        "relations": sentences.relations,
+    }
 
 
 # ----------------------------------------------------------------------------- the jitted loop
 
 
 def learning_rate_schedule(config: GtRefTrainConfig) -> optax.Schedule:
-    return optax.warmup_cosine_decay_schedule(0.0, config.learning_rate, config.warmup_steps,
-                                              max(config.steps, config.warmup_steps + 1), 0.0)
+    return optax.warmup_cosine_decay_schedule(
+        0.0, config.learning_rate, config.warmup_steps, max(config.steps, config.warmup_steps + 1), 0.0
+    )
 
 
 def train_step(model_config: GtRefConfig, config: GtRefTrainConfig, logit_scale: float, state, data, indices):
@@ -201,8 +221,14 @@ def train_chunk(model_config: GtRefConfig, config: GtRefTrainConfig, logit_scale
     return state, jnp.stack(losses)
 
 
-def train_on_arrays(arrays: dict[str, np.ndarray], run_dir: Path, config: GtRefTrainConfig, logit_scale: float,
-                    run_meta: dict, progress: bool = True) -> GtRefModel:
+def train_on_arrays(
+    arrays: dict[str, np.ndarray],
+    run_dir: Path,
+    config: GtRefTrainConfig,
+    logit_scale: float,
+    run_meta: dict,
+    progress: bool = True,
+) -> GtRefModel:
     """Trains on the scene rows of `arrays` into `run_dir`, resuming from its newest checkpoint."""
     from tqdm import tqdm
 
@@ -229,28 +255,41 @@ def train_on_arrays(arrays: dict[str, np.ndarray], run_dir: Path, config: GtRefT
             state, losses = train_chunk(model_config, config, logit_scale, state, data, jnp.asarray(indices))
             step += count
             loss, reference, relation = np.asarray(losses).mean(axis=1).tolist()
-            metrics.append({"step": step, "loss": loss, "reference_loss": reference, "relation_loss": relation,
-                            "learning_rate": float(schedule(step)),
-                            "elapsed_s": round(time.perf_counter() - began, 3)})
+            metrics.append(
+                {
+                    "step": step,
+                    "loss": loss,
+                    "reference_loss": reference,
+                    "relation_loss": relation,
+                    "learning_rate": float(schedule(step)),
+                    "elapsed_s": round(time.perf_counter() - began, 3),
+                }
+            )
             if step % config.checkpoint_every == 0 or step == config.steps:
-                checkpoints.save_checkpoint(run_dir, step, state, {"step_of": str(config.steps)},
-                                            config.keep_checkpoints)
+                checkpoints.save_checkpoint(
+                    run_dir, step, state, {"step_of": str(config.steps)}, config.keep_checkpoints
+                )
             bar.update(count)
             bar.set_postfix(loss=f"{loss:.4f}")
     return GtRefModel(model_config, jax.tree_util.tree_map(np.asarray, state[0]), logit_scale)
 
 
-def train_gtref(dataset_dir: Path, backbone: Backbone, run_dir: Path, config: GtRefTrainConfig,
-                progress: bool = True) -> Path:
+def train_gtref(
+    dataset_dir: Path, backbone: Backbone, run_dir: Path, config: GtRefTrainConfig, progress: bool = True
+) -> Path:
     """Featurizes the train split (cached), trains, writes `run_dir/model.safetensors`; a finished run is kept."""
     run_dir = Path(run_dir)
     features = split_features(dataset_dir, "train", backbone, progress)
     sentences = split_sentences(dataset_dir, "train", backbone, config.model_config(backbone.dim))
     chosen = subset_indices(features.num_scenes, config.fraction, config.subset_seed)
     arrays = {name: array[chosen] for name, array in training_arrays(features, sentences).items()}
-    run_meta = {"train_config": json.loads(config.to_json()), "features_key": features.info.key,
-                "sentences_key": sentences.key, "backbone_fingerprint": backbone.fingerprint,
-                "train_scenes": int(len(chosen))}
+    run_meta = {
+        "train_config": json.loads(config.to_json()),
+        "features_key": features.info.key,
+        "sentences_key": sentences.key,
+        "backbone_fingerprint": backbone.fingerprint,
+        "train_scenes": int(len(chosen)),
+    }
     if (run_dir / MODEL_FILE).exists():
         checkpoints.claim_run_dir(run_dir, run_meta, "config.json")
         return run_dir
@@ -263,8 +302,12 @@ def train_gtref(dataset_dir: Path, backbone: Backbone, run_dir: Path, config: Gt
 
 
 def save_model(path: Path, model: GtRefModel, *, backbone_fingerprint: str, train_config: GtRefTrainConfig) -> None:
-    metadata = {"model_config": model.config.to_json(), "logit_scale": repr(model.logit_scale),
-                "backbone_fingerprint": backbone_fingerprint, "train_config": train_config.to_json()}
+    metadata = {
+        "model_config": model.config.to_json(),
+        "logit_scale": repr(model.logit_scale),
+        "backbone_fingerprint": backbone_fingerprint,
+        "train_config": train_config.to_json(),
+    }
     save_weights(path, checkpoints.flatten_state(model.params), metadata)
 
 
@@ -280,15 +323,22 @@ def load_model(run_dir: Path) -> TrainedGtRef:
     """The trained model of a finished run, verified."""
     path = Path(run_dir) / MODEL_FILE
     if not path.exists():
-        raise TrainingError(f"no trained GT-ref# model at {path}; train it first (`ocplace evaluate` trains "
-                            "registered methods, or call ocplace.train.gtref.train_gtref)")
-    arrays, metadata = load_weights(path, f"delete {path.parent} and rerun `ocplace evaluate` or "
-                                          "`ocplace reproduce` (they train missing runs)")
+        raise TrainingError(
+            f"no trained GT-ref# model at {path}; train it first (`ocplace evaluate` trains "
+            "registered methods, or call ocplace.train.gtref.train_gtref)"
+        )
+    arrays, metadata = load_weights(
+        path, f"delete {path.parent} and rerun `ocplace evaluate` or `ocplace reproduce` (they train missing runs)"
+    )
     config = GtRefConfig.from_json(metadata["model_config"])
     template = jax.eval_shape(lambda: init_params(config, jax.random.key(0)))
     params = checkpoints.unflatten_state(arrays, template)
-    return TrainedGtRef(GtRefModel(config, params, float(metadata["logit_scale"])), metadata["backbone_fingerprint"],
-                        json.loads(metadata["train_config"]), params_sha256(params))
+    return TrainedGtRef(
+        GtRefModel(config, params, float(metadata["logit_scale"])),
+        metadata["backbone_fingerprint"],
+        json.loads(metadata["train_config"]),
+        params_sha256(params),
+    )
 
 
 def params_sha256(params) -> str:

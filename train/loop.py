@@ -27,11 +27,9 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from ocplace.errors import TrainingError
 from ocplace.models.adapters import AdapterConfig, init_adapters
 from ocplace.models.features import Features
 from ocplace.models.grounding import GroundingModel, adapted_logits, grounding_loss
-from ocplace.paths import write_text_atomic
 from ocplace.train import checkpoints, optim
 from ocplace.train.config import TrainConfig
 from ocplace.train.metrics import GroundingAccuracy, MetricsLog, evaluate_features
@@ -50,8 +48,9 @@ class TrainResult:
 
 def learning_rate_schedule(config: TrainConfig) -> optax.Schedule:
     """Linear warm-up from 0 to the peak over `warmup_steps`, then cosine decay to 0 at `steps`."""
-    return optax.warmup_cosine_decay_schedule(0.0, config.learning_rate, config.warmup_steps,
-                                              max(config.steps, config.warmup_steps + 1), 0.0)
+    return optax.warmup_cosine_decay_schedule(
+        0.0, config.learning_rate, config.warmup_steps, max(config.steps, config.warmup_steps + 1), 0.0
+    )
 
 
 def make_optimizer(config: TrainConfig) -> optax.GradientTransformation:
@@ -108,8 +107,14 @@ def init_state(adapter_config: AdapterConfig, optimizer: optax.GradientTransform
     return params, optimizer.init(params)
 
 
-def train(features: Features, run_dir, config: TrainConfig, val_features: Features | None = None,
-          progress: bool = True, callback: Callable[[dict], None] | None = None) -> TrainResult:
+def train(
+    features: Features,
+    run_dir,
+    config: TrainConfig,
+    val_features: Features | None = None,
+    progress: bool = True,
+    callback: Callable[[dict], None] | None = None,
+) -> TrainResult:
     """Trains the adapters on `features` into `run_dir`, resuming from its newest checkpoint.
 
     `callback(record)` is called after each chunk's metrics record is written (and its checkpoint,
@@ -145,8 +150,12 @@ def train(features: Features, run_dir, config: TrainConfig, val_features: Featur
             indices = batch_indices(train_set.num_scenes, config.seed, step, count, config.batch_size)
             state, losses = jit_train_chunk(adapter_config, config, logit_scale, state, data, jnp.asarray(indices))
             step += count
-            record = {"step": step, "loss": float(np.mean(np.asarray(losses))),
-                      "learning_rate": float(schedule(step)), "elapsed_s": round(time.perf_counter() - began, 3)}
+            record = {
+                "step": step,
+                "loss": float(np.mean(np.asarray(losses))),
+                "learning_rate": float(schedule(step)),
+                "elapsed_s": round(time.perf_counter() - began, 3),
+            }
             if step % config.eval_every == 0 or step == config.steps:
                 record.update(_evaluate(adapter_config, state[0], logit_scale, train_set, val_features))
             if step % config.checkpoint_every == 0 or step == config.steps:
@@ -159,12 +168,24 @@ def train(features: Features, run_dir, config: TrainConfig, val_features: Featur
 
     params = state[0]
     model = GroundingModel(adapter_config, params, logit_scale)
-    checkpoints.save_adapters(run_dir / checkpoints.ADAPTERS_FILE, params, adapter_config, logit_scale,
-                              backbone_fingerprint=features.info.backbone_fingerprint,
-                              prompt=features.info.config.prompt, features_key=features.info.key,
-                              steps=config.steps, train_config_json=config.to_json())
-    return TrainResult(run_dir, model, config.steps, evaluate_features(model, train_set),
-                       evaluate_features(model, val_features) if val_features is not None else None)
+    checkpoints.save_adapters(
+        run_dir / checkpoints.ADAPTERS_FILE,
+        params,
+        adapter_config,
+        logit_scale,
+        backbone_fingerprint=features.info.backbone_fingerprint,
+        prompt=features.info.config.prompt,
+        features_key=features.info.key,
+        steps=config.steps,
+        train_config_json=config.to_json(),
+    )
+    return TrainResult(
+        run_dir,
+        model,
+        config.steps,
+        evaluate_features(model, train_set),
+        evaluate_features(model, val_features) if val_features is not None else None,
+    )
 
 
 def _evaluate(adapter_config, params, logit_scale, train_set: Features, val_features: Features | None) -> dict:
@@ -176,9 +197,10 @@ def _evaluate(adapter_config, params, logit_scale, train_set: Features, val_feat
 
 
 def _run_metadata(config: TrainConfig, features: Features, val_features: Features | None, train_set) -> dict:
-    return {"train_config": json.loads(config.to_json()), "features_key": features.info.key,
-            "backbone_fingerprint": features.info.backbone_fingerprint,
-            "val_features_key": val_features.info.key if val_features is not None else None,
-            "train_scenes": train_set.num_scenes}
-
-
+    return {
+        "train_config": json.loads(config.to_json()),
+        "features_key": features.info.key,
+        "backbone_fingerprint": features.info.backbone_fingerprint,
+        "val_features_key": val_features.info.key if val_features is not None else None,
+        "train_scenes": train_set.num_scenes,
+    }

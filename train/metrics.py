@@ -34,8 +34,12 @@ def grounding_accuracy(predictions: np.ndarray, targets: np.ndarray, text_mask: 
     scenes = text_mask.any(axis=-1)
     scene_correct = np.all(correct | ~text_mask, axis=-1) & scenes
     num_scenes = int(scenes.sum())
-    return GroundingAccuracy(float(correct.sum()) / max(num_tuples, 1),
-                             float(scene_correct.sum()) / max(num_scenes, 1), num_tuples, num_scenes)
+    return GroundingAccuracy(
+        float(correct.sum()) / max(num_tuples, 1),
+        float(scene_correct.sum()) / max(num_scenes, 1),
+        num_tuples,
+        num_scenes,
+    )
 
 
 class MetricsLog:
@@ -60,8 +64,10 @@ class MetricsLog:
                 records.append(json.loads(line))
             except ValueError as error:
                 if number < lines[-1][0]:
-                    raise TrainingError(f"{self.path} line {number} is not JSON ({error}); delete that line, or "
-                                        "the run directory to start the run over") from error
+                    raise TrainingError(
+                        f"{self.path} line {number} is not JSON ({error}); delete that line, or "
+                        "the run directory to start the run over"
+                    ) from error
                 log.warning("%s: dropped its torn last line (a crash while writing it): %r", self.path, line[:80])
         return records
 

@@ -28,8 +28,9 @@ class AdamState(NamedTuple):
     moments: optax.Updates  # per leaf (2, *shape): first and second moment
 
 
-def adam(learning_rate: optax.ScalarOrSchedule, b1: float = 0.9, b2: float = 0.999,
-         eps: float = 1e-8) -> optax.GradientTransformation:
+def adam(
+    learning_rate: optax.ScalarOrSchedule, b1: float = 0.9, b2: float = 0.999, eps: float = 1e-8
+) -> optax.GradientTransformation:
     def init(params) -> AdamState:
         moments = jax.tree_util.tree_map(lambda p: jnp.zeros((2, *p.shape), p.dtype), params)
         return AdamState(jnp.zeros((), jnp.int32), moments)
@@ -46,8 +47,8 @@ def adam(learning_rate: optax.ScalarOrSchedule, b1: float = 0.9, b2: float = 0.9
         count = state.count + 1
         t = count.astype(jnp.float32)
         lr = learning_rate(state.count) if callable(learning_rate) else learning_rate
-        root = jnp.sqrt(1.0 - b2 ** t)
-        step_size, eps_hat = lr * root / (1.0 - b1 ** t), eps * root
+        root = jnp.sqrt(1.0 - b2**t)
+        step_size, eps_hat = lr * root / (1.0 - b1**t), eps * root
         updates = jax.tree_util.tree_map(lambda mv: -step_size * mv[0] / (jnp.sqrt(mv[1]) + eps_hat), moments)
         return updates, AdamState(count, moments)
 

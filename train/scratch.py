@@ -76,10 +76,16 @@ class ScratchRecipe:
 
 
 RECIPES = {
-    "smoke": ScratchRecipe(scratch.smoke_config(), ScratchTrainConfig(
-        steps=150, batch_size=4, learning_rate=1e-3, warmup_steps=3, log_every=10, checkpoint_every=50)),
-    "demo": ScratchRecipe(scratch.demo_config(), ScratchTrainConfig(
-        steps=75, batch_size=8, warmup_steps=8, log_every=25, checkpoint_every=25)),
+    "smoke": ScratchRecipe(
+        scratch.smoke_config(),
+        ScratchTrainConfig(
+            steps=150, batch_size=4, learning_rate=1e-3, warmup_steps=3, log_every=10, checkpoint_every=50
+        ),
+    ),
+    "demo": ScratchRecipe(
+        scratch.demo_config(),
+        ScratchTrainConfig(steps=75, batch_size=8, warmup_steps=8, log_every=25, checkpoint_every=25),
+    ),
     "default": ScratchRecipe(scratch.default_config(), ScratchTrainConfig()),
 }
 
@@ -108,8 +114,13 @@ def visual_pixels(config: ob.OfflineConfig, crops: np.ndarray, workspace: np.nda
     return ob.preprocess_images(config, np.concatenate([crops, workspace[None]]))
 
 
-def scratch_inputs(dataset_dir: Path, split: str, config: ob.OfflineConfig, prompt: PromptConfig = PromptConfig(),
-                   progress: bool = False) -> ScratchInputs:
+def scratch_inputs(
+    dataset_dir: Path,
+    split: str,
+    config: ob.OfflineConfig,
+    prompt: PromptConfig = PromptConfig(),
+    progress: bool = False,
+) -> ScratchInputs:
     """The split's preprocessed images and phrase embeddings, built once into the cache."""
     from safetensors import safe_open
     from safetensors.numpy import load_file, save_file
@@ -120,8 +131,11 @@ def scratch_inputs(dataset_dir: Path, split: str, config: ob.OfflineConfig, prom
 
     text_tower = ob.FrozenTextTower.load(config.text_max_length)
     digest = dataset_hash(dataset_dir, split)
-    key = hashlib.sha256(json.dumps([INPUTS_FORMAT, digest, config.image_size, config.text_max_length,
-                                     prompt.to_json(), text_tower.digest]).encode()).hexdigest()
+    key = hashlib.sha256(
+        json.dumps(
+            [INPUTS_FORMAT, digest, config.image_size, config.text_max_length, prompt.to_json(), text_tower.digest]
+        ).encode()
+    ).hexdigest()
     path = cache_dir() / "scratch" / f"{digest[:16]}-{split}-{config.image_size}px-{key[:12]}.safetensors"
     if path.exists():
         with safe_open(str(path), framework="numpy") as handle:
@@ -129,23 +143,31 @@ def scratch_inputs(dataset_dir: Path, split: str, config: ob.OfflineConfig, prom
         return ScratchInputs(load_file(str(path)), scene_ids, key)
     rows = []
     for example in tqdm(iter_examples(dataset_dir, split), desc="crops", unit="scene", disable=not progress):
-        rows.append((example.scene_id, visual_pixels(config, example.crops, example.workspace),
-                     [prompt.text_for(text) for text in example.texts], example.targets))
+        rows.append(
+            (
+                example.scene_id,
+                visual_pixels(config, example.crops, example.workspace),
+                [prompt.text_for(text) for text in example.texts],
+                example.targets,
+            )
+        )
     size = config.image_size
-    arrays = {"pixels": np.zeros((len(rows), MAX_TOKENS, size, size, 3), np.uint8),
-              "visual_mask": np.zeros((len(rows), MAX_TOKENS), bool),
-              "sentences": np.zeros((len(rows), MAX_TUPLES, config.text_dim), np.float32),
-              "text_mask": np.zeros((len(rows), MAX_TUPLES), bool),
-              "targets": np.zeros((len(rows), MAX_TUPLES), np.int32)}
+    arrays = {
+        "pixels": np.zeros((len(rows), MAX_TOKENS, size, size, 3), np.uint8),
+        "visual_mask": np.zeros((len(rows), MAX_TOKENS), bool),
+        "sentences": np.zeros((len(rows), MAX_TUPLES, config.text_dim), np.float32),
+        "text_mask": np.zeros((len(rows), MAX_TUPLES), bool),
+        "targets": np.zeros((len(rows), MAX_TUPLES), np.int32),
+    }
     texts = [text for _, _, scene_texts, _ in rows for text in scene_texts]
-    embeddings = iter(np.concatenate([text_tower.encode(texts[i:i + 64]) for i in range(0, len(texts), 64)]))
+    embeddings = iter(np.concatenate([text_tower.encode(texts[i : i + 64]) for i in range(0, len(texts), 64)]))
     for row, (_, pixels, scene_texts, targets) in enumerate(rows):
-        arrays["pixels"][row, :len(pixels)] = pixels
-        arrays["visual_mask"][row, :len(pixels)] = True
+        arrays["pixels"][row, : len(pixels)] = pixels
+        arrays["visual_mask"][row, : len(pixels)] = True
         for k in range(len(scene_texts)):
             arrays["sentences"][row, k] = next(embeddings)
-        arrays["text_mask"][row, :len(scene_texts)] = True
-        arrays["targets"][row, :len(targets)] = targets
+        arrays["text_mask"][row, : len(scene_texts)] = True
+        arrays["targets"][row, : len(targets)] = targets
     scene_ids = tuple(scene_id for scene_id, *_ in rows)
     with atomic_path(path) as tmp:
         save_file(arrays, str(tmp), metadata={"key": key, "scene_ids": json.dumps(scene_ids)})
@@ -156,12 +178,17 @@ def scratch_inputs(dataset_dir: Path, split: str, config: ob.OfflineConfig, prom
 
 
 def make_optimizer(config: ScratchTrainConfig) -> optax.GradientTransformation:
-    schedule = optax.warmup_cosine_decay_schedule(0.0, config.learning_rate, config.warmup_steps,
-                                                  max(config.steps, config.warmup_steps + 1),
-                                                  config.learning_rate * 0.02)
+    schedule = optax.warmup_cosine_decay_schedule(
+        0.0,
+        config.learning_rate,
+        config.warmup_steps,
+        max(config.steps, config.warmup_steps + 1),
+        config.learning_rate * 0.02,
+    )
     decay_mask = functools.partial(jax.tree_util.tree_map, lambda p: p.ndim >= 2)
-    return optax.chain(optax.clip_by_global_norm(1.0),
-                       optax.adamw(schedule, weight_decay=config.weight_decay, mask=decay_mask))
+    return optax.chain(
+        optax.clip_by_global_norm(1.0), optax.adamw(schedule, weight_decay=config.weight_decay, mask=decay_mask)
+    )
 
 
 @functools.partial(jax.jit, static_argnums=(0, 1), donate_argnums=2)
@@ -181,8 +208,9 @@ def step_codes(config: ScratchTrainConfig, step: int) -> np.ndarray:
     """int32 `(batch_size, 6)` symmetry codes of a step (zeros without augmentation)."""
     if not config.augment:
         return np.zeros((config.batch_size, MAX_TOKENS), np.int32)
-    return np.random.default_rng([config.seed, step, 1]).integers(8, size=(config.batch_size, MAX_TOKENS),
-                                                                 dtype=np.int32)
+    return np.random.default_rng([config.seed, step, 1]).integers(
+        8, size=(config.batch_size, MAX_TOKENS), dtype=np.int32
+    )
 
 
 def train_on_inputs(arrays: dict, run_dir: Path, recipe_: ScratchRecipe, run_meta: dict, progress: bool = True):
@@ -213,13 +241,19 @@ def train_on_inputs(arrays: dict, run_dir: Path, recipe_: ScratchRecipe, run_met
             losses.append(value)
             done = step + 1
             if done % config.log_every == 0 or done == config.steps:
-                metrics.append({"step": done, "loss": float(np.mean(np.asarray(losses))),
-                                "logit_scale": float(scratch.logit_scale(model, ob.join_params(state[0], frozen))),
-                                "elapsed_s": round(time.perf_counter() - began, 3)})
+                metrics.append(
+                    {
+                        "step": done,
+                        "loss": float(np.mean(np.asarray(losses))),
+                        "logit_scale": float(scratch.logit_scale(model, ob.join_params(state[0], frozen))),
+                        "elapsed_s": round(time.perf_counter() - began, 3),
+                    }
+                )
                 losses = []
             if done % config.checkpoint_every == 0 or done == config.steps:
-                checkpoints.save_checkpoint(run_dir, done, state, {"step_of": str(config.steps)},
-                                            config.keep_checkpoints)
+                checkpoints.save_checkpoint(
+                    run_dir, done, state, {"step_of": str(config.steps)}, config.keep_checkpoints
+                )
             bar.update(1)
     return jax.tree_util.tree_map(np.asarray, ob.join_params(state[0], frozen))
 
@@ -238,12 +272,24 @@ def train_scratch(dataset_dir: Path, run_dir: Path, recipe_: ScratchRecipe, prog
     params = train_on_inputs(arrays, run_dir, recipe_, run_meta, progress)
     model = recipe_.model
     text_digest = ob.FrozenTextTower.load(model.backbone.text_max_length).digest
-    backbone_dir = ob.save_backbone(run_dir / BACKBONE_DIR, model.backbone, params["backbone"], text_digest,
-                                    {"trained_by": "ocplace.train.scratch (Ours w/o CLIP pre-train)",
-                                     "recipe": recipe_.to_dict()})
+    backbone_dir = ob.save_backbone(
+        run_dir / BACKBONE_DIR,
+        model.backbone,
+        params["backbone"],
+        text_digest,
+        {"trained_by": "ocplace.train.scratch (Ours w/o CLIP pre-train)", "recipe": recipe_.to_dict()},
+    )
     fingerprint = (backbone_dir / ob.FINGERPRINT_FILE).read_text().strip()
     scale = float(np.exp(min(float(params["backbone"]["log_logit_scale"]), math.log(model.max_logit_scale))))
-    checkpoints.save_adapters(run_dir / checkpoints.ADAPTERS_FILE, params["adapters"], model.adapters, scale,
-                              backbone_fingerprint=fingerprint, prompt=prompt, features_key=inputs.key,
-                              steps=recipe_.train.steps, train_config_json=json.dumps(recipe_.to_dict()))
+    checkpoints.save_adapters(
+        run_dir / checkpoints.ADAPTERS_FILE,
+        params["adapters"],
+        model.adapters,
+        scale,
+        backbone_fingerprint=fingerprint,
+        prompt=prompt,
+        features_key=inputs.key,
+        steps=recipe_.train.steps,
+        train_config_json=json.dumps(recipe_.to_dict()),
+    )
     return run_dir

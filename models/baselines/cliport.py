@@ -106,8 +106,9 @@ def table_mask(camera: Camera, config: CliportConfig) -> np.ndarray:
     return np.all((points >= bounds[0]) & (points <= bounds[1]), axis=-1)
 
 
-def prepare_image(rgb: np.ndarray, depth: np.ndarray, camera: Camera, config: CliportConfig
-                  ) -> tuple[np.ndarray, np.ndarray]:
+def prepare_image(
+    rgb: np.ndarray, depth: np.ndarray, camera: Camera, config: CliportConfig
+) -> tuple[np.ndarray, np.ndarray]:
     """`(rgb uint8 (h, w, 3), height float16 (h, w))` at the network's resolution (area-averaged)."""
     size = (config.width, config.height)
     small_rgb = cv2.resize(rgb, size, interpolation=cv2.INTER_AREA)
@@ -184,8 +185,9 @@ def _distribution(config: CliportConfig, params, rgb, height, text, mask):
 jit_distribution = jax.jit(_distribution, static_argnums=0)
 
 
-def mode_and_samples(key, probabilities: np.ndarray, num_samples: int, camera: Camera, config: CliportConfig
-                     ) -> tuple[np.ndarray, np.ndarray]:
+def mode_and_samples(
+    key, probabilities: np.ndarray, num_samples: int, camera: Camera, config: CliportConfig
+) -> tuple[np.ndarray, np.ndarray]:
     """`(mode (2,), samples (num_samples, 2))` table points from one scene's `(h * w,)` pixel distribution.
 
     The mode is the argmax pixel's centre; a sample is a pixel drawn from the distribution plus a

@@ -20,12 +20,17 @@ def camera_from_meta(meta: dict) -> Camera:
     """The scene's camera; only the straight-down camera of DESIGN "Camera" (any height, FOV) is modelled."""
     info = meta["camera"]
     pose = np.asarray(info["world_from_camera"], dtype=np.float64)
-    camera = Camera(width=int(info["width"]), height=int(info["height"]),
-                    fov_x_deg=math.degrees(2.0 * math.atan(info["width"] / 2.0 / info["fx"])),
-                    position=tuple(float(v) for v in pose[:3, 3]))
+    camera = Camera(
+        width=int(info["width"]),
+        height=int(info["height"]),
+        fov_x_deg=math.degrees(2.0 * math.atan(info["width"] / 2.0 / info["fx"])),
+        position=tuple(float(v) for v in pose[:3, 3]),
+    )
     if not np.allclose(pose[:3, :3], camera.rotation, atol=1e-6) or not math.isclose(info["fy"], info["fx"]):
-        raise InvalidPlacementProblem("the baselines need a camera looking straight down with square pixels "
-                                      f"(scene {meta.get('id')}); re-render the scene with the default camera")
+        raise InvalidPlacementProblem(
+            "the baselines need a camera looking straight down with square pixels "
+            f"(scene {meta.get('id')}); re-render the scene with the default camera"
+        )
     return camera
 
 

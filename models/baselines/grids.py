@@ -110,8 +110,9 @@ def cell_pixel_boxes(camera: Camera, config: GridConfig) -> np.ndarray:
 
 def cell_crops(rgb: np.ndarray, camera: Camera, config: GridConfig) -> np.ndarray:
     """uint8 `(num_cells, S, S, 3)`: each cell's pixels (no margin), resized to `config.crop_size`."""
-    return np.stack([square_crop(rgb, box, padding=0.0, size=config.crop_size)
-                     for box in cell_pixel_boxes(camera, config)])
+    return np.stack(
+        [square_crop(rgb, box, padding=0.0, size=config.crop_size) for box in cell_pixel_boxes(camera, config)]
+    )
 
 
 # ----------------------------------------------------------------------------- text tokens
@@ -160,7 +161,8 @@ class GridsModel(nn.Module):
         text = blend(text, ClipAdapter(self.dim, cfg.reduction, name="text")(text), cfg.residual_ratio)
         sims = jnp.einsum("...ld,...cd->...lc", l2_normalize(text), l2_normalize(visual))
         mean = jnp.sum(jnp.where(text_mask[..., None], sims, 0.0), axis=-2) / jnp.maximum(
-            jnp.sum(text_mask, axis=-1, keepdims=True), 1)
+            jnp.sum(text_mask, axis=-1, keepdims=True), 1
+        )
         return logit_scale * mean
 
 
@@ -187,8 +189,9 @@ jit_grid_logits = jax.jit(grid_logits, static_argnums=0)
 # ----------------------------------------------------------------------------- placement inside a cell
 
 
-def sample_in_cell(key, free: np.ndarray, cell: int, num_samples: int, config: GridConfig,
-                   grid: metric.Grid = metric.DEFAULT_GRID) -> tuple[np.ndarray, np.ndarray, bool]:
+def sample_in_cell(
+    key, free: np.ndarray, cell: int, num_samples: int, config: GridConfig, grid: metric.Grid = metric.DEFAULT_GRID
+) -> tuple[np.ndarray, np.ndarray, bool]:
     """`(samples (num_samples, 2), mode (2,), collision_free)` uniform over the metric-grid points in `cell`.
 
     `free (nx, ny)` marks the points where the held object fits (`common.free_grid`). Only free

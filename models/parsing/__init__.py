@@ -24,8 +24,18 @@ from ocplace.models.parsing.config import (
 from ocplace.models.parsing.types import ParsedTuple, Parser, as_pairs
 
 __all__ = [
-    "PARSER_NAMES", "LLMConfig", "OfflineConfig", "ParsedTuple", "Parser", "ParsingConfig",
-    "SnapConfig", "as_pairs", "default_config", "make_parser", "make_snapper", "smoke_config",
+    "PARSER_NAMES",
+    "LLMConfig",
+    "OfflineConfig",
+    "ParsedTuple",
+    "Parser",
+    "ParsingConfig",
+    "SnapConfig",
+    "as_pairs",
+    "default_config",
+    "make_parser",
+    "make_snapper",
+    "smoke_config",
 ]
 
 
@@ -50,8 +60,9 @@ def make_parser(name: str | None = None, config: ParsingConfig | None = None) ->
     offline_config = config.offline
     if name == "offline-snap":
         offline_config = dataclasses.replace(offline_config, relation_source="encoder")
-    offline = OfflineParser(offline_config, lambda: make_snapper(offline_config.snap),
-                            name="offline" if name == "llm" else name)
+    offline = OfflineParser(
+        offline_config, lambda: make_snapper(offline_config.snap), name="offline" if name == "llm" else name
+    )
     if name != "llm":
         return offline
     from ocplace.models.parsing.llm import LLMParser

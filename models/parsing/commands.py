@@ -20,25 +20,28 @@ def register(subparsers) -> None:
         "parse-eval", help="parser accuracy and latency on seen, unseen and free-form instructions"
     )
     _add_parser_options(evaluate)
-    evaluate.add_argument("--num", type=int, default=2000,
-                          help="generated instructions per template style (default 2000)")
+    evaluate.add_argument(
+        "--num", type=int, default=2000, help="generated instructions per template style (default 2000)"
+    )
     evaluate.add_argument("--seed", type=int, default=0)
-    evaluate.add_argument("--names", help="text file with one object name per line "
-                                          "(default: the built-in list of ~50 tabletop objects)")
+    evaluate.add_argument(
+        "--names", help="text file with one object name per line (default: the built-in list of ~50 tabletop objects)"
+    )
     evaluate.add_argument("--freeform", help="free-form JSONL file (default: the shipped set)")
-    evaluate.add_argument("--show-failures", type=int, default=5, metavar="K",
-                          help="print up to K failures per set")
+    evaluate.add_argument("--show-failures", type=int, default=5, metavar="K", help="print up to K failures per set")
     evaluate.set_defaults(func=_parse_eval)
 
 
 def _add_parser_options(command: argparse.ArgumentParser) -> None:
     command.add_argument("--parser", choices=PARSER_CHOICES, default="offline")
-    command.add_argument("--base-url", help="LLM endpoint, an http(s) URL such as "
-                                            "http://127.0.0.1:8080/v1")
+    command.add_argument("--base-url", help="LLM endpoint, an http(s) URL such as http://127.0.0.1:8080/v1")
     command.add_argument("--model", help="LLM model name")
-    command.add_argument("--llm-deadline", type=float, metavar="SECONDS",
-                         help="longest an LLM parse may wait, retries included, before the "
-                              "offline parser answers (default 30)")
+    command.add_argument(
+        "--llm-deadline",
+        type=float,
+        metavar="SECONDS",
+        help="longest an LLM parse may wait, retries included, before the offline parser answers (default 30)",
+    )
 
 
 def _config(args):
@@ -77,7 +80,7 @@ def _parse_eval(args) -> int:
         names = tuple(n.strip() for n in Path(args.names).read_text().splitlines() if n.strip())
     snapper_holder = getattr(parser, "offline", parser)
     start = time.perf_counter()
-    snapper_holder.snapper  # load and compile the encoder outside the timed runs
+    _ = snapper_holder.snapper  # load and compile the encoder outside the timed runs
     print(f"sentence encoder loaded and compiled in {time.perf_counter() - start:.1f} s")
     sets = {
         "seen": evaluation.generated_cases("seen", args.num, args.seed, names),
@@ -89,10 +92,12 @@ def _parse_eval(args) -> int:
     sets["free-all"] = evaluation.freeform_cases(freeform_path)
     snaps = evaluation.expression_snapping(snapper_holder.snapper)
     accepted = [s for s in snaps if s.accepted]
-    print(f"encoder alone on the {len(snaps)} unseen relation expressions: nearest relation right "
-          f"for {sum(s.nearest == s.relation for s in snaps)}; past the thresholds: "
-          f"{len(accepted)} ({sum(s.nearest == s.relation for s in accepted)} right), "
-          f"refused {len(snaps) - len(accepted)}")
+    print(
+        f"encoder alone on the {len(snaps)} unseen relation expressions: nearest relation right "
+        f"for {sum(s.nearest == s.relation for s in snaps)}; past the thresholds: "
+        f"{len(accepted)} ({sum(s.nearest == s.relation for s in accepted)} right), "
+        f"refused {len(snaps) - len(accepted)}"
+    )
     print(f"parser {parser.name}, {len(names)} object names")
     for set_name, cases in sets.items():
         report = evaluation.evaluate(parser, cases, set_name)

@@ -48,8 +48,9 @@ class LLMConfig:
     def __post_init__(self):
         check_base_url(self.base_url, self.api_key_env)
         if min(self.timeout_s, self.deadline_s, self.max_body_bytes, self.max_attempts) <= 0:
-            raise LLMConfigError("the LLM parser's timeout_s, deadline_s, max_body_bytes and "
-                                 "max_attempts must all be positive")
+            raise LLMConfigError(
+                "the LLM parser's timeout_s, deadline_s, max_body_bytes and max_attempts must all be positive"
+            )
 
 
 def check_base_url(url: str, api_key_env: str) -> None:
@@ -59,20 +60,19 @@ def check_base_url(url: str, api_key_env: str) -> None:
     """
     example = "give an http:// or https:// URL such as http://127.0.0.1:8080/v1"
     if "@" in url:  # not echoed: it may hold a password
-        raise LLMConfigError(f"the LLM base URL must not hold credentials (user:password@); "
-                             f"{example} and put the API key in ${api_key_env}")
+        raise LLMConfigError(
+            f"the LLM base URL must not hold credentials (user:password@); "
+            f"{example} and put the API key in ${api_key_env}"
+        )
     try:
         parts = urllib.parse.urlsplit(url)
-        parts.port  # reading the port parses it: "host:abc" and "host:99999" raise
+        _ = parts.port  # reading the port parses it: "host:abc" and "host:99999" raise
     except ValueError:
         raise LLMConfigError(f"the LLM base URL {url!r} is malformed; {example}") from None
     if parts.scheme not in ("http", "https"):
-        raise LLMConfigError(f"the LLM base URL {url!r} does not start with http:// or https://; "
-                             f"{example}")
-    if (not parts.hostname or parts.query or parts.fragment
-            or " " in url or not url.isprintable()):
-        raise LLMConfigError(f"the LLM base URL {url!r} needs a host and no spaces, query or "
-                             f"fragment; {example}")
+        raise LLMConfigError(f"the LLM base URL {url!r} does not start with http:// or https://; {example}")
+    if not parts.hostname or parts.query or parts.fragment or " " in url or not url.isprintable():
+        raise LLMConfigError(f"the LLM base URL {url!r} needs a host and no spaces, query or fragment; {example}")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -88,5 +88,4 @@ def default_config() -> ParsingConfig:
 
 def smoke_config() -> ParsingConfig:
     """Fast retries and short timeouts, for tests against a local server."""
-    return ParsingConfig(llm=LLMConfig(timeout_s=1.0, deadline_s=3.0, max_attempts=3,
-                                       backoff_s=0.01))
+    return ParsingConfig(llm=LLMConfig(timeout_s=1.0, deadline_s=3.0, max_attempts=3, backoff_s=0.01))

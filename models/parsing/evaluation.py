@@ -9,8 +9,8 @@ from __future__ import annotations
 import dataclasses
 import json
 import time
+from collections.abc import Iterable, Sequence
 from pathlib import Path
-from typing import Iterable, Sequence
 
 import numpy as np
 
@@ -22,15 +22,56 @@ from ocplace.sim import language, relations
 # Stand-in tabletop object names until the library's own names are passed in: plain nouns,
 # colours, materials, "of"-phrases, "with"-attributes and a possessive, as a real library has.
 EVAL_OBJECT_NAMES: tuple[str, ...] = (
-    "alphabet soup can", "red bowl", "rubber duck", "black shoe with green stripes", "blue mug",
-    "white mug", "tomato sauce can", "ketchup bottle", "mustard bottle", "cream cheese box",
-    "butter stick", "chocolate pudding box", "milk carton", "orange juice carton",
-    "salad dressing bottle", "bbq sauce bottle", "green apple", "banana", "lemon", "orange",
-    "peach", "pear", "strawberry", "plum", "yellow sponge", "toy airplane", "wooden block",
-    "tennis ball", "baseball", "rubik's cube", "spiderman figure", "teddy bear", "toy car",
-    "plastic cup", "coffee mug", "ceramic plate", "soap bottle", "toothpaste box", "power drill",
-    "pair of scissors", "screwdriver", "hammer", "marker", "stapler", "roll of tape", "padlock",
-    "alarm clock", "sunglasses", "baseball cap", "wooden spoon",
+    "alphabet soup can",
+    "red bowl",
+    "rubber duck",
+    "black shoe with green stripes",
+    "blue mug",
+    "white mug",
+    "tomato sauce can",
+    "ketchup bottle",
+    "mustard bottle",
+    "cream cheese box",
+    "butter stick",
+    "chocolate pudding box",
+    "milk carton",
+    "orange juice carton",
+    "salad dressing bottle",
+    "bbq sauce bottle",
+    "green apple",
+    "banana",
+    "lemon",
+    "orange",
+    "peach",
+    "pear",
+    "strawberry",
+    "plum",
+    "yellow sponge",
+    "toy airplane",
+    "wooden block",
+    "tennis ball",
+    "baseball",
+    "rubik's cube",
+    "spiderman figure",
+    "teddy bear",
+    "toy car",
+    "plastic cup",
+    "coffee mug",
+    "ceramic plate",
+    "soap bottle",
+    "toothpaste box",
+    "power drill",
+    "pair of scissors",
+    "screwdriver",
+    "hammer",
+    "marker",
+    "stapler",
+    "roll of tape",
+    "padlock",
+    "alarm clock",
+    "sunglasses",
+    "baseball cap",
+    "wooden spoon",
 )
 FREEFORM_PATH = Path(__file__).resolve().parents[2] / "tests" / "data" / "freeform_instructions.jsonl"
 LEVEL_WEIGHTS = {"table": 9, "1obj": 9, "2obj": 22}  # the test subsets' ratio (DESIGN "Dataset")
@@ -58,12 +99,15 @@ class Report:
 
     def summary(self) -> str:
         mean, median, p95 = self.latency_ms
-        return (f"{self.name:12s} {self.accuracy * 100:6.2f}% ({self.num_correct}/{self.num_cases})"
-                f"  latency ms: mean {mean:.3f}, median {median:.3f}, p95 {p95:.3f}")
+        return (
+            f"{self.name:12s} {self.accuracy * 100:6.2f}% ({self.num_correct}/{self.num_cases})"
+            f"  latency ms: mean {mean:.3f}, median {median:.3f}, p95 {p95:.3f}"
+        )
 
 
-def sample_reference_tuples(level: str, names: Sequence[str], rng: np.random.Generator
-                            ) -> tuple[language.ReferenceTuple, ...]:
+def sample_reference_tuples(
+    level: str, names: Sequence[str], rng: np.random.Generator
+) -> tuple[language.ReferenceTuple, ...]:
     """Random tuples for one instruction of `level` ("table", "1obj", "2obj")."""
     if level == "table":
         relation = relations.RELATION_NAMES[int(rng.integers(len(relations.RELATION_NAMES)))]
@@ -72,14 +116,12 @@ def sample_reference_tuples(level: str, names: Sequence[str], rng: np.random.Gen
     picked = rng.choice(len(names), size=count, replace=False)
     object_relations = relations.OBJECT_RELATION_NAMES
     return tuple(
-        language.ReferenceTuple(names[int(i)], object_relations[int(rng.integers(len(object_relations)))],
-                                False)
+        language.ReferenceTuple(names[int(i)], object_relations[int(rng.integers(len(object_relations)))], False)
         for i in picked
     )
 
 
-def generated_cases(style: str, num_cases: int, seed: int,
-                    names: Sequence[str] = EVAL_OBJECT_NAMES) -> list[Case]:
+def generated_cases(style: str, num_cases: int, seed: int, names: Sequence[str] = EVAL_OBJECT_NAMES) -> list[Case]:
     """Instructions rendered by `sim.language` with levels in the test subsets' ratio."""
     rng = np.random.default_rng(seed)
     levels = list(LEVEL_WEIGHTS)
@@ -103,8 +145,7 @@ def freeform_cases(path: Path = FREEFORM_PATH, split: str | None = None) -> list
         if split and record["split"] != split:
             continue
         expected = frozenset((t["reference"], t["relation"]) for t in record["tuples"])
-        cases.append(Case(record["instruction"], expected, bool(record.get("error")),
-                          record.get("note", "")))
+        cases.append(Case(record["instruction"], expected, bool(record.get("error")), record.get("note", "")))
     return cases
 
 
@@ -125,9 +166,13 @@ def evaluate(parser: Parser, cases: Iterable[Case], name: str) -> Report:
             got_text = got if isinstance(got, str) else str(sorted(got))
             failures.append((case.instruction, expected, got_text))
     values = np.array(latencies or [0.0])
-    return Report(name, len(latencies), correct,
-                  (float(values.mean()), float(np.median(values)), float(np.percentile(values, 95))),
-                  tuple(failures))
+    return Report(
+        name,
+        len(latencies),
+        correct,
+        (float(values.mean()), float(np.median(values)), float(np.percentile(values, 95))),
+        tuple(failures),
+    )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -151,6 +196,5 @@ def expression_snapping(snapper) -> list[ExpressionSnap]:
                 accepted = True
             except ParseError:
                 accepted = False
-            out.append(ExpressionSnap(expression, relation, best.relation, best.similarity,
-                                      best.margin, accepted))
+            out.append(ExpressionSnap(expression, relation, best.relation, best.similarity, best.margin, accepted))
     return out

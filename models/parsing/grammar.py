@@ -124,8 +124,7 @@ def mentions_in(words: list[str], sentence: int) -> list[Mention]:
     while start is not None:
         region_end = scanner.region_end(start)
         region_start = scanner.extend_left(start, floor)
-        mention = Mention(words[region_start:region_end], tags[region_start:region_end], [],
-                          sentence=sentence)
+        mention = Mention(words[region_start:region_end], tags[region_start:region_end], [], sentence=sentence)
         if region_start > floor and words[region_start - 1].endswith("'s"):
             mention.reference = scanner.possessor(region_start - 1, floor)
             mention.possessive = True
@@ -147,8 +146,11 @@ _RELATIVE_PRONOUNS = frozenset({"that", "which", "who", "where"})
 
 def _trim_reference(words: list[str]) -> list[str]:
     words = list(words)
-    while words and (words[-1] in lexicon.LINKERS or words[-1] in _CONJUNCTIONS
-                     or (len(words) > 1 and words[-1] in _RELATIVE_PRONOUNS)):
+    while words and (
+        words[-1] in lexicon.LINKERS
+        or words[-1] in _CONJUNCTIONS
+        or (len(words) > 1 and words[-1] in _RELATIVE_PRONOUNS)
+    ):
         words.pop()
     return words
 
@@ -159,8 +161,7 @@ def _snapping_candidate(words: list[str], sentence: int) -> list[Mention]:
     The relation words go to the sentence encoder ("kitty-corner from the mug"). Clauses without
     that shape ("put it down", "thank you") hold no relation. Returns [] or one Mention.
     """
-    after_held = max((i + 1 for i, w in enumerate(words) if w in lexicon.HELD_OBJECT_WORDS),
-                     default=0)
+    after_held = max((i + 1 for i, w in enumerate(words) if w in lexicon.HELD_OBJECT_WORDS), default=0)
     body = words[after_held:]
     for i in range(len(body) - 1, -1, -1):
         if body[i] not in _SNAP_PREPOSITIONS:
@@ -170,11 +171,13 @@ def _snapping_candidate(words: list[str], sentence: int) -> list[Mention]:
         if not reference or " ".join(reference) in lexicon.PRONOUN_REFERENCES:
             return []
         is_table = text.normalise_reference(reference) == "table"
-        if is_table and all(w in _TABLE_ONLY_PREPOSITIONS or w in text.ARTICLES
-                            for w in relation_words):
+        if is_table and all(w in _TABLE_ONLY_PREPOSITIONS or w in text.ARTICLES for w in relation_words):
             return []  # "put it on the table": where, not which part
-        return [Mention(relation_words, lexicon.tag_words(relation_words), body[i + 1 :],
-                        sentence=sentence, needs_snapping=True)]
+        return [
+            Mention(
+                relation_words, lexicon.tag_words(relation_words), body[i + 1 :], sentence=sentence, needs_snapping=True
+            )
+        ]
     return []
 
 
@@ -219,9 +222,7 @@ class _ClauseScanner:
         )
 
     def extend_left(self, start: int, floor: int) -> int:
-        while start > floor and (
-            self.tags[start - 1].kind == "function" or self.words[start - 1] in _REGION_EXTRAS
-        ):
+        while start > floor and (self.tags[start - 1].kind == "function" or self.words[start - 1] in _REGION_EXTRAS):
             start -= 1
         return start
 
@@ -229,7 +230,8 @@ class _ClauseScanner:
         """The noun phrase ending in the possessive at `index` ("the rubber duck's")."""
         start = index
         while start > floor and not (
-            self._is_linker(start - 1) or self.tags[start - 1].kind == "function"
+            self._is_linker(start - 1)
+            or self.tags[start - 1].kind == "function"
             or self.words[start - 1] in lexicon.HELD_OBJECT_WORDS
         ):
             start -= 1

@@ -16,12 +16,17 @@ _DIRECTION_WORDS: dict[str, tuple[str, ...]] = {}
 for _words, _direction in (
     ("left lefthand leftward leftwards leftmost west western westward westwards", (LEFT,)),
     ("right righthand rightward rightwards rightmost east eastern eastward eastwards", (RIGHT,)),
-    ("back behind rear rearward rearwards rearmost hind top upper uppermost topmost north northern "
-     "northward northwards far farther further furthest farthest beyond past backside", (BACK,)),
-    ("front before bottom lower lowermost bottommost south southern southward southwards near "
-     "nearer nearest fore frontal", (FRONT,)),
-    ("middle center centre central centered centred mid midpoint midway halfway centermost "
-     "centremost", (MIDDLE,)),
+    (
+        "back behind rear rearward rearwards rearmost hind top upper uppermost topmost north northern "
+        "northward northwards far farther further furthest farthest beyond past backside",
+        (BACK,),
+    ),
+    (
+        "front before bottom lower lowermost bottommost south southern southward southwards near "
+        "nearer nearest fore frontal",
+        (FRONT,),
+    ),
+    ("middle center centre central centered centred mid midpoint midway halfway centermost centremost", (MIDDLE,)),
     ("northwest topleft", (BACK, LEFT)),
     ("northeast topright", (BACK, RIGHT)),
     ("southwest bottomleft", (FRONT, LEFT)),
@@ -31,8 +36,7 @@ for _words, _direction in (
         _DIRECTION_WORDS[_word] = _direction
 
 PROXIMITY_WORDS = frozenset(
-    "next beside besides by near close nearby closeby alongside adjacent neighbouring neighboring "
-    "against".split()
+    "next beside besides by near close nearby closeby alongside adjacent neighbouring neighboring against".split()
 )
 # Relations that exist in English but are not among the nine: a clear error, never a guess.
 UNSUPPORTED_WORDS: dict[str, str] = {
@@ -57,16 +61,27 @@ PRONOUN_REFERENCES = frozenset({"it", "its", "them", "this", "that", "one", "it'
 HELD_OBJECT_WORDS = frozenset({"it", "this", "that", "thing", "object", "item", "one", "piece"})
 # A reference ends where the speaker turns back to the command or to politeness.
 REFERENCE_STOPS = frozenset(
-    "please pls plz thanks thank kindly if i you we goes go should must needs is are was will "
-    "would belongs".split()
+    "please pls plz thanks thank kindly if i you we goes go should must needs is are was will would belongs".split()
 )
 _VIEWER_WORDS = ("me", "you", "us", "camera", "viewer", "observer")
 _INTENSIFIED_BY_RIGHT = frozenset(
     "behind before in at on next beside by near above below under over against alongside between "
     "there here away up down onto into inside close".split()
 )
-_DIRECTION_TYPO_TARGETS = ("left", "right", "front", "behind", "middle", "center", "centre",
-                           "corner", "rear", "back", "side", "hand")
+_DIRECTION_TYPO_TARGETS = (
+    "left",
+    "right",
+    "front",
+    "behind",
+    "middle",
+    "center",
+    "centre",
+    "corner",
+    "rear",
+    "back",
+    "side",
+    "hand",
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -144,8 +159,12 @@ def correct_typo(word: str) -> str:
 
 def _is_transposition(word: str, target: str) -> bool:
     diffs = [i for i in range(len(word)) if word[i] != target[i]]
-    return (len(diffs) == 2 and diffs[1] == diffs[0] + 1
-            and word[diffs[0]] == target[diffs[1]] and word[diffs[1]] == target[diffs[0]])
+    return (
+        len(diffs) == 2
+        and diffs[1] == diffs[0] + 1
+        and word[diffs[0]] == target[diffs[1]]
+        and word[diffs[1]] == target[diffs[0]]
+    )
 
 
 def _within_one_edit(word: str, target: str) -> bool:
@@ -155,7 +174,7 @@ def _within_one_edit(word: str, target: str) -> bool:
         diffs = sum(a != b for a, b in zip(word, target))
         return diffs == 1 or _is_transposition(word, target)
     short, long = sorted((word, target), key=len)
-    return any(long[:i] + long[i + 1:] == short for i in range(len(long)))
+    return any(long[:i] + long[i + 1 :] == short for i in range(len(long)))
 
 
 def tag_words(words: list[str]) -> list[Tag]:
@@ -199,13 +218,12 @@ def _tag_at(words: list[str], i: int) -> Tag:
 
 
 def _tag_distance_word(word: str, preceding: str | None, following: str | None) -> Tag:
-    """"far left" (intensifier), "far from" (distance), "near the cup" (proximity), "near side"."""
+    """ "far left" (intensifier), "far from" (distance), "near the cup" (proximity), "near side"."""
     if following in _DIRECTION_WORDS and following not in ("far", "near", "before", "behind"):
         return Tag("function")
     if following in ("from", "away"):
         return Tag("unsupported", reason="distance ('far from')")
     is_near = word.startswith("near")
-    if is_near and following not in FILLERS and following is not None and preceding not in (
-            "the", "its"):
+    if is_near and following not in FILLERS and following is not None and preceding not in ("the", "its"):
         return Tag("prox")
     return Tag("dir", (FRONT,) if is_near else (BACK,))

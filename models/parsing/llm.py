@@ -27,8 +27,8 @@ import threading
 import time
 import urllib.error
 import urllib.request
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 from ocplace import paths
 from ocplace.errors import ParseError
@@ -47,7 +47,7 @@ _SYSTEM_PROMPT = (
     "must put it on a table relative to the table or to objects on it. Answer with one JSON "
     'object and nothing else: {"tuples": [{"reference": R, "relation": L}, ...]} with one '
     "tuple per reference. R is the reference object's name as written in the instruction, "
-    "lower case, without articles, or \"table\" for the table. L is one of: "
+    'lower case, without articles, or "table" for the table. L is one of: '
     + ", ".join(relations.RELATION_NAMES)
     + ". Directions are as the viewer sees the table: back is away from the viewer, front is "
     "towards the viewer; middle is used with the table only. If the text is not a placement "
@@ -59,7 +59,9 @@ _SYSTEM_PROMPT = (
 # Words that point at an object without naming it: a reference made of these alone ("it", "the
 # thing", "them") could be the held object or anything else, so the answer is refused.
 _NOT_A_NAME = (
-    lexicon.PRONOUN_REFERENCES | lexicon.HELD_OBJECT_WORDS | lexicon.FUNCTION_WORDS
+    lexicon.PRONOUN_REFERENCES
+    | lexicon.HELD_OBJECT_WORDS
+    | lexicon.FUNCTION_WORDS
     | frozenset("they these those ones things objects items pieces something stuff".split())
 )
 
@@ -102,8 +104,13 @@ class LLMParser:
 
     name = "llm"
 
-    def __init__(self, config: LLMConfig, offline: Parser, snapper_factory: Callable[[], Snapper],
-                 sleep: Callable[[float], None] = time.sleep):
+    def __init__(
+        self,
+        config: LLMConfig,
+        offline: Parser,
+        snapper_factory: Callable[[], Snapper],
+        sleep: Callable[[float], None] = time.sleep,
+    ):
         self.config = config
         self.offline = offline
         self._snapper_factory = snapper_factory
@@ -128,8 +135,13 @@ class LLMParser:
         except _Failed as error:
             return self._fall_back(cleaned, str(error))
         if self.config.use_cache:
-            record = {"base_url": self.config.base_url, "model": self.config.model,
-                      "prompt_version": PROMPT_VERSION, "instruction": cleaned, "content": content}
+            record = {
+                "base_url": self.config.base_url,
+                "model": self.config.model,
+                "prompt_version": PROMPT_VERSION,
+                "instruction": cleaned,
+                "content": content,
+            }
             paths.write_text_atomic(cache_file, json.dumps(record))
         return tuples
 
@@ -146,8 +158,9 @@ class LLMParser:
                 return content, self._tuples_from_answer(content, instruction)
             except _InvalidAnswer as error:
                 if config.temperature == 0:
-                    raise _Failed(f"invalid answer, not retried at temperature 0 (the same request "
-                                  f"gets the same answer): {error}") from error
+                    raise _Failed(
+                        f"invalid answer, not retried at temperature 0 (the same request gets the same answer): {error}"
+                    ) from error
                 reason, wait = f"invalid answer: {error}", backoff
             except _Transient as error:
                 reason = str(error)
@@ -157,8 +170,7 @@ class LLMParser:
             if attempt == config.max_attempts:
                 break
             if time.monotonic() + wait >= deadline:
-                raise _Failed(f"gave up at the {config.deadline_s:g} s deadline: "
-                              f"{'; '.join(reasons)}")
+                raise _Failed(f"gave up at the {config.deadline_s:g} s deadline: {'; '.join(reasons)}")
             self._sleep(wait)
             backoff *= 2
         raise _Failed(f"{config.max_attempts} attempts failed: {'; '.join(reasons)}")
@@ -166,14 +178,21 @@ class LLMParser:
     def _complete(self, instruction: str, deadline: float) -> str:
         """The assistant message's content for `instruction`; raises _Transient or _Failed on a
         transport failure and _InvalidAnswer on a body that is not a chat completion."""
-        body = json.dumps({"model": self.config.model, "temperature": self.config.temperature,
-                           "messages": prompt_messages(instruction)}).encode()
+        body = json.dumps(
+            {
+                "model": self.config.model,
+                "temperature": self.config.temperature,
+                "messages": prompt_messages(instruction),
+            }
+        ).encode()
         headers = {"Content-Type": "application/json"}
         key = os.environ.get(self.config.api_key_env)
         if key:
             headers["Authorization"] = f"Bearer {key}"
         request = urllib.request.Request(
-            self.config.base_url.rstrip("/") + "/chat/completions", data=body, headers=headers,
+            self.config.base_url.rstrip("/") + "/chat/completions",
+            data=body,
+            headers=headers,
             method="POST",
         )
         payload = self._post(request, deadline)
@@ -207,16 +226,20 @@ class LLMParser:
         """The body; _Failed past `max_body_bytes` (unread when Content-Length announces it)."""
         cap = self.config.max_body_bytes
         if (response.length or 0) > cap or len(payload := response.read(cap + 1)) > cap:
-            raise _Failed(f"the response is larger than the {cap:,}-byte cap (max_body_bytes); "
-                          "is the base URL a chat-completions endpoint?")
+            raise _Failed(
+                f"the response is larger than the {cap:,}-byte cap (max_body_bytes); "
+                "is the base URL a chat-completions endpoint?"
+            )
         return payload
 
     def _tuples_from_answer(self, content: object, instruction: str) -> list[ParsedTuple]:
         items = _answer_items(content)
         if not items:
             raise ParseError(f"the LLM found no placement in {instruction[:80]!r}")
-        return [self._tuple(_checked_reference(reference, instruction), relation.strip().lower())
-                for reference, relation in items]
+        return [
+            self._tuple(_checked_reference(reference, instruction), relation.strip().lower())
+            for reference, relation in items
+        ]
 
     def _tuple(self, reference: str, relation_text: str) -> ParsedTuple:
         if relation_text in relations.RELATION_NAMES:
@@ -233,8 +256,7 @@ class LLMParser:
 
     def _fall_back(self, instruction: str, reason: str) -> list[ParsedTuple]:
         log.warning("LLM parser fell back to the offline parser: %s", reason)
-        return [dataclasses.replace(t, fallback_reason=reason)
-                for t in self.offline.parse(instruction)]
+        return [dataclasses.replace(t, fallback_reason=reason) for t in self.offline.parse(instruction)]
 
 
 class _Watchdog:
@@ -328,8 +350,10 @@ def _http_failure(error: urllib.error.HTTPError) -> Exception:
         note = "" if retry_after is None else f" (Retry-After {retry_after:g} s)"
         return _Transient(f"HTTP {error.code}{note}", retry_after)
     if 300 <= error.code < 400:
-        return _Failed(f"the endpoint redirected the request (HTTP {error.code}); redirects are "
-                       "not followed: give the final URL as the base URL")
+        return _Failed(
+            f"the endpoint redirected the request (HTTP {error.code}); redirects are "
+            "not followed: give the final URL as the base URL"
+        )
     return _Failed(f"endpoint refused the request: HTTP {error.code}")
 
 
@@ -372,11 +396,13 @@ def _checked_reference(answer: str, instruction: str) -> str:
 
 def _is_phrase_of(words: list[str], written: list[str]) -> bool:
     """Whether `words` occur in `written` in a row ("duck" matches "duck's")."""
+
     def same(word: str, seen: str) -> bool:
         return word == seen or (seen.endswith("'s") and word == seen[:-2])
 
-    return any(all(same(w, seen) for w, seen in zip(words, written[start:]))
-               for start in range(len(written) - len(words) + 1))
+    return any(
+        all(same(w, seen) for w, seen in zip(words, written[start:])) for start in range(len(written) - len(words) + 1)
+    )
 
 
 _FENCE = re.compile(r"^```(?:json)?\s*|\s*```$")
@@ -395,9 +421,13 @@ def _answer_items(content: object) -> list[tuple[str, str]]:
         raise _InvalidAnswer(f"answer needs a 'tuples' list of at most {MAX_TUPLES} items")
     out = []
     for item in items:
-        if not (isinstance(item, dict) and isinstance(item.get("reference"), str)
-                and isinstance(item.get("relation"), str)
-                and 0 < len(item["reference"]) <= 100 and 0 < len(item["relation"]) <= 60):
+        if not (
+            isinstance(item, dict)
+            and isinstance(item.get("reference"), str)
+            and isinstance(item.get("relation"), str)
+            and 0 < len(item["reference"]) <= 100
+            and 0 < len(item["relation"]) <= 60
+        ):
             raise _InvalidAnswer(f"tuple {item!r} needs short 'reference' and 'relation' strings")
         out.append((item["reference"], item["relation"]))
     return out

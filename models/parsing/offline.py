@@ -14,7 +14,7 @@ Mentions found by `grammar` are resolved across clauses:
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 from ocplace.errors import ParseError
 from ocplace.models.parsing import grammar, lexicon, text
@@ -25,15 +25,18 @@ from ocplace.sim import language, relations
 
 _HORIZONTAL = (lexicon.LEFT, lexicon.RIGHT)
 _DEPTH = (lexicon.BACK, lexicon.FRONT)
-_OPPOSITE = {lexicon.LEFT: lexicon.RIGHT, lexicon.RIGHT: lexicon.LEFT,
-             lexicon.BACK: lexicon.FRONT, lexicon.FRONT: lexicon.BACK}
+_OPPOSITE = {
+    lexicon.LEFT: lexicon.RIGHT,
+    lexicon.RIGHT: lexicon.LEFT,
+    lexicon.BACK: lexicon.FRONT,
+    lexicon.FRONT: lexicon.BACK,
+}
 
 
 class OfflineParser:
     """Parses instructions without a network; loads the sentence encoder only when it must snap."""
 
-    def __init__(self, config: OfflineConfig, snapper_factory: Callable[[], Snapper],
-                 name: str = "offline"):
+    def __init__(self, config: OfflineConfig, snapper_factory: Callable[[], Snapper], name: str = "offline"):
         self.config = config
         self.name = name
         self._snapper_factory = snapper_factory
@@ -48,9 +51,7 @@ class OfflineParser:
     def parse(self, instruction: str) -> list[ParsedTuple]:
         cleaned = text.validate(instruction, self.config.max_chars)
         mentions = [
-            mention
-            for sentence, words in grammar.clauses(cleaned)
-            for mention in grammar.mentions_in(words, sentence)
+            mention for sentence, words in grammar.clauses(cleaned) for mention in grammar.mentions_in(words, sentence)
         ]
         if not mentions:
             raise ParseError(
@@ -65,17 +66,20 @@ class OfflineParser:
         reference = text.normalise_reference(mention.reference)
         phrase = mention.phrase
         if not reference:
-            raise ParseError(f"{phrase!r} {' '.join(mention.reference)!r} names no object; "
-                             "say which object, e.g. 'to the left of the red bowl'")
+            raise ParseError(
+                f"{phrase!r} {' '.join(mention.reference)!r} names no object; "
+                "say which object, e.g. 'to the left of the red bowl'"
+            )
         if mention.needs_snapping or self.config.relation_source == "encoder":
-            snap = (self.snapper.snap(phrase) if mention.needs_snapping
-                    else self.snapper.nearest(phrase))
+            snap = self.snapper.snap(phrase) if mention.needs_snapping else self.snapper.nearest(phrase)
             relation, similarity = snap.relation, snap.similarity
         else:
             relation, similarity = _relation_from_directions(mention.directions, phrase), None
         if reference != language.TABLE_NAME and not relations.relation(relation).applies_to_objects:
-            raise ParseError(f"{phrase!r} {reference!r}: the middle is a region of the table only; "
-                             "for an object say left, right, in front of or behind")
+            raise ParseError(
+                f"{phrase!r} {reference!r}: the middle is a region of the table only; "
+                "for an object say left, right, in front of or behind"
+            )
         return reference, relation, phrase, similarity
 
 
@@ -90,8 +94,9 @@ def _relation_from_directions(directions: set[str], phrase: str) -> str:
         return (depth or horizontal)[0]
     if lexicon.MIDDLE in directions:
         return "middle"
-    raise ParseError(f"{phrase!r} says no direction; say left, right, in front of, behind, "
-                     "a corner, or the middle of the table")
+    raise ParseError(
+        f"{phrase!r} says no direction; say left, right, in front of, behind, a corner, or the middle of the table"
+    )
 
 
 def _resolve(mentions: list[grammar.Mention]) -> list[grammar.Mention]:
@@ -99,19 +104,23 @@ def _resolve(mentions: list[grammar.Mention]) -> list[grammar.Mention]:
     for mention in mentions:
         reason = mention.unsupported_reason
         if reason:
-            raise ParseError(f"{mention.phrase!r} is a {reason} relation, which is not one of the "
-                             "nine; use left, right, in front of, behind, a corner or the middle")
+            raise ParseError(
+                f"{mention.phrase!r} is a {reason} relation, which is not one of the "
+                "nine; use left, right, in front of, behind, a corner or the middle"
+            )
     _resolve_pronouns(mentions)
     _share_dangling_references(mentions)
     _give_sides_to_proximity(mentions)
     resolved = []
     for mention in mentions:
         if mention.is_proximity_only:
-            if any(other.reference == mention.reference and other.directions
-                   for other in mentions if other is not mention):
+            if any(
+                other.reference == mention.reference and other.directions for other in mentions if other is not mention
+            ):
                 continue
-            raise ParseError(f"{mention.phrase!r} {' '.join(mention.reference)!r} does not say "
-                             "on which side; add e.g. 'on its left'")
+            raise ParseError(
+                f"{mention.phrase!r} {' '.join(mention.reference)!r} does not say on which side; add e.g. 'on its left'"
+            )
         if not mention.reference:
             mention.reference = [language.TABLE_NAME]
         resolved.extend(_split_conjoined_references(mention))
@@ -126,8 +135,10 @@ def _resolve_pronouns(mentions: list[grammar.Mention]) -> None:
         after = [m.reference for m in mentions[index + 1 :] if m.reference and not m.pronoun]
         antecedent = (before[-1:] or after[:1] or [None])[0]
         if antecedent is None:
-            raise ParseError(f"{mention.phrase!r} refers to 'it', but the instruction names no "
-                             "object for it to stand for (the held object cannot be a reference)")
+            raise ParseError(
+                f"{mention.phrase!r} refers to 'it', but the instruction names no "
+                "object for it to stand for (the held object cannot be a reference)"
+            )
         mention.reference = list(antecedent)
 
 
@@ -157,22 +168,40 @@ def _give_sides_to_proximity(mentions: list[grammar.Mention]) -> None:
         neighbours = [mentions[j] for j in (index - 1, index + 1) if 0 <= j < len(mentions)]
         partner = next((m for m in neighbours if m.is_proximity_only and m.reference), None)
         following = mentions[index + 1] if index + 1 < len(mentions) else None
-        if (partner is None and following is not None and following.reference
-                and following.sentence == mention.sentence
-                and _opposite(mention.directions, following.directions)):
+        if (
+            partner is None
+            and following is not None
+            and following.reference
+            and following.sentence == mention.sentence
+            and _opposite(mention.directions, following.directions)
+        ):
             partner = following
         previous = mentions[index - 1] if index > 0 else None
-        if (partner is None and previous is not None and previous.reference
-                and previous.sentence == mention.sentence
-                and mention.directions <= previous.directions):
+        if (
+            partner is None
+            and previous is not None
+            and previous.reference
+            and previous.sentence == mention.sentence
+            and mention.directions <= previous.directions
+        ):
             partner = previous  # "in front of the cup, towards me" repeats the relation
-        if (partner is None and previous is not None and previous.reference
-                and previous.sentence == mention.sentence and _axes(mention.directions)
-                and _axes(previous.directions).isdisjoint(_axes(mention.directions))):
+        if (
+            partner is None
+            and previous is not None
+            and previous.reference
+            and previous.sentence == mention.sentence
+            and _axes(mention.directions)
+            and _axes(previous.directions).isdisjoint(_axes(mention.directions))
+        ):
             partner = previous  # "to the front of the tray, slightly to the left": a corner
-        if (partner is None and following is not None and following.reference
-                and following.sentence == mention.sentence and _axes(mention.directions)
-                and _axes(following.directions).isdisjoint(_axes(mention.directions))):
+        if (
+            partner is None
+            and following is not None
+            and following.reference
+            and following.sentence == mention.sentence
+            and _axes(mention.directions)
+            and _axes(following.directions).isdisjoint(_axes(mention.directions))
+        ):
             partner = following
         if partner is not None:
             mention.reference = list(partner.reference)
@@ -187,13 +216,16 @@ def _axes(directions: set[str]) -> set[str]:
 
 
 def _split_conjoined_references(mention: grammar.Mention) -> list[grammar.Mention]:
-    """"both the lemon and the banana" -> one mention per reference, same relation."""
+    """ "both the lemon and the banana" -> one mention per reference, same relation."""
     words = list(mention.reference)
     both = words[:1] == ["both"]
     if both:
         words = words[1:]
-    cuts = [i for i, w in enumerate(words)
-            if w == "and" and (both or (i + 1 < len(words) and words[i + 1] in text.ARTICLES))]
+    cuts = [
+        i
+        for i, w in enumerate(words)
+        if w == "and" and (both or (i + 1 < len(words) and words[i + 1] in text.ARTICLES))
+    ]
     if not cuts:
         return [mention]
     pieces, start = [], 0
@@ -204,8 +236,9 @@ def _split_conjoined_references(mention: grammar.Mention) -> list[grammar.Mentio
 
 
 def _with_reference(mention: grammar.Mention, reference: list[str]) -> grammar.Mention:
-    copy = grammar.Mention(mention.region, mention.tags, reference, sentence=mention.sentence,
-                           needs_snapping=mention.needs_snapping)
+    copy = grammar.Mention(
+        mention.region, mention.tags, reference, sentence=mention.sentence, needs_snapping=mention.needs_snapping
+    )
     return copy
 
 
@@ -219,20 +252,21 @@ def _merge_same_reference(items, parser_name: str) -> list[ParsedTuple]:
         previous = merged[reference]
         combined = _combine(previous[0], relation)
         if combined is None:
-            raise ParseError(f"the relations {previous[0]!r} and {relation!r} on {reference!r} contradict: "
-                             "they cannot both hold. Keep one of them; two relations on different axes "
-                             "make a corner ('behind and to the left of the mug')")
+            raise ParseError(
+                f"the relations {previous[0]!r} and {relation!r} on {reference!r} contradict: "
+                "they cannot both hold. Keep one of them; two relations on different axes "
+                "make a corner ('behind and to the left of the mug')"
+            )
         previous[0] = combined
         previous[1] = f"{previous[1]}; {phrase}"
     return [
-        ParsedTuple(reference, relation, phrase,
-                    "direct" if similarity is None else "snapped", similarity, parser_name)
+        ParsedTuple(reference, relation, phrase, "direct" if similarity is None else "snapped", similarity, parser_name)
         for reference, (relation, phrase, similarity) in merged.items()
     ]
 
 
 def _combine(first: str, second: str) -> str | None:
-    """"left" + "back" -> "back left"; equal relations stay; anything else conflicts."""
+    """ "left" + "back" -> "back left"; equal relations stay; anything else conflicts."""
     if first == second:
         return first
     parts = set(first.split()) | set(second.split())

@@ -8,14 +8,13 @@ second-best relation; otherwise it is an unknown relation, not a guess.
 from __future__ import annotations
 
 import dataclasses
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 
 from ocplace.errors import ParseError
 from ocplace.models.parsing.encoder import TextEncoder
 from ocplace.sim import language, relations
-
 
 _SAME_PHRASE = 0.995  # cosine similarity of a phrase with itself, up to float error
 
@@ -43,9 +42,7 @@ class Snapper:
         self.min_similarity = min_similarity
         self.min_margin = min_margin
         targets = target_phrases()
-        self._target_relation = np.array(
-            [relations.relation_index(name) for name, _ in targets], dtype=np.int32
-        )
+        self._target_relation = np.array([relations.relation_index(name) for name, _ in targets], dtype=np.int32)
         self._target_embeddings = encode_texts([phrase for _, phrase in targets])  # (P, D)
         encode_texts([targets[0][1]])  # compiles the one-phrase shape now, not on the first snap
 
@@ -62,8 +59,9 @@ class Snapper:
         """The closest canonical relation, whatever the similarity."""
         scores = self.relation_scores([phrase])[0]
         order = np.argsort(scores)[::-1]
-        return Snap(relations.RELATION_NAMES[order[0]], float(scores[order[0]]),
-                    float(scores[order[0]] - scores[order[1]]))
+        return Snap(
+            relations.RELATION_NAMES[order[0]], float(scores[order[0]]), float(scores[order[0]] - scores[order[1]])
+        )
 
     def snap(self, phrase: str) -> Snap:
         """The canonical relation `phrase` means, or ParseError when no relation is close."""

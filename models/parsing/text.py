@@ -22,7 +22,7 @@ _INJECTION = re.compile(
     re.IGNORECASE | re.DOTALL,
 )
 _WORD = re.compile(r"[^\W_]+(?:['\-][^\W_]+)*'?")
-_HARD_BREAK = set(".!?;:()\"\n")
+_HARD_BREAK = set('.!?;:()"\n')
 _PUNCTUATION = re.compile(r"[,.!?;:()\"\n]")
 
 ARTICLES = frozenset({"a", "an", "the", "teh", "hte"})
@@ -43,25 +43,30 @@ def validate(instruction: object, max_chars: int = DEFAULT_MAX_CHARS) -> str:
         raise ParseError(f"an instruction is text, got {type(instruction).__name__}")
     text = unicodedata.normalize("NFKC", instruction).replace("\u2019", "'").strip()
     if not text:
-        raise ParseError("the instruction is empty; say where to put the object, e.g. "
-                         "'put it to the left of the red bowl'")
+        raise ParseError(
+            "the instruction is empty; say where to put the object, e.g. 'put it to the left of the red bowl'"
+        )
     if len(text) > max_chars:
-        raise ParseError(f"the instruction is {len(text)} characters long (limit {max_chars}); "
-                         "a placement instruction needs one sentence")
+        raise ParseError(
+            f"the instruction is {len(text)} characters long (limit {max_chars}); "
+            "a placement instruction needs one sentence"
+        )
     letters = [c for c in text if c.isalpha()]
     if not letters:
         raise ParseError("the instruction has no words")
     foreign = sum(not c.isascii() for c in letters)
     if foreign > 0.2 * len(letters):
-        raise ParseError("the instruction does not look like English; only English instructions "
-                         "are supported")
+        raise ParseError("the instruction does not look like English; only English instructions are supported")
     bad = sorted(_FORBIDDEN_CHARACTERS.intersection(text))
     if bad:
-        raise ParseError(f"the instruction contains characters that do not belong in a placement "
-                         f"instruction: {''.join(bad)!r}")
+        raise ParseError(
+            f"the instruction contains characters that do not belong in a placement instruction: {''.join(bad)!r}"
+        )
     if _INJECTION.search(text):
-        raise ParseError("the instruction reads like an attempt to change the parser's own "
-                         "instructions, not like a placement instruction")
+        raise ParseError(
+            "the instruction reads like an attempt to change the parser's own "
+            "instructions, not like a placement instruction"
+        )
     return text
 
 

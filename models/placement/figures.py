@@ -48,8 +48,16 @@ def _outline(axis, mapping, box, **style) -> None:
     axis.plot(outline[:, 0], outline[:, 1], **style)
 
 
-def draw_panels(image: np.ndarray, world_to_pixel, panels: Sequence[Panel], grid: Grid = metric.DEFAULT_GRID,
-                *, scene_boxes: np.ndarray | None = None, max_points: int = 300, suptitle: str | None = None):
+def draw_panels(
+    image: np.ndarray,
+    world_to_pixel,
+    panels: Sequence[Panel],
+    grid: Grid = metric.DEFAULT_GRID,
+    *,
+    scene_boxes: np.ndarray | None = None,
+    max_points: int = 300,
+    suptitle: str | None = None,
+):
     """A matplotlib Figure with one panel per `Panel`: image, density, samples, mode, references.
 
     `scene_boxes (B, 2, 2)`, if given, are outlined faintly (the obstacles).
@@ -90,8 +98,13 @@ def draw_panels(image: np.ndarray, world_to_pixel, panels: Sequence[Panel], grid
 
 
 def choose_fig5_tuples(
-    rng: np.random.Generator, boxes: np.ndarray, half_extents, names: Sequence[str] | None = None,
-    grid: Grid = metric.DEFAULT_GRID, max_candidates: int = 120, scene: str = "scene",
+    rng: np.random.Generator,
+    boxes: np.ndarray,
+    half_extents,
+    names: Sequence[str] | None = None,
+    grid: Grid = metric.DEFAULT_GRID,
+    max_candidates: int = 120,
+    scene: str = "scene",
 ) -> list[tuple[str, list[GroundedTuple], np.ndarray]]:
     """Three `(title, tuples, reference boxes)`, one per panel kind: the candidate of each kind
     with the largest feasible region, among candidates in an order drawn from `rng` (at most
@@ -133,8 +146,19 @@ def choose_fig5_tuples(
     return chosen
 
 
-def fig5(key, image: np.ndarray, world_to_pixel, boxes: np.ndarray, half_extents, *, rng: np.random.Generator,
-         names: Sequence[str] | None = None, config: Any = None, suptitle: str | None = None, scene: str = "scene"):
+def fig5(
+    key,
+    image: np.ndarray,
+    world_to_pixel,
+    boxes: np.ndarray,
+    half_extents,
+    *,
+    rng: np.random.Generator,
+    names: Sequence[str] | None = None,
+    config: Any = None,
+    suptitle: str | None = None,
+    scene: str = "scene",
+):
     """Fig. 5 for one scene: chooses the three panels' tuples, samples them and draws them."""
     import jax
 

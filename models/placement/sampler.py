@@ -98,9 +98,7 @@ def tuple_gaussians(config: SamplerConfig) -> dict[str, np.ndarray]:
         "table_scale": (1.0 / (2.0 * np.pi * np.prod(table_sigma) * _table_region_mass(config))).astype(FLOAT),
         "object_offset": (config.object_offset * relations.direction_table()).astype(FLOAT),
         "object_sigma": np.tile(object_sigma, (9, 1)).astype(FLOAT),
-        "object_scale": np.full(
-            9, 1.0 / (2.0 * np.pi * config.object_sigma**2 * _object_region_mass(config)), FLOAT
-        ),
+        "object_scale": np.full(9, 1.0 / (2.0 * np.pi * config.object_sigma**2 * _object_region_mass(config)), FLOAT),
     }
 
 

@@ -29,9 +29,7 @@ def random_tuples(rng: np.random.Generator, level: str, boxes: np.ndarray) -> li
         return [GroundedTuple(str(rng.choice(relations.RELATION_NAMES)))]
     count = {"1obj": 1, "2obj": 2}[level]
     references = rng.choice(len(boxes), size=count, replace=False)
-    return [
-        GroundedTuple(str(rng.choice(relations.OBJECT_RELATION_NAMES)), boxes[index]) for index in references
-    ]
+    return [GroundedTuple(str(rng.choice(relations.OBJECT_RELATION_NAMES)), boxes[index]) for index in references]
 
 
 def random_problem(

@@ -12,8 +12,7 @@ from ocplace.sim.mujoco_backend import MujocoScenes
 from ocplace.sim.physical import physical_check
 
 
-def check_oracle(dataset_dir, splits: list[str], library=None, physical: bool = False,
-                 progress: bool = True) -> dict:
+def check_oracle(dataset_dir, splits: list[str], library=None, physical: bool = False, progress: bool = True) -> dict:
     """Per split: how many oracle placements pass the metric (and, optionally, the physical check)."""
     report = {}
     arena = MujocoScenes.from_library(library) if physical else None
@@ -28,11 +27,16 @@ def check_oracle(dataset_dir, splits: list[str], library=None, physical: bool = 
                     metric_failures.append(meta["id"])
                 if arena is not None and not physical_check(arena, meta, placement).success:
                     physical_failures.append(meta["id"])
-            report[split] = {"scenes": len(dirs), "metric_success": len(dirs) - len(metric_failures),
-                             "metric_failures": metric_failures}
+            report[split] = {
+                "scenes": len(dirs),
+                "metric_success": len(dirs) - len(metric_failures),
+                "metric_failures": metric_failures,
+            }
             if arena is not None:
-                report[split] |= {"physical_success": len(dirs) - len(physical_failures),
-                                  "physical_failures": physical_failures}
+                report[split] |= {
+                    "physical_success": len(dirs) - len(physical_failures),
+                    "physical_failures": physical_failures,
+                }
     finally:
         if arena is not None:
             arena.close()

@@ -14,11 +14,13 @@ SPLIT_CHOICES = ("all", *SPLIT_NAMES)
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     generate = subparsers.add_parser(
-        "generate", help="generate the benchmark dataset (resumable)",
+        "generate",
+        help="generate the benchmark dataset (resumable)",
         description="Drops objects in MuJoCo, renders them and writes scenes with instructions and "
-                    "ground truth. Defaults are the paper's: train 2000 scenes (450 table, 450 1obj, "
-                    "1100 2obj) and four test subsets of 400 (90/90/220): the paper's seen, unseen_obj, unseen_inst "
-                    "and unseen_cat (objects of categories absent from training). Rerun to resume.")
+        "ground truth. Defaults are the paper's: train 2000 scenes (450 table, 450 1obj, "
+        "1100 2obj) and four test subsets of 400 (90/90/220): the paper's seen, unseen_obj, unseen_inst "
+        "and unseen_cat (objects of categories absent from training). Rerun to resume.",
+    )
     generate.add_argument("--out", type=Path, required=True, help="dataset folder")
     generate.add_argument("--split", choices=SPLIT_CHOICES, default="all")
     generate.add_argument("--workers", type=int, default=os.cpu_count() or 1)
@@ -30,8 +32,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
     dataset = subparsers.add_parser("dataset", help="check or draw a generated dataset")
     actions = dataset.add_subparsers(dest="action", metavar="ACTION", required=True)
-    verify = actions.add_parser("verify", help="check every file against the manifest's sha256 and the schema, "
-                                               "and report what the manifest does not list")
+    verify = actions.add_parser(
+        "verify",
+        help="check every file against the manifest's sha256 and the schema, "
+        "and report what the manifest does not list",
+    )
     verify.add_argument("dir", type=Path)
     verify.set_defaults(func=_verify)
     show = actions.add_parser("show", help="draw one scene with its instruction, truth and feasible region")
@@ -40,8 +45,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     show.add_argument("--split", default="seen", help="split used with a numeric --id")
     show.add_argument("--out", type=Path, default=Path("scene.png"))
     show.set_defaults(func=_show)
-    check = actions.add_parser("check", help="score the oracle placements with the success metric "
-                                              "(and the physical drop check)")
+    check = actions.add_parser(
+        "check", help="score the oracle placements with the success metric (and the physical drop check)"
+    )
     check.add_argument("dir", type=Path)
     check.add_argument("--split", choices=SPLIT_CHOICES, default="all")
     check.add_argument("--physical", action="store_true", help="also drop the held object in MuJoCo")
@@ -62,8 +68,10 @@ def _generate(args: argparse.Namespace) -> int:
     for split, counts in manifest["counts"].items():
         print(f"{split:>12}: {sum(counts.values())} scenes {counts}")
     stats = manifest["statistics"]
-    print(f"resampled: {stats['resamples']['scenes']} scenes, {stats['resamples']['relations']} relation draws; "
-          f"{stats['bytes'] / 1e6:.0f} MB in {args.out}")
+    print(
+        f"resampled: {stats['resamples']['scenes']} scenes, {stats['resamples']['relations']} relation draws; "
+        f"{stats['bytes'] / 1e6:.0f} MB in {args.out}"
+    )
     return 0
 
 
@@ -74,8 +82,10 @@ def _verify(args: argparse.Namespace) -> int:
     for scene, problem in problems:
         print(f"{scene}: {problem}")
     if problems:
-        print(f"{len(problems)} problems; rerun `ocplace generate --out {args.dir}` with the same options "
-              "to regenerate exactly the damaged scenes, and delete what the manifest does not list")
+        print(
+            f"{len(problems)} problems; rerun `ocplace generate --out {args.dir}` with the same options "
+            "to regenerate exactly the damaged scenes, and delete what the manifest does not list"
+        )
         return 1
     print(f"{args.dir}: every file matches the manifest")
     return 0
@@ -111,7 +121,13 @@ def _check(args: argparse.Namespace) -> int:
         print(line)
         for key in total:
             total[key] += row.get(key, 0)
-    print(f"{'all':>12}: metric {total['metric_success']}/{total['scenes']}"
-          + (f", physical {total['physical_success']}/{total['scenes']} "
-             f"({100 * total['physical_success'] / total['scenes']:.1f}%)" if args.physical else ""))
+    print(
+        f"{'all':>12}: metric {total['metric_success']}/{total['scenes']}"
+        + (
+            f", physical {total['physical_success']}/{total['scenes']} "
+            f"({100 * total['physical_success'] / total['scenes']:.1f}%)"
+            if args.physical
+            else ""
+        )
+    )
     return 0 if total["metric_success"] == total["scenes"] else 1

@@ -61,8 +61,9 @@ class DatasetConfig:
             if split.num_scenes == 0:
                 raise DatasetConfigError(f"split {split.name!r} has zero scenes")
             if split.objects not in LIBRARY_SPLITS or split.textures not in TEXTURE_SPLITS:
-                raise DatasetConfigError(f"{split.name}: object splits are {LIBRARY_SPLITS}, texture splits "
-                                         f"{TEXTURE_SPLITS}")
+                raise DatasetConfigError(
+                    f"{split.name}: object splits are {LIBRARY_SPLITS}, texture splits {TEXTURE_SPLITS}"
+                )
             if split.instructions not in ("seen", "unseen"):
                 raise DatasetConfigError(f"{split.name}: instruction style is 'seen' or 'unseen'")
 

@@ -83,8 +83,9 @@ class SceneGenerator:
                 images = encode_images(scene.rgb, scene.depth, scene.segmentation, self.config.png_compression)
                 return scene_files(meta, images)
             resamples["scenes"] += 1
-        raise UnsolvableScene(f"{scene_id(split_name, index)}: no solvable {level} instruction in "
-                              f"{self.config.max_scene_attempts} scenes")
+        raise UnsolvableScene(
+            f"{scene_id(split_name, index)}: no solvable {level} instruction in {self.config.max_scene_attempts} scenes"
+        )
 
     def _choose_tuples(self, rng, scene: RenderedScene, level: str, resamples: dict):
         boxes = boxes_from_segmentation(scene.segmentation)
@@ -102,14 +103,24 @@ class SceneGenerator:
             resamples["relations"] += 1
         return None
 
-    def _meta(self, split: SplitConfig, index: int, level: str, rng, scene: RenderedScene,
-              tuples: list[tuple[int, str]], feasible: np.ndarray, resamples: dict) -> dict:
+    def _meta(
+        self,
+        split: SplitConfig,
+        index: int,
+        level: str,
+        rng,
+        scene: RenderedScene,
+        tuples: list[tuple[int, str]],
+        feasible: np.ndarray,
+        resamples: dict,
+    ) -> dict:
         library, spec = self.library, scene.spec
         boxes = boxes_from_segmentation(scene.segmentation)
         box_ids = boxes.object_ids.tolist()
         human = {obj.object_id: library.get(obj.name).human_name for obj in scene.objects}
-        reference_tuples = [ReferenceTuple(TABLE_NAME if ref == 0 else human[ref], rel, ref == 0)
-                            for ref, rel in tuples]
+        reference_tuples = [
+            ReferenceTuple(TABLE_NAME if ref == 0 else human[ref], rel, ref == 0) for ref, rel in tuples
+        ]
         instruction = render_instruction(reference_tuples, split.instructions, rng)
         held = library.get(spec.held_object)
         return {
@@ -121,25 +132,44 @@ class SceneGenerator:
             "instruction": instruction,
             "instruction_style": split.instructions,
             "tuples": [
-                {"reference_object_id": ref, "reference_name": item.name, "relation": rel,
-                 "token_index": len(box_ids) if ref == 0 else box_ids.index(ref)}
+                {
+                    "reference_object_id": ref,
+                    "reference_name": item.name,
+                    "relation": rel,
+                    "token_index": len(box_ids) if ref == 0 else box_ids.index(ref),
+                }
                 for (ref, rel), item in zip(tuples, reference_tuples, strict=True)
             ],
-            "held_object": {"name": held.name, "human_name": held.human_name,
-                            "extents": list(held.extents), "footprint_half_extents": _half_extents(library, held.name)},
+            "held_object": {
+                "name": held.name,
+                "human_name": held.human_name,
+                "extents": list(held.extents),
+                "footprint_half_extents": _half_extents(library, held.name),
+            },
             "table_texture": spec.table_texture,
             "spec": spec.to_json(),
             "objects": [
-                {"object_id": obj.object_id, "name": obj.name, "human_name": human[obj.object_id],
-                 "asset": library.get(obj.name).source, "position": obj.position.tolist(),
-                 "quaternion": obj.quaternion.tolist(), "aabb": obj.aabb.tolist()}
+                {
+                    "object_id": obj.object_id,
+                    "name": obj.name,
+                    "human_name": human[obj.object_id],
+                    "asset": library.get(obj.name).source,
+                    "position": obj.position.tolist(),
+                    "quaternion": obj.quaternion.tolist(),
+                    "aabb": obj.aabb.tolist(),
+                }
                 for obj in scene.objects
             ],
-            "boxes": [{"object_id": int(i), "box": b.tolist(), "pixels": int(c)}
-                      for i, b, c in zip(boxes.object_ids, boxes.boxes, boxes.pixel_counts, strict=True)],
+            "boxes": [
+                {"object_id": int(i), "box": b.tolist(), "pixels": int(c)}
+                for i, b, c in zip(boxes.object_ids, boxes.boxes, boxes.pixel_counts, strict=True)
+            ],
             "camera": self.arena.config.camera.to_json(),
-            "oracle": {"placement": oracle_placement(feasible).tolist(), "feasible_cells": int(feasible.sum()),
-                       "grid_resolution": DEFAULT_GRID.resolution},
+            "oracle": {
+                "placement": oracle_placement(feasible).tolist(),
+                "feasible_cells": int(feasible.sum()),
+                "grid_resolution": DEFAULT_GRID.resolution,
+            },
             "resamples": resamples,
             "settle_steps": scene.settle_steps,
         }

@@ -41,8 +41,9 @@ def code_version() -> str:
     """The package version plus the git commit of the source tree when there is one."""
     source = Path(ocplace.__file__).resolve().parent.parent
     try:
-        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=source, capture_output=True,
-                                text=True, timeout=5).stdout.strip()
+        commit = subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"], cwd=source, capture_output=True, text=True, timeout=5
+        ).stdout.strip()
     except (OSError, subprocess.SubprocessError):
         commit = ""
     return f"{ocplace.__version__}+{commit}" if commit else ocplace.__version__
@@ -80,8 +81,10 @@ def _claim_directory(out: Path, config: DatasetConfig) -> None:
         if not isinstance(existing, dict):
             raise DatasetError(f"{config_path} is corrupt; delete it to start this dataset afresh")
         if existing.get("config") != wanted["config"]:
-            raise DatasetError(f"{out} holds another dataset (its {CONFIG_FILE} has a different configuration); "
-                               "choose another --out folder or delete that one")
+            raise DatasetError(
+                f"{out} holds another dataset (its {CONFIG_FILE} has a different configuration); "
+                "choose another --out folder or delete that one"
+            )
     elif out.exists() and any(p for p in out.iterdir() if not p.name.startswith(".")):
         raise DatasetError(f"{out} is not empty and holds no {CONFIG_FILE}; choose an empty or new folder")
     else:
@@ -93,8 +96,10 @@ def _inside(out: Path, relative: str) -> Path:
     try:
         return inside(out, relative)
     except ValueError as error:
-        raise DatasetError(f"{error}; a dataset keeps all its scenes inside its folder: remove that symlink "
-                           f"(or move its target into {out}) and rerun") from None
+        raise DatasetError(
+            f"{error}; a dataset keeps all its scenes inside its folder: remove that symlink "
+            f"(or move its target into {out}) and rerun"
+        ) from None
 
 
 def _listed_path(out: Path, relative: str) -> Path:
@@ -107,9 +112,11 @@ def _listed_path(out: Path, relative: str) -> Path:
             return inside(out, relative)
         except ValueError as error:
             problem = str(error)
-    raise DatasetError(f"corrupt dataset: an entry of {out / MANIFEST_FILE} is unsafe: {problem}. ocplace never "
-                       f"writes such an entry, so nothing was read or deleted; remove any symlink out of {out}, "
-                       f"delete the manifest and rerun `ocplace generate --out {out}` with the same options")
+    raise DatasetError(
+        f"corrupt dataset: an entry of {out / MANIFEST_FILE} is unsafe: {problem}. ocplace never "
+        f"writes such an entry, so nothing was read or deleted; remove any symlink out of {out}, "
+        f"delete the manifest and rerun `ocplace generate --out {out}` with the same options"
+    )
 
 
 def read_manifest(out: str | Path) -> dict:
@@ -124,8 +131,10 @@ def read_manifest(out: str | Path) -> dict:
         manifest = None
     files = manifest.get("files") if isinstance(manifest, dict) else None
     if not isinstance(files, dict) or not all(isinstance(digest, str) for digest in files.values()):
-        raise DatasetError(f"corrupt dataset: {path} is not a manifest written by `ocplace generate`; delete it and "
-                           f"rerun `ocplace generate --out {out}` with the same options to rewrite it")
+        raise DatasetError(
+            f"corrupt dataset: {path} is not a manifest written by `ocplace generate`; delete it and "
+            f"rerun `ocplace generate --out {out}` with the same options to rewrite it"
+        )
     for relative in files:
         _listed_path(out, relative)
     return manifest
@@ -176,8 +185,13 @@ def _unlisted(out: Path, manifest: dict) -> list[tuple[str, str]]:
         for name in sorted(dirnames + filenames):
             relative = (base / name).as_posix()
             if not name.startswith(".") and relative not in files and relative not in folders:
-                problems.append((relative, f"{relative} is not in the manifest, so nothing reads it; "
-                                           "delete it or move it out of the dataset"))
+                problems.append(
+                    (
+                        relative,
+                        f"{relative} is not in the manifest, so nothing reads it; "
+                        "delete it or move it out of the dataset",
+                    )
+                )
         dirnames[:] = sorted(name for name in dirnames if (base / name).as_posix() in folders)
     return problems
 
@@ -216,8 +230,14 @@ def _make_scene(out: str, split: str, index: int, level: str) -> str:
     return scene_id(split, index)
 
 
-def generate_dataset(out: str | Path, config: DatasetConfig, splits: list[str] | None = None,
-                     workers: int = 1, cache: str | None = None, progress: bool = True) -> dict:
+def generate_dataset(
+    out: str | Path,
+    config: DatasetConfig,
+    splits: list[str] | None = None,
+    workers: int = 1,
+    cache: str | None = None,
+    progress: bool = True,
+) -> dict:
     """Generates (or completes) the dataset in `out`; returns the manifest."""
     out = Path(out)
     config.validate()
@@ -232,10 +252,12 @@ def generate_dataset(out: str | Path, config: DatasetConfig, splits: list[str] |
     manifest = read_manifest(out) if (out / MANIFEST_FILE).exists() else None
     _remove_leftovers(out, config)
     regenerated = _drop_damaged_scenes(out, manifest)
-    jobs = [(name, index, level)
-            for name in splits
-            for index, level in enumerate(level_schedule(config.split(name), config.seed))
-            if not _scene_is_complete(_scene_dir(out, name, index))]
+    jobs = [
+        (name, index, level)
+        for name in splits
+        for index, level in enumerate(level_schedule(config.split(name), config.seed))
+        if not _scene_is_complete(_scene_dir(out, name, index))
+    ]
     bar = tqdm(total=len(jobs), desc="scenes", unit="scene", disable=not progress)
     if workers == 1:
         _init_worker(config, cache)
@@ -245,8 +267,9 @@ def generate_dataset(out: str | Path, config: DatasetConfig, splits: list[str] |
         _WORKER.pop("generator").close()
     else:
         context = multiprocessing.get_context("spawn")  # forking after JAX or EGL start-up is unsafe
-        with concurrent.futures.ProcessPoolExecutor(workers, mp_context=context, initializer=_init_worker,
-                                                    initargs=(config, cache)) as pool:
+        with concurrent.futures.ProcessPoolExecutor(
+            workers, mp_context=context, initializer=_init_worker, initargs=(config, cache)
+        ) as pool:
             futures = [pool.submit(_make_scene, str(out), *job) for job in jobs]
             for future in concurrent.futures.as_completed(futures):
                 future.result()
@@ -274,8 +297,11 @@ def write_manifest(out: Path, config: DatasetConfig, regenerated: int = 0) -> di
         "config": describe(config),
         "code_version": code_version(),
         "counts": counts,
-        "statistics": {"resamples": resamples, "regenerated_corrupt_scenes": regenerated,
-                       "bytes": int(sum((out / f).stat().st_size for f in files))},
+        "statistics": {
+            "resamples": resamples,
+            "regenerated_corrupt_scenes": regenerated,
+            "bytes": int(sum((out / f).stat().st_size for f in files)),
+        },
         "files": files,
     }
     write_text_atomic(out / MANIFEST_FILE, json.dumps(manifest, indent=1, sort_keys=True))
@@ -295,7 +321,7 @@ def scene_dirs(out: str | Path, split: str) -> list[Path]:
     listed = [relative for relative in read_manifest(out)["files"] if relative.startswith(f"{split}/")]
     dirs = sorted({(out / relative).parent for relative in listed})  # read_manifest checked every entry
     if not dirs:
-        raise DatasetError(f"{out} has no scenes of split {split!r}; generate them with "
-                           f"`ocplace generate --out {out} --split {split}`")
+        raise DatasetError(
+            f"{out} has no scenes of split {split!r}; generate them with `ocplace generate --out {out} --split {split}`"
+        )
     return dirs
-

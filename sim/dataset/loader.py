@@ -41,8 +41,11 @@ def letterbox(image: np.ndarray, size: int) -> np.ndarray:
 
 def example_from_record(record: SceneRecord, crop_size: int = CROP_SIZE) -> SceneExample:
     boxes = record.boxes
-    crops = np.stack([square_crop(record.rgb, box, size=crop_size) for box in boxes.boxes]) if len(boxes) else \
-        np.zeros((0, crop_size, crop_size, 3), np.uint8)
+    crops = (
+        np.stack([square_crop(record.rgb, box, size=crop_size) for box in boxes.boxes])
+        if len(boxes)
+        else np.zeros((0, crop_size, crop_size, 3), np.uint8)
+    )
     tuples = record.tuples
     return SceneExample(
         scene_id=record.id,
@@ -79,23 +82,27 @@ def collate(examples: list[SceneExample], max_boxes: int = MAX_BOXES, max_tuples
         crops[row, :count] = example.crops
         crop_mask[row, :count] = True
         box_ids[row, :count] = example.box_object_ids
-        targets[row, :len(example.targets)] = example.targets
-        tuple_mask[row, :len(example.targets)] = True
+        targets[row, : len(example.targets)] = example.targets
+        tuple_mask[row, : len(example.targets)] = True
     return {
         "scene_ids": [example.scene_id for example in examples],
-        "crops": crops, "crop_mask": crop_mask, "box_object_ids": box_ids,
+        "crops": crops,
+        "crop_mask": crop_mask,
+        "box_object_ids": box_ids,
         "workspace": np.stack([example.workspace for example in examples]),
         "num_boxes": crop_mask.sum(axis=1).astype(np.int32),
-        "targets": targets, "tuple_mask": tuple_mask,
+        "targets": targets,
+        "tuple_mask": tuple_mask,
         "texts": [example.texts for example in examples],
     }
 
 
-def batches(dataset_dir: str | Path, split: str, batch_size: int, crop_size: int = CROP_SIZE,
-            shuffle_seed: int | None = None) -> Iterator[dict]:
+def batches(
+    dataset_dir: str | Path, split: str, batch_size: int, crop_size: int = CROP_SIZE, shuffle_seed: int | None = None
+) -> Iterator[dict]:
     """Padded batches of `split`; with `shuffle_seed`, scenes in a seeded random order."""
     dirs = scene_dirs(dataset_dir, split)
     if shuffle_seed is not None:
         dirs = [dirs[i] for i in np.random.default_rng(shuffle_seed).permutation(len(dirs))]
     for start in range(0, len(dirs), batch_size):
-        yield collate([example_from_record(read_scene(d), crop_size) for d in dirs[start:start + batch_size]])
+        yield collate([example_from_record(read_scene(d), crop_size) for d in dirs[start : start + batch_size]])

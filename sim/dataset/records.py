@@ -1,9 +1,9 @@
 """One scene of the dataset on disk: three PNGs and a JSON, readable without this project.
 
-    <split>/<scene id>/scene.json          everything but the pixels (schema below)
-    <split>/<scene id>/rgb.png             uint8 RGB
-    <split>/<scene id>/depth.png           uint16 planar depth in millimetres
-    <split>/<scene id>/segmentation.png    uint8 object ids, 0 = table or background
+<split>/<scene id>/scene.json          everything but the pixels (schema below)
+<split>/<scene id>/rgb.png             uint8 RGB
+<split>/<scene id>/depth.png           uint16 planar depth in millimetres
+<split>/<scene id>/segmentation.png    uint8 object ids, 0 = table or background
 """
 
 from __future__ import annotations
@@ -22,8 +22,23 @@ from ocplace.sim.metric import GroundedTuple, PlacementProblem, encode_problem
 SCHEMA_VERSION = 1
 IMAGE_FILES = ("rgb.png", "depth.png", "segmentation.png")
 SCENE_FILE = "scene.json"
-SCENE_KEYS = ("id", "split", "level", "index", "instruction", "tuples", "held_object", "table_texture",
-              "spec", "objects", "boxes", "camera", "oracle", "resamples", "schema_version")
+SCENE_KEYS = (
+    "id",
+    "split",
+    "level",
+    "index",
+    "instruction",
+    "tuples",
+    "held_object",
+    "table_texture",
+    "spec",
+    "objects",
+    "boxes",
+    "camera",
+    "oracle",
+    "resamples",
+    "schema_version",
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -52,9 +67,11 @@ class SceneRecord:
     @property
     def boxes(self) -> Boxes:
         entries = self.meta["boxes"]
-        return Boxes(np.array([b["object_id"] for b in entries], np.int32).reshape(-1),
-                     np.array([b["box"] for b in entries], np.int32).reshape(-1, 4),
-                     np.array([b["pixels"] for b in entries], np.int64).reshape(-1))
+        return Boxes(
+            np.array([b["object_id"] for b in entries], np.int32).reshape(-1),
+            np.array([b["box"] for b in entries], np.int32).reshape(-1, 4),
+            np.array([b["pixels"] for b in entries], np.int64).reshape(-1),
+        )
 
     def problem(self) -> PlacementProblem:
         return problem_from_meta(self.meta)
@@ -63,8 +80,10 @@ class SceneRecord:
 def problem_from_meta(meta: dict) -> PlacementProblem:
     """The placement problem of a scene.json, with the ground-truth grounding."""
     aabbs = np.array([obj["aabb"] for obj in meta["objects"]], dtype=np.float64)[:, :, :2]
-    tuples = [GroundedTuple(t["relation"], None if t["reference_object_id"] == 0
-                            else aabbs[t["reference_object_id"] - 1]) for t in meta["tuples"]]
+    tuples = [
+        GroundedTuple(t["relation"], None if t["reference_object_id"] == 0 else aabbs[t["reference_object_id"] - 1])
+        for t in meta["tuples"]
+    ]
     return encode_problem(tuples, aabbs, meta["held_object"]["footprint_half_extents"])
 
 
@@ -75,8 +94,9 @@ def _encode_png(image: np.ndarray, compression: int) -> bytes:
     return encoded.tobytes()
 
 
-def encode_images(rgb: np.ndarray, depth: np.ndarray, segmentation: np.ndarray,
-                  compression: int = 1) -> dict[str, bytes]:
+def encode_images(
+    rgb: np.ndarray, depth: np.ndarray, segmentation: np.ndarray, compression: int = 1
+) -> dict[str, bytes]:
     """The three PNG files of a scene, by file name."""
     depth_mm = np.clip(np.round(depth * 1000.0), 0, 65535).astype(np.uint16)
     return {
@@ -93,8 +113,10 @@ def scene_files(meta: dict, images: dict[str, bytes]) -> dict[str, bytes]:
 def _read_png(path: Path, flags: int) -> np.ndarray:
     image = cv2.imread(str(path), flags)
     if image is None:
-        raise DatasetError(f"{path} is missing or not a readable PNG; run `ocplace generate` on the "
-                           f"dataset again to regenerate that scene")
+        raise DatasetError(
+            f"{path} is missing or not a readable PNG; run `ocplace generate` on the "
+            f"dataset again to regenerate that scene"
+        )
     return image
 
 
@@ -103,11 +125,15 @@ def read_meta(scene_dir: Path) -> dict:
     try:
         meta = json.loads(path.read_text())
     except (OSError, ValueError) as error:
-        raise DatasetError(f"{path} is missing or corrupt ({error}); run `ocplace generate` on the "
-                           f"dataset again to regenerate that scene") from None
+        raise DatasetError(
+            f"{path} is missing or corrupt ({error}); run `ocplace generate` on the "
+            f"dataset again to regenerate that scene"
+        ) from None
     if not isinstance(meta, dict):
-        raise DatasetError(f"{path} is corrupt (not a JSON object); run `ocplace generate` on the dataset again "
-                           f"to regenerate that scene")
+        raise DatasetError(
+            f"{path} is corrupt (not a JSON object); run `ocplace generate` on the dataset again "
+            f"to regenerate that scene"
+        )
     missing = [key for key in SCENE_KEYS if key not in meta]
     if missing:
         raise DatasetError(f"{path} lacks {missing}; it was not written by this version of ocplace")

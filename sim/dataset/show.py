@@ -15,8 +15,7 @@ FEASIBLE_COLOUR = np.array([40, 220, 90], np.float32)
 
 def _camera(meta: dict) -> Camera:
     pose = np.asarray(meta["camera"]["world_from_camera"])
-    return Camera(width=meta["camera"]["width"], height=meta["camera"]["height"],
-                  position=tuple(pose[:3, 3]))
+    return Camera(width=meta["camera"]["width"], height=meta["camera"]["height"], position=tuple(pose[:3, 3]))
 
 
 def feasible_overlay(record: SceneRecord, alpha: float = 0.45) -> np.ndarray:
@@ -29,7 +28,7 @@ def feasible_overlay(record: SceneRecord, alpha: float = 0.45) -> np.ndarray:
     for x, y in DEFAULT_GRID.cell_centres()[feasible]:
         corners = camera.table_to_pixel(np.array([[x - half, y - half], [x + half, y + half]]))
         (u0, v1), (u1, v0) = np.round(corners).astype(int)
-        mask[max(v0, 0):max(v1, 0) + 1, max(u0, 0):max(u1, 0) + 1] = 1
+        mask[max(v0, 0) : max(v1, 0) + 1, max(u0, 0) : max(u1, 0) + 1] = 1
     image[mask == 1] = (1 - alpha) * image[mask == 1] + alpha * FEASIBLE_COLOUR
     return image.astype(np.uint8)
 
@@ -45,10 +44,12 @@ def scene_figure(record: SceneRecord) -> np.ndarray:
             cv2.rectangle(canvas, (int(u0) - 2, int(v0) - 2), (int(u1) + 1, int(v1) + 1), (255, 255, 255), 2)
     u, v = _camera(meta).table_to_pixel(np.asarray(meta["oracle"]["placement"]))
     cv2.drawMarker(canvas, (int(round(u)), int(round(v))), (255, 0, 255), cv2.MARKER_TILTED_CROSS, 18, 3)
-    lines = [f"{meta['id']} ({meta['level']}): {meta['instruction']}",
-             "truth: " + "; ".join(f"{t.relation} of {t.reference_name} (token {t.token_index})"
-                                   for t in record.tuples)
-             + f" | held: {meta['held_object']['human_name']}"]
+    lines = [
+        f"{meta['id']} ({meta['level']}): {meta['instruction']}",
+        "truth: "
+        + "; ".join(f"{t.relation} of {t.reference_name} (token {t.token_index})" for t in record.tuples)
+        + f" | held: {meta['held_object']['human_name']}",
+    ]
     banner = np.full((22 * len(lines) + 8, canvas.shape[1], 3), 255, np.uint8)
     for row, text in enumerate(lines):
         cv2.putText(banner, text, (6, 20 + 22 * row), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1, cv2.LINE_AA)

@@ -159,8 +159,7 @@ def _run_jobs(jobs: list[_Job], config: LibraryConfig, root: Path, progress: boo
         context = multiprocessing.get_context("spawn")  # no fork of a possibly threaded parent
         with concurrent.futures.ProcessPoolExecutor(workers, mp_context=context, initializer=_worker_init) as pool:
             futures = {
-                pool.submit(build_object, job.spec, job.files, config, root / job.folder, tmp_root): job
-                for job in jobs
+                pool.submit(build_object, job.spec, job.files, config, root / job.folder, tmp_root): job for job in jobs
             }
             for future in concurrent.futures.as_completed(futures):
                 job = futures[future]
@@ -242,7 +241,9 @@ def _remove_unreferenced(root: Path, manifest: dict) -> None:
                 shutil.rmtree(path) if path.is_dir() else path.unlink()
 
 
-def build_library(config: LibraryConfig | None = None, cache: str | Path | None = None, progress: bool = True) -> Library:
+def build_library(
+    config: LibraryConfig | None = None, cache: str | Path | None = None, progress: bool = True
+) -> Library:
     """Builds what is missing into `<cache>/library`, writes the manifest, returns the library.
 
     Objects already built with the same key are reused, so a second call is a quick no-op.

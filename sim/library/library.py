@@ -11,7 +11,6 @@ from pathlib import Path
 
 from ocplace.errors import LibraryNotBuilt, UnknownObject
 from ocplace.paths import inside
-from ocplace.sim.splits import LIBRARY_SPLITS
 from ocplace.sim.library.records import (
     ASSET_FILE,
     MANIFEST_FILE,
@@ -20,6 +19,7 @@ from ocplace.sim.library.records import (
     library_root,
 )
 from ocplace.sim.library.types import ObjectAsset
+from ocplace.sim.splits import LIBRARY_SPLITS
 
 BUILD_HINT = "run `ocplace assets build`"
 
@@ -90,9 +90,7 @@ def load_library(cache: str | Path | None = None) -> Library:
     """
     root = library_root(cache)
     manifest = _read_manifest(root)
-    objects = {
-        entry["name"]: _read_asset(root, entry) for entry in manifest["objects"] if entry["status"] == "ok"
-    }
+    objects = {entry["name"]: _read_asset(root, entry) for entry in manifest["objects"] if entry["status"] == "ok"}
     textures = {}
     for entry in manifest["textures"]:
         try:

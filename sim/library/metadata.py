@@ -75,8 +75,9 @@ def _as_scale(value) -> tuple[float, float, float] | None:
 
 def _object_spec(entry: dict, licences: dict[str, str]) -> ObjectSpec:
     if entry["split"] not in LIBRARY_SPLITS:
-        raise AssetBuildError(f"objects.json: {entry['name']} has split {entry['split']!r}; use one of "
-                              f"{LIBRARY_SPLITS}")
+        raise AssetBuildError(
+            f"objects.json: {entry['name']} has split {entry['split']!r}; use one of {LIBRARY_SPLITS}"
+        )
     folder = f"{entry['source']}:{entry['path'].split('/')[0]}"
     return ObjectSpec(
         name=entry["name"],

@@ -35,14 +35,15 @@ def _check_size(name: str, extents) -> None:
     largest = max(extents)
     if not SIZE_RANGE[0] <= largest <= SIZE_RANGE[1]:
         raise AssetBuildError(
-            f"{name} is {largest:.3f} m across after scaling, outside {SIZE_RANGE} m: "
-            "set its `scale` in the metadata"
+            f"{name} is {largest:.3f} m across after scaling, outside {SIZE_RANGE} m: set its `scale` in the metadata"
         )
 
 
 def _write_object(directory: Path, spec: ObjectSpec, files: SourceFiles, config: LibraryConfig) -> ObjectAsset:
     full = load_mesh(files)
-    full = processing.rest_on_table(processing.weld(processing.orient(full, spec.scale or files.scale, files.rotation, spec.rotate)))
+    full = processing.rest_on_table(
+        processing.weld(processing.orient(full, spec.scale or files.scale, files.rotation, spec.rotate))
+    )
     mesh = processing.decimate(full, config.max_faces)
     extents = processing.extents(mesh.vertices)
     _check_size(spec.name, extents)
@@ -100,7 +101,9 @@ def _check_mujoco(mjcf: Path) -> None:
         raise AssetBuildError(f"MuJoCo rejects the written model: {error}") from error
 
 
-def build_object(spec: ObjectSpec, files: SourceFiles, config: LibraryConfig, target: Path, tmp_root: Path) -> ObjectResult:
+def build_object(
+    spec: ObjectSpec, files: SourceFiles, config: LibraryConfig, target: Path, tmp_root: Path
+) -> ObjectResult:
     """Builds into a private temp folder, then renames it onto `target` in one step.
 
     A failure, crash or kill leaves at most a temp folder, which no reader ever uses.

@@ -49,9 +49,7 @@ def orient(mesh: TexturedMesh, scale, source_rotation: np.ndarray, turns) -> Tex
 def weld(mesh: TexturedMesh) -> TexturedMesh:
     """Merges vertices equal in position and UV (a triangle soup becomes a connected mesh)."""
     keys = mesh.vertices if mesh.uv is None else np.column_stack([mesh.vertices, mesh.uv])
-    _, first, inverse = np.unique(
-        np.round(keys, _WELD_DECIMALS), axis=0, return_index=True, return_inverse=True
-    )
+    _, first, inverse = np.unique(np.round(keys, _WELD_DECIMALS), axis=0, return_index=True, return_inverse=True)
     faces = inverse.reshape(-1)[mesh.faces]
     faces = faces[(faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])]
     uv = None if mesh.uv is None else mesh.uv[first]
@@ -72,9 +70,7 @@ def decimate(mesh: TexturedMesh, max_faces: int) -> TexturedMesh:
 
     points = np.ascontiguousarray(mesh.vertices, np.float64)
     triangles = np.ascontiguousarray(mesh.faces, np.int32)
-    _, _, collapses = fast_simplification.simplify(
-        points, triangles, target_count=max_faces, return_collapses=True
-    )
+    _, _, collapses = fast_simplification.simplify(points, triangles, target_count=max_faces, return_collapses=True)
     optimised, faces, mapping = fast_simplification.replay_simplification(
         points.astype(np.float32), triangles, collapses
     )
@@ -87,9 +83,7 @@ def decimate(mesh: TexturedMesh, max_faces: int) -> TexturedMesh:
     representative = np.zeros(len(optimised), np.int64)
     representative[target[order][first]] = source[order][first]
     uv = None if mesh.uv is None else mesh.uv[representative]
-    return dataclasses.replace(
-        mesh, vertices=points[representative], faces=np.asarray(faces, np.int64), uv=uv
-    )
+    return dataclasses.replace(mesh, vertices=points[representative], faces=np.asarray(faces, np.int64), uv=uv)
 
 
 def rest_on_table(mesh: TexturedMesh) -> TexturedMesh:

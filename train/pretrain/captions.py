@@ -15,18 +15,53 @@ import numpy as np
 
 from ocplace.models.backbone import PromptConfig
 
-COLOUR_WORDS = ("red", "green", "blue", "yellow", "white", "black", "brown", "orange", "grey", "gray",
-                "purple", "pink", "silver", "golden")
+COLOUR_WORDS = (
+    "red",
+    "green",
+    "blue",
+    "yellow",
+    "white",
+    "black",
+    "brown",
+    "orange",
+    "grey",
+    "gray",
+    "purple",
+    "pink",
+    "silver",
+    "golden",
+)
 NOT_COLOURS = ("orange juice",)  # phrases whose colour word names something else
-SHAPE_WORDS = {"box": ("box", "cube", "block"), "cylinder": ("cylinder",), "sphere": ("sphere", "ball"),
-               "cone": ("cone",), "ring": ("ring", "torus"), "disc": ("disc", "disk", "plate-like disc"),
-               "capsule": ("capsule", "pill"), "pyramid": ("pyramid",)}
+SHAPE_WORDS = {
+    "box": ("box", "cube", "block"),
+    "cylinder": ("cylinder",),
+    "sphere": ("sphere", "ball"),
+    "cone": ("cone",),
+    "ring": ("ring", "torus"),
+    "disc": ("disc", "disk", "plate-like disc"),
+    "capsule": ("capsule", "pill"),
+    "pyramid": ("pyramid",),
+}
 SIZE_WORDS = {"small": "small", "medium": "", "large": "large"}  # a medium primitive is just "a blue cone"
 OBJECT, RECOLOURED, PRIMITIVE, TABLE = "object", "recoloured", "primitive", "table"  # kinds of class
-NAME_TEMPLATES = ("{a} {name}", "the {name}", "{name}", "{a} {name} on a table", "a top-down photo of {a} {name}.",
-                  "a photo of the {name}.")
-TABLE_CAPTIONS = ("a table", "the table", "table", "a table top", "a photo of the table.",
-                  "a top-down photo of a table.", "objects on a table", "the whole table")
+NAME_TEMPLATES = (
+    "{a} {name}",
+    "the {name}",
+    "{name}",
+    "{a} {name} on a table",
+    "a top-down photo of {a} {name}.",
+    "a photo of the {name}.",
+)
+TABLE_CAPTIONS = (
+    "a table",
+    "the table",
+    "table",
+    "a table top",
+    "a photo of the table.",
+    "a top-down photo of a table.",
+    "objects on a table",
+    "the whole table",
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -67,8 +102,9 @@ def with_colour(name: str, colour: str) -> str:
     "black and white bowl" -> "blue bowl", "ketchup" -> "blue ketchup"."""
     words = name.split()
     colours = set(colour_words(name))
-    between = {i for i in range(1, len(words) - 1)
-               if words[i] == "and" and words[i - 1] in colours and words[i + 1] in colours}
+    between = {
+        i for i in range(1, len(words) - 1) if words[i] == "and" and words[i - 1] in colours and words[i + 1] in colours
+    }
     kept = [w for i, w in enumerate(words) if i not in between and w not in colours]
     return " ".join([colour, *kept])
 
@@ -85,8 +121,11 @@ def primitive_description(name: str, shape: str, size: str, colour: str) -> Obje
     "small blue cylinder", "blue cylinder", "small cylinder" and "blue <synonym>"."""
     word, *synonyms = SHAPE_WORDS[shape]
     size_word = SIZE_WORDS[size]
-    sized = [f"{size_word} {colour} {word}", f"{colour} {word}", f"{size_word} {word}"] if size_word else \
-        [f"{colour} {word}"]
+    sized = (
+        [f"{size_word} {colour} {word}", f"{colour} {word}", f"{size_word} {word}"]
+        if size_word
+        else [f"{colour} {word}"]
+    )
     names = sized + [f"{colour} {synonym}" for synonym in synonyms]
     return ObjectDescription(f"{name}:{colour}", names[0], tuple(names[1:]), word, PRIMITIVE)
 
@@ -105,8 +144,12 @@ def object_captions(obj: ObjectDescription, prompt: PromptConfig) -> list[str]:
     category = obj.category.lower()
     captions += [f"{article(category)} {category}", f"a photo of {article(category)} {category}."]
     for colour in obj.colours:
-        captions += [f"{article(colour)} {colour} {category}", f"a photo of {article(colour)} {colour} {category}.",
-                     f"something {colour}", f"{article(colour)} {colour} object"]
+        captions += [
+            f"{article(colour)} {colour} {category}",
+            f"a photo of {article(colour)} {colour} {category}.",
+            f"something {colour}",
+            f"{article(colour)} {colour} object",
+        ]
     return list(dict.fromkeys(captions))
 
 
@@ -139,12 +182,18 @@ class CaptionBank:
         return np.array([self.own[k][rng.integers(len(self.own[k]))] for k in labels], np.int32)
 
 
-def build_caption_bank(objects: Sequence[ObjectDescription], prompt: PromptConfig = PromptConfig(),
-                       extras: Sequence[ObjectDescription] = ()) -> CaptionBank:
+def build_caption_bank(
+    objects: Sequence[ObjectDescription],
+    prompt: PromptConfig = PromptConfig(),
+    extras: Sequence[ObjectDescription] = (),
+) -> CaptionBank:
     """The bank of `objects`, the table and `extras`, in that order (the table keeps class `N`, so a
     bank with extras labels the library's objects and the table as one without)."""
-    per_class = [object_captions(obj, prompt) for obj in objects] + [table_captions(prompt)] + \
-        [object_captions(obj, prompt) for obj in extras]
+    per_class = (
+        [object_captions(obj, prompt) for obj in objects]
+        + [table_captions(prompt)]
+        + [object_captions(obj, prompt) for obj in extras]
+    )
     texts = tuple(dict.fromkeys(caption for captions in per_class for caption in captions))
     index = {text: i for i, text in enumerate(texts)}
     applies = np.zeros((len(texts), len(per_class)), bool)

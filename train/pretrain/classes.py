@@ -92,11 +92,18 @@ def pretraining_classes(library, objects: tuple[str, ...], config: RenderConfig)
     other than the object's own, then each primitive in each colour, minus any that `leaks`."""
     forbidden = unseen_names(library)
     descriptions = tuple(ObjectDescription.of(library.get(name)) for name in objects)
-    extras = [ExtraClass(recoloured(obj, colour), obj.name, colour)
-              for obj in descriptions for colour in config.colours if colour not in obj.colours]
+    extras = [
+        ExtraClass(recoloured(obj, colour), obj.name, colour)
+        for obj in descriptions
+        for colour in config.colours
+        if colour not in obj.colours
+    ]
     if config.primitives_per_scene > 0:
-        extras += [ExtraClass(primitive_description(p.name, p.shape, p.size, colour), p.name, colour)
-                   for p in primitive_set(config.primitive_shapes, config.primitive_widths) for colour in config.colours]
+        extras += [
+            ExtraClass(primitive_description(p.name, p.shape, p.size, colour), p.name, colour)
+            for p in primitive_set(config.primitive_shapes, config.primitive_widths)
+            for colour in config.colours
+        ]
     return PretrainClasses(descriptions, tuple(e for e in extras if not leaks(e.description, forbidden)))
 
 

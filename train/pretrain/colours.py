@@ -24,19 +24,22 @@ class ColourTerm:
     value: tuple[float, float]
 
 
-COLOUR_TERMS = {term.name: term for term in (
-    ColourTerm("black", None, (0, 30), (25, 50)),
-    ColourTerm("white", None, (0, 15), (225, 250)),
-    ColourTerm("red", (-5, 3), (185, 240), (150, 215)),
-    ColourTerm("green", (50, 70), (150, 230), (110, 190)),
-    ColourTerm("yellow", (25, 31), (180, 240), (215, 250)),
-    ColourTerm("blue", (104, 116), (165, 240), (140, 215)),
-    ColourTerm("brown", (9, 16), (150, 210), (75, 120)),
-    ColourTerm("orange", (11, 16), (210, 250), (215, 250)),
-    ColourTerm("pink", (162, 172), (70, 125), (215, 250)),
-    ColourTerm("purple", (133, 147), (125, 200), (110, 180)),
-    ColourTerm("grey", None, (0, 15), (115, 160)),
-)}
+COLOUR_TERMS = {
+    term.name: term
+    for term in (
+        ColourTerm("black", None, (0, 30), (25, 50)),
+        ColourTerm("white", None, (0, 15), (225, 250)),
+        ColourTerm("red", (-5, 3), (185, 240), (150, 215)),
+        ColourTerm("green", (50, 70), (150, 230), (110, 190)),
+        ColourTerm("yellow", (25, 31), (180, 240), (215, 250)),
+        ColourTerm("blue", (104, 116), (165, 240), (140, 215)),
+        ColourTerm("brown", (9, 16), (150, 210), (75, 120)),
+        ColourTerm("orange", (11, 16), (210, 250), (215, 250)),
+        ColourTerm("pink", (162, 172), (70, 125), (215, 250)),
+        ColourTerm("purple", (133, 147), (125, 200), (110, 180)),
+        ColourTerm("grey", None, (0, 15), (115, 160)),
+    )
+}
 BASIC_COLOURS = tuple(COLOUR_TERMS)
 # Recoloured values keep the object's shading and print as a share of its bright level, squeezed
 # into [VALUE_FLOOR, 1] so that dark print does not turn a "white" object black.
@@ -56,8 +59,9 @@ def hsv_to_rgb(hsv: np.ndarray) -> np.ndarray:
     return cv2.cvtColor(pixel, cv2.COLOR_HSV2RGB).reshape(3)
 
 
-def recolour_objects(rgb: np.ndarray, segmentation: np.ndarray, targets: Mapping[int, str],
-                     rng: np.random.Generator) -> np.ndarray:
+def recolour_objects(
+    rgb: np.ndarray, segmentation: np.ndarray, targets: Mapping[int, str], rng: np.random.Generator
+) -> np.ndarray:
     """uint8 `(H, W, 3)`: `rgb` with the pixels of each object id in `targets` recoloured to its term.
 
     Hue and saturation are set to a colour drawn in the term's box; value keeps the object's own
@@ -72,8 +76,14 @@ def recolour_objects(rgb: np.ndarray, segmentation: np.ndarray, targets: Mapping
         hue = round(hue) % 180  # 8-bit OpenCV hue stops at 179
         own = hsv[..., 2][mask]
         relative = np.clip(own / max(np.percentile(own, BRIGHT_PERCENTILE), 1.0), 0.0, 1.15)
-        hsv[mask] = np.stack([np.full_like(own, hue), np.full_like(own, saturation),
-                              np.clip(value * (VALUE_FLOOR + (1 - VALUE_FLOOR) * relative), 0, 255)], axis=1)
+        hsv[mask] = np.stack(
+            [
+                np.full_like(own, hue),
+                np.full_like(own, saturation),
+                np.clip(value * (VALUE_FLOOR + (1 - VALUE_FLOOR) * relative), 0, 255),
+            ],
+            axis=1,
+        )
     recoloured = cv2.cvtColor(np.round(hsv).astype(np.uint8), cv2.COLOR_HSV2RGB)
     outside = ~np.isin(segmentation, list(targets))
     recoloured[outside] = rgb[outside]  # the HSV round trip is not exact: keep the rest bit for bit

@@ -14,12 +14,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     actions = backbone.add_subparsers(dest="action", metavar="ACTION", required=True)
 
     pretrain = actions.add_parser(
-        "pretrain", help="pretrain the offline backbone (resumable)",
+        "pretrain",
+        help="pretrain the offline backbone (resumable)",
         description="Renders crops of training-split objects on seen tables and trains the image tower "
-                    "and both projections contrastively against a frozen MiniLM text tower. Rerun to "
-                    "resume. The result goes to <cache>/backbones/offline-<hash>/ unless --out is given.")
-    pretrain.add_argument("--recipe", choices=("default", "demo", "smoke"), default="default",
-                          help="default: <= 30 min on 2 cores; demo: a few minutes; smoke: seconds")
+        "and both projections contrastively against a frozen MiniLM text tower. Rerun to "
+        "resume. The result goes to <cache>/backbones/offline-<hash>/ unless --out is given.",
+    )
+    pretrain.add_argument(
+        "--recipe",
+        choices=("default", "demo", "smoke"),
+        default="default",
+        help="default: <= 30 min on 2 cores; demo: a few minutes; smoke: seconds",
+    )
     pretrain.add_argument("--smoke", action="store_true", help="same as --recipe smoke")
     pretrain.add_argument("--out", type=Path, help="output directory (default: the recipe's cache folder)")
     pretrain.add_argument("--keep-run", action="store_true", help="keep rendered images and checkpoints")
@@ -27,14 +33,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     pretrain.set_defaults(func=_pretrain)
 
     evaluate = actions.add_parser(
-        "eval", help="zero-shot grounding and crop-to-name retrieval on benchmark scenes",
+        "eval",
+        help="zero-shot grounding and crop-to-name retrieval on benchmark scenes",
         description="Top-1 grounding accuracy among the N+1 visual tokens with no adapters, and "
-                    "crop-to-name retrieval, for a backbone and for the same architecture at random init.")
+        "crop-to-name retrieval, for a backbone and for the same architecture at random init.",
+    )
     evaluate.add_argument("--data", type=Path, required=True, help="dataset folder (`ocplace generate`)")
     evaluate.add_argument("--backbone", default="offline", help="backbone spec (default: offline)")
     evaluate.add_argument("--splits", nargs="+", choices=SPLITS, default=["seen", "unseen_obj"])
-    evaluate.add_argument("--no-random-init", action="store_true",
-                          help="skip the random-initialisation control (offline backbones only)")
+    evaluate.add_argument(
+        "--no-random-init", action="store_true", help="skip the random-initialisation control (offline backbones only)"
+    )
     evaluate.add_argument("--limit", type=int, help="first N scenes per split")
     evaluate.add_argument("--out", type=Path, help="write the results as JSON here")
     evaluate.set_defaults(func=_eval)
@@ -52,10 +61,12 @@ def _pretrain(args: argparse.Namespace) -> int:
     config = recipe_config("smoke" if args.smoke else args.recipe)
     result = pretrain(config, load_library(), args.out, progress=not args.no_progress, keep_run=args.keep_run)
     timings = ", ".join(f"{k} {v:.0f}" for k, v in result.timings.items())
-    print(f"offline backbone ({config.recipe}) in {result.directory}\n"
-          f"  fingerprint {result.backbone.fingerprint[:16]}, logit scale {result.backbone.logit_scale:.1f}, "
-          f"probe loss {result.probe_loss_before:.3f} -> {result.probe_loss_after:.3f}"
-          + (f"\n  seconds: {timings}" if timings else " (already built)"))
+    print(
+        f"offline backbone ({config.recipe}) in {result.directory}\n"
+        f"  fingerprint {result.backbone.fingerprint[:16]}, logit scale {result.backbone.logit_scale:.1f}, "
+        f"probe loss {result.probe_loss_before:.3f} -> {result.probe_loss_after:.3f}"
+        + (f"\n  seconds: {timings}" if timings else " (already built)")
+    )
     return 0
 
 
@@ -74,14 +85,22 @@ def _eval(args: argparse.Namespace) -> int:
     backbone = load_backbone(args.backbone)
     candidates = {"pretrained": backbone}
     if isinstance(backbone, OfflineBackbone) and not args.no_random_init:
-        candidates["random_init"] = OfflineBackbone(backbone.config, init_params(backbone.config, jax.random.key(0)),
-                                                    backbone.text_tower, source="random init")
-    report = {"backbone": args.backbone, "fingerprint": backbone.fingerprint, "data": str(args.data),
-              "started": datetime.datetime.now().astimezone().isoformat(timespec="seconds"),
-              "load_average_start": os.getloadavg(), "results": {}}
+        candidates["random_init"] = OfflineBackbone(
+            backbone.config, init_params(backbone.config, jax.random.key(0)), backbone.text_tower, source="random init"
+        )
+    report = {
+        "backbone": args.backbone,
+        "fingerprint": backbone.fingerprint,
+        "data": str(args.data),
+        "started": datetime.datetime.now().astimezone().isoformat(timespec="seconds"),
+        "load_average_start": os.getloadavg(),
+        "results": {},
+    }
     for name, candidate in candidates.items():
-        report["results"][name] = {split: evaluate_split(candidate, args.data, split, library, limit=args.limit,
-                                                         progress=True) for split in args.splits}
+        report["results"][name] = {
+            split: evaluate_split(candidate, args.data, split, library, limit=args.limit, progress=True)
+            for split in args.splits
+        }
     report["load_average_end"] = os.getloadavg()
     print(format_report(report))
     if args.out:
@@ -94,16 +113,20 @@ def _eval(args: argparse.Namespace) -> int:
 
 def format_report(report: dict) -> str:
     """A markdown table: grounding and retrieval per backbone and split."""
-    lines = ["| backbone | split | grounding top-1 | object tuples | table tuples | chance | "
-             "retrieval top-1 (library) | top-5 (library) | top-1 (split pool) |",
-             "|---|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "| backbone | split | grounding top-1 | object tuples | table tuples | chance | "
+        "retrieval top-1 (library) | top-5 (library) | top-1 (split pool) |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
     for name, splits in report["results"].items():
         for split, result in splits.items():
             g, r = result["grounding"], result["retrieval"]
-            lines.append(f"| {name} | {split} | {g['all']:.1%} ({g['tuples']}) | {g.get('object_tuples', 0):.1%} | "
-                         f"{g.get('table_tuples', 0):.1%} | {g['chance']:.1%} | {r['library']['top1']:.1%} "
-                         f"(of {r['library']['pool_size']}) | {r['library']['top5']:.1%} | "
-                         f"{r['split']['top1']:.1%} (of {r['split']['pool_size']}) |")
+            lines.append(
+                f"| {name} | {split} | {g['all']:.1%} ({g['tuples']}) | {g.get('object_tuples', 0):.1%} | "
+                f"{g.get('table_tuples', 0):.1%} | {g['chance']:.1%} | {r['library']['top1']:.1%} "
+                f"(of {r['library']['pool_size']}) | {r['library']['top5']:.1%} | "
+                f"{r['split']['top1']:.1%} (of {r['split']['pool_size']}) |"
+            )
     return "\n".join(lines)
 
 

@@ -56,12 +56,18 @@ class RenderConfig:
             problems.append("canonical_share, table_jitter and recolour_share are probabilities")
         if not self.colours or not set(self.colours) <= set(COLOUR_TERMS):
             problems.append(f"colours must be among {', '.join(COLOUR_TERMS)}")
-        if not 0 <= self.primitives_per_scene <= len(SIZES) * len(self.primitive_shapes) \
-                or not set(self.primitive_shapes) <= set(SHAPES):
-            problems.append(f"primitives_per_scene must be in [0, {len(SIZES)} x the number of primitive_shapes] "
-                            f"and primitive_shapes among {', '.join(SHAPES)}")
-        if len(self.primitive_widths) != len(SIZES) or list(self.primitive_widths) != sorted(self.primitive_widths) \
-                or min(self.primitive_widths) <= 0:
+        if not 0 <= self.primitives_per_scene <= len(SIZES) * len(self.primitive_shapes) or not set(
+            self.primitive_shapes
+        ) <= set(SHAPES):
+            problems.append(
+                f"primitives_per_scene must be in [0, {len(SIZES)} x the number of primitive_shapes] "
+                f"and primitive_shapes among {', '.join(SHAPES)}"
+            )
+        if (
+            len(self.primitive_widths) != len(SIZES)
+            or list(self.primitive_widths) != sorted(self.primitive_widths)
+            or min(self.primitive_widths) <= 0
+        ):
             problems.append(f"primitive_widths: {len(SIZES)} increasing positive widths ({', '.join(SIZES)})")
         return problems
 
@@ -89,8 +95,11 @@ class OptimConfig:
             problems.append("steps, checkpoint_every and keep_checkpoints must be positive, batch_size >= 2")
         if not 0.0 <= self.table_share < 1.0:
             problems.append("table_share must be in [0, 1)")
-        if not self.kind_shares or any(share < 0 for _, share in self.kind_shares) or \
-                not any(kind == "object" and share > 0 for kind, share in self.kind_shares):
+        if (
+            not self.kind_shares
+            or any(share < 0 for _, share in self.kind_shares)
+            or not any(kind == "object" and share > 0 for kind, share in self.kind_shares)
+        ):
             problems.append("kind_shares needs a positive share for 'object' and no negative share")
         return problems
 
@@ -114,8 +123,9 @@ class PretrainConfig:
     def from_dict(cls, fields: dict) -> PretrainConfig:
         render = {k: tuple(v) if isinstance(v, list) else v for k, v in fields["render"].items()}
         optim = {k: tuple(tuple(pair) for pair in v) if k == "kind_shares" else v for k, v in fields["optim"].items()}
-        return cls(fields["recipe"], OfflineConfig.from_dict(fields["model"]), RenderConfig(**render),
-                   OptimConfig(**optim))
+        return cls(
+            fields["recipe"], OfflineConfig.from_dict(fields["model"]), RenderConfig(**render), OptimConfig(**optim)
+        )
 
     def key(self) -> str:
         """12 hex digits that change with any setting."""
@@ -128,21 +138,33 @@ def default_config() -> PretrainConfig:
 
 def demo_config() -> PretrainConfig:
     """About two and a half minutes on 2 cores: fewer scenes and steps, same architecture."""
-    return PretrainConfig("demo", render=RenderConfig(scenes=100),
-                          optim=OptimConfig(steps=75, warmup_steps=8, checkpoint_every=25))
+    return PretrainConfig(
+        "demo", render=RenderConfig(scenes=100), optim=OptimConfig(steps=75, warmup_steps=8, checkpoint_every=25)
+    )
 
 
 def smoke_config() -> PretrainConfig:
     """Seconds: a tiny tower, four objects, two scenes, a few steps."""
     return PretrainConfig(
-        "smoke", model=offline_backbone.smoke_config(),
+        "smoke",
+        model=offline_backbone.smoke_config(),
         # No primitives: the smoke run's scenes hold library objects only (a test checks every
         # scene it builds against the pool); `tests/test_pretrain_data.py` turns them on.
-        render=RenderConfig(scenes=2, objects_per_scene=3, renders_per_scene=2, max_objects=4, chunk_scenes=1,
-                            recolour_share=0.5, colours=("red", "green", "blue", "white"), primitives_per_scene=0,
-                            primitive_shapes=("box", "cylinder", "ring")),
-        optim=OptimConfig(steps=12, batch_size=16, table_share=0.125, learning_rate=3e-3, warmup_steps=2,
-                          checkpoint_every=4))
+        render=RenderConfig(
+            scenes=2,
+            objects_per_scene=3,
+            renders_per_scene=2,
+            max_objects=4,
+            chunk_scenes=1,
+            recolour_share=0.5,
+            colours=("red", "green", "blue", "white"),
+            primitives_per_scene=0,
+            primitive_shapes=("box", "cylinder", "ring"),
+        ),
+        optim=OptimConfig(
+            steps=12, batch_size=16, table_share=0.125, learning_rate=3e-3, warmup_steps=2, checkpoint_every=4
+        ),
+    )
 
 
 RECIPES = {"default": default_config, "demo": demo_config, "smoke": smoke_config}

@@ -33,8 +33,15 @@ class _TextCache:
         return np.stack([self.cache[t] for t in texts])
 
 
-def evaluate_split(backbone: Backbone, dataset_dir: str | Path, split: str, library,
-                   prompt: PromptConfig = PromptConfig(), limit: int | None = None, progress: bool = False) -> dict:
+def evaluate_split(
+    backbone: Backbone,
+    dataset_dir: str | Path,
+    split: str,
+    library,
+    prompt: PromptConfig = PromptConfig(),
+    limit: int | None = None,
+    progress: bool = False,
+) -> dict:
     """Grounding accuracy (overall, per level, table vs object tuples) and crop-to-name retrieval."""
     from tqdm import tqdm
 
@@ -61,22 +68,28 @@ def evaluate_split(backbone: Backbone, dataset_dir: str | Path, split: str, libr
         crop_features.append(visual[:-1])
         crop_names += [names[int(i)] for i in example.box_object_ids]
     pools["split"] = sorted(set(crop_names))
-    grounding = {group: counts[group, "correct"] / counts[group, "tuples"]
-                 for group, key in counts if key == "tuples"}
+    grounding = {group: counts[group, "correct"] / counts[group, "tuples"] for group, key in counts if key == "tuples"}
     grounding["tuples"] = counts["all", "tuples"]
     grounding["scenes"] = len(dirs)
     grounding["chance"] = float(np.mean(chance))
     crops = np.concatenate(crop_features)
-    retrieval = {name: _retrieval(crops, crop_names, pool, library, prompt, encode_texts)
-                 for name, pool in pools.items()}
+    retrieval = {
+        name: _retrieval(crops, crop_names, pool, library, prompt, encode_texts) for name, pool in pools.items()
+    }
     return {"grounding": grounding, "retrieval": retrieval}
 
 
-def _retrieval(crops: np.ndarray, crop_names: list[str], pool: list[str], library, prompt: PromptConfig,
-               encode_texts) -> dict:
+def _retrieval(
+    crops: np.ndarray, crop_names: list[str], pool: list[str], library, prompt: PromptConfig, encode_texts
+) -> dict:
     texts = encode_texts([prompt.text_for(library.get(name).human_name) for name in pool])
     scores = crops @ texts.T
     truth = np.array([pool.index(name) for name in crop_names])
     rank = (scores > scores[np.arange(len(truth)), truth][:, None]).sum(axis=1)
-    return {"pool_size": len(pool), "crops": len(truth), "top1": float(np.mean(rank == 0)),
-            "top5": float(np.mean(rank < 5)), "chance_top1": 1.0 / len(pool)}
+    return {
+        "pool_size": len(pool),
+        "crops": len(truth),
+        "top1": float(np.mean(rank == 0)),
+        "top5": float(np.mean(rank < 5)),
+        "chance_top1": 1.0 / len(pool),
+    }

@@ -41,7 +41,6 @@ from ocplace.models.offline_backbone import (
     text_embeddings,
     trainable_mask,
 )
-from ocplace.paths import write_text_atomic
 from ocplace.train import checkpoints
 from ocplace.train.metrics import MetricsLog
 from ocplace.train.pretrain.captions import CaptionBank
@@ -69,15 +68,22 @@ class PretrainResult:
 
 
 def learning_rate_schedule(optim: OptimConfig) -> optax.Schedule:
-    return optax.warmup_cosine_decay_schedule(0.0, optim.learning_rate, optim.warmup_steps,
-                                              max(optim.steps, optim.warmup_steps + 1), optim.learning_rate * 0.02)
+    return optax.warmup_cosine_decay_schedule(
+        0.0,
+        optim.learning_rate,
+        optim.warmup_steps,
+        max(optim.steps, optim.warmup_steps + 1),
+        optim.learning_rate * 0.02,
+    )
 
 
 def make_optimizer(optim: OptimConfig) -> optax.GradientTransformation:
     """AdamW with warm-up and cosine decay; weight decay on matrices only (not on norms, biases, scale)."""
     decay_mask = functools.partial(jax.tree_util.tree_map, lambda p: p.ndim >= 2)
-    return optax.chain(optax.clip_by_global_norm(1.0),
-                       optax.adamw(learning_rate_schedule(optim), weight_decay=optim.weight_decay, mask=decay_mask))
+    return optax.chain(
+        optax.clip_by_global_norm(1.0),
+        optax.adamw(learning_rate_schedule(optim), weight_decay=optim.weight_decay, mask=decay_mask),
+    )
 
 
 def colour_jitter(pixels, factors):
@@ -114,7 +120,8 @@ def make_train_step(model: OfflineConfig, optim: OptimConfig):
     def step(state, frozen, pixels, factors, captions, positives, bank_sentences):
         trainable, opt_state = state
         loss, grads = jax.value_and_grad(loss_fn)(
-            trainable, frozen, colour_jitter(pixels, factors), bank_sentences[captions], positives)
+            trainable, frozen, colour_jitter(pixels, factors), bank_sentences[captions], positives
+        )
         updates, opt_state = optimizer.update(grads, opt_state, trainable)
         trainable = optax.apply_updates(trainable, updates)
         trainable = {**trainable, "log_logit_scale": jnp.minimum(trainable["log_logit_scale"], max_log_scale)}
@@ -138,24 +145,37 @@ class Batch:
     positives: np.ndarray  # bool (B, B) caption j describes image i
 
 
-def sample_batch(images: RenderedImages, by_class: list[np.ndarray], bank: CaptionBank, optim: OptimConfig,
-                 rng: np.random.Generator, augment: bool = True) -> Batch:
+def sample_batch(
+    images: RenderedImages,
+    by_class: list[np.ndarray],
+    bank: CaptionBank,
+    optim: OptimConfig,
+    rng: np.random.Generator,
+    augment: bool = True,
+) -> Batch:
     """A kind of class per image (`optim.kind_shares`: real objects, recoloured ones, primitives),
     then a class of that kind uniformly (so rarely visible objects are not starved), plus a share
     of workspace images; one caption per image. Augmentation: quarter turns, flips, colour factors."""
     table = bank.table_class
-    num_table = min(max(round(optim.batch_size * optim.table_share), 1 if optim.table_share else 0),
-                    optim.batch_size - 1)
-    classes = np.concatenate([sample_classes(by_class, bank, optim, rng, optim.batch_size - num_table),
-                              np.full(num_table, table)])
+    num_table = min(
+        max(round(optim.batch_size * optim.table_share), 1 if optim.table_share else 0), optim.batch_size - 1
+    )
+    classes = np.concatenate(
+        [sample_classes(by_class, bank, optim, rng, optim.batch_size - num_table), np.full(num_table, table)]
+    )
     indices = np.array([by_class[k][rng.integers(len(by_class[k]))] for k in classes])
     pixels = images.images[indices]
     factors = np.ones((len(indices), 3), np.float32)
     if augment:
         if optim.rotate:
-            pixels = np.stack([np.rot90(p[:, ::-1] if flip else p, turns)
-                               for p, turns, flip in zip(pixels, rng.integers(4, size=len(pixels)),
-                                                         rng.random(len(pixels)) < 0.5, strict=True)])
+            pixels = np.stack(
+                [
+                    np.rot90(p[:, ::-1] if flip else p, turns)
+                    for p, turns, flip in zip(
+                        pixels, rng.integers(4, size=len(pixels)), rng.random(len(pixels)) < 0.5, strict=True
+                    )
+                ]
+            )
         amplitude = optim.colour_jitter
         factors = rng.uniform(1 - amplitude, 1 + amplitude, size=(len(indices), 3)).astype(np.float32)
     labels = images.labels[indices]
@@ -164,12 +184,15 @@ def sample_batch(images: RenderedImages, by_class: list[np.ndarray], bank: Capti
     return Batch(np.ascontiguousarray(pixels), factors, labels, captions, positives)
 
 
-def sample_classes(by_class: list[np.ndarray], bank: CaptionBank, optim: OptimConfig, rng: np.random.Generator,
-                   count: int) -> np.ndarray:
+def sample_classes(
+    by_class: list[np.ndarray], bank: CaptionBank, optim: OptimConfig, rng: np.random.Generator, count: int
+) -> np.ndarray:
     """int `(count,)` non-table classes with images: a kind by its share (renormalised over the kinds
     present), then a class of that kind uniformly."""
-    present = {kind: [k for k, own in enumerate(bank.kinds) if own == kind and len(by_class[k])]
-               for kind, _ in optim.kind_shares}
+    present = {
+        kind: [k for k, own in enumerate(bank.kinds) if own == kind and len(by_class[k])]
+        for kind, _ in optim.kind_shares
+    }
     kinds = [kind for kind, _ in optim.kind_shares if present[kind]]
     shares = np.array([share for kind, share in optim.kind_shares if present[kind]], np.float64)
     drawn = rng.choice(len(kinds), size=count, p=shares / shares.sum())
@@ -188,8 +211,14 @@ def probe_batch(images, by_class, bank, optim: OptimConfig) -> Batch:
 # ----------------------------------------------------------------------------- the run
 
 
-def pretrain(config: PretrainConfig, library, out_dir: str | Path | None = None, progress: bool = True,
-             keep_run: bool = False, stop_after: int | None = None) -> PretrainResult:
+def pretrain(
+    config: PretrainConfig,
+    library,
+    out_dir: str | Path | None = None,
+    progress: bool = True,
+    keep_run: bool = False,
+    stop_after: int | None = None,
+) -> PretrainResult:
     """Renders, trains and saves the offline backbone of `config` (resuming whatever was done).
 
     `stop_after`: return after this many training steps without saving (to test resuming).
@@ -211,8 +240,9 @@ def pretrain(config: PretrainConfig, library, out_dir: str | Path | None = None,
     checkpoints.claim_run_dir(run_dir, run_meta, "run.json")
 
     text_tower = FrozenTextTower.load(config.model.text_max_length)
-    bank_sentences = jnp.asarray(np.concatenate([text_tower.encode(list(bank.texts[i:i + 64]))
-                                                 for i in range(0, len(bank.texts), 64)]))
+    bank_sentences = jnp.asarray(
+        np.concatenate([text_tower.encode(list(bank.texts[i : i + 64])) for i in range(0, len(bank.texts), 64)])
+    )
     timings = {"setup_s": time.perf_counter() - began}
 
     mark, cpu_mark = time.perf_counter(), time.process_time()
@@ -220,7 +250,7 @@ def pretrain(config: PretrainConfig, library, out_dir: str | Path | None = None,
     timings["render_s"] = time.perf_counter() - mark
     timings["render_cpu_s"] = time.process_time() - cpu_mark
     by_class = [np.flatnonzero(images.labels == k) for k in range(len(bank.class_names))]
-    if not len(by_class[bank.table_class]) or not any(len(c) for c in by_class[:bank.table_class]):
+    if not len(by_class[bank.table_class]) or not any(len(c) for c in by_class[: bank.table_class]):
         raise TrainingError("rendering produced no object crops; check the library with `ocplace scene`")
 
     mark, cpu_mark = time.perf_counter(), time.process_time()
@@ -246,16 +276,23 @@ def pretrain(config: PretrainConfig, library, out_dir: str | Path | None = None,
     with tqdm(total=optim.steps, initial=start, unit="step", desc="pretrain", disable=not progress) as bar:
         for step in range(start, last):
             batch = sample_batch(images, by_class, bank, optim, step_rng(optim.seed, step))
-            state, loss = train_step(state, frozen, batch.pixels, batch.factors, batch.captions, batch.positives,
-                                     bank_sentences)
+            state, loss = train_step(
+                state, frozen, batch.pixels, batch.factors, batch.captions, batch.positives, bank_sentences
+            )
             recent.append(loss)
             done = step + 1
             if done % LOG_EVERY == 0 or done == optim.steps:
                 mean_loss = float(np.mean(jax.device_get(recent)))
                 recent = []
-                metrics.append({"step": done, "loss": mean_loss, "learning_rate": float(schedule(done)),
-                                "logit_scale": float(jnp.exp(state[0]["log_logit_scale"])),
-                                "elapsed_s": round(time.perf_counter() - began, 2)})
+                metrics.append(
+                    {
+                        "step": done,
+                        "loss": mean_loss,
+                        "learning_rate": float(schedule(done)),
+                        "logit_scale": float(jnp.exp(state[0]["log_logit_scale"])),
+                        "elapsed_s": round(time.perf_counter() - began, 2),
+                    }
+                )
                 bar.set_postfix(loss=f"{mean_loss:.3f}")
             if done % optim.checkpoint_every == 0 or done == optim.steps:
                 checkpoints.save_checkpoint(run_dir, done, state, ckpt_meta, optim.keep_checkpoints)
@@ -269,12 +306,17 @@ def pretrain(config: PretrainConfig, library, out_dir: str | Path | None = None,
         return PretrainResult(out_dir, backbone, loss_before, loss_after, timings)
 
     timings["total_s"] = time.perf_counter() - began
-    summary = {"run": run_meta, "images": int(len(images.labels)),
-               "images_per_class": {name: int(len(c)) for name, c in zip(bank.class_names, by_class, strict=True)},
-               "probe_loss_before": loss_before, "probe_loss_after": loss_after,
-               "final_logit_scale": backbone.logit_scale,
-               "timings_s": {k: round(v, 1) for k, v in timings.items()}, "resumed": bool(saved),
-               "finished": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")}
+    summary = {
+        "run": run_meta,
+        "images": int(len(images.labels)),
+        "images_per_class": {name: int(len(c)) for name, c in zip(bank.class_names, by_class, strict=True)},
+        "probe_loss_before": loss_before,
+        "probe_loss_after": loss_after,
+        "final_logit_scale": backbone.logit_scale,
+        "timings_s": {k: round(v, 1) for k, v in timings.items()},
+        "resumed": bool(saved),
+        "finished": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+    }
     backbone.save(out_dir, {"pretraining": summary})
     if not keep_run:
         shutil.rmtree(run_dir / "renders", ignore_errors=True)
@@ -283,8 +325,13 @@ def pretrain(config: PretrainConfig, library, out_dir: str | Path | None = None,
 
 
 def _run_metadata(config: PretrainConfig, pool: TrainingPool, bank: CaptionBank) -> dict:
-    return {"recipe": config.to_dict(), "key": config.key(), "objects": list(pool.objects),
-            "textures": list(pool.textures), "captions": len(bank.texts)}
+    return {
+        "recipe": config.to_dict(),
+        "key": config.key(),
+        "objects": list(pool.objects),
+        "textures": list(pool.textures),
+        "captions": len(bank.texts),
+    }
 
 
 def _finished_meta(out_dir: Path) -> dict | None:
@@ -292,5 +339,3 @@ def _finished_meta(out_dir: Path) -> dict | None:
         return json.loads((out_dir / "config.json").read_text())["pretraining"]["run"]
     except (OSError, ValueError, KeyError):
         return None
-
-

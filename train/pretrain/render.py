@@ -61,8 +61,9 @@ def training_pool(library, max_objects: int = 0) -> TrainingPool:
     objects, textures = split_pools(library, "seen")
     if max_objects > 0:
         objects = objects[:max_objects]
-    leaked = [n for n in objects if library.get(n).split != "seen"] + \
-        [t for t in textures if library.textures[t].split != "seen"]
+    leaked = [n for n in objects if library.get(n).split != "seen"] + [
+        t for t in textures if library.textures[t].split != "seen"
+    ]
     if leaked:
         raise TrainingError(f"unseen objects or textures in the pretraining pool: {leaked}")
     return TrainingPool(tuple(objects), tuple(textures))
@@ -95,8 +96,7 @@ class RenderedImages:
 
     @classmethod
     def concatenate(cls, parts: list[RenderedImages]) -> RenderedImages:
-        return cls(*(np.concatenate([getattr(p, f.name) for p in parts])
-                     for f in dataclasses.fields(cls)))
+        return cls(*(np.concatenate([getattr(p, f.name) for p in parts]) for f in dataclasses.fields(cls)))
 
     def save(self, path: Path) -> None:
         with atomic_path(path) as tmp, open(tmp, "wb") as handle:
@@ -133,8 +133,9 @@ def recolour_table(rgb: np.ndarray, segmentation: np.ndarray, rng: np.random.Gen
     hsv = cv2.cvtColor(rgb, cv2.COLOR_RGB2HSV).astype(np.float32)
     background = segmentation == 0
     hsv[..., 0] = np.where(background, (hsv[..., 0] + rng.uniform(0, 180)) % 180, hsv[..., 0])
-    hsv[..., 1] = np.where(background, np.clip(hsv[..., 1] * rng.uniform(0.3, 2.5) + rng.uniform(0, 40), 0, 255),
-                           hsv[..., 1])
+    hsv[..., 1] = np.where(
+        background, np.clip(hsv[..., 1] * rng.uniform(0.3, 2.5) + rng.uniform(0, 40), 0, 255), hsv[..., 1]
+    )
     hsv[..., 2] = np.where(background, np.clip(hsv[..., 2] * rng.uniform(0.5, 1.5), 0, 255), hsv[..., 2])
     return cv2.cvtColor(hsv.astype(np.uint8), cv2.COLOR_HSV2RGB)
 
@@ -145,8 +146,13 @@ def jittered_box(box: np.ndarray, rng: np.random.Generator, shift: float) -> np.
     return np.array([u0 + du, v0 + dv, u1 + du, v1 + dv])
 
 
-def crops_of_render(rgb: np.ndarray, segmentation: np.ndarray, labels_by_id: dict[int, int],
-                    rng: np.random.Generator, config: RenderConfig) -> tuple[list[np.ndarray], list[int]]:
+def crops_of_render(
+    rgb: np.ndarray,
+    segmentation: np.ndarray,
+    labels_by_id: dict[int, int],
+    rng: np.random.Generator,
+    config: RenderConfig,
+) -> tuple[list[np.ndarray], list[int]]:
     """One crop per object of `labels_by_id` with a box (`crop_size` px), cut like the pipeline or with jitter."""
     boxes = boxes_from_segmentation(segmentation)
     crops, labels = [], []
@@ -162,8 +168,14 @@ def crops_of_render(rgb: np.ndarray, segmentation: np.ndarray, labels_by_id: dic
     return crops, labels
 
 
-def recoloured_crops(rgb: np.ndarray, segmentation: np.ndarray, names: Sequence[str], classes: PretrainClasses,
-                     rng: np.random.Generator, config: RenderConfig) -> tuple[list[np.ndarray], list[int]]:
+def recoloured_crops(
+    rgb: np.ndarray,
+    segmentation: np.ndarray,
+    names: Sequence[str],
+    classes: PretrainClasses,
+    rng: np.random.Generator,
+    config: RenderConfig,
+) -> tuple[list[np.ndarray], list[int]]:
     """Crops of the objects drawn for recolouring (each with `recolour_share`), recoloured to one
     of their colour terms, labelled with the (object, colour) class."""
     recolourable = set(classes.bodies(RECOLOURED))
@@ -179,14 +191,17 @@ def recoloured_crops(rgb: np.ndarray, segmentation: np.ndarray, names: Sequence[
     return crops_of_render(recoloured, segmentation, labels_by_id, rng, config)
 
 
-def with_primitives(spec: SceneSpec, classes: PretrainClasses, rng: np.random.Generator,
-                    config: RenderConfig) -> tuple[SceneSpec, dict[str, str]]:
+def with_primitives(
+    spec: SceneSpec, classes: PretrainClasses, rng: np.random.Generator, config: RenderConfig
+) -> tuple[SceneSpec, dict[str, str]]:
     """`spec` with `primitives_per_scene` distinct primitives dropped after its objects, and the
     colour term each is painted in."""
     bodies = classes.bodies(PRIMITIVE)
     if len(bodies) < config.primitives_per_scene:
-        raise TrainingError(f"{config.primitives_per_scene} primitives per scene, but only {len(bodies)} primitives "
-                            "have a class; lower primitives_per_scene or add primitive_shapes")
+        raise TrainingError(
+            f"{config.primitives_per_scene} primitives per scene, but only {len(bodies)} primitives "
+            "have a class; lower primitives_per_scene or add primitive_shapes"
+        )
     chosen = [bodies[i] for i in rng.choice(len(bodies), size=config.primitives_per_scene, replace=False)]
     painted = {}
     for body in chosen:
@@ -202,8 +217,9 @@ def paint(model, painted: dict[str, str], rng: np.random.Generator) -> None:
         model.mat_rgba[material, :3] = hsv_to_rgb(sample_hsv(COLOUR_TERMS[colour], rng))
 
 
-def render_scene(arena, pool: TrainingPool, classes: PretrainClasses, index: int, config: RenderConfig,
-                 model: OfflineConfig) -> RenderedImages:
+def render_scene(
+    arena, pool: TrainingPool, classes: PretrainClasses, index: int, config: RenderConfig, model: OfflineConfig
+) -> RenderedImages:
     """Every image of scene `index`: object and primitive crops, the workspace and recoloured
     crops, `renders_per_scene` times."""
     rng = np.random.default_rng([config.seed, index])
@@ -224,12 +240,20 @@ def render_scene(arena, pool: TrainingPool, classes: PretrainClasses, index: int
         crops, crop_labels = recoloured_crops(rgb, segmentation, spec.objects, classes, extra, config)
         images += crops
         labels += crop_labels
-    return RenderedImages(preprocess_images(model, np.stack(images)), np.array(labels, np.int32),
-                          np.full(len(labels), index, np.int32))
+    return RenderedImages(
+        preprocess_images(model, np.stack(images)), np.array(labels, np.int32), np.full(len(labels), index, np.int32)
+    )
 
 
-def _settled_scene(arena, pool: TrainingPool, classes: PretrainClasses, rng: np.random.Generator,
-                   extra: np.random.Generator, config: RenderConfig, max_draws: int = MAX_SCENE_DRAWS):
+def _settled_scene(
+    arena,
+    pool: TrainingPool,
+    classes: PretrainClasses,
+    rng: np.random.Generator,
+    extra: np.random.Generator,
+    config: RenderConfig,
+    max_draws: int = MAX_SCENE_DRAWS,
+):
     """`(spec, painted, rgb, segmentation)` of a freshly drawn scene (`painted`: the colour term of
     each primitive), rendered under random lighting; a scene whose objects keep falling off the
     table is replaced by the next draw."""
@@ -248,16 +272,18 @@ def _settled_scene(arena, pool: TrainingPool, classes: PretrainClasses, rng: np.
         if scene.spec.objects != spec.objects:
             raise TrainingError(f"the arena changed the scene's objects: {scene.spec.objects} != {spec.objects}")
         return spec, painted, scene.rgb, scene.segmentation
-    raise TrainingError(f"{max_draws} scenes in a row could not be settled on the table; check the library "
-                        "with `ocplace scene`")
+    raise TrainingError(
+        f"{max_draws} scenes in a row could not be settled on the table; check the library with `ocplace scene`"
+    )
 
 
 def chunk_path(run_dir: Path, chunk: int) -> Path:
     return Path(run_dir) / RENDERS_DIR / f"chunk_{chunk:05d}.npz"
 
 
-def render_all(library, pool: TrainingPool, run_dir: Path, config: RenderConfig, model: OfflineConfig,
-               progress: bool = True) -> RenderedImages:
+def render_all(
+    library, pool: TrainingPool, run_dir: Path, config: RenderConfig, model: OfflineConfig, progress: bool = True
+) -> RenderedImages:
     """Renders the missing chunks into `run_dir`, then returns every image of every chunk."""
     from tqdm import tqdm
 
@@ -268,8 +294,9 @@ def render_all(library, pool: TrainingPool, run_dir: Path, config: RenderConfig,
         classes = pretraining_classes(library, pool.objects, config)
         arena = training_arena(library, pool, scene_primitives(config))
         try:
-            with tqdm(total=config.scenes, initial=done_scenes, unit="scene", desc="render",
-                      disable=not progress) as bar:
+            with tqdm(
+                total=config.scenes, initial=done_scenes, unit="scene", desc="render", disable=not progress
+            ) as bar:
                 for chunk in missing:
                     parts = []
                     for index in _chunk_scenes_range(chunk, config):
