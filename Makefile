@@ -4,7 +4,7 @@ VENV ?= .venv
 GL = $$(cat $(VENV)/mujoco-gl 2>/dev/null || echo egl)
 RUN = MUJOCO_GL=$(GL) PYOPENGL_PLATFORM=$(GL) $(VENV)/bin/
 
-.PHONY: setup library demo reproduce test test-all bench clean
+.PHONY: setup library demo reproduce lint test test-all perf clean
 
 setup: $(VENV)/.setup-done
 
@@ -20,14 +20,19 @@ demo: library
 reproduce: library
 	$(RUN)ocplace reproduce --scale default --out out/reproduce
 
-test: library
+lint: setup
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/ruff format --check .
+	$(VENV)/bin/python scripts/check_layers.py
+
+test: library lint
 	$(RUN)python -m pytest
 
 test-all: library
 	$(RUN)python -m pytest -m "slow or not slow"
 
-bench: library
-	$(RUN)python bench/scenes.py
+perf: library
+	$(RUN)python perf/scenes.py
 
 clean:
 	rm -rf out .pytest_cache

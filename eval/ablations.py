@@ -1,12 +1,12 @@
 """Table I rows "Ours w/o LLM" (GT-ref#) and "Ours w/o CLIP pre-train" as evaluation methods.
 
-"no_llm" (`models/gtref.py`, `train/gtref.py`): no parser; the instruction is one text token, the
+"no_llm" (`models/no_llm.py`, `train/no_llm.py`): no parser; the instruction is one text token, the
 top-L visual tokens are the references (L from the scene's level, the one ground-truth input
 this ablation is allowed) and an MLP picks each one's relation. Scenes are prepared (crops,
 workspace, AABBs) and sampled by the placement policy's own stages, so only the program
 (references and relations) differs from Ours.
 
-"no_pretrain" (`models/scratch.py`, `train/scratch.py`): the offline backbone's architecture at
+"no_pretrain" (`models/no_pretrain.py`, `train/no_pretrain.py`): the offline backbone's architecture at
 random initialisation, trained with the adapters on the training split; at test time it is
 Ours' policy (parser, grounding, sampler) on that tower and those adapters.
 """
@@ -31,24 +31,24 @@ from ocplace.sim.dataset.records import SceneRecord
 def train_no_llm(ctx: TrainContext) -> Path:
     """Featurize the training split (shared cache) and its sentences, then train GT-ref# (idempotent)."""
     from ocplace.models.policy import load_backbone_spec
-    from ocplace.train.gtref import recipe, train_gtref
+    from ocplace.train import no_llm
 
-    return train_gtref(
+    return no_llm.train_no_llm(
         Path(ctx.dataset_dir),
         load_backbone_spec(ctx.backbone),
         Path(ctx.out_dir),
-        recipe(ctx.scale, ctx.fraction, ctx.seed),
+        no_llm.recipe(ctx.scale, ctx.fraction, ctx.seed),
         progress=False,
     )
 
 
 @dataclasses.dataclass
-class GtRefMethod:
+class NoLlmMethod:
     """A `Method` around a trained GT-ref# model; `policy` lends its scene preparation and sampler."""
 
     name: str
     policy: object  # PlacementPolicy: prepare, encode (visual tokens only), sample
-    trained: object  # train.gtref.TrainedGtRef
+    trained: object  # train.no_llm.TrainedNoLlm
     backbone_spec: str
     run_dir: Path
 
@@ -74,10 +74,10 @@ class GtRefMethod:
 
     def program(self, prepared: Sequence, levels: Sequence[str]) -> list[tuple]:
         """Per scene, the chosen references with their predicted relations (`GroundedReference`s)."""
-        from ocplace.models.gtref import REFERENCES_BY_LEVEL
+        from ocplace.models.no_llm import REFERENCES_BY_LEVEL
         from ocplace.models.policy import GroundedReference
         from ocplace.sim.relations import RELATION_NAMES
-        from ocplace.train.gtref import encode_sentences
+        from ocplace.train.no_llm import encode_sentences
 
         model = self.trained.model
         tokens = self.policy.encode(prepared, [()] * len(prepared))
@@ -150,12 +150,12 @@ class GtRefMethod:
         )
 
 
-def load_no_llm(ctx: LoadContext) -> GtRefMethod:
+def load_no_llm(ctx: LoadContext) -> NoLlmMethod:
     from ocplace.models.backbone import PromptConfig
     from ocplace.models.grounding import GroundingModel
     from ocplace.models.placement.sampler import SamplerConfig
     from ocplace.models.policy import PlacementPolicy, load_backbone_spec
-    from ocplace.train.gtref import load_model
+    from ocplace.train.no_llm import load_model
 
     if ctx.run_dir is None:
         raise TrainingError("no_llm needs a run directory; train it first")
@@ -174,7 +174,7 @@ def load_no_llm(ctx: LoadContext) -> GtRefMethod:
         parser=None,
         sampler=SamplerConfig(num_samples=ctx.num_samples),
     )
-    return GtRefMethod("no_llm", policy, trained, ctx.backbone, Path(ctx.run_dir))
+    return NoLlmMethod("no_llm", policy, trained, ctx.backbone, Path(ctx.run_dir))
 
 
 # ----------------------------------------------------------------------------- Ours w/o CLIP pre-train
@@ -182,20 +182,20 @@ def load_no_llm(ctx: LoadContext) -> GtRefMethod:
 
 def train_no_pretrain(ctx: TrainContext) -> Path:
     """Train the tower and adapters from random weights (`ctx.backbone` is not used: nothing is pretrained)."""
-    from ocplace.train.scratch import recipe, train_scratch
+    from ocplace.train import no_pretrain
 
-    return train_scratch(
-        Path(ctx.dataset_dir), Path(ctx.out_dir), recipe(ctx.scale, ctx.fraction, ctx.seed), progress=False
+    return no_pretrain.train_no_pretrain(
+        Path(ctx.dataset_dir), Path(ctx.out_dir), no_pretrain.recipe(ctx.scale, ctx.fraction, ctx.seed), progress=False
     )
 
 
 @dataclasses.dataclass
-class ScratchMethod(PolicyMethod):
+class NoPretrainMethod(PolicyMethod):
     run_dir: Path | None = None
 
     def describe(self) -> dict:
         described = describe_policy(self.policy, self.name, self.backbone_spec, self.adapters_file)
-        from ocplace.train.gtref import params_sha256
+        from ocplace.train.no_llm import params_sha256
 
         described["from_scratch"] = json.loads((Path(self.run_dir) / "config.json").read_text())
         described["backbone"]["weights_sha256"] = params_sha256(self.policy.backbone.params)
@@ -203,12 +203,12 @@ class ScratchMethod(PolicyMethod):
         return described
 
 
-def load_no_pretrain(ctx: LoadContext) -> ScratchMethod:
+def load_no_pretrain(ctx: LoadContext) -> NoPretrainMethod:
     from ocplace.models.offline_backbone import load_saved_backbone
     from ocplace.models.placement.sampler import SamplerConfig
     from ocplace.models.policy import PlacementPolicy
-    from ocplace.train.checkpoints import ADAPTERS_FILE
-    from ocplace.train.scratch import BACKBONE_DIR
+    from ocplace.models.trained_adapters import ADAPTERS_FILE
+    from ocplace.train.no_pretrain import BACKBONE_DIR
 
     if ctx.run_dir is None or not (Path(ctx.run_dir) / ADAPTERS_FILE).exists():
         raise TrainingError(f"no trained tower and adapters in {ctx.run_dir}; train the 'no_pretrain' method first")
@@ -217,7 +217,9 @@ def load_no_pretrain(ctx: LoadContext) -> ScratchMethod:
     policy = PlacementPolicy.from_run(
         backbone, run_dir / ADAPTERS_FILE, parser=ctx.parser, sampler=SamplerConfig(num_samples=ctx.num_samples)
     )
-    return ScratchMethod("no_pretrain", policy, f"offline:{run_dir / BACKBONE_DIR}", run_dir / ADAPTERS_FILE, run_dir)
+    return NoPretrainMethod(
+        "no_pretrain", policy, f"offline:{run_dir / BACKBONE_DIR}", run_dir / ADAPTERS_FILE, run_dir
+    )
 
 
 def _jsonable(value):

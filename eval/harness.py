@@ -30,11 +30,9 @@ import numpy as np
 
 from ocplace.errors import OcplaceError
 from ocplace.eval.api import LoadContext, Method, MethodOutput, MethodSpec
-from ocplace.sim.dataset.config import TEST_SUBSETS
 from ocplace.sim.dataset.records import SceneRecord
+from ocplace.vocabulary import LEVELS, TEST_SUBSETS
 
-SUBSETS = TEST_SUBSETS  # the paper's three, then ours (unseen_cat)
-LEVELS = ("table", "1obj", "2obj")
 STAGES = ("failure", "parse", "grounding", "sampling", "placement")
 DEFAULT_PHYSICAL_SCENES = 50
 
@@ -51,7 +49,7 @@ class EvalSettings:
     scale: str = "default"
     parser: str = "offline"
     num_samples: int = 1024
-    subsets: tuple[str, ...] = SUBSETS
+    subsets: tuple[str, ...] = TEST_SUBSETS
     limit: int | None = None  # first N scenes per subset; None: all
     physical_scenes: int | None = DEFAULT_PHYSICAL_SCENES  # first K scenes per subset; None: all, 0: none
     seed: int = 0

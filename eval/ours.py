@@ -37,26 +37,17 @@ def train_recipe(scale: str):
     return recipes[scale]()
 
 
-def features_path(dataset_dir: Path, split: str, backbone) -> Path:
-    """Where `ocplace featurize` caches a split's features, so the two share one file."""
-    from ocplace.paths import cache_dir
-    from ocplace.train.commands import dataset_hash
-
-    digest = dataset_hash(dataset_dir, split)
-    return cache_dir() / "features" / f"{digest[:16]}-{split}-{backbone.fingerprint[:16]}.safetensors"
-
-
 def featurize_split(dataset_dir: Path, split: str, backbone, progress: bool = True) -> Path:
     """The split's feature file, encoded once per backbone and dataset (a cached no-op afterwards)."""
     from ocplace.models.features import featurize
+    from ocplace.sim.dataset.identity import dataset_hash, split_features_path
     from ocplace.sim.dataset.job import scene_dirs
     from ocplace.sim.dataset.loader import iter_examples
-    from ocplace.train.commands import dataset_hash
 
     return featurize(
         iter_examples(dataset_dir, split),
         backbone,
-        features_path(dataset_dir, split, backbone),
+        split_features_path(dataset_dir, split, backbone.fingerprint),
         dataset_hash=dataset_hash(dataset_dir, split),
         total=len(scene_dirs(dataset_dir, split)),
         progress=progress,
@@ -132,7 +123,7 @@ def describe_policy(policy, name: str, backbone_spec: str, adapters_file: Path |
     parsing = dataclasses.asdict(parsing_config())
     adapters = None
     if adapters_file is not None:
-        from ocplace.train.checkpoints import load_adapters
+        from ocplace.models.trained_adapters import load_adapters
 
         trained = load_adapters(adapters_file)
         adapters = {
@@ -196,7 +187,7 @@ def _policy(ctx: LoadContext, adapters_file: Path | None):
 
 def load_ours(ctx: LoadContext) -> PolicyMethod:
     from ocplace.errors import TrainingError
-    from ocplace.train.checkpoints import ADAPTERS_FILE
+    from ocplace.models.trained_adapters import ADAPTERS_FILE
 
     if ctx.run_dir is None or not (Path(ctx.run_dir) / ADAPTERS_FILE).exists():
         raise TrainingError(f"no trained adapters in {ctx.run_dir}; train the 'ours' method first")

@@ -26,9 +26,10 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
 from ocplace.eval.api import MethodSpec, TrainContext
-from ocplace.eval.harness import SUBSETS, EvalSettings, Evaluation, MethodRun
+from ocplace.eval.harness import EvalSettings, Evaluation, MethodRun
+from ocplace.vocabulary import TEST_SUBSETS
 
-# Issue 9: the sample-efficiency study trains these on 25/50/75/100% of the training set.
+# The sample-efficiency study (paper Fig. 7) trains these on 25/50/75/100% of the training set.
 FRACTION_METHODS = ("ours", "grids", "no_pretrain", "no_llm")
 FRACTIONS = (0.25, 0.5, 0.75, 1.0)
 # `make demo` shows the method against its ablations; the baselines (Raw Image Grids, CLIPort-Place)
@@ -53,7 +54,7 @@ class PipelineConfig:
     seed: int = 0  # training and evaluation
     num_samples: int = 1024
     parser: str = "offline"
-    subsets: tuple[str, ...] = SUBSETS
+    subsets: tuple[str, ...] = TEST_SUBSETS
     workers: int = 0  # dataset generation processes; 0: every CPU
     progress: bool = True
 
@@ -163,7 +164,7 @@ def backbone_step(config: PipelineConfig, library) -> str:
     """The backbone spec: `config.backbone`, or the scale's offline recipe, pretrained if needed."""
     if config.backbone is not None:
         return config.backbone
-    from ocplace.train.pretrain.config import recipe_config
+    from ocplace.models.offline_recipes import recipe_config
     from ocplace.train.pretrain.loop import pretrain
 
     result = pretrain(recipe_config(config.scale), library, progress=config.progress)
@@ -171,13 +172,13 @@ def backbone_step(config: PipelineConfig, library) -> str:
 
 
 def selected_specs(config: PipelineConfig, specs: Mapping[str, MethodSpec]) -> list[MethodSpec]:
-    from ocplace.eval.commands import select_specs
+    from ocplace.eval.registry import select_specs
 
     return select_specs("all" if config.methods is None else ",".join(config.methods), dict(specs))
 
 
 def planned_runs(config: PipelineConfig, specs: Sequence[MethodSpec]) -> list[tuple[MethodSpec, float]]:
-    """(method, training fraction) pairs: 1.0 for every method, plus the fractions for issue 9's four."""
+    """(method, training fraction) pairs: 1.0 for every method, plus the fractions for the sample-efficiency methods."""
     runs = []
     for spec in specs:
         fractions = config.fractions if spec.name in config.fraction_methods and spec.train is not None else (1.0,)
@@ -303,8 +304,7 @@ def run_pipeline(
     `specs` defaults to the registry; `library` and `arena` (a compiled MujocoScenes) may be passed in
     to reuse them.
     """
-    from ocplace.eval.commands import write_outputs
-    from ocplace.eval.results import build_results, dataset_identity, summarise, write_results
+    from ocplace.eval.results import build_results, dataset_identity, summarise, write_outputs, write_results
 
     out = Path(out or config.default_out)
     out.mkdir(parents=True, exist_ok=True)

@@ -191,6 +191,16 @@ def write_results(path: str | Path, results: dict) -> Path:
     return path
 
 
+def write_outputs(results: dict, out: Path) -> str:
+    """Writes RESULTS.json and RESULTS.md (the tables) beside it; returns the markdown."""
+    from ocplace.eval.table import render
+
+    write_results(out, results)
+    markdown = render(results)
+    write_text_atomic(out.with_suffix(".md"), markdown)
+    return markdown
+
+
 def read_results(path: str | Path) -> dict:
     path = Path(path)
     try:

@@ -10,8 +10,8 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
 
-from ocplace.eval.harness import LEVELS, STAGES, SUBSETS
-from ocplace.sim.dataset.config import PAPER_SUBSETS
+from ocplace.eval.harness import STAGES
+from ocplace.vocabulary import LEVELS, PAPER_SUBSETS, TEST_SUBSETS
 
 SUBSET_TITLES = {
     "seen": "Seen",
@@ -39,7 +39,7 @@ def full_runs(results: Mapping) -> list[dict]:
 
 def _subsets(results: Mapping) -> list[str]:
     evaluated = results["settings"]["subsets"]
-    return [s for s in SUBSETS if s in evaluated]
+    return [s for s in TEST_SUBSETS if s in evaluated]
 
 
 def level_table(results: Mapping, metric: str, title: str) -> str:

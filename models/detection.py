@@ -18,7 +18,7 @@ import numpy as np
 
 from ocplace.errors import PolicyInputError
 from ocplace.models.pinhole import PinholeCamera
-from ocplace.sim.dataset.config import TEST_SUBSETS
+from ocplace.vocabulary import TEST_SUBSETS
 
 
 @dataclasses.dataclass(frozen=True)

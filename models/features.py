@@ -38,8 +38,8 @@ ARRAY_NAMES = ("visual", "visual_mask", "text", "text_mask", "targets")
 
 
 @dataclasses.dataclass(frozen=True)
-class SceneExample:
-    """What the grounding model sees of one scene (the dataset's contract with this module).
+class SceneToFeaturize:
+    """One scene before encoding: crops, workspace image, phrases, targets (the dataset's contract with this module).
 
     Any object with these attributes will do, e.g. the dataset loader's own record type.
     """
@@ -52,7 +52,7 @@ class SceneExample:
 
 
 def check_example(example, max_objects: int, max_tuples: int) -> None:
-    """Raises FeaturesError naming the scene if `example` breaks the SceneExample contract."""
+    """Raises FeaturesError naming the scene if `example` breaks the SceneToFeaturize contract."""
     crops, workspace, targets = (np.asarray(x) for x in (example.crops, example.workspace, example.targets))
     problems = []
     if crops.dtype != np.uint8 or crops.ndim != 4 or crops.shape[-1] != 3:
@@ -74,7 +74,7 @@ def check_example(example, max_objects: int, max_tuples: int) -> None:
 
 @dataclasses.dataclass(frozen=True)
 class FeaturizeConfig:
-    max_objects: int = 5  # DESIGN: 5 objects per scene, so at most 5 boxes
+    max_objects: int = 5  # a scene holds 5 objects, so at most 5 boxes
     max_tuples: int = 2  # the 2obj level has two tuples
     chunk_scenes: int = 64  # scenes per resumable chunk
     prompt: PromptConfig = PromptConfig()
@@ -168,7 +168,7 @@ def features_key(backbone_fingerprint: str, dataset_hash: str, config: Featurize
 
 
 def featurize(
-    examples: Iterable[SceneExample],
+    examples: Iterable[SceneToFeaturize],
     backbone: Backbone,
     out_path,
     *,
@@ -215,7 +215,7 @@ def featurize(
     return out_path
 
 
-def encode_chunk(chunk: list[SceneExample], backbone: Backbone, config: FeaturizeConfig) -> dict[str, np.ndarray]:
+def encode_chunk(chunk: list[SceneToFeaturize], backbone: Backbone, config: FeaturizeConfig) -> dict[str, np.ndarray]:
     """Padded arrays (see the module docstring) for a list of scenes."""
     for example in chunk:
         check_example(example, config.max_objects, config.max_tuples)
@@ -306,7 +306,7 @@ def save_features(features: Features, path) -> Path:
     return Path(path)
 
 
-def _scene_meta(chunk: list[SceneExample]) -> list[dict]:
+def _scene_meta(chunk: list[SceneToFeaturize]) -> list[dict]:
     return [{"id": example.scene_id, "texts": list(example.texts)} for example in chunk]
 
 

@@ -43,6 +43,7 @@ from ocplace.models.backbone import (
 )
 from ocplace.models.grounding import l2_normalize
 from ocplace.paths import atomic_path, cache_dir, write_text_atomic
+from ocplace.vocabulary import CLIP_IMAGE_MEAN, CLIP_IMAGE_STD
 
 CONFIG_FILE = "config.json"
 WEIGHTS_FILE = "weights.safetensors"
@@ -52,8 +53,6 @@ FORMAT = "ocplace-offline-backbone-v1"
 VIT = "vit"
 MINILM_DIM = 384
 MINILM_FILES = ("config.json", "model.safetensors", "tokenizer.json", "vocab.txt")
-CLIP_MEAN = (0.48145466, 0.4578275, 0.40821073)
-CLIP_STD = (0.26862954, 0.26130258, 0.27577711)
 BICUBIC = 3  # PIL.Image.BICUBIC
 
 
@@ -95,7 +94,7 @@ class OfflineConfig:
     @property
     def preprocessing(self) -> ImagePreprocessing:
         mean, std = (
-            (CLIP_MEAN, CLIP_STD)
+            (CLIP_IMAGE_MEAN, CLIP_IMAGE_STD)
             if self.is_vit
             else ((efficientnet.PIXEL_MEAN / 255,) * 3, (efficientnet.PIXEL_STD / 255,) * 3)
         )
@@ -264,7 +263,7 @@ def _initial_leaf(path: str, name: str, noise: np.ndarray, shape) -> np.ndarray:
 def normalize_pixels(config: OfflineConfig, pixels):
     """uint8 `(B, S, S, 3)` -> float32 `(B, S, S, 3)` scaled to [0, 1] and normalised by CLIP's mean/std."""
     scaled = pixels.astype(jnp.float32) * jnp.float32(1.0 / 255.0)
-    return (scaled - jnp.asarray(CLIP_MEAN, jnp.float32)) / jnp.asarray(CLIP_STD, jnp.float32)
+    return (scaled - jnp.asarray(CLIP_IMAGE_MEAN, jnp.float32)) / jnp.asarray(CLIP_IMAGE_STD, jnp.float32)
 
 
 def trunk_features(config: OfflineConfig, vision: dict, pixels):
@@ -526,7 +525,7 @@ def saved_backbone_with(fingerprint: str) -> Path | None:
 
 def load_offline_backbone(argument: str = "", max_batch: int = 64) -> OfflineBackbone:
     """`offline` (the default recipe), `offline:RECIPE` (default, demo, smoke) or `offline:/path/to/dir`."""
-    from ocplace.train.pretrain.config import RECIPES, recipe_dir
+    from ocplace.models.offline_recipes import RECIPES, recipe_dir
 
     name = argument or "default"
     if name in RECIPES:

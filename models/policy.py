@@ -5,7 +5,7 @@
                              held_footprint=(0.03, 0.04), key=jax.random.key(0), camera=camera_json)
     placement.mode, placement.mode_px   # table-frame metres (x right, y away), and pixels (u, v)
 
-Stages (each a method, so `bench/policy.py` can time them): `prepare` (check the input, cut the
+Stages (each a method, so `perf/policy.py` can time them): `prepare` (check the input, cut the
 crops and the workspace image exactly as training did, estimate AABBs from depth when none are
 given), `parse`, `encode` (N + 1 crops and L phrases through the frozen backbone), `ground`
 (adapters + softmax over the N + 1 tokens), `sample` (the truncated-Gaussian sampler, one
@@ -36,9 +36,11 @@ from ocplace.models.grounding import GroundingModel
 from ocplace.models.parsing import ParsedTuple, Parser
 from ocplace.models.pinhole import PinholeCamera
 from ocplace.models.placement.sampler import SamplerConfig
+from ocplace.models.trained_adapters import TrainedAdapters, load_adapters
 from ocplace.sim import metric
 from ocplace.sim.camera import DEFAULT_CAMERA
 from ocplace.sim.dataset.loader import CROP_SIZE, MAX_BOXES, letterbox
+from ocplace.vocabulary import MAX_PARSED_TUPLES
 
 DEFAULT_THRESHOLD = 0.5
 TABLE_LABEL = "the table"
@@ -188,12 +190,13 @@ class PlacementPolicy:
     detector: DetectorConfig = DetectorConfig()
     crop_size: int = CROP_SIZE
     min_boxes: int = MAX_BOXES  # tokens and collision boxes are padded to at least this: one compiled shape
-    max_tuples: int = metric.MAX_TUPLES
+    max_tuples: int = MAX_PARSED_TUPLES
     encode_scenes: int = 32  # scenes whose crops are encoded together in `place_many`
 
     @classmethod
     def from_run(cls, backbone: Backbone, adapters=None, parser: Parser | str = "offline", **kwargs) -> PlacementPolicy:
-        """A policy from trained adapters (a run directory or adapters file; None: zero-shot grounding).
+        """A policy from trained adapters (a run directory, an adapters file, or `TrainedAdapters` already
+        loaded; None: zero-shot grounding).
 
         Raises TrainingError when the adapters were trained on another backbone's features.
         """
@@ -205,12 +208,10 @@ class PlacementPolicy:
             return cls(
                 backbone, GroundingModel.zero_shot(backbone.dim, backbone.logit_scale), PromptConfig(), parser, **kwargs
             )
-        from ocplace.train.checkpoints import load_adapters
-
-        trained = load_adapters(adapters)
+        trained = adapters if isinstance(adapters, TrainedAdapters) else load_adapters(adapters)
         if trained.backbone_fingerprint != backbone.fingerprint:
             raise TrainingError(
-                f"the adapters in {adapters} were trained on features of another backbone "
+                f"the adapters in {trained.source} were trained on features of another backbone "
                 f"(fingerprint {trained.backbone_fingerprint[:12]}, this one "
                 f"{backbone.fingerprint[:12]}); {backbone_hint(trained.backbone_fingerprint)}"
             )

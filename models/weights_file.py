@@ -17,9 +17,10 @@ import json
 import logging
 from pathlib import Path
 
+import jax
 import numpy as np
 
-from ocplace.errors import WeightsError
+from ocplace.errors import TrainingError, WeightsError
 from ocplace.paths import write_bytes_atomic
 
 log = logging.getLogger(__name__)
@@ -35,6 +36,28 @@ def content_sha256(tensors: dict[str, np.ndarray], metadata: dict[str, str]) -> 
         digest.update(json.dumps([name, array.dtype.str, array.shape]).encode())
         digest.update(array.tobytes())
     return digest.hexdigest()
+
+
+def flatten_state(state) -> dict[str, np.ndarray]:
+    """Every leaf of a pytree (params, optimiser state) under its key path, as a numpy array."""
+    return {jax.tree_util.keystr(path): np.array(leaf) for path, leaf in jax.tree_util.tree_leaves_with_path(state)}
+
+
+def unflatten_state(arrays: dict[str, np.ndarray], template):
+    """`template`'s structure filled with `arrays`; keys, shapes and dtypes must match exactly."""
+    paths, treedef = jax.tree_util.tree_flatten_with_path(template)
+    expected = {jax.tree_util.keystr(path): leaf for path, leaf in paths}
+    mismatched = sorted(set(arrays) ^ set(expected)) + sorted(
+        key
+        for key, leaf in expected.items()
+        if key in arrays and (arrays[key].shape != tuple(leaf.shape) or arrays[key].dtype != np.dtype(leaf.dtype))
+    )
+    if mismatched:
+        raise TrainingError(
+            f"checkpoint does not match the model ({', '.join(mismatched[:3])} ...); start a new "
+            "run directory (--out) for a different configuration"
+        )
+    return jax.tree_util.tree_unflatten(treedef, [arrays[jax.tree_util.keystr(path)] for path, _ in paths])
 
 
 def save_weights(path: str | Path, tensors: dict[str, np.ndarray], metadata: dict[str, str]) -> Path:

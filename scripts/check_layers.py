@@ -3,9 +3,12 @@
 The top-level folders (`sim/`, `models/`, ...) are the `ocplace.*` subpackages by setuptools'
 `package-dir` map, which import-linter cannot follow: it walks one folder per root package. So
 the map is laid out in a temporary folder (the sources copied into `ocplace/<name>/`) and the
-contracts run there. Every import counts, at module level and inside functions alike.
+contracts run there, from inside that folder: import-linter puts the working directory first on
+`sys.path`, where the checkout's own `ocplace/` would hide the laid-out one. Every import counts, at
+module level and inside functions alike.
 """
 
+import contextlib
 import shutil
 import sys
 import tempfile
@@ -26,9 +29,8 @@ def lay_out(package_dirs: dict[str, str], into: Path) -> None:
 def main() -> int:
     config = ROOT / "pyproject.toml"
     package_dirs = tomllib.loads(config.read_text())["tool"]["setuptools"]["package-dir"]
-    with tempfile.TemporaryDirectory() as view:
+    with tempfile.TemporaryDirectory() as view, contextlib.chdir(view):
         lay_out(package_dirs, Path(view))
-        sys.path.insert(0, view)
         return lint_imports(config_filename=str(config), no_cache=True)
 
 

@@ -1,4 +1,4 @@
-"""The top-down RGB-D camera (DESIGN "Camera"): a pinhole model of a RealSense L515 depth stream.
+"""The top-down RGB-D camera (docs/design.md#conventions): a pinhole model of a RealSense L515 depth stream.
 
 Pixel coordinates are (u, v) with u to the right and v down, pixel centres at integers, so
 the principal point of a 640x480 image is (319.5, 239.5). Depth is planar: the distance along

@@ -1,4 +1,4 @@
-"""Instruction vocabulary and rendering: the single source of truth (DESIGN "Relations").
+"""Instruction vocabulary and rendering: the single source of truth (docs/design.md#relations-and-instructions).
 
 Seen instructions use one fixed phrase per (relation, reference kind); unseen instructions change
 everything around the reference names: a polite prefix, a verb, a pronoun for the held object,

@@ -1,4 +1,4 @@
-"""The benchmark's success metric (DESIGN "Success metric") and the oracle's feasible-region grid.
+"""The benchmark's success metric (docs/design.md#success-metric) and the oracle's feasible-region grid.
 
 A placement p is the x-y centre of the held object. It succeeds iff every grounded tuple holds
 and the held object's footprint (an axis-aligned rectangle with half-extents h centred at p) lies
@@ -24,11 +24,11 @@ import numpy as np
 from ocplace.errors import InvalidPlacementProblem, NoFeasiblePlacement
 from ocplace.sim import relations
 from ocplace.sim.workspace import DEFAULT_TABLE, Table
+from ocplace.vocabulary import MAX_PARSED_TUPLES
 
 FLOAT = np.float32
 RADIUS_MIN = 0.10  # metres, object relations
 RADIUS_MAX = 0.30
-MAX_TUPLES = 4
 _TINY = FLOAT(np.finfo(FLOAT).tiny)
 _SPLIT_MASK = np.uint32(0xFFFFF000)  # keeps 12 significant bits of a float32
 
@@ -133,7 +133,7 @@ def encode_problem(
     boxes: Any,
     half_extents: Any,
     *,
-    max_tuples: int = MAX_TUPLES,
+    max_tuples: int = MAX_PARSED_TUPLES,
     max_boxes: int | None = None,
 ) -> PlacementProblem:
     """Pads one scene into a PlacementProblem.

@@ -1,4 +1,4 @@
-"""The optional physical check (DESIGN "Success metric"): drop the held object at the placement.
+"""The optional physical check (docs/design.md#success-metric): drop the held object at the placement.
 
 The held object is released upright (yaw 0, matching its footprint) 2 cm above the tallest object
 under its footprint, or above the table. The placement is physically successful when the held

@@ -1,4 +1,4 @@
-"""The nine canonical spatial relations and their geometry (DESIGN "Relations").
+"""The nine canonical spatial relations and their geometry (docs/design.md#relations-and-instructions).
 
 Text phrases for each relation live with the instruction language; this module holds only
 what the geometry needs, so the metric, the sampler and the generator share one definition.

@@ -11,7 +11,7 @@ import dataclasses
 import numpy as np
 
 from ocplace.errors import SceneError
-from ocplace.sim.splits import LIBRARY_SPLITS
+from ocplace.vocabulary import LIBRARY_SPLITS
 
 NUM_SCENE_OBJECTS = 5
 
@@ -154,6 +154,12 @@ def split_pools(library, split: str) -> tuple[list[str], list[str]]:
     texture_split = "seen" if split == "seen" else "unseen"
     textures = sorted(name for name, texture in library.textures.items() if texture.split == texture_split)
     return library.names(split), textures
+
+
+def render_sampled_scene(library, arena, seed: int, split: str) -> RenderedScene:
+    """Samples a scene of `split` from `seed` and builds it in `arena` (a `MujocoScenes`)."""
+    objects, textures = split_pools(library, split)
+    return arena.build(sample_scene_spec(np.random.default_rng(seed), objects, textures))
 
 
 def retry_seed(seed: int, attempt: int) -> int:

@@ -1,6 +1,6 @@
 """The table: the placement area, its 3x3 grid, and where scene objects are dropped.
 
-World frame (DESIGN): table top is z = 0, +x right in the image, +y away from the viewer.
+World frame (docs/design.md#conventions): table top is z = 0, +x right in the image, +y away from the viewer.
 """
 
 from __future__ import annotations

@@ -10,7 +10,7 @@ from safetensors.numpy import load_file
 
 from ocplace.eval.api import LoadContext, TrainContext
 from ocplace.eval.harness import redacted
-from ocplace.models import gtref
+from ocplace.models import no_llm
 from ocplace.sim.dataset.job import scene_dirs
 from ocplace.sim.dataset.records import read_scene
 from ocplace.sim.relations import RELATION_NAMES
@@ -64,7 +64,7 @@ def test_select_references_takes_top_l_and_never_a_padded_token():
     rng = np.random.default_rng(0)
     mask = np.array([[True] * 6, [True, True, False, False, False, False], [True] + [False] * 5])
     logits = jnp.where(mask, jnp.asarray(rng.normal(size=(3, 6)), jnp.float32), -jnp.inf)
-    select = jax.jit(gtref.select_references)
+    select = jax.jit(no_llm.select_references)
     indices, chosen = select(logits, jnp.array([2, 2, 2]))
     indices, chosen = np.asarray(indices), np.asarray(chosen)
     assert indices.shape == (3, 2) and chosen.tolist() == [[True, True], [True, True], [True, False]]
@@ -75,22 +75,22 @@ def test_select_references_takes_top_l_and_never_a_padded_token():
 
 
 def test_relation_head_shapes_and_middle_only_for_the_table():
-    config = gtref.GtRefConfig(dim=16, hidden=8)
-    params = gtref.init_params(config, jax.random.key(0))
+    config = no_llm.NoLlmConfig(dim=16, hidden=8)
+    params = no_llm.init_params(config, jax.random.key(0))
     rng = np.random.default_rng(1)
     visual = jnp.asarray(rng.normal(size=(2, 6, 16)), jnp.float32)
     mask = jnp.array([[True] * 4 + [False] * 2, [True] * 6])
 
     @jax.jit
     def relation_logits(params, visual, mask):
-        visual_star, sentence_star = gtref.adapted_tokens(config, params, visual, jnp.ones((2, 16)))
-        return gtref.relation_logits(config, params, visual_star, sentence_star, mask)
+        visual_star, sentence_star = no_llm.adapted_tokens(config, params, visual, jnp.ones((2, 16)))
+        return no_llm.relation_logits(config, params, visual_star, sentence_star, mask)
 
     logits = np.asarray(relation_logits(params, visual, mask))
     assert logits.shape == (2, 6, len(RELATION_NAMES))
     assert np.isfinite(logits[0, 3]).all() and np.isfinite(logits[1, 5]).all()  # the table tokens
     assert np.isneginf(logits[0, :3, MIDDLE]).all() and np.isneginf(logits[1, :5, MIDDLE]).all()
-    model = gtref.GtRefModel(config, params, 10.0)
+    model = no_llm.NoLlmModel(config, params, 10.0)
     prediction = model.predict(visual, mask, np.ones((2, 16)), np.array([1, 2]))
     assert prediction.references.shape == prediction.relations.shape == (2, 2)
     assert prediction.reference_mask.tolist() == [[True, False], [True, True]]
@@ -99,8 +99,8 @@ def test_relation_head_shapes_and_middle_only_for_the_table():
 
 
 def test_reference_loss_is_ours_with_the_sentence_for_every_tuple():
-    config = gtref.GtRefConfig(dim=8, hidden=4)
-    params = gtref.init_params(config, jax.random.key(2))
+    config = no_llm.NoLlmConfig(dim=8, hidden=4)
+    params = no_llm.init_params(config, jax.random.key(2))
     rng = np.random.default_rng(3)
     batch = {
         "visual": jnp.asarray(rng.normal(size=(3, 6, 8)), jnp.float32),
@@ -110,12 +110,12 @@ def test_reference_loss_is_ours_with_the_sentence_for_every_tuple():
         "target_mask": jnp.array([[1, 0], [1, 1], [1, 0]], bool),
         "relations": jnp.array([[0, 0], [1, 2], [4, 0]]),
     }
-    reference, relation = jax.jit(gtref.loss_terms, static_argnums=0)(config, params, batch, 10.0)
+    reference, relation = jax.jit(no_llm.loss_terms, static_argnums=0)(config, params, batch, 10.0)
 
     @jax.jit
     def log_probabilities(params, batch):
-        visual_star, sentence_star = gtref.adapted_tokens(config, params, batch["visual"], batch["sentence"])
-        return jax.nn.log_softmax(gtref.token_logits(visual_star, sentence_star, batch["visual_mask"], 10.0))
+        visual_star, sentence_star = no_llm.adapted_tokens(config, params, batch["visual"], batch["sentence"])
+        return jax.nn.log_softmax(no_llm.token_logits(visual_star, sentence_star, batch["visual_mask"], 10.0))
 
     log_p = np.asarray(log_probabilities(params, batch))
     expected = -np.mean([log_p[0, 0], log_p[1, 1], log_p[1, 2], log_p[2, 5]])
@@ -148,14 +148,16 @@ def synthetic_scenes(num_scenes: int, dim: int, seed: int) -> dict:
     }
 
 
-def test_gtref_learns_references_and_relations_when_the_sentence_holds_them(tmp_path):
+def test_no_llm_learns_references_and_relations_when_the_sentence_holds_them(tmp_path):
     import dataclasses
 
-    from ocplace.train.gtref import recipe, train_on_arrays
+    from ocplace.train.no_llm import recipe, train_on_arrays
 
     arrays = synthetic_scenes(96, 16, seed=0)
     config = dataclasses.replace(recipe("smoke"), steps=400, chunk_steps=200, checkpoint_every=200, hidden=64)
-    model = train_on_arrays(arrays, tmp_path / "run", config, 10.0, {"synthetic": True}, progress=False)
+    model = train_on_arrays(
+        arrays, tmp_path / "run", config, 10.0, {"synthetic": True}, progress=False, backbone_fingerprint="synthetic"
+    )
     prediction = model.predict(arrays["visual"], arrays["visual_mask"], arrays["sentence"], np.ones(96, np.int32))
     assert np.mean(prediction.references[:, 0] == arrays["targets"][:, 0]) >= 0.95
     assert np.mean(prediction.relations[:, 0] == arrays["relations"][:, 0]) >= 0.9
@@ -173,7 +175,7 @@ def test_training_at_smoke_scale_lowers_the_loss(runs, name):
 
 
 def test_training_is_deterministic_and_idempotent(runs, specs, smoke_dataset, tiny_backbone_spec, tmp_path):
-    from ocplace.train.gtref import load_model
+    from ocplace.train.no_llm import load_model
 
     again = specs["no_llm"].train(TrainContext(smoke_dataset, tiny_backbone_spec, tmp_path / "again", scale="smoke"))
     assert load_model(again).sha256 == load_model(runs["no_llm"]).sha256
@@ -257,14 +259,14 @@ def test_methods_are_registered():
 def test_no_pretrain_is_ours_architecture_from_random_weights():
     import dataclasses
 
+    from ocplace.models import no_pretrain
     from ocplace.models import offline_backbone as ob
-    from ocplace.models import scratch
     from ocplace.models.imagenet_weights import load_pretrained
 
-    backbone = scratch.default_config().backbone
+    backbone = no_pretrain.default_config().backbone
     assert backbone.trunk_init == "random"
     assert dataclasses.replace(backbone, trunk_init="imagenet") == ob.default_config()
-    smoke = scratch.smoke_config().backbone
+    smoke = no_pretrain.smoke_config().backbone
     params = ob.init_params(smoke, jax.random.key(0))
     imagenet = ob.flatten_params({"vision": load_pretrained(smoke.trunk)})
     random_trunk = ob.flatten_params({"vision": params["vision"]})
@@ -275,21 +277,21 @@ def test_no_pretrain_is_ours_architecture_from_random_weights():
 def test_calibration_keeps_a_random_trunk_alive(smoke_dataset):
     """A random EfficientNet with identity batch-norm statistics gives near-constant features;
     statistics measured on training images restore their spread across images."""
-    from ocplace.models import efficientnet, scratch
+    from ocplace.models import efficientnet, no_pretrain
     from ocplace.models import offline_backbone as ob
     from ocplace.models.backbone import PromptConfig
-    from ocplace.train.scratch import scratch_inputs
+    from ocplace.train.no_pretrain import no_pretrain_inputs
 
-    model = scratch.smoke_config()
-    arrays = scratch_inputs(smoke_dataset, "train", model.backbone, PromptConfig(), progress=False).arrays
-    params = scratch.init_params(model, jax.random.key(0))
+    model = no_pretrain.smoke_config()
+    arrays = no_pretrain_inputs(smoke_dataset, "train", model.backbone, PromptConfig(), progress=False).arrays
+    params = no_pretrain.init_params(model, jax.random.key(0))
     pixels = arrays["pixels"][arrays["visual_mask"].astype(bool)]
 
     def spread(backbone):
         features = np.asarray(efficientnet.features(backbone["vision"], pixels, model.backbone.trunk))
         return float(features.std(axis=0).mean())
 
-    calibrated = scratch.calibrate(model, params["backbone"], arrays)
+    calibrated = no_pretrain.calibrate(model, params["backbone"], arrays)
     assert spread(params["backbone"]) < 1e-3 < 0.1 < spread(calibrated)
     assert (
         ob.flatten_params(calibrated["vision"]["params"]).keys()

@@ -1,4 +1,4 @@
-"""Invalid inputs are typed errors (exit 2 from the CLI), found before any model loads (issue 16).
+"""Invalid inputs are typed errors (exit 2 from the CLI), found before any model loads (docs/reliability.md).
 
 The CLI cases pass `--backbone offline:<missing folder>`: had a command gone past its input checks,
 it would stop at loading that backbone with another message, so each expected message also proves
@@ -354,7 +354,7 @@ def saved_cache(tmp_path_factory):
     from ocplace.models import offline_backbone as ob
     from ocplace.models.adapters import AdapterConfig, init_adapters
     from ocplace.models.backbone import PromptConfig
-    from ocplace.train.checkpoints import ADAPTERS_FILE, save_adapters
+    from ocplace.models.trained_adapters import ADAPTERS_FILE, save_adapters
 
     cache = tmp_path_factory.mktemp("cache")
     config = ob.smoke_config()

@@ -6,14 +6,13 @@ import os
 import signal
 import subprocess
 import sys
-import time
 
 import numpy as np
 import pytest
 
 from ocplace.errors import DatasetConfigError, DatasetError
 from ocplace.sim.dataset.config import SPLIT_NAMES, SplitConfig, make_config, smoke_config
-from ocplace.sim.dataset.job import MANIFEST_FILE, generate_dataset, verify_dataset
+from ocplace.sim.dataset.job import DIE_AFTER_SCENES_ENV, MANIFEST_FILE, generate_dataset, verify_dataset
 from ocplace.sim.dataset.loader import batches, iter_examples
 from ocplace.sim.dataset.records import read_scene
 from ocplace.sim.language import TABLE_NAME
@@ -123,18 +122,16 @@ def _generate_command(out):
 
 def test_killed_generation_resumes_without_duplicates_or_corruption(tmp_path, library, dataset):
     out = tmp_path / "killed"
-    process = subprocess.Popen(
+    killed = subprocess.run(
         _generate_command(out),
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-        env=os.environ | {"PYTHONUNBUFFERED": "1"},
+        capture_output=True,
+        text=True,
+        timeout=600,
+        env=os.environ | {DIE_AFTER_SCENES_ENV: "3"},
     )
-    deadline = time.time() + 240
-    while time.time() < deadline and len(list((out / "train").glob("train-*"))) < 3:
-        time.sleep(0.2)
-    process.send_signal(signal.SIGKILL)
-    process.wait()
-    assert not (out / MANIFEST_FILE).exists(), "the run finished before it could be killed"
+    assert killed.returncode == -signal.SIGKILL, killed.stderr
+    assert sorted(d.name for d in (out / "train").glob("train-*")) == ["train-00000", "train-00001", "train-00002"]
+    assert not (out / MANIFEST_FILE).exists()
     result = subprocess.run(_generate_command(out), capture_output=True, text=True, timeout=600)
     assert result.returncode == 0, result.stderr
     assert verify_dataset(out) == []

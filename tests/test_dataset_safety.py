@@ -213,7 +213,7 @@ def test_unlisted_scenes_and_files_are_reported_and_never_read(tmp_path, tiny, c
 )
 def test_a_manifest_that_is_not_a_manifest_is_a_corrupt_dataset(tmp_path, tiny, text):
     from ocplace.eval.results import dataset_identity
-    from ocplace.train.commands import dataset_hash
+    from ocplace.sim.dataset.identity import dataset_hash
 
     ds = tmp_path / "ds"
     shutil.copytree(tiny, ds)

@@ -11,6 +11,7 @@ from ocplace.eval.api import MethodOutput, TrainContext
 from ocplace.eval.harness import EvalSettings, MethodRun
 from ocplace.sim.dataset.job import scene_dirs
 from ocplace.sim.dataset.records import read_scene
+from ocplace.vocabulary import TEST_SUBSETS
 
 SETTINGS = EvalSettings(backbone="none", physical_scenes=0, chunk_size=3, num_samples=16)
 
@@ -45,7 +46,7 @@ def by_key(results_json, key):
 
 def test_oracle_placement_scores_full_marks(results_json):
     oracle = by_key(results_json, "oracle")
-    for subset in harness.SUBSETS:
+    for subset in TEST_SUBSETS:
         for level, row in oracle["subsets"][subset]["aggregate"].items():
             assert row["scenes"] > 0, (subset, level)
             assert row["success"] == row["sample_success"] == 1.0, (subset, level)
@@ -88,7 +89,7 @@ def hand_checked_centre_success(meta) -> bool:
 def test_centre_placement_matches_a_hand_check(results_json, smoke_dataset):
     centre = by_key(results_json, "centre")
     checked = 0
-    for subset in harness.SUBSETS:
+    for subset in TEST_SUBSETS:
         for scene in centre["subsets"][subset]["scenes"]:
             meta = read_scene(smoke_dataset / subset / scene["id"]).meta
             assert scene["success"] == hand_checked_centre_success(meta), scene["id"]
@@ -96,19 +97,19 @@ def test_centre_placement_matches_a_hand_check(results_json, smoke_dataset):
             assert scene["sample_success"] == float(scene["success"])  # no samples: the mode's
             assert scene["stage"] in (None, "placement")
             checked += 1
-    assert checked == 8 * len(harness.SUBSETS)
+    assert checked == 8 * len(TEST_SUBSETS)
 
 
 def test_failures_score_zero_and_are_listed(results_json):
     failing = by_key(results_json, "failing")
-    for subset in harness.SUBSETS:
+    for subset in TEST_SUBSETS:
         overall = failing["subsets"][subset]["aggregate"]["overall"]
         assert overall["success"] == overall["sample_success"] == 0.0
         assert overall["failures"] == overall["stages"]["failure"] == 8
         assert all(s["failure"] == "no reference found (test method)" for s in failing["subsets"][subset]["scenes"])
     listed = table.failure_list(results_json)
     assert (
-        f"Always fails (failing): {8 * len(harness.SUBSETS)} scenes" in listed
+        f"Always fails (failing): {8 * len(TEST_SUBSETS)} scenes" in listed
         and "`seen-00000`: no reference found" in listed
     )
 
@@ -116,7 +117,7 @@ def test_failures_score_zero_and_are_listed(results_json):
 def test_an_exception_fails_only_its_scene(results_json):
     flaky = by_key(results_json, "flaky")
     centre = by_key(results_json, "centre")
-    for subset in harness.SUBSETS:
+    for subset in TEST_SUBSETS:
         for scene, reference in zip(flaky["subsets"][subset]["scenes"], centre["subsets"][subset]["scenes"]):
             index = int(scene["id"].rsplit("-", 1)[1])
             if index % 2:

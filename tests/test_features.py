@@ -6,7 +6,14 @@ from tiny_clip import build_tiny_clip, write_tokenizer
 
 from ocplace.errors import FeaturesError
 from ocplace.models.backbone import PromptConfig, load_clip_backbone
-from ocplace.models.features import FeaturizeConfig, SceneExample, featurize, load_features, read_info, save_features
+from ocplace.models.features import (
+    FeaturizeConfig,
+    SceneToFeaturize,
+    featurize,
+    load_features,
+    read_info,
+    save_features,
+)
 
 CONFIG = FeaturizeConfig(chunk_scenes=2)
 
@@ -40,7 +47,7 @@ def make_examples(count=5, seed=0):
         texts = ("red bowl",) if index % 2 else ("table", "blue mug")
         targets = np.array([0] if index % 2 else [n, n - 1], np.int32)
         examples.append(
-            SceneExample(
+            SceneToFeaturize(
                 f"train-{index:05d}",
                 rng.integers(0, 256, (n, 24, 24, 3), dtype=np.uint8),
                 rng.integers(0, 256, (30, 40, 3), dtype=np.uint8),
@@ -144,9 +151,9 @@ def test_a_new_backbone_or_dataset_invalidates_the_cache(tmp_path, backbone, oth
 def test_bad_examples_are_named(tmp_path, backbone):
     good = make_examples(1)[0]
     bad = [
-        SceneExample("train-00007", good.crops, good.workspace, ("red bowl",), np.array([9], np.int32)),
-        SceneExample("train-00008", good.crops.astype(np.float32), good.workspace, ("x",), np.array([0], np.int32)),
-        SceneExample("train-00009", good.crops, good.workspace, ("a", "b", "c"), np.zeros(3, np.int32)),
+        SceneToFeaturize("train-00007", good.crops, good.workspace, ("red bowl",), np.array([9], np.int32)),
+        SceneToFeaturize("train-00008", good.crops.astype(np.float32), good.workspace, ("x",), np.array([0], np.int32)),
+        SceneToFeaturize("train-00009", good.crops, good.workspace, ("a", "b", "c"), np.zeros(3, np.int32)),
     ]
     for example in bad:
         with pytest.raises(FeaturesError, match=example.scene_id):
@@ -178,7 +185,8 @@ def test_featurize_command_keys_by_the_split_files(tmp_path, backbone, monkeypat
     import argparse
     import json
 
-    from ocplace.train import commands
+    from ocplace.cli import train as train_cli
+    from ocplace.sim.dataset.identity import dataset_hash
 
     dataset = tmp_path / "dataset"
     dataset.mkdir()
@@ -192,14 +200,14 @@ def test_featurize_command_keys_by_the_split_files(tmp_path, backbone, monkeypat
 
     monkeypatch.setattr("ocplace.models.backbone.load_backbone", lambda spec: backbone)
     parser = argparse.ArgumentParser()
-    commands._register_featurize(parser.add_subparsers(), reader)
+    train_cli._register_featurize(parser.add_subparsers(), reader)
     out = tmp_path / "train.safetensors"
     args = parser.parse_args(["featurize", str(dataset), "--backbone", "tiny", "--out", str(out)])
     assert args.func(args) == 0 and args.func(args) == 0
     assert read == ["train"]  # the second run found the file up to date and read nothing
-    assert read_info(out).dataset_hash == commands.dataset_hash(dataset, "train")
+    assert read_info(out).dataset_hash == dataset_hash(dataset, "train")
     files["seen/seen-00000/rgb.png"] = "dd"  # another split changed: same key
     (dataset / "manifest.json").write_text(json.dumps({"files": files}))
-    assert read_info(out).dataset_hash == commands.dataset_hash(dataset, "train")
+    assert read_info(out).dataset_hash == dataset_hash(dataset, "train")
     with pytest.raises(FeaturesError, match="no scenes in split"):
-        commands.dataset_hash(dataset, "unseen_obj")
+        dataset_hash(dataset, "unseen_obj")

@@ -17,9 +17,9 @@ def test_grounding_notebook_executes(tmp_path, library, monkeypatch):
     from ocplace.models.backbone import load_clip_backbone
     from ocplace.models.features import featurize, load_features
     from ocplace.sim.dataset.config import smoke_config as dataset_smoke_config
+    from ocplace.sim.dataset.identity import dataset_hash
     from ocplace.sim.dataset.job import generate_dataset
     from ocplace.sim.dataset.loader import iter_examples
-    from ocplace.train.commands import dataset_hash
     from ocplace.train.config import smoke_config
     from ocplace.train.loop import train
 

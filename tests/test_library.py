@@ -140,7 +140,7 @@ def test_assets_list_command(built):
 def test_library_metadata_has_distinct_names_and_every_split():
     from importlib import resources
 
-    from ocplace.sim.splits import LIBRARY_SPLITS
+    from ocplace.vocabulary import LIBRARY_SPLITS
 
     objects = json.loads(resources.files("ocplace.assets").joinpath("objects.json").read_text())["objects"]
     human = [o["human_name"] for o in objects]

@@ -26,8 +26,8 @@ from ocplace.models.offline_backbone import (
 from ocplace.models.offline_backbone import (
     smoke_config as smoke_model,
 )
+from ocplace.models.offline_recipes import PretrainConfig, default_config, recipe_config, smoke_config
 from ocplace.train.pretrain.captions import ObjectDescription, build_caption_bank
-from ocplace.train.pretrain.config import PretrainConfig, default_config, recipe_config, smoke_config
 from ocplace.train.pretrain.loss import contrastive_loss
 from ocplace.train.pretrain.render import training_pool
 
@@ -310,12 +310,12 @@ def test_zero_shot_evaluation_on_generated_scenes(smoke_run, library, tmp_path):
 def test_backbone_path_command_prints_the_recipe_directory(tmp_path, monkeypatch, capsys):
     import argparse
 
-    from ocplace.train.pretrain import commands
-    from ocplace.train.pretrain.config import recipe_dir
+    from ocplace.cli import backbone
+    from ocplace.models.offline_recipes import recipe_dir
 
     monkeypatch.setenv("OCPLACE_CACHE", str(tmp_path))
     parser = argparse.ArgumentParser()
-    commands.register(parser.add_subparsers(dest="command"))
+    backbone.register(parser.add_subparsers(dest="command"))
     args = parser.parse_args(["backbone", "path", "--recipe", "demo"])
     assert args.func(args) == 0
     printed = capsys.readouterr().out.strip()

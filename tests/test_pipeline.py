@@ -14,6 +14,7 @@ import pytest
 
 from ocplace.errors import OcplaceError
 from ocplace.eval import figures, pipeline, registry, results
+from ocplace.vocabulary import TEST_SUBSETS
 
 LOCAL = ("oracle", "centre", "failing")
 PNG = b"\x89PNG\r\n\x1a\n"
@@ -49,7 +50,7 @@ def test_smoke_pipeline_trains_and_evaluates_every_method(first_run, specs):
     saved = results.read_results(first_run.results_path)
     assert sorted(e["key"] for e in saved["evaluations"]) == sorted([*specs, "oracle@0.5"])
     for entry in saved["evaluations"]:
-        for subset in pipeline.SUBSETS:
+        for subset in TEST_SUBSETS:
             assert entry["subsets"][subset]["aggregate"]["overall"]["scenes"] == 8, (entry["key"], subset)
         trains = specs[entry["method"]].train is not None
         assert (entry["run_dir"] is not None) == trains
@@ -94,7 +95,7 @@ def test_summary_keeps_every_table_and_counts_the_scenes(first_run):
             assert kept["subsets"][subset]["failed_scenes"] == sum(s["failure"] is not None for s in body["scenes"])
     failing = next(e for e in summary["evaluations"] if e["method"] == "failing")
     assert (
-        f"- {failing['label']} (failing): {8 * len(pipeline.SUBSETS)} scenes (listed in the full results JSON)"
+        f"- {failing['label']} (failing): {8 * len(TEST_SUBSETS)} scenes (listed in the full results JSON)"
         in table.failure_list(summary)
     )
     assert len(first_run.results_path.read_bytes()) > 2 * len((first_run.out / pipeline.SUMMARY_FILE).read_bytes())
@@ -109,9 +110,9 @@ def test_fig6_cases_prefer_scenes_where_the_methods_disagree(first_run, tmp_path
         (e["method"], s): {o["id"]: o for o in e["subsets"][s]["scenes"]}
         for e in saved["evaluations"]
         if e["fraction"] == 1.0
-        for s in pipeline.SUBSETS
+        for s in TEST_SUBSETS
     }
-    for subset in pipeline.SUBSETS:
+    for subset in TEST_SUBSETS:
         oracle, centre = outcomes["oracle", subset], outcomes["centre", subset]
         chosen = [scene_id for s, scene_id in cases if s == subset]
         levels = [oracle[scene_id]["level"] for scene_id in chosen]
@@ -193,15 +194,44 @@ def test_reproduce_smoke_from_nothing_with_every_registered_method(tmp_path, cap
         assert f"| {spec.label} |" in printed
     for entry in saved["evaluations"]:
         assert entry["description"], entry["key"]
-        assert all(entry["subsets"][s]["aggregate"]["overall"]["scenes"] == 8 for s in pipeline.SUBSETS)
+        assert all(entry["subsets"][s]["aggregate"]["overall"]["scenes"] == 8 for s in TEST_SUBSETS)
 
 
-def test_reproduce_options_reach_the_config(tmp_path):
+def test_reproduce_options_reach_the_config(tmp_path, monkeypatch):
     from ocplace.cli import build_parser
 
-    args = build_parser().parse_args(
-        ["reproduce", "--scale", "default", "--dataset", str(tmp_path), "--fractions", "1", "0.5", "1"]
+    calls = []
+
+    def record(config, out, command):
+        calls.append((config, out))
+        return pipeline.PipelineSummary(out)
+
+    def reproduce(*options):
+        args = build_parser().parse_args(["reproduce", *options])
+        assert args.func(args) == 0
+        return calls.pop()
+
+    monkeypatch.setattr(pipeline, "run_pipeline", record)
+    config, out = reproduce(
+        *("--scale", "default", "--out", str(tmp_path / "out"), "--backbone", "offline:spec"),
+        *("--methods", "oracle, centre", "--workers", "3", "--dataset", str(tmp_path / "dataset")),
+        *("--fractions", "1", "0.5", "1", "--physical", "5", "--no-progress"),
     )
-    assert args.dataset == tmp_path and args.fractions == [1.0, 0.5, 1.0]
+    assert out == tmp_path / "out"
+    assert config == dataclasses.replace(
+        pipeline.default_config(),
+        backbone="offline:spec",
+        methods=("oracle", "centre"),
+        workers=3,
+        dataset=tmp_path / "dataset",
+        fractions=(0.5, 1.0),
+        physical_scenes=5,
+        progress=False,
+    )
+    config, out = reproduce("--methods", "all", "--physical", "-1")  # the demo scale by default
+    assert out == pipeline.demo_config().default_out
+    assert config == dataclasses.replace(pipeline.demo_config(), methods=None, physical_scenes=None)
+    config, _ = reproduce("--scale", "smoke")
+    assert config == pipeline.smoke_config()
     with pytest.raises(SystemExit):
         build_parser().parse_args(["reproduce", "--fractions", "0"])

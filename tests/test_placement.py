@@ -1,4 +1,4 @@
-"""The truncated-Gaussian placement sampler (issue 4): density, exact sampling, errors, figures."""
+"""The truncated-Gaussian placement sampler (docs/placement.md): density, exact sampling, errors, figures."""
 
 import math
 
@@ -313,10 +313,10 @@ def test_fig5_panels_draw_on_any_image(tmp_path):
 def _demo_parser():
     import argparse
 
-    from ocplace.models import placement_commands
+    from ocplace.cli import place_demo
 
     parser = argparse.ArgumentParser()
-    placement_commands.register(parser.add_subparsers(dest="command"))
+    place_demo.register(parser.add_subparsers(dest="command"))
     return parser
 
 

@@ -1,4 +1,4 @@
-"""The end-to-end placement policy (issue 8): place(), place_many(), the depth detector, bad input, the CLI."""
+"""The end-to-end placement policy (docs/policy.md): place(), place_many(), the depth detector, bad input, the CLI."""
 
 import hashlib
 import json

@@ -11,7 +11,9 @@ import cv2
 import numpy as np
 import pytest
 
+from ocplace.models.offline_recipes import default_config, smoke_config
 from ocplace.sim.boxes import boxes_from_segmentation
+from ocplace.sim.colour_terms import COLOUR_TERMS
 from ocplace.sim.primitives import PRIMITIVE_SPLIT, SHAPES, primitive_set, shape_mesh
 from ocplace.train.pretrain.captions import (
     OBJECT,
@@ -24,8 +26,7 @@ from ocplace.train.pretrain.captions import (
     with_colour,
 )
 from ocplace.train.pretrain.classes import caption_bank, mentions, pretraining_classes, unseen_names
-from ocplace.train.pretrain.colours import COLOUR_TERMS, recolour_objects
-from ocplace.train.pretrain.config import default_config, smoke_config
+from ocplace.train.pretrain.colours import recolour_objects
 from ocplace.train.pretrain.render import (
     paint,
     render_scene,

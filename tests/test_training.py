@@ -8,10 +8,12 @@ import numpy as np
 import pytest
 from safetensors.numpy import load_file
 
+from ocplace.cli import train as train_command
 from ocplace.errors import TrainingError
+from ocplace.models import trained_adapters
 from ocplace.models.features import save_features
 from ocplace.models.grounding import GroundingModel
-from ocplace.train import checkpoints, commands
+from ocplace.train import checkpoints
 from ocplace.train.config import smoke_config
 from ocplace.train.loop import batch_indices, subset_indices, train
 from ocplace.train.metrics import MetricsLog, evaluate_features
@@ -36,7 +38,7 @@ def short_config():
 
 
 def adapter_arrays(run_dir):
-    return load_file(str(run_dir / checkpoints.ADAPTERS_FILE))
+    return load_file(str(run_dir / trained_adapters.ADAPTERS_FILE))
 
 
 def test_training_fits_a_separable_problem(fitted, features):
@@ -50,7 +52,7 @@ def test_training_fits_a_separable_problem(fitted, features):
 
 
 def test_adapters_file_round_trip(fitted, features):
-    trained = checkpoints.load_adapters(fitted.run_dir)
+    trained = trained_adapters.load_adapters(fitted.run_dir)
     assert trained.steps == 300 and trained.features_key == features.info.key
     assert trained.model.config == fitted.model.config and trained.model.logit_scale == 100.0
     np.testing.assert_array_equal(
@@ -89,7 +91,7 @@ def test_same_seed_same_weights_and_resume_equals_uninterrupted(tmp_path, featur
 
     with pytest.raises(KeyboardInterrupt):
         train(features, tmp_path / "c", config, progress=False, callback=crash_after_first_checkpoint)
-    assert not (tmp_path / "c" / checkpoints.ADAPTERS_FILE).exists()
+    assert not (tmp_path / "c" / trained_adapters.ADAPTERS_FILE).exists()
     train(features, tmp_path / "c", config, progress=False)
     train(features, tmp_path / "d", dataclasses.replace(config, seed=1), progress=False)
 
@@ -158,7 +160,7 @@ def test_train_command(tmp_path, features):
     path = save_features(features, tmp_path / "features.safetensors")
     run = tmp_path / "run"
     parser = argparse.ArgumentParser()
-    commands.register(parser.add_subparsers())
+    train_command.register(parser.add_subparsers())
     args = parser.parse_args(
         [
             "train",
@@ -178,4 +180,4 @@ def test_train_command(tmp_path, features):
     assert args.func(args) == 0
     meta = json.loads((run / "config.json").read_text())
     assert meta["train_scenes"] == 24 and meta["train_config"]["steps"] == 100
-    assert checkpoints.load_adapters(run).steps == 100
+    assert trained_adapters.load_adapters(run).steps == 100

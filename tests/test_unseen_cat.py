@@ -9,7 +9,7 @@ import pytest
 
 from ocplace.errors import MissingAssetPackage, SceneError
 from ocplace.eval import table
-from ocplace.sim.dataset.config import TEST_SUBSETS, smoke_config
+from ocplace.sim.dataset.config import smoke_config
 from ocplace.sim.dataset.job import scene_dirs
 from ocplace.sim.dataset.records import read_scene
 from ocplace.sim.library import robosuite_assets
@@ -17,6 +17,7 @@ from ocplace.sim.library.metadata import packaged_objects
 from ocplace.sim.primitives import SHAPES
 from ocplace.sim.scene import sample_scene_spec
 from ocplace.train.pretrain.render import training_pool
+from ocplace.vocabulary import TEST_SUBSETS
 
 
 def _specs(split):

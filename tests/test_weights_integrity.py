@@ -1,4 +1,4 @@
-"""Weights integrity (issue 16): every saved weight file is hashed, checked on load, and refused typed.
+"""Weights integrity (docs/reliability.md#weights): each saved weight file is hashed, checked on load, refused typed.
 
 Each kind of weight file is written by its real saver with weights of the model's shapes, then damaged
 (a flipped byte in the tensor data, a truncated file, a NaN tensor under a valid hash) and loaded
@@ -21,15 +21,15 @@ from safetensors.numpy import save_file
 
 from ocplace.errors import BackboneError, GroundingUncertain, TrainingError, WeightsError
 from ocplace.models import offline_backbone as ob
-from ocplace.models import weights_file
+from ocplace.models import trained_adapters, weights_file
 from ocplace.models.adapters import AdapterConfig, init_adapters
 from ocplace.models.backbone import PromptConfig
 from ocplace.models.baselines import cliport, grids
 from ocplace.models.grounding import GroundingModel
-from ocplace.models.gtref import GtRefConfig, GtRefModel
-from ocplace.models.gtref import init_params as init_gtref
+from ocplace.models.no_llm import NoLlmConfig, NoLlmModel
+from ocplace.models.no_llm import init_params as init_no_llm
 from ocplace.models.policy import PlacementPolicy, PreparedScene
-from ocplace.train import baseline_runs, checkpoints, gtref
+from ocplace.train import baseline_runs, checkpoints, no_llm
 from ocplace.train import cliport as train_cliport
 from ocplace.train import grids as train_grids
 from ocplace.train.config import smoke_config
@@ -62,8 +62,8 @@ def _checkpoint(run_dir):
 def _adapters(run_dir):
     config = AdapterConfig(dim=DIM)
     params = _random_like(lambda: init_adapters(config, KEY))
-    path = run_dir / checkpoints.ADAPTERS_FILE
-    checkpoints.save_adapters(
+    path = run_dir / trained_adapters.ADAPTERS_FILE
+    trained_adapters.save_adapters(
         path,
         params,
         config,
@@ -74,7 +74,7 @@ def _adapters(run_dir):
         steps=1,
         train_config_json="{}",
     )
-    return path, lambda: checkpoints.load_adapters(run_dir).model.params, params
+    return path, lambda: trained_adapters.load_adapters(run_dir).model.params, params
 
 
 def _grids(run_dir):
@@ -94,13 +94,13 @@ def _cliport(run_dir):
 
 
 def _no_llm(run_dir):
-    config = GtRefConfig(dim=DIM, hidden=8)
-    params = _random_like(lambda: init_gtref(config, KEY))
-    path = run_dir / gtref.MODEL_FILE
-    gtref.save_model(
-        path, GtRefModel(config, params, 30.0), backbone_fingerprint="f", train_config=gtref.GtRefTrainConfig()
+    config = NoLlmConfig(dim=DIM, hidden=8)
+    params = _random_like(lambda: init_no_llm(config, KEY))
+    path = run_dir / no_llm.MODEL_FILE
+    no_llm.save_model(
+        path, NoLlmModel(config, params, 30.0), backbone_fingerprint="f", train_config=no_llm.NoLlmTrainConfig()
     )
-    return path, lambda: gtref.load_model(run_dir).model.params, params
+    return path, lambda: no_llm.load_model(run_dir).model.params, params
 
 
 @pytest.fixture(scope="module")
@@ -279,8 +279,8 @@ def test_a_torn_last_metrics_line_is_dropped_and_the_run_resumes(tmp_path, caplo
     assert [r["step"] for r in MetricsLog(metrics).records()] == [50, 100]
     train(features, tmp_path / "whole", config, progress=False)
     _assert_same_tree(
-        checkpoints.load_adapters(tmp_path / "torn").model.params,
-        checkpoints.load_adapters(tmp_path / "whole").model.params,
+        trained_adapters.load_adapters(tmp_path / "torn").model.params,
+        trained_adapters.load_adapters(tmp_path / "whole").model.params,
     )
 
 

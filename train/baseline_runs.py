@@ -1,4 +1,4 @@
-"""The run directory and chunked training loop shared by the baselines (Raw Image Grids, CLIPort-Place).
+"""The run directory of the baselines (Raw Image Grids, CLIPort-Place), trained by `train.runner`.
 
     RUN/config.json           the run: method, recipe, fraction, seed, data keys, backbone fingerprint
     RUN/metrics.jsonl         per chunk of steps: step, loss (chunk mean), learning_rate, elapsed_s
@@ -17,7 +17,6 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
-import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -27,11 +26,10 @@ import optax
 
 from ocplace.errors import TrainingError
 from ocplace.models import weights_file
-from ocplace.train import checkpoints
-from ocplace.train.metrics import MetricsLog
+from ocplace.train import checkpoints, runner
 
 WEIGHTS_FILE = "weights.safetensors"
-RUN_FILE = "config.json"
+RUN_FILE = runner.RUN_FILE
 
 
 @dataclasses.dataclass(frozen=True)
@@ -63,49 +61,39 @@ def is_finished(run_dir: Path) -> bool:
     return (Path(run_dir) / WEIGHTS_FILE).is_file()
 
 
-def run_chunks(
+def train(
     run_dir: Path,
     run_meta: dict,
-    state,
+    init_state: Callable,
     chunk: Callable,
     schedule: Schedule,
     progress: bool = True,
     desc: str = "train",
-):
-    """Runs `chunk(state, start_step, num_steps) -> (state, losses)` up to `schedule.steps`; returns the state.
+) -> None:
+    """Runs `chunk(state, start_step, num_steps) -> (state, losses)` up to `schedule.steps`, then saves the weights.
 
-    `state` is the freshly initialised `(params, opt_state)`: the template a checkpoint is restored into.
+    `init_state()` is the fresh `(params, opt_state)`: the template a checkpoint is restored into.
     """
-    from tqdm import tqdm
-
     schedule.validate()
     run_dir = Path(run_dir)
-    checkpoints.claim_run_dir(run_dir, run_meta, RUN_FILE)
-    metrics = MetricsLog(run_dir / "metrics.jsonl")
-    start = 0
-    saved = checkpoints.list_checkpoints(run_dir)
-    if saved:
-        state, start, _ = checkpoints.load_checkpoint(saved[-1], state)
-    metrics.truncate_after(start)
-    learning_rate = schedule.learning_rate_schedule()
-    step, began = start, time.perf_counter()
-    with tqdm(total=schedule.steps, initial=start, unit="step", desc=desc, disable=not progress) as bar:
-        while step < schedule.steps:
-            count = min(schedule.chunk_steps, schedule.steps - step)
-            state, losses = chunk(state, step, count)
-            step += count
-            record = {
-                "step": step,
-                "loss": float(np.mean(np.asarray(losses))),
-                "learning_rate": float(learning_rate(step)),
-                "elapsed_s": round(time.perf_counter() - began, 3),
-            }
-            if step % schedule.checkpoint_every == 0 or step == schedule.steps:
-                checkpoints.save_checkpoint(run_dir, step, state, {"step": str(step)}, schedule.keep_checkpoints)
-            metrics.append(record)
-            bar.update(count)
-            bar.set_postfix(loss=f"{record['loss']:.4f}")
-    return state
+    weights_meta = {"run": json.dumps(run_meta, sort_keys=True)}
+    spec = runner.Run(
+        run_dir=run_dir,
+        run_meta=run_meta,
+        steps=schedule.steps,
+        chunk_steps=schedule.chunk_steps,
+        log_every=schedule.chunk_steps,
+        checkpoint_every=schedule.checkpoint_every,
+        keep_checkpoints=schedule.keep_checkpoints,
+        init_state=init_state,
+        chunk=chunk,
+        record=runner.loss_and_learning_rate(schedule.learning_rate_schedule()),
+        artefact=run_dir / WEIGHTS_FILE,
+        save_artefact=lambda _artefact, state: save_weights(run_dir, state[0], weights_meta),
+        run_file=RUN_FILE,
+        desc=desc,
+    )
+    runner.run(spec, progress)
 
 
 def save_weights(run_dir: Path, params, metadata: dict[str, str]) -> Path:

@@ -96,7 +96,7 @@ def training_data(
     from safetensors import safe_open
     from safetensors.numpy import load_file, save_file
 
-    from ocplace.train.commands import dataset_hash
+    from ocplace.sim.dataset.identity import dataset_hash
 
     digest = dataset_hash(dataset_dir, split)
     key = hashlib.sha256(
@@ -177,8 +177,11 @@ def train_cliport(
         "train_scenes": len(subset),
         "camera": camera.to_json(),
     }
-    params = cliport.init_network(config, backbone.dim, jax.random.key(seed))
-    state = (params, optim.adam(chosen.schedule.learning_rate_schedule()).init(params))
+
+    def init_state():
+        params = cliport.init_network(config, backbone.dim, jax.random.key(seed))
+        return params, optim.adam(chosen.schedule.learning_rate_schedule()).init(params)
+
     data = jax.device_put({name: arrays[name][subset] for name in DATA_ARRAYS})
     mask = jnp.asarray(cliport.table_mask(camera, config))
 
@@ -187,8 +190,7 @@ def train_cliport(
         keys = baseline_runs.step_keys(seed, start, count)
         return train_chunk(config, chosen.schedule, state, data, mask, jnp.asarray(indices), keys)
 
-    state = baseline_runs.run_chunks(out_dir, run_meta, state, chunk, chosen.schedule, progress, "cliport")
-    baseline_runs.save_weights(out_dir, state[0], {"run": json.dumps(run_meta, sort_keys=True)})
+    baseline_runs.train(out_dir, run_meta, init_state, chunk, chosen.schedule, progress, "cliport")
     return out_dir
 
 

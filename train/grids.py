@@ -34,8 +34,7 @@ from ocplace.sim.dataset.records import read_scene
 from ocplace.train import baseline_runs, checkpoints, optim
 from ocplace.train.baseline_runs import Schedule
 from ocplace.train.loop import batch_indices, subset_indices
-
-MAX_TUPLES = 2  # the 2obj level has two tuples
+from ocplace.vocabulary import MAX_INSTRUCTION_TUPLES
 
 
 @dataclasses.dataclass(frozen=True)
@@ -58,14 +57,14 @@ def recipe(scale: str) -> GridsRecipe:
     return RECIPES[scale]
 
 
-def scene_examples(dataset_dir: Path, split: str, config: grids.GridConfig) -> Iterator[feature_cache.SceneExample]:
+def scene_examples(dataset_dir: Path, split: str, config: grids.GridConfig) -> Iterator[feature_cache.SceneToFeaturize]:
     """The cache's scene examples: cells as crops, tuple texts, the oracle's cell as every tuple's target."""
     for scene_dir in scene_dirs(dataset_dir, split):
         record = read_scene(scene_dir)
         meta = record.meta
         texts = tuple(grids.tuple_text(t["reference_name"], t["relation"]) for t in meta["tuples"])
         target = int(grids.cell_of(meta["oracle"]["placement"], config))
-        yield feature_cache.SceneExample(
+        yield feature_cache.SceneToFeaturize(
             scene_id=record.id,
             crops=grids.cell_crops(record.rgb, camera_from_meta(meta), config),
             workspace=letterbox(record.rgb, config.crop_size),
@@ -78,14 +77,14 @@ def cell_features(
     dataset_dir: Path, backbone: Backbone, config: grids.GridConfig, split: str = "train", progress: bool = True
 ) -> feature_cache.Features:
     """The split's cell features, from the cache (computed on first use)."""
-    from ocplace.train.commands import dataset_hash
+    from ocplace.sim.dataset.identity import dataset_hash
 
     digest = dataset_hash(dataset_dir, split)
     grid_key = hashlib.sha256(config.to_json().encode()).hexdigest()
     name = f"grids-{digest[:16]}-{split}-{backbone.fingerprint[:16]}-{grid_key[:8]}.safetensors"
     path = cache_dir() / "baselines" / name
     featurize_config = feature_cache.FeaturizeConfig(
-        max_objects=config.num_cells, max_tuples=MAX_TUPLES, prompt=grids.PLAIN_PROMPT
+        max_objects=config.num_cells, max_tuples=MAX_INSTRUCTION_TUPLES, prompt=grids.PLAIN_PROMPT
     )
     feature_cache.featurize(
         scene_examples(dataset_dir, split, config),
@@ -151,16 +150,18 @@ def train_grids(
         "logit_scale": logit_scale,
         "train_scenes": subset.num_scenes,
     }
-    params = grids.init_grids(chosen.grid, features.dim, jax.random.key(seed))
-    state = (params, optim.adam(chosen.schedule.learning_rate_schedule()).init(params))
+
+    def init_state():
+        params = grids.init_grids(chosen.grid, features.dim, jax.random.key(seed))
+        return params, optim.adam(chosen.schedule.learning_rate_schedule()).init(params)
+
     data = jax.device_put(training_arrays(subset, chosen.grid))
 
     def chunk(state, start, count):
         indices = batch_indices(subset.num_scenes, seed, start, count, chosen.schedule.batch_size)
         return train_chunk(chosen.grid, chosen.schedule, logit_scale, state, data, jnp.asarray(indices))
 
-    state = baseline_runs.run_chunks(out_dir, run_meta, state, chunk, chosen.schedule, progress, "grids")
-    baseline_runs.save_weights(out_dir, state[0], {"run": json.dumps(run_meta, sort_keys=True)})
+    baseline_runs.train(out_dir, run_meta, init_state, chunk, chosen.schedule, progress, "grids")
     return out_dir
 
 

@@ -17,8 +17,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import json
-import logging
-import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -27,14 +25,13 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from ocplace.models import trained_adapters
 from ocplace.models.adapters import AdapterConfig, init_adapters
 from ocplace.models.features import Features
 from ocplace.models.grounding import GroundingModel, adapted_logits, grounding_loss
-from ocplace.train import checkpoints, optim
+from ocplace.train import optim, runner
 from ocplace.train.config import TrainConfig
-from ocplace.train.metrics import GroundingAccuracy, MetricsLog, evaluate_features
-
-log = logging.getLogger(__name__)
+from ocplace.train.metrics import GroundingAccuracy, evaluate_features
 
 
 @dataclasses.dataclass(frozen=True)
@@ -120,65 +117,56 @@ def train(
     `callback(record)` is called after each chunk's metrics record is written (and its checkpoint,
     if one was due), e.g. to stop early by raising.
     """
-    from tqdm import tqdm
-
     config.validate()
     run_dir = Path(run_dir)
     train_set = features.subset(subset_indices(features.num_scenes, config.fraction, config.subset_seed))
     adapter_config = AdapterConfig(features.dim, config.reduction, config.residual_ratio)
     logit_scale = float(config.logit_scale or features.info.logit_scale)
     run_meta = _run_metadata(config, features, val_features, train_set)
-    checkpoints.claim_run_dir(run_dir, run_meta, "config.json")
-
-    optimizer = make_optimizer(config)
-    state = init_state(adapter_config, optimizer, config.seed)
-    metrics = MetricsLog(run_dir / "metrics.jsonl")
-    start = 0
-    saved = checkpoints.list_checkpoints(run_dir)
-    if saved:
-        state, start, _ = checkpoints.load_checkpoint(saved[-1], state)
-        log.info("resuming %s from step %d", run_dir, start)
-    metrics.truncate_after(start)
-
     data = jax.device_put(train_set.arrays())
-    schedule = learning_rate_schedule(config)
-    ckpt_meta = {"run": json.dumps(run_meta, sort_keys=True)}
-    step, began = start, time.perf_counter()
-    with tqdm(total=config.steps, initial=start, unit="step", desc="train", disable=not progress) as bar:
-        while step < config.steps:
-            count = min(config.chunk_steps, config.steps - step)
-            indices = batch_indices(train_set.num_scenes, config.seed, step, count, config.batch_size)
-            state, losses = jit_train_chunk(adapter_config, config, logit_scale, state, data, jnp.asarray(indices))
-            step += count
-            record = {
-                "step": step,
-                "loss": float(np.mean(np.asarray(losses))),
-                "learning_rate": float(schedule(step)),
-                "elapsed_s": round(time.perf_counter() - began, 3),
-            }
-            if step % config.eval_every == 0 or step == config.steps:
-                record.update(_evaluate(adapter_config, state[0], logit_scale, train_set, val_features))
-            if step % config.checkpoint_every == 0 or step == config.steps:
-                checkpoints.save_checkpoint(run_dir, step, state, ckpt_meta, config.keep_checkpoints)
-            metrics.append(record)
-            bar.update(count)
-            bar.set_postfix(loss=f"{record['loss']:.4f}")
-            if callback is not None:
-                callback(record)
 
-    params = state[0]
-    model = GroundingModel(adapter_config, params, logit_scale)
-    checkpoints.save_adapters(
-        run_dir / checkpoints.ADAPTERS_FILE,
-        params,
-        adapter_config,
-        logit_scale,
-        backbone_fingerprint=features.info.backbone_fingerprint,
-        prompt=features.info.config.prompt,
-        features_key=features.info.key,
+    def chunk(state, start: int, count: int):
+        indices = batch_indices(train_set.num_scenes, config.seed, start, count, config.batch_size)
+        return jit_train_chunk(adapter_config, config, logit_scale, state, data, jnp.asarray(indices))
+
+    usual_record = runner.loss_and_learning_rate(learning_rate_schedule(config))
+
+    def record(state, step: int, losses) -> dict:
+        fields = usual_record(state, step, losses)
+        if step % config.eval_every == 0 or step == config.steps:
+            fields.update(_evaluate(adapter_config, state[0], logit_scale, train_set, val_features))
+        return fields
+
+    def save(path: Path, state) -> None:
+        trained_adapters.save_adapters(
+            path,
+            state[0],
+            adapter_config,
+            logit_scale,
+            backbone_fingerprint=features.info.backbone_fingerprint,
+            prompt=features.info.config.prompt,
+            features_key=features.info.key,
+            steps=config.steps,
+            train_config_json=config.to_json(),
+        )
+
+    spec = runner.Run(
+        run_dir=run_dir,
+        run_meta=run_meta,
         steps=config.steps,
-        train_config_json=config.to_json(),
+        chunk_steps=config.chunk_steps,
+        log_every=config.chunk_steps,
+        checkpoint_every=config.checkpoint_every,
+        keep_checkpoints=config.keep_checkpoints,
+        init_state=lambda: init_state(adapter_config, make_optimizer(config), config.seed),
+        chunk=chunk,
+        record=record,
+        artefact=run_dir / trained_adapters.ADAPTERS_FILE,
+        save_artefact=save,
+        checkpoint_meta={"run": json.dumps(run_meta, sort_keys=True)},
     )
+    params = runner.run(spec, progress, callback).state[0]
+    model = GroundingModel(adapter_config, params, logit_scale)
     return TrainResult(
         run_dir,
         model,

@@ -29,9 +29,7 @@ import optax
 
 from ocplace.sim.camera import Camera
 from ocplace.sim.workspace import DEFAULT_TABLE, Table
-
-CLIP_MEAN = (0.48145466, 0.4578275, 0.40821073)
-CLIP_STD = (0.26862954, 0.26130258, 0.27577711)
+from ocplace.vocabulary import CLIP_IMAGE_MEAN, CLIP_IMAGE_STD
 
 
 @dataclasses.dataclass(frozen=True)
@@ -157,7 +155,7 @@ class AttentionNet(nn.Module):
 def network_input(rgb, height, config: CliportConfig):
     """uint8 `(B, h, w, 3)` and `(B, h, w)` metres -> float32 `(B, h, w, 4)`."""
     scaled = rgb.astype(jnp.float32) / 255.0
-    normalised = (scaled - jnp.asarray(CLIP_MEAN)) / jnp.asarray(CLIP_STD)
+    normalised = (scaled - jnp.asarray(CLIP_IMAGE_MEAN)) / jnp.asarray(CLIP_IMAGE_STD)
     return jnp.concatenate([normalised, (height.astype(jnp.float32) / config.height_unit)[..., None]], axis=-1)
 
 

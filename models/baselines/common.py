@@ -17,7 +17,7 @@ from ocplace.sim.metric import GroundedTuple, PlacementProblem
 
 
 def camera_from_meta(meta: dict) -> Camera:
-    """The scene's camera; only the straight-down camera of DESIGN "Camera" (any height, FOV) is modelled."""
+    """The scene's camera; only a straight-down camera (any height, FOV) is modelled, as in the benchmark."""
     info = meta["camera"]
     pose = np.asarray(info["world_from_camera"], dtype=np.float64)
     camera = Camera(

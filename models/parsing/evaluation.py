@@ -74,7 +74,7 @@ EVAL_OBJECT_NAMES: tuple[str, ...] = (
     "wooden spoon",
 )
 FREEFORM_PATH = Path(__file__).resolve().parents[2] / "tests" / "data" / "freeform_instructions.jsonl"
-LEVEL_WEIGHTS = {"table": 9, "1obj": 9, "2obj": 22}  # the test subsets' ratio (DESIGN "Dataset")
+LEVEL_WEIGHTS = {"table": 9, "1obj": 9, "2obj": 22}  # the test subsets' ratio (docs/design.md#dataset)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -37,11 +37,11 @@ from ocplace.models.parsing.config import LLMConfig
 from ocplace.models.parsing.snapping import Snapper
 from ocplace.models.parsing.types import ParsedTuple, Parser
 from ocplace.sim import language, relations
+from ocplace.vocabulary import MAX_PARSED_TUPLES
 
 log = logging.getLogger(__name__)
 
 PROMPT_VERSION = "v1"
-MAX_TUPLES = 4
 _SYSTEM_PROMPT = (
     "You turn a robot's placement instruction into JSON. The robot holds an object ('it') and "
     "must put it on a table relative to the table or to objects on it. Answer with one JSON "
@@ -417,8 +417,8 @@ def _answer_items(content: object) -> list[tuple[str, str]]:
     except ValueError as error:
         raise _InvalidAnswer(f"answer is not JSON: {content[:80]!r}") from error
     items = answer.get("tuples") if isinstance(answer, dict) else None
-    if not isinstance(items, list) or len(items) > MAX_TUPLES:
-        raise _InvalidAnswer(f"answer needs a 'tuples' list of at most {MAX_TUPLES} items")
+    if not isinstance(items, list) or len(items) > MAX_PARSED_TUPLES:
+        raise _InvalidAnswer(f"answer needs a 'tuples' list of at most {MAX_PARSED_TUPLES} items")
     out = []
     for item in items:
         if not (

@@ -11,8 +11,8 @@ import numpy as np
 from ocplace.sim import metric, relations
 from ocplace.sim.metric import Grid, GroundedTuple, PlacementProblem
 from ocplace.sim.workspace import DEFAULT_TABLE
+from ocplace.vocabulary import LEVELS, MAX_PARSED_TUPLES
 
-LEVELS = ("table", "1obj", "2obj")
 LEVEL_WEIGHTS = (9, 9, 22)
 
 
@@ -33,7 +33,7 @@ def random_tuples(rng: np.random.Generator, level: str, boxes: np.ndarray) -> li
 
 
 def random_problem(
-    rng: np.random.Generator, level: str, *, max_tuples: int = metric.MAX_TUPLES, max_boxes: int = 8
+    rng: np.random.Generator, level: str, *, max_tuples: int = MAX_PARSED_TUPLES, max_boxes: int = 8
 ) -> PlacementProblem:
     boxes = random_boxes(rng)
     half_extents = rng.uniform(0.015, 0.05, 2)
@@ -43,7 +43,7 @@ def random_problem(
 
 
 def random_problems(
-    seed: int, num_scenes: int, *, grid: Grid = metric.DEFAULT_GRID, max_tuples: int = metric.MAX_TUPLES
+    seed: int, num_scenes: int, *, grid: Grid = metric.DEFAULT_GRID, max_tuples: int = MAX_PARSED_TUPLES
 ) -> tuple[PlacementProblem, list[str]]:
     """`num_scenes` solvable problems stacked on a leading axis, and the level of each.
 

@@ -5,13 +5,9 @@ from __future__ import annotations
 import dataclasses
 
 from ocplace.errors import DatasetConfigError
-from ocplace.sim.splits import LIBRARY_SPLITS, TEXTURE_SPLITS
+from ocplace.vocabulary import LEVELS, LIBRARY_SPLITS, TEST_SUBSETS, TEXTURE_SPLITS
 
-LEVELS = ("table", "1obj", "2obj")
 LEVEL_REFERENCES = {"table": 0, "1obj": 1, "2obj": 2}  # object references per instruction
-PAPER_SUBSETS = ("seen", "unseen_obj", "unseen_inst")  # Table I's three test subsets
-# Ours, not the paper's: objects of categories no training object belongs to (docs/dataset.md).
-TEST_SUBSETS = (*PAPER_SUBSETS, "unseen_cat")
 # The position of a split here seeds its scenes: new splits go at the end, so old ones keep theirs.
 SPLIT_NAMES = ("train", *TEST_SUBSETS)
 

@@ -19,6 +19,7 @@ import json
 import multiprocessing
 import os
 import shutil
+import signal
 import subprocess
 from pathlib import Path
 
@@ -35,6 +36,9 @@ CONFIG_FILE = "dataset.json"
 MANIFEST_FILE = "manifest.json"
 TMP_PREFIX = ".tmp-"
 SCENE_FILES = (SCENE_FILE, *IMAGE_FILES)
+# Set to N, the process writing scenes SIGKILLs itself right after committing its Nth scene, so the
+# resume tests crash a run at a known point instead of racing a kill against the generator. Unset: off.
+DIE_AFTER_SCENES_ENV = "OCPLACE_TEST_DIE_AFTER_SCENES"
 
 
 def code_version() -> str:
@@ -222,11 +226,15 @@ def _init_worker(config: DatasetConfig, cache: str | None) -> None:
     from ocplace.sim.library import load_library
 
     _WORKER["generator"] = SceneGenerator(load_library(cache), config)
+    _WORKER["written"], _WORKER["die_after"] = 0, int(os.environ.get(DIE_AFTER_SCENES_ENV, "0"))
 
 
 def _make_scene(out: str, split: str, index: int, level: str) -> str:
     files = _WORKER["generator"].make(split, index, level)
     write_scene(Path(out) / split / scene_id(split, index), files)
+    _WORKER["written"] += 1
+    if _WORKER["written"] == _WORKER["die_after"]:
+        os.kill(os.getpid(), signal.SIGKILL)
     return scene_id(split, index)
 
 
@@ -306,13 +314,6 @@ def write_manifest(out: Path, config: DatasetConfig, regenerated: int = 0) -> di
     }
     write_text_atomic(out / MANIFEST_FILE, json.dumps(manifest, indent=1, sort_keys=True))
     return manifest
-
-
-def dataset_hash(out: str | Path) -> str:
-    """A short hash of the manifest's file list: changes whenever any scene file changes."""
-    manifest = read_manifest(out)
-    digest = hashlib.sha256(json.dumps(manifest["files"], sort_keys=True).encode()).hexdigest()
-    return digest[:16]
 
 
 def scene_dirs(out: str | Path, split: str) -> list[Path]:

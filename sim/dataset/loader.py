@@ -12,10 +12,10 @@ import numpy as np
 from ocplace.sim.boxes import square_crop
 from ocplace.sim.dataset.job import scene_dirs
 from ocplace.sim.dataset.records import SceneRecord, read_scene
+from ocplace.vocabulary import MAX_PARSED_TUPLES
 
 CROP_SIZE = 224
 MAX_BOXES = 5
-MAX_TUPLES = 4
 
 
 @dataclasses.dataclass(frozen=True)
@@ -63,7 +63,7 @@ def iter_examples(dataset_dir: str | Path, split: str, crop_size: int = CROP_SIZ
         yield example_from_record(read_scene(scene_dir), crop_size)
 
 
-def collate(examples: list[SceneExample], max_boxes: int = MAX_BOXES, max_tuples: int = MAX_TUPLES) -> dict:
+def collate(examples: list[SceneExample], max_boxes: int = MAX_BOXES, max_tuples: int = MAX_PARSED_TUPLES) -> dict:
     """Pads examples into one batch of numpy arrays.
 
     crops (B, max_boxes, S, S, 3), crop_mask (B, max_boxes), box_object_ids (B, max_boxes),

@@ -19,7 +19,7 @@ from ocplace.sim.library.records import (
     library_root,
 )
 from ocplace.sim.library.types import ObjectAsset
-from ocplace.sim.splits import LIBRARY_SPLITS
+from ocplace.vocabulary import LIBRARY_SPLITS
 
 BUILD_HINT = "run `ocplace assets build`"
 

@@ -16,7 +16,7 @@ import re
 from importlib import resources
 
 from ocplace.errors import AssetBuildError
-from ocplace.sim.splits import LIBRARY_SPLITS
+from ocplace.vocabulary import LIBRARY_SPLITS
 
 CLIPORT_SPLITS = ("seen", "unseen")
 

@@ -18,7 +18,7 @@ class ObjectAsset:
     human_name: str  # what instructions call it, e.g. "alphabet soup can"
     synonyms: tuple[str, ...]
     category: str  # the category noun people use, e.g. "can", "bowl", "teddy bear"
-    split: str  # "seen", "unseen" or "unseen_cat" (metadata.LIBRARY_SPLITS)
+    split: str  # "seen", "unseen" or "unseen_cat" (vocabulary.LIBRARY_SPLITS)
     source: str  # e.g. "libero:stable_hope_objects", "pybullet_data", "gso:/path"
     licence: str
     directory: Path  # cache folder holding every file below

@@ -15,6 +15,7 @@ import dataclasses
 import functools
 
 from ocplace.models.backbone import PromptConfig
+from ocplace.models.offline_recipes import RenderConfig
 from ocplace.sim.primitives import primitive_set
 from ocplace.train.pretrain.captions import (
     CaptionBank,
@@ -24,7 +25,6 @@ from ocplace.train.pretrain.captions import (
     primitive_description,
     recoloured,
 )
-from ocplace.train.pretrain.config import RenderConfig
 
 
 @dataclasses.dataclass(frozen=True)

@@ -93,3 +93,22 @@ def _retrieval(
         "top5": float(np.mean(rank < 5)),
         "chance_top1": 1.0 / len(pool),
     }
+
+
+def format_report(report: dict) -> str:
+    """A markdown table: grounding and retrieval per backbone and split."""
+    lines = [
+        "| backbone | split | grounding top-1 | object tuples | table tuples | chance | "
+        "retrieval top-1 (library) | top-5 (library) | top-1 (split pool) |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for name, splits in report["results"].items():
+        for split, result in splits.items():
+            g, r = result["grounding"], result["retrieval"]
+            lines.append(
+                f"| {name} | {split} | {g['all']:.1%} ({g['tuples']}) | {g.get('object_tuples', 0):.1%} | "
+                f"{g.get('table_tuples', 0):.1%} | {g['chance']:.1%} | {r['library']['top1']:.1%} "
+                f"(of {r['library']['pool_size']}) | {r['library']['top5']:.1%} | "
+                f"{r['split']['top1']:.1%} (of {r['split']['pool_size']}) |"
+            )
+    return "\n".join(lines)

@@ -41,17 +41,17 @@ from ocplace.models.offline_backbone import (
     text_embeddings,
     trainable_mask,
 )
-from ocplace.train import checkpoints
-from ocplace.train.metrics import MetricsLog
+from ocplace.models.offline_recipes import OptimConfig, PretrainConfig, output_dir
+from ocplace.train import checkpoints, runner
 from ocplace.train.pretrain.captions import CaptionBank
 from ocplace.train.pretrain.classes import caption_bank, pretraining_classes
-from ocplace.train.pretrain.config import OptimConfig, PretrainConfig, output_dir
 from ocplace.train.pretrain.loss import contrastive_loss
 from ocplace.train.pretrain.render import RenderedImages, TrainingPool, render_all, training_pool
 
 log = logging.getLogger(__name__)
 
 RUN_DIR = "run"
+RUN_FILE = "run.json"
 LOG_EVERY = 10
 
 
@@ -223,8 +223,6 @@ def pretrain(
 
     `stop_after`: return after this many training steps without saving (to test resuming).
     """
-    from tqdm import tqdm
-
     config.validate()
     began = time.perf_counter()
     out_dir = Path(out_dir) if out_dir is not None else output_dir(config)
@@ -237,7 +235,7 @@ def pretrain(
         backbone = load_saved_backbone(out_dir)
         summary = json.loads((out_dir / "config.json").read_text())["pretraining"]
         return PretrainResult(out_dir, backbone, summary["probe_loss_before"], summary["probe_loss_after"], {})
-    checkpoints.claim_run_dir(run_dir, run_meta, "run.json")
+    checkpoints.claim_run_dir(run_dir, run_meta, RUN_FILE)
 
     text_tower = FrozenTextTower.load(config.model.text_max_length)
     bank_sentences = jnp.asarray(
@@ -257,71 +255,77 @@ def pretrain(
     optim = config.optim
     params = init_params(config.model, jax.random.key(optim.seed))
     trainable, frozen = split_trainable(trainable_mask(config.model, params), params)
-    state = (trainable, make_optimizer(optim).init(trainable))
     probe = probe_batch(images, by_class, bank, optim)
     probe_args = (probe.pixels, bank_sentences[probe.captions], probe.positives)
     loss_before = float(probe_loss(config.model, params, *probe_args))
-    start = 0
-    saved = checkpoints.list_checkpoints(run_dir)
-    if saved:
-        state, start, _ = checkpoints.load_checkpoint(saved[-1], state)
-        log.info("resuming pretraining in %s from step %d", run_dir, start)
-    metrics = MetricsLog(run_dir / "metrics.jsonl")
-    metrics.truncate_after(start)
     train_step = make_train_step(config.model, optim)
-    schedule = learning_rate_schedule(optim)
-    ckpt_meta = {"run": json.dumps(run_meta, sort_keys=True)}
-    last = optim.steps if stop_after is None else min(optim.steps, start + stop_after)
-    recent = []
-    with tqdm(total=optim.steps, initial=start, unit="step", desc="pretrain", disable=not progress) as bar:
-        for step in range(start, last):
+    resumed = bool(checkpoints.list_checkpoints(run_dir))
+
+    def chunk(state, start: int, count: int):
+        losses = []
+        for step in range(start, start + count):
             batch = sample_batch(images, by_class, bank, optim, step_rng(optim.seed, step))
             state, loss = train_step(
                 state, frozen, batch.pixels, batch.factors, batch.captions, batch.positives, bank_sentences
             )
-            recent.append(loss)
-            done = step + 1
-            if done % LOG_EVERY == 0 or done == optim.steps:
-                mean_loss = float(np.mean(jax.device_get(recent)))
-                recent = []
-                metrics.append(
-                    {
-                        "step": done,
-                        "loss": mean_loss,
-                        "learning_rate": float(schedule(done)),
-                        "logit_scale": float(jnp.exp(state[0]["log_logit_scale"])),
-                        "elapsed_s": round(time.perf_counter() - began, 2),
-                    }
-                )
-                bar.set_postfix(loss=f"{mean_loss:.3f}")
-            if done % optim.checkpoint_every == 0 or done == optim.steps:
-                checkpoints.save_checkpoint(run_dir, done, state, ckpt_meta, optim.keep_checkpoints)
-            bar.update(1)
-    timings["train_s"] = time.perf_counter() - mark
-    timings["train_cpu_s"] = time.process_time() - cpu_mark
-    params = join_params(jax.device_get(state[0]), frozen)
-    loss_after = float(probe_loss(config.model, params, *probe_args))
-    backbone = OfflineBackbone(config.model, params, text_tower, source=str(out_dir))
-    if last < optim.steps:
+            losses.append(loss)
+        return state, jnp.stack(losses)
+
+    usual_record = runner.loss_and_learning_rate(learning_rate_schedule(optim))
+
+    def record(state, step: int, losses: np.ndarray) -> dict:
+        return {**usual_record(state, step, losses), "logit_scale": float(jnp.exp(state[0]["log_logit_scale"]))}
+
+    def trained(state) -> tuple[OfflineBackbone, float]:
+        """The backbone of `state` and its probe loss; stops the training clock first."""
+        timings["train_s"] = time.perf_counter() - mark
+        timings["train_cpu_s"] = time.process_time() - cpu_mark
+        params = join_params(jax.device_get(state[0]), frozen)
+        loss_after = float(probe_loss(config.model, params, *probe_args))
+        return OfflineBackbone(config.model, params, text_tower, source=str(out_dir)), loss_after
+
+    def save(fingerprint_path: Path, state) -> PretrainResult:
+        backbone, loss_after = trained(state)
+        timings["total_s"] = time.perf_counter() - began
+        summary = {
+            "run": run_meta,
+            "images": int(len(images.labels)),
+            "images_per_class": {name: int(len(c)) for name, c in zip(bank.class_names, by_class, strict=True)},
+            "probe_loss_before": loss_before,
+            "probe_loss_after": loss_after,
+            "final_logit_scale": backbone.logit_scale,
+            "timings_s": {k: round(v, 1) for k, v in timings.items()},
+            "resumed": resumed,
+            "finished": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+        }
+        backbone.save(fingerprint_path.parent, {"pretraining": summary})
         return PretrainResult(out_dir, backbone, loss_before, loss_after, timings)
 
-    timings["total_s"] = time.perf_counter() - began
-    summary = {
-        "run": run_meta,
-        "images": int(len(images.labels)),
-        "images_per_class": {name: int(len(c)) for name, c in zip(bank.class_names, by_class, strict=True)},
-        "probe_loss_before": loss_before,
-        "probe_loss_after": loss_after,
-        "final_logit_scale": backbone.logit_scale,
-        "timings_s": {k: round(v, 1) for k, v in timings.items()},
-        "resumed": bool(saved),
-        "finished": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
-    }
-    backbone.save(out_dir, {"pretraining": summary})
+    spec = runner.Run(
+        run_dir=run_dir,
+        run_meta=run_meta,
+        steps=optim.steps,
+        chunk_steps=1,
+        log_every=LOG_EVERY,
+        checkpoint_every=optim.checkpoint_every,
+        keep_checkpoints=optim.keep_checkpoints,
+        init_state=lambda: (trainable, make_optimizer(optim).init(trainable)),
+        chunk=chunk,
+        record=record,
+        artefact=out_dir / FINGERPRINT_FILE,
+        save_artefact=save,
+        checkpoint_meta={"run": json.dumps(run_meta, sort_keys=True)},
+        run_file=RUN_FILE,
+        desc="pretrain",
+    )
+    outcome = runner.run(spec, progress, stop_after=stop_after)
+    if outcome.saved is None:
+        backbone, loss_after = trained(outcome.state)
+        return PretrainResult(out_dir, backbone, loss_before, loss_after, timings)
     if not keep_run:
         shutil.rmtree(run_dir / "renders", ignore_errors=True)
         shutil.rmtree(run_dir / checkpoints.CHECKPOINT_DIR, ignore_errors=True)
-    return PretrainResult(out_dir, backbone, loss_before, loss_after, timings)
+    return outcome.saved
 
 
 def _run_metadata(config: PretrainConfig, pool: TrainingPool, bank: CaptionBank) -> dict:

@@ -27,15 +27,16 @@ import numpy as np
 
 from ocplace.errors import SceneError, TrainingError
 from ocplace.models.offline_backbone import OfflineConfig, preprocess_images
+from ocplace.models.offline_recipes import RenderConfig
 from ocplace.paths import atomic_path, cache_dir
 from ocplace.sim.boxes import boxes_from_segmentation, square_crop
+from ocplace.sim.colour_terms import COLOUR_TERMS
 from ocplace.sim.dataset.loader import letterbox
 from ocplace.sim.primitives import Primitive, primitive_asset, primitive_set
 from ocplace.sim.scene import SceneSpec, sample_scene_spec, split_pools
 from ocplace.train.pretrain.captions import PRIMITIVE, RECOLOURED
 from ocplace.train.pretrain.classes import PretrainClasses, pretraining_classes
-from ocplace.train.pretrain.colours import COLOUR_TERMS, hsv_to_rgb, recolour_objects, sample_hsv
-from ocplace.train.pretrain.config import RenderConfig
+from ocplace.train.pretrain.colours import hsv_to_rgb, recolour_objects, sample_hsv
 
 RENDERS_DIR = "renders"
 PRIMITIVES_DIR = "primitives"  # under the cache: generated meshes, rewritten whenever an arena is built

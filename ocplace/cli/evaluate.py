@@ -1,0 +1,265 @@
+"""CLI: `ocplace evaluate` (Table I from trained runs, or a re-run of a results JSON) and `ocplace reproduce`."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from ocplace.vocabulary import TEST_SUBSETS
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    evaluate = subparsers.add_parser(
+        "evaluate",
+        help="score methods on the test subsets: results JSON + Table I markdown",
+        description="Runs each method on the test subsets (the paper's seen, unseen_obj, unseen_inst, and our "
+        "unseen_cat) of a dataset and "
+        "scores it with the benchmark's success metric (mode and mean over samples), the "
+        "physical drop check on the first K scenes per subset, and parse and grounding "
+        "accuracy. Writes RESULTS.json and RESULTS.md (the tables) and prints the tables. "
+        "With --rerun, evaluates again from a results JSON and lists every difference.",
+    )
+    evaluate.add_argument("--dataset", type=Path, help="dataset folder (`ocplace generate`)")
+    evaluate.add_argument(
+        "--methods", default="all", help="comma-separated method names, or `all` (every registered method)"
+    )
+    evaluate.add_argument(
+        "--run",
+        action="append",
+        default=[],
+        metavar="METHOD=RUN_DIR",
+        help="trained run directory of a method that learns (repeatable)",
+    )
+    evaluate.add_argument(
+        "--runs-from",
+        type=Path,
+        metavar="OUT",
+        help="take missing run directories from a pipeline output: OUT/runs/METHOD/fraction-1.00",
+    )
+    evaluate.add_argument("--backbone", default="offline", help="backbone spec (default: offline)")
+    evaluate.add_argument("--out", type=Path, help="results JSON (the markdown goes beside it, .md)")
+    evaluate.add_argument("--subsets", nargs="+", choices=TEST_SUBSETS, default=list(TEST_SUBSETS))
+    evaluate.add_argument("--limit", type=int, help="first N scenes of each subset")
+    evaluate.add_argument(
+        "--physical",
+        type=int,
+        default=None,
+        metavar="K",
+        help="physical check on the first K scenes of each subset (default 50; 0: none; -1: all)",
+    )
+    evaluate.add_argument("--parser", default="offline", help="parser for methods that parse (default: offline)")
+    evaluate.add_argument("--num-samples", type=int, default=1024, help="placement samples per scene")
+    evaluate.add_argument(
+        "--scale", choices=("smoke", "demo", "default"), default="default", help="which recipe the methods load with"
+    )
+    evaluate.add_argument("--seed", type=int, default=0)
+    evaluate.add_argument("--chunk-size", type=int, default=32, help="scenes per method call")
+    evaluate.add_argument(
+        "--rerun",
+        type=Path,
+        metavar="RESULTS.json",
+        help="evaluate again from this results JSON (its settings and runs) and compare",
+    )
+    evaluate.add_argument("--no-progress", action="store_true")
+    evaluate.set_defaults(func=_evaluate)
+
+    reproduce = subparsers.add_parser(
+        "reproduce",
+        help="the whole pipeline: library, dataset, backbone, training, evaluation, tables",
+        description="Builds the object library, generates the dataset, pretrains the offline backbone, "
+        "trains every registered method (and, at the default scale, the data fractions), "
+        "evaluates them and writes results.json, results.md and the paper's figures (OUT/figures). "
+        "Every step skips what is already done: rerun to resume.",
+    )
+    reproduce.add_argument("--scale", choices=("smoke", "demo", "default"), default="demo")
+    reproduce.add_argument("--out", type=Path, help="output folder (default: out/demo, out/reproduce, out/smoke)")
+    reproduce.add_argument("--backbone", help="use this backbone spec instead of pretraining the offline one")
+    reproduce.add_argument(
+        "--methods",
+        help="comma-separated method names, or `all` (default: the scale's: "
+        "every method; at the demo scale Ours and its ablations)",
+    )
+    reproduce.add_argument("--workers", type=int, help="dataset generation processes (default: all CPUs)")
+    reproduce.add_argument(
+        "--dataset", type=Path, help="dataset folder to use, or to generate into (default: OUT/dataset)"
+    )
+    reproduce.add_argument(
+        "--fractions",
+        type=_fraction,
+        nargs="+",
+        metavar="F",
+        help="training-set fractions of the sample-efficiency study (default: the scale's)",
+    )
+    reproduce.add_argument(
+        "--physical",
+        type=int,
+        default=None,
+        metavar="K",
+        help="physical check on the first K scenes per subset (default: the scale's)",
+    )
+    reproduce.add_argument("--no-progress", action="store_true")
+    reproduce.set_defaults(func=_reproduce)
+
+    figures = subparsers.add_parser(
+        "figures",
+        help="the paper's Fig. 5, 6 and 7 from a results JSON",
+        description="Draws Fig. 5 (placement densities on the first `seen` scene), Fig. 6 (each method's "
+        "placement in chosen test scenes; needs Ours and CLIPort-Place evaluated) and Fig. 7 "
+        "(sample efficiency; needs several training fractions) as PNGs.",
+    )
+    figures.add_argument("results", type=Path, help="results JSON of `ocplace evaluate` or `ocplace reproduce`")
+    figures.add_argument("--dataset", type=Path, help="the evaluated dataset (default: the one the results name)")
+    figures.add_argument("--out", type=Path, default=Path("figures"), help="output folder (default: ./figures)")
+    figures.add_argument("--seed", type=int, default=0, help="seed of Fig. 5's relations and samples")
+    figures.set_defaults(func=_figures)
+
+
+def parse_runs(items: list[str]) -> dict[str, Path]:
+    from ocplace.eval.harness import EvaluationError
+
+    runs = {}
+    for item in items:
+        name, sep, directory = item.partition("=")
+        if not sep or not name or not directory:
+            raise EvaluationError(f"--run takes METHOD=RUN_DIR, got {item!r}")
+        runs[name] = Path(directory)
+    return runs
+
+
+def _fraction(text: str) -> float:
+    value = float(text)
+    if not 0.0 < value <= 1.0:
+        raise argparse.ArgumentTypeError(f"a training-set fraction lies in (0, 1], got {text}")
+    return value
+
+
+def physical_setting(value: int | None, default: int | None) -> int | None:
+    if value is None:
+        return default
+    return None if value < 0 else value
+
+
+def method_runs(specs: list, runs: dict[str, Path], runs_from: Path | None = None) -> list:
+    from ocplace.eval.harness import EvaluationError, MethodRun
+    from ocplace.eval.pipeline import run_directory
+
+    unused = set(runs) - {spec.name for spec in specs}
+    if unused:
+        raise EvaluationError(f"--run given for method(s) not evaluated: {', '.join(sorted(unused))}")
+    selected = []
+    for spec in specs:
+        run_dir = runs.get(spec.name)
+        if run_dir is None and runs_from is not None and spec.train is not None:
+            run_dir = run_directory(runs_from, spec.name, 1.0)
+        if spec.train is not None and run_dir is None:
+            raise EvaluationError(
+                f"method {spec.name!r} learns: pass --run {spec.name}=RUN_DIR (a run directory "
+                "from its training, e.g. `ocplace reproduce` writes them under OUT/runs)"
+            )
+        if run_dir is not None and not run_dir.exists():
+            raise EvaluationError(f"run directory {run_dir} of {spec.name!r} does not exist")
+        selected.append(MethodRun(spec, run_dir))
+    return selected
+
+
+def _command(args: argparse.Namespace) -> dict:
+    """The command line as typed (`argv`) and as parsed (`arguments`: exact even when called in-process)."""
+    arguments = {key: value for key, value in vars(args).items() if key != "func"}
+    return {
+        "argv": ["ocplace", *sys.argv[1:]],
+        "arguments": {
+            key: value if isinstance(value, (bool, int, float, str, type(None))) else str(value)
+            for key, value in arguments.items()
+        },
+    }
+
+
+def _evaluate(args: argparse.Namespace) -> int:
+    if args.rerun is not None:
+        return _rerun(args)
+    from ocplace.eval.harness import (
+        DEFAULT_PHYSICAL_SCENES,
+        EvalSettings,
+        EvaluationError,
+        evaluate_run,
+        physical_arena,
+    )
+    from ocplace.eval.registry import method_specs, select_specs
+    from ocplace.eval.results import build_results, write_outputs
+
+    if args.dataset is None or args.out is None:
+        raise EvaluationError("`ocplace evaluate` needs --dataset DIR and --out RESULTS.json (or --rerun RESULTS.json)")
+    settings = EvalSettings(
+        backbone=args.backbone,
+        scale=args.scale,
+        parser=args.parser,
+        num_samples=args.num_samples,
+        subsets=tuple(args.subsets),
+        limit=args.limit,
+        physical_scenes=physical_setting(args.physical, DEFAULT_PHYSICAL_SCENES),
+        seed=args.seed,
+        chunk_size=args.chunk_size,
+    )
+    runs = method_runs(select_specs(args.methods, method_specs()), parse_runs(args.run), args.runs_from)
+    with physical_arena(settings) as arena:
+        evaluations = [evaluate_run(run, args.dataset, settings, arena, progress=not args.no_progress) for run in runs]
+    markdown = write_outputs(build_results(evaluations, args.dataset, settings, _command(args)), args.out)
+    print(markdown)
+    print(f"wrote {args.out} and {args.out.with_suffix('.md')}")
+    return 0
+
+
+def _rerun(args: argparse.Namespace) -> int:
+    from ocplace.eval.harness import physical_arena
+    from ocplace.eval.results import compare, read_results, rerun, settings_of, write_outputs
+
+    original = read_results(args.rerun)
+    with physical_arena(settings_of(original)) as arena:
+        fresh = rerun(original, arena=arena, progress=not args.no_progress, command=_command(args))
+    out = args.out or args.rerun.with_name(args.rerun.stem + ".rerun.json")
+    write_outputs(fresh, out)
+    differences = compare(original, fresh)
+    for line in differences[:50]:
+        print(line)
+    if len(differences) > 50:
+        print(f"... and {len(differences) - 50} more differences")
+    print(f"{'reproduced exactly' if not differences else f'{len(differences)} differences'}: {args.rerun} vs {out}")
+    return 0 if not differences else 1
+
+
+def _reproduce(args: argparse.Namespace) -> int:
+    import dataclasses
+
+    from ocplace.eval.pipeline import SCALES, run_pipeline
+
+    config = SCALES[args.scale]()
+    changes = {"progress": not args.no_progress}
+    if args.backbone:
+        changes["backbone"] = args.backbone
+    if args.methods == "all":
+        changes["methods"] = None
+    elif args.methods:
+        changes["methods"] = tuple(n.strip() for n in args.methods.split(",") if n.strip())
+    if args.workers:
+        changes["workers"] = args.workers
+    if args.dataset:
+        changes["dataset"] = args.dataset
+    if args.fractions:
+        changes["fractions"] = tuple(sorted(set(args.fractions)))
+    if args.physical is not None:
+        changes["physical_scenes"] = physical_setting(args.physical, config.physical_scenes)
+    config = dataclasses.replace(config, **changes)
+    summary = run_pipeline(config, args.out or config.default_out, command=_command(args))
+    print(summary.markdown)
+    print(summary.report())
+    return 1 if summary.errors else 0
+
+
+def _figures(args: argparse.Namespace) -> int:
+    from ocplace.eval.figures import write_figures
+    from ocplace.eval.results import read_results
+
+    for path in write_figures(read_results(args.results), args.out, args.dataset, args.seed):
+        print(f"wrote {path}")
+    return 0

@@ -1,0 +1,129 @@
+"""`ocplace featurize` and `ocplace train`."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import importlib
+import importlib.util
+import os
+from collections.abc import Callable, Iterable
+from pathlib import Path
+
+# The dataset's reader: `iter_examples(dataset_dir, split) -> Iterable[SceneExample]`.
+DATASET_READER = ("ocplace.sim.dataset.loader", "iter_examples")
+
+
+def register(subparsers) -> None:
+    if importlib.util.find_spec(DATASET_READER[0]) is not None:  # found without importing (cv2, MuJoCo)
+        _register_featurize(subparsers, read_dataset)
+    _register_train(subparsers)
+
+
+def read_dataset(dataset_dir: Path, split: str) -> Iterable:
+    module_name, function_name = DATASET_READER
+    return getattr(importlib.import_module(module_name), function_name)(dataset_dir, split)
+
+
+def _register_featurize(subparsers, reader: Callable[[Path, str], Iterable]) -> None:
+    parser = subparsers.add_parser(
+        "featurize",
+        help="encode a dataset split with a frozen backbone into a feature file",
+        description="Encodes every scene's crops, workspace image and reference phrases once. The file is "
+        "keyed by the backbone fingerprint and the dataset manifest; a second run is a no-op, an "
+        "interrupted one resumes.",
+    )
+    parser.add_argument("dataset", type=Path, help="dataset directory (written by `ocplace generate`)")
+    parser.add_argument(
+        "--backbone", required=True, help="clip:HUB_ID_OR_DIR (e.g. clip:openai/clip-vit-base-patch32) or another kind"
+    )
+    parser.add_argument("--split", default="train")
+    parser.add_argument("--out", type=Path, help="feature file (default: in the cache, printed at the end)")
+    parser.add_argument("--chunk-scenes", type=int, default=64)
+    parser.set_defaults(func=lambda args: run_featurize(args, reader))
+
+
+def run_featurize(args, read_examples: Callable[[Path, str], Iterable]) -> int:
+    from ocplace.models.backbone import load_backbone
+    from ocplace.models.features import FeaturizeConfig, featurize
+    from ocplace.sim.dataset.identity import dataset_hash, split_features_path, split_files
+
+    backbone = load_backbone(args.backbone)
+    digest = dataset_hash(args.dataset, args.split)
+    num_scenes = len({Path(name).parent for name, _ in split_files(args.dataset, args.split)})
+    out = args.out or split_features_path(args.dataset, args.split, backbone.fingerprint)
+    path = featurize(
+        read_examples(args.dataset, args.split),
+        backbone,
+        out,
+        dataset_hash=digest,
+        config=FeaturizeConfig(chunk_scenes=args.chunk_scenes),
+        total=num_scenes,
+    )
+    print(path)
+    return 0
+
+
+def _register_train(subparsers) -> None:
+    parser = subparsers.add_parser(
+        "train",
+        help="train the CLIP-Adapters on cached features",
+        description="Adam on cached backbone features, steps fused with lax.scan. Resumes from the newest "
+        "checkpoint in --out; the same seed gives the same weights.",
+    )
+    parser.add_argument("--features", required=True, type=Path, help="training feature file")
+    parser.add_argument("--out", required=True, type=Path, help="run directory")
+    parser.add_argument("--val-features", type=Path, help="feature file to report validation accuracy on")
+    parser.add_argument("--smoke", action="store_true", help="start from the tiny smoke configuration")
+    parser.add_argument(
+        "--cpus",
+        type=int,
+        default=1,
+        help="CPUs XLA may use (default 1: batch-1 steps are too small to gain from splitting "
+        "them across cores, and waiting for a busy core stalls every step; 0: all)",
+    )
+    overrides = parser.add_argument_group("configuration overrides (defaults: the paper's schedule)")
+    overrides.add_argument("--steps", type=int)
+    overrides.add_argument("--batch-size", type=int)
+    overrides.add_argument("--lr", dest="learning_rate", type=float, help="peak learning rate")
+    overrides.add_argument("--warmup-steps", type=int)
+    overrides.add_argument("--fraction", type=float, help="train on this seeded share of the scenes")
+    overrides.add_argument("--seed", type=int)
+    overrides.add_argument("--residual-ratio", type=float)
+    overrides.add_argument("--logit-scale", type=float, help="default: the backbone's")
+    overrides.add_argument("--chunk-steps", type=int)
+    overrides.add_argument("--eval-every", type=int)
+    overrides.add_argument("--checkpoint-every", type=int)
+    parser.set_defaults(func=run_train)
+
+
+def train_config_from_args(args: argparse.Namespace):
+    from ocplace.train.config import TrainConfig, default_config, smoke_config
+
+    base = smoke_config() if args.smoke else default_config()
+    names = [field.name for field in dataclasses.fields(TrainConfig)]
+    changes = {name: getattr(args, name) for name in names if getattr(args, name, None) is not None}
+    return dataclasses.replace(base, **changes)
+
+
+def run_train(args) -> int:
+    if args.cpus:  # before JAX starts: XLA sizes its thread pool to the CPUs it may run on
+        os.sched_setaffinity(0, sorted(os.sched_getaffinity(0))[: args.cpus])
+    from ocplace.models.features import load_features
+    from ocplace.train.loop import train
+
+    config = train_config_from_args(args)
+    config.validate()
+    features = load_features(args.features)
+    val_features = load_features(args.val_features, features.info.backbone_fingerprint) if args.val_features else None
+    result = train(features, args.out, config, val_features=val_features)
+    print(
+        f"{result.run_dir}: {result.steps} steps, train grounding accuracy "
+        f"{result.train_accuracy.tuple_accuracy:.4f} per tuple, {result.train_accuracy.scene_accuracy:.4f} per scene"
+    )
+    if result.val_accuracy is not None:
+        print(
+            f"validation: {result.val_accuracy.tuple_accuracy:.4f} per tuple, "
+            f"{result.val_accuracy.scene_accuracy:.4f} per scene"
+        )
+    return 0

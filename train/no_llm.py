@@ -1,0 +1,357 @@
+"""Training Ours w/o LLM (GT-ref#) on cached backbone features.
+
+Visual tokens come from the shared feature cache (`models.features`, the same file `ocplace
+featurize` writes and Ours trains on); the only extra encoding is one sentence token per scene,
+cached beside it (`sentences_path`). Steps run in chunks fused with `lax.scan`; the example
+order and the initial weights are functions of the seed (as in `train.loop`), so a resumed run
+ends with the weights of an uninterrupted one.
+
+Run directory:
+    config.json          recipe, feature keys, backbone fingerprint, scene count
+    metrics.jsonl        per chunk: step, loss, reference_loss, relation_loss, learning_rate, elapsed_s
+    checkpoints/         params + Adam state (newest two)
+    model.safetensors    the trained model, with its config, logit scale and backbone fingerprint
+
+Checkpoints and the model file carry a content hash (`models.weights_file`), checked on load.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import hashlib
+import json
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+
+from ocplace.errors import FeaturesError, TrainingError
+from ocplace.models.backbone import Backbone
+from ocplace.models.features import Features, FeaturizeConfig, featurize, load_features
+from ocplace.models.no_llm import NoLlmConfig, NoLlmModel, init_params, loss_terms
+from ocplace.models.weights_file import load_weights, save_weights
+from ocplace.paths import atomic_path, cache_dir
+from ocplace.sim.relations import relation_index
+from ocplace.train import checkpoints, runner
+from ocplace.train.loop import batch_indices, subset_indices
+
+MODEL_FILE = "model.safetensors"
+SENTENCES_FORMAT = "ocplace-gtref-sentences-v1"
+
+
+@dataclasses.dataclass(frozen=True)
+class NoLlmTrainConfig:
+    steps: int = 10_000
+    batch_size: int = 32
+    learning_rate: float = 1e-3  # Adam peak, linear warm-up then cosine decay to 0
+    warmup_steps: int = 500
+    relation_weight: float = 1.0  # loss = reference CE + relation_weight * relation CE
+    hidden: int = 256  # relation MLP width
+    reduction: int = 4
+    residual_ratio: float = 0.2
+    seed: int = 0  # initial weights and example order
+    fraction: float = 1.0
+    subset_seed: int = 0  # nested subsets, as train.loop
+    chunk_steps: int = 1_000
+    checkpoint_every: int = 5_000
+    keep_checkpoints: int = 2
+
+    def validate(self) -> None:
+        if self.steps < 1 or self.batch_size < 1 or self.chunk_steps < 1:
+            raise TrainingError("steps, batch_size and chunk_steps must be positive")
+        if not 0.0 < self.fraction <= 1.0:
+            raise TrainingError(f"fraction must be in (0, 1], got {self.fraction}")
+        if self.checkpoint_every % self.chunk_steps:
+            raise TrainingError("checkpoint_every must be a multiple of chunk_steps")
+
+    def model_config(self, dim: int) -> NoLlmConfig:
+        return NoLlmConfig(dim=dim, reduction=self.reduction, residual_ratio=self.residual_ratio, hidden=self.hidden)
+
+    def to_json(self) -> str:
+        return json.dumps(dataclasses.asdict(self), sort_keys=True)
+
+
+RECIPES = {
+    "smoke": NoLlmTrainConfig(
+        steps=120, batch_size=8, learning_rate=3e-3, warmup_steps=10, chunk_steps=40, checkpoint_every=40, hidden=32
+    ),
+    "demo": NoLlmTrainConfig(steps=3_000, warmup_steps=200, chunk_steps=500, checkpoint_every=1_500),
+    "default": NoLlmTrainConfig(),
+}
+
+
+def recipe(scale: str, fraction: float = 1.0, seed: int = 0) -> NoLlmTrainConfig:
+    if scale not in RECIPES:
+        raise TrainingError(f"unknown scale {scale!r}; choose one of {sorted(RECIPES)}")
+    return dataclasses.replace(RECIPES[scale], fraction=fraction, seed=seed)
+
+
+# ----------------------------------------------------------------------------- cached inputs
+
+
+def split_features(dataset_dir: Path, split: str, backbone: Backbone, progress: bool = False) -> Features:
+    """The split's feature file, encoded once into the cache path `ocplace featurize` uses."""
+    from ocplace.sim.dataset.identity import dataset_hash, split_features_path, split_files
+    from ocplace.sim.dataset.loader import iter_examples
+
+    digest = dataset_hash(dataset_dir, split)
+    total = len({Path(name).parent for name, _ in split_files(dataset_dir, split)})
+    out = split_features_path(dataset_dir, split, backbone.fingerprint)
+    featurize(
+        iter_examples(dataset_dir, split),
+        backbone,
+        out,
+        dataset_hash=digest,
+        config=FeaturizeConfig(),
+        total=total,
+        progress=progress,
+    )
+    return load_features(out, backbone.fingerprint)
+
+
+@dataclasses.dataclass(frozen=True)
+class Sentences:
+    """One sentence token per scene, with each tuple's canonical relation (training only)."""
+
+    scene_ids: tuple[str, ...]
+    sentence: np.ndarray  # float32 (num_scenes, D)
+    relations: np.ndarray  # int32 (num_scenes, 2) index into RELATION_NAMES; 0 for padding
+    key: str
+
+
+def sentences_key(backbone_fingerprint: str, dataset_hash: str, config: NoLlmConfig) -> str:
+    payload = [SENTENCES_FORMAT, backbone_fingerprint, dataset_hash, config.sentence_template]
+    return hashlib.sha256(json.dumps(payload).encode()).hexdigest()
+
+
+def sentences_path(dataset_hash: str, split: str, backbone_fingerprint: str) -> Path:
+    return cache_dir() / "features" / f"{dataset_hash[:16]}-{split}-{backbone_fingerprint[:16]}-sentences.safetensors"
+
+
+def encode_sentences(backbone: Backbone, config: NoLlmConfig, instructions, batch: int = 64) -> np.ndarray:
+    """`(len(instructions), D)` sentence tokens."""
+    texts = [config.sentence_text(text) for text in instructions]
+    if not texts:
+        return np.zeros((0, backbone.dim), np.float32)
+    return np.concatenate([backbone.encode_texts(texts[i : i + batch]) for i in range(0, len(texts), batch)])
+
+
+def split_sentences(dataset_dir: Path, split: str, backbone: Backbone, config: NoLlmConfig) -> Sentences:
+    """Sentence tokens of a split, encoded once and cached (keyed like the feature cache)."""
+    from safetensors import safe_open
+    from safetensors.numpy import load_file, save_file
+
+    from ocplace.sim.dataset.identity import dataset_hash
+    from ocplace.sim.dataset.job import scene_dirs
+    from ocplace.sim.dataset.records import read_meta
+
+    digest = dataset_hash(dataset_dir, split)
+    key = sentences_key(backbone.fingerprint, digest, config)
+    path = sentences_path(digest, split, backbone.fingerprint)
+    if path.exists():
+        with safe_open(str(path), framework="numpy") as handle:
+            meta = handle.metadata() or {}
+        if meta.get("key") == key:
+            arrays = load_file(str(path))
+            return Sentences(tuple(json.loads(meta["scene_ids"])), arrays["sentence"], arrays["relations"], key)
+    metas = [read_meta(d) for d in scene_dirs(dataset_dir, split)]
+    relations = np.zeros((len(metas), 2), np.int32)
+    for row, meta in enumerate(metas):
+        relations[row, : len(meta["tuples"])] = [relation_index(t["relation"]) for t in meta["tuples"]]
+    sentence = encode_sentences(backbone, config, [meta["instruction"] for meta in metas])
+    scene_ids = tuple(meta["id"] for meta in metas)
+    with atomic_path(path) as tmp:
+        save_file(
+            {"sentence": sentence, "relations": relations},
+            str(tmp),
+            metadata={"key": key, "scene_ids": json.dumps(scene_ids)},
+        )
+    return Sentences(scene_ids, sentence, relations, key)
+
+
+def training_arrays(features: Features, sentences: Sentences) -> dict[str, np.ndarray]:
+    """The batch dictionary `models.no_llm.loss_terms` reads, one row per scene."""
+    if features.scene_ids != sentences.scene_ids:
+        raise FeaturesError(
+            "the feature file and the sentence cache list different scenes; delete the sentence "
+            f"cache ({len(sentences.scene_ids)} scenes) so it is rebuilt"
+        )
+    return {
+        "visual": features.visual,
+        "visual_mask": features.visual_mask,
+        "sentence": sentences.sentence,
+        "targets": features.targets,
+        "target_mask": features.text_mask,
+        "relations": sentences.relations,
+    }
+
+
+# ----------------------------------------------------------------------------- the jitted loop
+
+
+def learning_rate_schedule(config: NoLlmTrainConfig) -> optax.Schedule:
+    return optax.warmup_cosine_decay_schedule(
+        0.0, config.learning_rate, config.warmup_steps, max(config.steps, config.warmup_steps + 1), 0.0
+    )
+
+
+def train_step(model_config: NoLlmConfig, config: NoLlmTrainConfig, logit_scale: float, state, data, indices):
+    """One Adam step on the scenes `indices` `(B,)`; returns `(state, (loss, reference, relation))`."""
+
+    def loss_fn(params, batch):
+        reference, relation = loss_terms(model_config, params, batch, logit_scale)
+        return reference + config.relation_weight * relation, (reference, relation)
+
+    params, opt_state = state
+    batch = {name: array[indices] for name, array in data.items()}
+    (loss, parts), grads = jax.value_and_grad(loss_fn, has_aux=True)(params, batch)
+    updates, opt_state = optax.adam(learning_rate_schedule(config)).update(grads, opt_state, params)
+    return (optax.apply_updates(params, updates), opt_state), (loss, *parts)
+
+
+@functools.partial(jax.jit, static_argnums=(0, 1, 2), donate_argnums=3)
+def train_chunk(model_config: NoLlmConfig, config: NoLlmTrainConfig, logit_scale: float, state, data, indices):
+    """`indices` `(num_steps, B)`; returns `(state, losses (3, num_steps))`."""
+    step = functools.partial(train_step, model_config, config, logit_scale)
+    state, losses = jax.lax.scan(lambda carry, step_indices: step(carry, data, step_indices), state, indices)
+    return state, jnp.stack(losses)
+
+
+def train_on_arrays(
+    arrays: dict[str, np.ndarray],
+    run_dir: Path,
+    config: NoLlmTrainConfig,
+    logit_scale: float,
+    run_meta: dict,
+    progress: bool = True,
+    *,
+    backbone_fingerprint: str,
+) -> NoLlmModel:
+    """Trains on the scene rows of `arrays` into `run_dir` (resuming from its newest checkpoint) and
+    saves `MODEL_FILE`, tagged with the backbone whose features `arrays` hold."""
+    config.validate()
+    run_dir = Path(run_dir)
+    num_scenes = len(arrays["visual"])
+    model_config = config.model_config(arrays["visual"].shape[-1])
+    data = jax.device_put(arrays)
+    schedule = learning_rate_schedule(config)
+
+    def init_state():
+        params = init_params(model_config, jax.random.key(config.seed))
+        return params, optax.adam(schedule).init(params)
+
+    def chunk(state, start: int, count: int):
+        indices = batch_indices(num_scenes, config.seed, start, count, config.batch_size)
+        return train_chunk(model_config, config, logit_scale, state, data, jnp.asarray(indices))
+
+    def record(state, step: int, losses: np.ndarray) -> dict:
+        loss, reference, relation = losses.mean(axis=1).tolist()
+        return {
+            "loss": loss,
+            "reference_loss": reference,
+            "relation_loss": relation,
+            "learning_rate": float(schedule(step)),
+        }
+
+    def save(path: Path, state) -> NoLlmModel:
+        model = NoLlmModel(model_config, jax.tree_util.tree_map(np.asarray, state[0]), logit_scale)
+        save_model(path, model, backbone_fingerprint=backbone_fingerprint, train_config=config)
+        return model
+
+    spec = runner.Run(
+        run_dir=run_dir,
+        run_meta=run_meta,
+        steps=config.steps,
+        chunk_steps=config.chunk_steps,
+        log_every=config.chunk_steps,
+        checkpoint_every=config.checkpoint_every,
+        keep_checkpoints=config.keep_checkpoints,
+        init_state=init_state,
+        chunk=chunk,
+        record=record,
+        artefact=run_dir / MODEL_FILE,
+        save_artefact=save,
+        checkpoint_meta={"step_of": str(config.steps)},
+        desc="train no_llm",
+    )
+    return runner.run(spec, progress).saved
+
+
+def train_no_llm(
+    dataset_dir: Path, backbone: Backbone, run_dir: Path, config: NoLlmTrainConfig, progress: bool = True
+) -> Path:
+    """Featurizes the train split (cached), trains, writes `run_dir/model.safetensors`; a finished run is kept."""
+    run_dir = Path(run_dir)
+    features = split_features(dataset_dir, "train", backbone, progress)
+    sentences = split_sentences(dataset_dir, "train", backbone, config.model_config(backbone.dim))
+    chosen = subset_indices(features.num_scenes, config.fraction, config.subset_seed)
+    arrays = {name: array[chosen] for name, array in training_arrays(features, sentences).items()}
+    run_meta = {
+        "train_config": json.loads(config.to_json()),
+        "features_key": features.info.key,
+        "sentences_key": sentences.key,
+        "backbone_fingerprint": backbone.fingerprint,
+        "train_scenes": int(len(chosen)),
+    }
+    if (run_dir / MODEL_FILE).exists():
+        checkpoints.claim_run_dir(run_dir, run_meta, runner.RUN_FILE)
+        return run_dir
+    logit_scale = float(features.info.logit_scale)
+    train_on_arrays(arrays, run_dir, config, logit_scale, run_meta, progress, backbone_fingerprint=backbone.fingerprint)
+    return run_dir
+
+
+# ----------------------------------------------------------------------------- the model file
+
+
+def save_model(path: Path, model: NoLlmModel, *, backbone_fingerprint: str, train_config: NoLlmTrainConfig) -> None:
+    metadata = {
+        "model_config": model.config.to_json(),
+        "logit_scale": repr(model.logit_scale),
+        "backbone_fingerprint": backbone_fingerprint,
+        "train_config": train_config.to_json(),
+    }
+    save_weights(path, checkpoints.flatten_state(model.params), metadata)
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainedNoLlm:
+    model: NoLlmModel
+    backbone_fingerprint: str
+    train_config: dict
+    sha256: str  # of the weights (`params_sha256`)
+
+
+def load_model(run_dir: Path) -> TrainedNoLlm:
+    """The trained model of a finished run, verified."""
+    path = Path(run_dir) / MODEL_FILE
+    if not path.exists():
+        raise TrainingError(
+            f"no trained GT-ref# model at {path}; train it first (`ocplace evaluate` trains "
+            "registered methods, or call ocplace.train.no_llm.train_no_llm)"
+        )
+    arrays, metadata = load_weights(
+        path, f"delete {path.parent} and rerun `ocplace evaluate` or `ocplace reproduce` (they train missing runs)"
+    )
+    config = NoLlmConfig.from_json(metadata["model_config"])
+    template = jax.eval_shape(lambda: init_params(config, jax.random.key(0)))
+    params = checkpoints.unflatten_state(arrays, template)
+    return TrainedNoLlm(
+        NoLlmModel(config, params, float(metadata["logit_scale"])),
+        metadata["backbone_fingerprint"],
+        json.loads(metadata["train_config"]),
+        params_sha256(params),
+    )
+
+
+def params_sha256(params) -> str:
+    """sha256 over every weight's path, dtype, shape and bytes: a file's hash would not do, because
+    safetensors writes its metadata in no fixed order."""
+    from ocplace.models.backbone import update_with_params
+
+    digest = hashlib.sha256()
+    update_with_params(digest, params)
+    return digest.hexdigest()

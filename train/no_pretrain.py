@@ -1,0 +1,309 @@
+"""Training Ours w/o CLIP pre-train: image tower, projections and adapters from random weights.
+
+The training split's crops and workspace images are decoded, cut like the pipeline cuts them
+(`sim.dataset.loader.example_from_record`), resized to the tower's input size and cached once
+as uint8 arrays, with the frozen MiniLM embeddings of the prompted reference phrases
+(`no_pretrain_inputs`). Each step takes `batch_size` scenes (all their visual tokens), applies a
+random symmetry of the square to every image and takes one AdamW step on Ours' grounding
+loss. Example order, symmetries and initial weights are functions of the seed and the step, so
+a resumed run ends with the weights of an uninterrupted one.
+
+Run directory:
+    config.json, metrics.jsonl, checkpoints/     as in train.loop
+    backbone/                                    the trained tower as an offline backbone directory
+    adapters.safetensors                         the trained adapters (train.checkpoints format)
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import hashlib
+import json
+import math
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+
+from ocplace.errors import TrainingError
+from ocplace.models import no_pretrain, trained_adapters
+from ocplace.models import offline_backbone as ob
+from ocplace.models.backbone import PromptConfig
+from ocplace.paths import atomic_path, cache_dir
+from ocplace.train import checkpoints, runner
+from ocplace.train.loop import batch_indices, subset_indices
+from ocplace.vocabulary import MAX_INSTRUCTION_TUPLES as MAX_TUPLES
+
+BACKBONE_DIR = "backbone"
+INPUTS_FORMAT = "ocplace-scratch-inputs-v1"
+MAX_TOKENS = 6  # 5 crops + the workspace
+
+
+@dataclasses.dataclass(frozen=True)
+class NoPretrainTrainConfig:
+    steps: int = 600  # 28,800 crops through the trunk: ~10 min on 2 cores at 128 px
+    batch_size: int = 8  # scenes per step (each with all its visual tokens)
+    learning_rate: float = 1e-3  # AdamW peak; linear warm-up, cosine decay to 2% (as the backbone pretraining)
+    warmup_steps: int = 50
+    weight_decay: float = 0.05  # matrices only
+    augment: bool = True  # a random symmetry of the square per image
+    seed: int = 0
+    fraction: float = 1.0
+    subset_seed: int = 0
+    log_every: int = 50
+    checkpoint_every: int = 200
+    keep_checkpoints: int = 2
+
+    def validate(self) -> None:
+        if min(self.steps, self.batch_size, self.log_every, self.checkpoint_every) < 1:
+            raise TrainingError("steps, batch_size, log_every and checkpoint_every must be positive")
+        if not 0.0 < self.fraction <= 1.0:
+            raise TrainingError(f"fraction must be in (0, 1], got {self.fraction}")
+
+
+@dataclasses.dataclass(frozen=True)
+class NoPretrainRecipe:
+    model: no_pretrain.NoPretrainConfig
+    train: NoPretrainTrainConfig
+
+    def to_dict(self) -> dict:
+        return {"model": self.model.to_dict(), "train": dataclasses.asdict(self.train)}
+
+
+RECIPES = {
+    "smoke": NoPretrainRecipe(
+        no_pretrain.smoke_config(),
+        NoPretrainTrainConfig(
+            steps=150, batch_size=4, learning_rate=1e-3, warmup_steps=3, log_every=10, checkpoint_every=50
+        ),
+    ),
+    "demo": NoPretrainRecipe(
+        no_pretrain.demo_config(),
+        NoPretrainTrainConfig(steps=75, batch_size=8, warmup_steps=8, log_every=25, checkpoint_every=25),
+    ),
+    "default": NoPretrainRecipe(no_pretrain.default_config(), NoPretrainTrainConfig()),
+}
+
+
+def recipe(scale: str, fraction: float = 1.0, seed: int = 0) -> NoPretrainRecipe:
+    if scale not in RECIPES:
+        raise TrainingError(f"unknown scale {scale!r}; choose one of {sorted(RECIPES)}")
+    base = RECIPES[scale]
+    return dataclasses.replace(base, train=dataclasses.replace(base.train, fraction=fraction, seed=seed))
+
+
+# ----------------------------------------------------------------------------- cached inputs
+
+
+@dataclasses.dataclass(frozen=True)
+class NoPretrainInputs:
+    """The training split as the tower sees it; arrays have one row per scene."""
+
+    arrays: dict  # pixels uint8 (n, 6, S, S, 3), visual_mask (n, 6), sentences (n, 2, 384), text_mask, targets
+    scene_ids: tuple[str, ...]
+    key: str
+
+
+def visual_pixels(config: ob.OfflineConfig, crops: np.ndarray, workspace: np.ndarray) -> np.ndarray:
+    """uint8 `(N + 1, S, S, 3)`: the crops then the workspace, preprocessed like `OfflineBackbone.encode_images`."""
+    return ob.preprocess_images(config, np.concatenate([crops, workspace[None]]))
+
+
+def no_pretrain_inputs(
+    dataset_dir: Path,
+    split: str,
+    config: ob.OfflineConfig,
+    prompt: PromptConfig = PromptConfig(),
+    progress: bool = False,
+) -> NoPretrainInputs:
+    """The split's preprocessed images and phrase embeddings, built once into the cache."""
+    from safetensors import safe_open
+    from safetensors.numpy import load_file, save_file
+    from tqdm import tqdm
+
+    from ocplace.sim.dataset.identity import dataset_hash
+    from ocplace.sim.dataset.loader import iter_examples
+
+    text_tower = ob.FrozenTextTower.load(config.text_max_length)
+    digest = dataset_hash(dataset_dir, split)
+    key = hashlib.sha256(
+        json.dumps(
+            [INPUTS_FORMAT, digest, config.image_size, config.text_max_length, prompt.to_json(), text_tower.digest]
+        ).encode()
+    ).hexdigest()
+    path = cache_dir() / "scratch" / f"{digest[:16]}-{split}-{config.image_size}px-{key[:12]}.safetensors"
+    if path.exists():
+        with safe_open(str(path), framework="numpy") as handle:
+            scene_ids = tuple(json.loads(handle.metadata()["scene_ids"]))
+        return NoPretrainInputs(load_file(str(path)), scene_ids, key)
+    rows = []
+    for example in tqdm(iter_examples(dataset_dir, split), desc="crops", unit="scene", disable=not progress):
+        rows.append(
+            (
+                example.scene_id,
+                visual_pixels(config, example.crops, example.workspace),
+                [prompt.text_for(text) for text in example.texts],
+                example.targets,
+            )
+        )
+    size = config.image_size
+    arrays = {
+        "pixels": np.zeros((len(rows), MAX_TOKENS, size, size, 3), np.uint8),
+        "visual_mask": np.zeros((len(rows), MAX_TOKENS), bool),
+        "sentences": np.zeros((len(rows), MAX_TUPLES, config.text_dim), np.float32),
+        "text_mask": np.zeros((len(rows), MAX_TUPLES), bool),
+        "targets": np.zeros((len(rows), MAX_TUPLES), np.int32),
+    }
+    texts = [text for _, _, scene_texts, _ in rows for text in scene_texts]
+    embeddings = iter(np.concatenate([text_tower.encode(texts[i : i + 64]) for i in range(0, len(texts), 64)]))
+    for row, (_, pixels, scene_texts, targets) in enumerate(rows):
+        arrays["pixels"][row, : len(pixels)] = pixels
+        arrays["visual_mask"][row, : len(pixels)] = True
+        for k in range(len(scene_texts)):
+            arrays["sentences"][row, k] = next(embeddings)
+        arrays["text_mask"][row, : len(scene_texts)] = True
+        arrays["targets"][row, : len(targets)] = targets
+    scene_ids = tuple(scene_id for scene_id, *_ in rows)
+    with atomic_path(path) as tmp:
+        save_file(arrays, str(tmp), metadata={"key": key, "scene_ids": json.dumps(scene_ids)})
+    return NoPretrainInputs(arrays, scene_ids, key)
+
+
+# ----------------------------------------------------------------------------- the jitted step
+
+
+def make_optimizer(config: NoPretrainTrainConfig) -> optax.GradientTransformation:
+    schedule = optax.warmup_cosine_decay_schedule(
+        0.0,
+        config.learning_rate,
+        config.warmup_steps,
+        max(config.steps, config.warmup_steps + 1),
+        config.learning_rate * 0.02,
+    )
+    decay_mask = functools.partial(jax.tree_util.tree_map, lambda p: p.ndim >= 2)
+    return optax.chain(
+        optax.clip_by_global_norm(1.0), optax.adamw(schedule, weight_decay=config.weight_decay, mask=decay_mask)
+    )
+
+
+@functools.partial(jax.jit, static_argnums=(0, 1), donate_argnums=2)
+def train_step(model: no_pretrain.NoPretrainConfig, config: NoPretrainTrainConfig, state, frozen, batch, codes):
+    """One AdamW step on the trainable half of the parameters (`ob.split_trainable`); returns `(state, loss)`."""
+    trainable, opt_state = state
+
+    def loss_fn(trainable):
+        return no_pretrain.loss(model, ob.join_params(trainable, frozen), batch, codes)
+
+    value, grads = jax.value_and_grad(loss_fn)(trainable)
+    updates, opt_state = make_optimizer(config).update(grads, opt_state, trainable)
+    return (optax.apply_updates(trainable, updates), opt_state), value
+
+
+def step_codes(config: NoPretrainTrainConfig, step: int) -> np.ndarray:
+    """int32 `(batch_size, 6)` symmetry codes of a step (zeros without augmentation)."""
+    if not config.augment:
+        return np.zeros((config.batch_size, MAX_TOKENS), np.int32)
+    return np.random.default_rng([config.seed, step, 1]).integers(
+        8, size=(config.batch_size, MAX_TOKENS), dtype=np.int32
+    )
+
+
+def train_on_inputs(
+    arrays: dict,
+    run_dir: Path,
+    recipe_: NoPretrainRecipe,
+    run_meta: dict,
+    progress: bool = True,
+    *,
+    prompt: PromptConfig,
+    inputs_key: str,
+) -> None:
+    """Trains into `run_dir` (resuming from its newest checkpoint), then saves `backbone/` and the adapters."""
+    config, model = recipe_.train, recipe_.model
+    config.validate()
+    run_dir = Path(run_dir)
+    params = no_pretrain.init_params(model, jax.random.key(config.seed))
+    params["backbone"] = no_pretrain.calibrate(model, params["backbone"], arrays)
+    trainable, frozen = ob.split_trainable(no_pretrain.trainable_mask(model, params), params)
+    num_scenes = len(arrays["pixels"])
+
+    def chunk(state, start: int, count: int):
+        losses = []
+        for step in range(start, start + count):
+            rows = batch_indices(num_scenes, config.seed, step, 1, config.batch_size)[0]
+            batch = {name: jnp.asarray(array[rows]) for name, array in arrays.items()}
+            state, loss = train_step(model, config, state, frozen, batch, jnp.asarray(step_codes(config, step)))
+            losses.append(loss)
+        return state, jnp.stack(losses)
+
+    def record(state, step: int, losses: np.ndarray) -> dict:
+        scale = no_pretrain.logit_scale(model, ob.join_params(state[0], frozen))
+        return {"loss": runner.mean_loss(losses), "logit_scale": float(scale)}
+
+    def save(path: Path, state) -> None:
+        trained = jax.tree_util.tree_map(np.asarray, ob.join_params(state[0], frozen))
+        save_trained(path, trained, recipe_, prompt=prompt, inputs_key=inputs_key)
+
+    spec = runner.Run(
+        run_dir=run_dir,
+        run_meta=run_meta,
+        steps=config.steps,
+        chunk_steps=1,
+        log_every=config.log_every,
+        checkpoint_every=config.checkpoint_every,
+        keep_checkpoints=config.keep_checkpoints,
+        init_state=lambda: (trainable, make_optimizer(config).init(trainable)),
+        chunk=chunk,
+        record=record,
+        artefact=run_dir / trained_adapters.ADAPTERS_FILE,
+        save_artefact=save,
+        checkpoint_meta={"step_of": str(config.steps)},
+        desc="train no_pretrain",
+    )
+    runner.run(spec, progress)
+
+
+def save_trained(
+    adapters_path: Path, params: dict, recipe_: NoPretrainRecipe, *, prompt: PromptConfig, inputs_key: str
+) -> None:
+    """Writes the tower to `backbone/` beside `adapters_path`, then the adapters (last: they mark the run finished)."""
+    model = recipe_.model
+    text_digest = ob.FrozenTextTower.load(model.backbone.text_max_length).digest
+    backbone_dir = ob.save_backbone(
+        adapters_path.parent / BACKBONE_DIR,
+        model.backbone,
+        params["backbone"],
+        text_digest,
+        {"trained_by": "ocplace.train.scratch (Ours w/o CLIP pre-train)", "recipe": recipe_.to_dict()},
+    )
+    fingerprint = (backbone_dir / ob.FINGERPRINT_FILE).read_text().strip()
+    scale = float(np.exp(min(float(params["backbone"]["log_logit_scale"]), math.log(model.max_logit_scale))))
+    trained_adapters.save_adapters(
+        adapters_path,
+        params["adapters"],
+        model.adapters,
+        scale,
+        backbone_fingerprint=fingerprint,
+        prompt=prompt,
+        features_key=inputs_key,
+        steps=recipe_.train.steps,
+        train_config_json=json.dumps(recipe_.to_dict()),
+    )
+
+
+def train_no_pretrain(dataset_dir: Path, run_dir: Path, recipe_: NoPretrainRecipe, progress: bool = True) -> Path:
+    """Caches the inputs, trains, saves `backbone/` and `adapters.safetensors`; a finished run is kept."""
+    run_dir = Path(run_dir)
+    prompt = PromptConfig()
+    inputs = no_pretrain_inputs(dataset_dir, "train", recipe_.model.backbone, prompt, progress)
+    chosen = subset_indices(len(inputs.scene_ids), recipe_.train.fraction, recipe_.train.subset_seed)
+    run_meta = {"recipe": recipe_.to_dict(), "inputs_key": inputs.key, "train_scenes": int(len(chosen))}
+    if (run_dir / trained_adapters.ADAPTERS_FILE).exists() and (run_dir / BACKBONE_DIR / ob.FINGERPRINT_FILE).exists():
+        checkpoints.claim_run_dir(run_dir, run_meta, runner.RUN_FILE)
+        return run_dir
+    arrays = {name: array[chosen] for name, array in inputs.arrays.items()}
+    train_on_inputs(arrays, run_dir, recipe_, run_meta, progress, prompt=prompt, inputs_key=inputs.key)
+    return run_dir
