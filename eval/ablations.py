@@ -1,4 +1,4 @@
-"""Table I rows "Ours w/o LLM" (GT-ref#) and "Ours w/o CLIP pre-train" as evaluation methods.
+"""Table I rows "Ours w/o LLM" (`no_llm`) and "Ours w/o CLIP pre-train" as evaluation methods.
 
 "no_llm" (`models/no_llm.py`, `train/no_llm.py`): no parser; the instruction is one text token, the
 top-L visual tokens are the references (L from the scene's level, the one ground-truth input
@@ -22,14 +22,15 @@ import numpy as np
 
 from ocplace.errors import OcplaceError, TrainingError
 from ocplace.eval.api import LoadContext, MethodOutput, MethodSpec, TrainContext
-from ocplace.eval.ours import PolicyMethod, describe_policy, scene_input
+from ocplace.eval.ours import PolicyMethod, describe_policy, json_default, scene_input, trained_run_weights
+from ocplace.paths import RUN_FILE, WEIGHTS_FILE
 from ocplace.sim.dataset.records import SceneRecord
 
-# ----------------------------------------------------------------------------- Ours w/o LLM (GT-ref#)
+# ----------------------------------------------------------------------------- Ours w/o LLM
 
 
 def train_no_llm(ctx: TrainContext) -> Path:
-    """Featurize the training split (shared cache) and its sentences, then train GT-ref# (idempotent)."""
+    """Featurize the training split (shared cache) and its sentences, then train no_llm (idempotent)."""
     from ocplace.models.policy import load_backbone_spec
     from ocplace.train import no_llm
 
@@ -37,14 +38,14 @@ def train_no_llm(ctx: TrainContext) -> Path:
         Path(ctx.dataset_dir),
         load_backbone_spec(ctx.backbone),
         Path(ctx.out_dir),
-        no_llm.recipe(ctx.scale, ctx.fraction, ctx.seed),
+        dataclasses.replace(ctx.recipe, fraction=ctx.fraction, seed=ctx.seed),
         progress=False,
     )
 
 
 @dataclasses.dataclass
 class NoLlmMethod:
-    """A `Method` around a trained GT-ref# model; `policy` lends its scene preparation and sampler."""
+    """A `Method` around a trained no_llm model; `policy` lends its scene preparation and sampler."""
 
     name: str
     policy: object  # PlacementPolicy: prepare, encode (visual tokens only), sample
@@ -64,9 +65,7 @@ class NoLlmMethod:
         chunk_size = self.policy.encode_scenes
         for start in range(0, len(ready), chunk_size):
             chunk = ready[start : start + chunk_size]
-            references.update(
-                zip(chunk, self.program([prepared[i] for i in chunk], [scenes[i].meta["level"] for i in chunk]))
-            )
+            references.update(zip(chunk, self.program([prepared[i] for i in chunk], [scenes[i].level for i in chunk])))
         sampled = dict(
             zip(ready, self.policy.sample([prepared[i] for i in ready], [references[i] for i in ready], key))
         )
@@ -128,7 +127,7 @@ class NoLlmMethod:
                     "method": self.name,
                     "backbone": {"spec": self.backbone_spec, "fingerprint": self.policy.backbone.fingerprint},
                     "model": {
-                        "path": str(Path(self.run_dir) / "model.safetensors"),
+                        "path": str(Path(self.run_dir) / WEIGHTS_FILE),
                         "weights_sha256": self.trained.sha256,
                         "config": dataclasses.asdict(model.config),
                         "logit_scale": float(model.logit_scale),
@@ -145,7 +144,7 @@ class NoLlmMethod:
                         "aabbs": "dataset (simulator AABBs of boxed objects)",
                     },
                 },
-                default=_jsonable,
+                default=json_default,
             )
         )
 
@@ -163,7 +162,7 @@ def load_no_llm(ctx: LoadContext) -> NoLlmMethod:
     backbone = load_backbone_spec(ctx.backbone)
     if trained.backbone_fingerprint != backbone.fingerprint:
         raise TrainingError(
-            f"the GT-ref# model in {ctx.run_dir} was trained on another backbone (fingerprint "
+            f"the no_llm model in {ctx.run_dir} was trained on another backbone (fingerprint "
             f"{trained.backbone_fingerprint[:12]}, {ctx.backbone} is {backbone.fingerprint[:12]})"
         )
     # Grounding and parsing are the model's own; the policy only prepares scenes and samples.
@@ -184,9 +183,9 @@ def train_no_pretrain(ctx: TrainContext) -> Path:
     """Train the tower and adapters from random weights (`ctx.backbone` is not used: nothing is pretrained)."""
     from ocplace.train import no_pretrain
 
-    return no_pretrain.train_no_pretrain(
-        Path(ctx.dataset_dir), Path(ctx.out_dir), no_pretrain.recipe(ctx.scale, ctx.fraction, ctx.seed), progress=False
-    )
+    train = dataclasses.replace(ctx.recipe.train, fraction=ctx.fraction, seed=ctx.seed)
+    recipe = dataclasses.replace(ctx.recipe, train=train)
+    return no_pretrain.train_no_pretrain(Path(ctx.dataset_dir), Path(ctx.out_dir), recipe, progress=False)
 
 
 @dataclasses.dataclass
@@ -197,7 +196,7 @@ class NoPretrainMethod(PolicyMethod):
         described = describe_policy(self.policy, self.name, self.backbone_spec, self.adapters_file)
         from ocplace.train.no_llm import params_sha256
 
-        described["from_scratch"] = json.loads((Path(self.run_dir) / "config.json").read_text())
+        described["from_scratch"] = json.loads((Path(self.run_dir) / RUN_FILE).read_text())
         described["backbone"]["weights_sha256"] = params_sha256(self.policy.backbone.params)
         described["adapters"]["weights_sha256"] = params_sha256(self.policy.grounding.params)
         return described
@@ -207,27 +206,15 @@ def load_no_pretrain(ctx: LoadContext) -> NoPretrainMethod:
     from ocplace.models.offline_backbone import load_saved_backbone
     from ocplace.models.placement.sampler import SamplerConfig
     from ocplace.models.policy import PlacementPolicy
-    from ocplace.models.trained_adapters import ADAPTERS_FILE
     from ocplace.train.no_pretrain import BACKBONE_DIR
 
-    if ctx.run_dir is None or not (Path(ctx.run_dir) / ADAPTERS_FILE).exists():
-        raise TrainingError(f"no trained tower and adapters in {ctx.run_dir}; train the 'no_pretrain' method first")
+    adapters_file = trained_run_weights(ctx.run_dir, "tower and adapters", "no_pretrain")
     run_dir = Path(ctx.run_dir)
     backbone = load_saved_backbone(run_dir / BACKBONE_DIR)
     policy = PlacementPolicy.from_run(
-        backbone, run_dir / ADAPTERS_FILE, parser=ctx.parser, sampler=SamplerConfig(num_samples=ctx.num_samples)
+        backbone, adapters_file, parser=ctx.parser, sampler=SamplerConfig(num_samples=ctx.num_samples)
     )
-    return NoPretrainMethod(
-        "no_pretrain", policy, f"offline:{run_dir / BACKBONE_DIR}", run_dir / ADAPTERS_FILE, run_dir
-    )
-
-
-def _jsonable(value):
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, (np.floating, np.integer)):
-        return value.item()
-    raise TypeError(f"not JSON-serialisable: {type(value).__name__}")
+    return NoPretrainMethod("no_pretrain", policy, f"offline:{run_dir / BACKBONE_DIR}", adapters_file, run_dir)
 
 
 METHODS = (

@@ -12,7 +12,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -39,7 +39,7 @@ class Method(Protocol):
         """JSON-able: configs, seeds, checkpoint sha256, backbone fingerprint, parser and its cache."""
 
     def run(self, scenes: Sequence[SceneRecord], key) -> list[MethodOutput]:
-        """One output per scene, in order. Must not read meta["tuples"], meta["oracle"] or token indices."""
+        """One output per scene, in order. Must not read the records' tuples, oracle or token indices."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -49,9 +49,10 @@ class TrainContext:
     dataset_dir: Path
     backbone: str  # backbone spec, e.g. "offline" or "clip:/path"
     out_dir: Path
-    scale: str = "default"  # "smoke" | "demo" | "default": picks the method's recipe
+    recipe: Any = None  # the method's own training config (`Experiment.recipes.of(name)`); fraction and seed apart
     fraction: float = 1.0  # share of the training split (seeded subsets, nested)
     seed: int = 0
+    experiment: str = "default"  # the experiment's name, recorded in run metadata; decides nothing
 
 
 @dataclasses.dataclass(frozen=True)
@@ -60,7 +61,6 @@ class LoadContext:
 
     run_dir: Path | None  # None for methods that learn nothing
     backbone: str
-    scale: str = "default"
     parser: str = "offline"  # parser name for methods that parse (models.parsing.make_parser)
     num_samples: int = 1024
 

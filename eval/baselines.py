@@ -1,6 +1,6 @@
 """The two competing approaches of Table I: Raw Image Grids and CLIPort-Place (docs/baselines.md).
 
-Both read only what eval/api.py allows: RGB-D, `meta["boxes"]` with the AABBs of those objects,
+Both read only what eval/api.py allows: RGB-D, the record's boxes with the AABBs of those objects,
 the camera, the instruction and the held object's footprint; never the tuples or the oracle.
 """
 
@@ -18,7 +18,7 @@ import numpy as np
 from ocplace.errors import OcplaceError, TrainingError
 from ocplace.eval.api import LoadContext, MethodOutput, MethodSpec, TrainContext
 from ocplace.models.baselines import cliport, grids
-from ocplace.models.baselines.common import camera_from_meta, free_grid
+from ocplace.models.baselines.common import free_grid, top_down_camera
 from ocplace.paths import atomic_path, cache_dir
 from ocplace.sim.dataset.records import SceneRecord
 
@@ -42,6 +42,19 @@ def _failure(error: Exception) -> MethodOutput:
     return MethodOutput(mode=None, samples=None, failure=f"{type(error).__name__}: {error}")
 
 
+def _describe(name: str, run_meta: dict, weights_sha256: str, backbone, num_samples: int, parser=None) -> dict:
+    """What decides a trained baseline's placements: its run, weights, backbone, parser (if any), sample count."""
+    described = {
+        "method": name,
+        "run": run_meta,
+        "weights_sha256": weights_sha256,
+        "backbone_fingerprint": backbone.fingerprint,
+    }
+    if parser is not None:
+        described["parser"] = parser.name
+    return {**described, "num_samples": num_samples}
+
+
 # ----------------------------------------------------------------------------- Raw Image Grids
 
 
@@ -60,14 +73,7 @@ class GridsMethod:
     name: str = "grids"
 
     def describe(self) -> dict:
-        return {
-            "method": self.name,
-            "run": self.run_meta,
-            "weights_sha256": self.weights_sha256,
-            "backbone_fingerprint": self.backbone.fingerprint,
-            "parser": self.parser.name,
-            "num_samples": self.num_samples,
-        }
+        return _describe(self.name, self.run_meta, self.weights_sha256, self.backbone, self.num_samples, self.parser)
 
     def run(self, scenes: Sequence[SceneRecord], key) -> list[MethodOutput]:
         return [self._place(scene, scene_key) for scene, scene_key in zip(scenes, jax.random.split(key, len(scenes)))]
@@ -87,11 +93,12 @@ class GridsMethod:
         """`(num_cells, D)` backbone features of the scene's cells, read from `cells_cache` when there."""
 
         def encode():
-            crops = grids.cell_crops(scene.rgb, camera_from_meta(scene.meta), self.config)
+            crops = grids.cell_crops(scene.rgb, top_down_camera(scene), self.config)
             return np.asarray(self.backbone.encode_images(crops))
 
         if self.cells_cache is None:
             return encode()
+        # The raw camera JSON, so that cells cached before stay found.
         image_key = scene.rgb.tobytes() + json.dumps(scene.meta["camera"], sort_keys=True).encode()
         path = self.cells_cache / f"{hashlib.sha256(image_key).hexdigest()[:32]}.npy"
         try:
@@ -105,9 +112,9 @@ class GridsMethod:
 
     def _place(self, scene: SceneRecord, key) -> MethodOutput:
         try:
-            parsed = tuple((t.reference, t.relation) for t in self.parser.parse(scene.meta["instruction"]))
+            parsed = tuple((t.reference, t.relation) for t in self.parser.parse(scene.instruction))
             cell, _ = self.chosen_cell(scene, parsed)
-            samples, mode, _ = grids.sample_in_cell(key, free_grid(scene.meta), cell, self.num_samples, self.config)
+            samples, mode, _ = grids.sample_in_cell(key, free_grid(scene), cell, self.num_samples, self.config)
         except OcplaceError as error:
             return _failure(error)
         return MethodOutput(mode=mode, samples=samples, parsed=parsed, grounded=None)
@@ -116,7 +123,15 @@ class GridsMethod:
 def train_grids(context: TrainContext):
     from ocplace.train.grids import train_grids as train
 
-    return train(context.dataset_dir, context.backbone, context.out_dir, context.scale, context.fraction, context.seed)
+    return train(
+        context.dataset_dir,
+        context.backbone,
+        context.out_dir,
+        context.recipe,
+        context.fraction,
+        context.seed,
+        experiment=context.experiment,
+    )
 
 
 def load_grids(context: LoadContext) -> GridsMethod:
@@ -149,22 +164,16 @@ class CliportMethod:
     name: str = "cliport"
 
     def describe(self) -> dict:
-        return {
-            "method": self.name,
-            "run": self.run_meta,
-            "weights_sha256": self.weights_sha256,
-            "backbone_fingerprint": self.backbone.fingerprint,
-            "num_samples": self.num_samples,
-        }
+        return _describe(self.name, self.run_meta, self.weights_sha256, self.backbone, self.num_samples)
 
     def distributions(self, scenes: Sequence[SceneRecord]) -> np.ndarray:
         """`(num_scenes, h * w)` pixel distributions (each sums to 1 over the table's pixels)."""
         out = []
         for start in range(0, len(scenes), SCENES_PER_BATCH):
             batch = list(scenes[start : start + SCENES_PER_BATCH])
-            cameras = [camera_from_meta(scene.meta) for scene in batch]
+            cameras = [top_down_camera(scene) for scene in batch]
             images = [cliport.prepare_image(s.rgb, s.depth, c, self.config) for s, c in zip(batch, cameras)]
-            text = self.backbone.encode_texts([scene.meta["instruction"] for scene in batch])
+            text = self.backbone.encode_texts([scene.instruction for scene in batch])
             pad = SCENES_PER_BATCH - len(batch)
             rgb = np.stack([i[0] for i in images] + [np.zeros_like(images[0][0])] * pad)
             height = np.stack([i[1] for i in images] + [np.zeros_like(images[0][1])] * pad)
@@ -182,7 +191,7 @@ class CliportMethod:
         outputs = []
         for scene, probabilities, scene_key in zip(scenes, distributions, jax.random.split(key, len(scenes))):
             mode, samples = cliport.mode_and_samples(
-                scene_key, probabilities, self.num_samples, camera_from_meta(scene.meta), self.config
+                scene_key, probabilities, self.num_samples, top_down_camera(scene), self.config
             )
             outputs.append(MethodOutput(mode=mode, samples=samples, parsed=None, grounded=None))
         return outputs
@@ -191,7 +200,15 @@ class CliportMethod:
 def train_cliport(context: TrainContext):
     from ocplace.train.cliport import train_cliport as train
 
-    return train(context.dataset_dir, context.backbone, context.out_dir, context.scale, context.fraction, context.seed)
+    return train(
+        context.dataset_dir,
+        context.backbone,
+        context.out_dir,
+        context.recipe,
+        context.fraction,
+        context.seed,
+        experiment=context.experiment,
+    )
 
 
 def load_cliport(context: LoadContext) -> CliportMethod:

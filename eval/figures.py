@@ -57,10 +57,8 @@ def choose_cases(
 def _draw_case(axis, record, outcomes: Sequence[tuple[str, dict]]) -> None:
     from matplotlib.patches import Rectangle
 
-    from ocplace.models.pinhole import PinholeCamera
     from ocplace.sim.dataset.show import feasible_overlay
 
-    meta = record.meta
     axis.imshow(feasible_overlay(record))
     references = {t.reference_object_id for t in record.tuples}
     for object_id, (u0, v0, u1, v1) in zip(record.boxes.object_ids, record.boxes.boxes, strict=True):
@@ -68,7 +66,7 @@ def _draw_case(axis, record, outcomes: Sequence[tuple[str, dict]]) -> None:
             axis.add_patch(
                 Rectangle((u0 - 0.5, v0 - 0.5), u1 - u0, v1 - v0, fill=False, edgecolor="white", linewidth=1.5)
             )
-    camera = PinholeCamera.from_json(meta["camera"])
+    camera = record.camera
     for k, (label, outcome) in enumerate(outcomes):
         colour = METHOD_COLOURS[k % len(METHOD_COLOURS)]
         verdict = "success" if outcome["success"] else ("not placed" if outcome["failure"] else "failure")
@@ -92,7 +90,7 @@ def _draw_case(axis, record, outcomes: Sequence[tuple[str, dict]]) -> None:
             fontsize=7,
             bbox={"facecolor": "black", "alpha": 0.6, "pad": 1},
         )
-    axis.set_title(f"{meta['id']} ({meta['level']})\n" + "\n".join(textwrap.wrap(meta["instruction"], 48)), fontsize=7)
+    axis.set_title(f"{record.id} ({record.level})\n" + "\n".join(textwrap.wrap(record.instruction, 48)), fontsize=7)
     axis.set_axis_off()
 
 
@@ -148,24 +146,22 @@ def plot_fig5(dataset_dir: str | Path, path: str | Path, seed: int = 0, subset: 
     """Fig. 5 on the first scene of a test subset: a table region, one object relation, a composition."""
     import jax
 
-    from ocplace.models.pinhole import PinholeCamera
     from ocplace.models.placement.figures import fig5, save_figure
     from ocplace.sim.dataset.job import scene_dirs
     from ocplace.sim.dataset.records import read_scene
 
     record = read_scene(scene_dirs(Path(dataset_dir), subset)[0])
-    meta = record.meta
-    boxes = np.array([obj["aabb"] for obj in meta["objects"]], dtype=float)[:, :, :2]
-    held = meta["held_object"]
+    boxes = np.array([obj.aabb for obj in record.objects], dtype=float)[:, :, :2]
+    held = record.held_object
     figure = fig5(
         jax.random.key(seed),
         record.rgb,
-        PinholeCamera.from_json(meta["camera"]),
+        record.camera,
         boxes,
-        held["footprint_half_extents"],
+        held.footprint_half_extents,
         rng=np.random.default_rng(seed),
-        names=[obj["human_name"] for obj in meta["objects"]],
-        suptitle=f"{record.id} | held: {held['human_name']}",
+        names=[obj.human_name for obj in record.objects],
+        suptitle=f"{record.id} | held: {held.human_name}",
         scene=record.id,
     )
     return save_figure(figure, path)

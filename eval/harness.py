@@ -30,6 +30,7 @@ import numpy as np
 
 from ocplace.errors import OcplaceError
 from ocplace.eval.api import LoadContext, Method, MethodOutput, MethodSpec
+from ocplace.sim.boxes import Boxes
 from ocplace.sim.dataset.records import SceneRecord
 from ocplace.vocabulary import LEVELS, TEST_SUBSETS
 
@@ -46,7 +47,7 @@ class EvalSettings:
     """Everything that decides an evaluation's outcome besides the methods' own runs."""
 
     backbone: str = "offline"
-    scale: str = "default"
+    scale: str = "default"  # the experiment's name, recorded; the methods' runs carry their recipes
     parser: str = "offline"
     num_samples: int = 1024
     subsets: tuple[str, ...] = TEST_SUBSETS
@@ -225,9 +226,9 @@ def reference_key(phrase: str) -> str:
     return normalise_reference(phrase.lower().split())
 
 
-def token_object_ids(meta: dict, tokens: Sequence[int]) -> tuple[int, ...]:
-    """Visual-token indices -> object ids, through meta["boxes"] order; token N is the table (0)."""
-    box_ids = [int(box["object_id"]) for box in meta["boxes"]]
+def token_object_ids(boxes: Boxes, tokens: Sequence[int]) -> tuple[int, ...]:
+    """Visual-token indices -> object ids, through the boxes' order; token N is the table (0)."""
+    box_ids = [int(object_id) for object_id in boxes.object_ids]
     return tuple(box_ids[t] if 0 <= t < len(box_ids) else 0 if t == len(box_ids) else -1 for t in map(int, tokens))
 
 
@@ -282,7 +283,7 @@ def score_scene(record: SceneRecord, output: MethodOutput) -> SceneOutcome:
     """Scores one output against the record's ground truth (no physical check)."""
     from ocplace.sim.metric import placement_success
 
-    meta, truth = record.meta, record.tuples
+    truth = record.tuples
     mode, samples, parsed, tokens, failure = interpret(output)
     problem = record.problem()
     success = failure is None and bool(placement_success(mode[None], problem)[0])
@@ -293,7 +294,7 @@ def score_scene(record: SceneRecord, output: MethodOutput) -> SceneOutcome:
     else:
         sample_success = float(np.mean(placement_success(samples, problem)))
 
-    grounded = None if tokens is None else token_object_ids(meta, tokens)
+    grounded = None if tokens is None else token_object_ids(record.boxes, tokens)
     truth_pairs = [(reference_key(t.reference_name), t.relation) for t in truth]
     truth_ids = [t.reference_object_id for t in truth]
     parse_ok = None if parsed is None else _same([(reference_key(r), rel) for r, rel in parsed], truth_pairs)
@@ -305,7 +306,7 @@ def score_scene(record: SceneRecord, output: MethodOutput) -> SceneOutcome:
         )
     return SceneOutcome(
         id=record.id,
-        level=meta["level"],
+        level=record.level,
         success=success,
         sample_success=sample_success,
         mode=None if mode is None else (float(mode[0]), float(mode[1])),
@@ -326,7 +327,7 @@ def physical_outcome(arena, record: SceneRecord, outcome: SceneOutcome) -> Physi
 
     if not outcome.success:
         return PhysicalOutcome(success=False, dropped=False)
-    result = physical_check(arena, record.meta, np.asarray(outcome.mode))
+    result = physical_check(arena, record, np.asarray(outcome.mode))
     return PhysicalOutcome(bool(result.success), True, float(result.held_offset), float(result.max_disturbance))
 
 
@@ -338,7 +339,6 @@ def load_method(run: MethodRun, settings: EvalSettings) -> Method:
         LoadContext(
             run_dir=run.run_dir,
             backbone=settings.backbone,
-            scale=settings.scale,
             parser=settings.parser,
             num_samples=settings.num_samples,
         )

@@ -20,23 +20,6 @@ from ocplace.eval.api import LoadContext, MethodOutput, MethodSpec, TrainContext
 from ocplace.sim.dataset.records import SceneRecord
 
 
-def train_recipe(scale: str):
-    """The adapter training configuration of a scale (smoke: seconds; demo: ~1 min; default: the paper's)."""
-    from ocplace.train.config import TrainConfig, default_config, smoke_config
-
-    recipes = {
-        "smoke": smoke_config,
-        # A tenth of the paper's steps at a higher peak rate: the demo dataset is small too.
-        "demo": lambda: TrainConfig(
-            steps=20_000, learning_rate=5e-4, warmup_steps=500, eval_every=10_000, checkpoint_every=10_000
-        ),
-        "default": default_config,
-    }
-    if scale not in recipes:
-        raise ValueError(f"unknown scale {scale!r}; choose one of {sorted(recipes)}")
-    return recipes[scale]()
-
-
 def featurize_split(dataset_dir: Path, split: str, backbone, progress: bool = True) -> Path:
     """The split's feature file, encoded once per backbone and dataset (a cached no-op afterwards)."""
     from ocplace.models.features import featurize
@@ -62,7 +45,7 @@ def train_ours(ctx: TrainContext) -> Path:
 
     backbone = load_backbone_spec(ctx.backbone)
     features = load_features(featurize_split(Path(ctx.dataset_dir), "train", backbone), backbone.fingerprint)
-    config = dataclasses.replace(train_recipe(ctx.scale), fraction=ctx.fraction, seed=ctx.seed)
+    config = dataclasses.replace(ctx.recipe, fraction=ctx.fraction, seed=ctx.seed)
     train(features, ctx.out_dir, config)
     return Path(ctx.out_dir)
 
@@ -71,17 +54,16 @@ def scene_input(record: SceneRecord):
     """What a method may see of a dataset scene, as the policy's input (no tuples, no oracle)."""
     from ocplace.models.policy import SceneInput
 
-    meta = record.meta
     boxes = record.boxes
-    aabb_by_id = {obj["object_id"]: obj["aabb"] for obj in meta["objects"]}
+    aabb_by_id = {obj.object_id: obj.aabb for obj in record.objects}
     aabbs = np.array([aabb_by_id[int(i)] for i in boxes.object_ids], np.float64).reshape(-1, 2, 3)[:, :, :2]
     return SceneInput(
         record.rgb,
         record.depth,
         boxes.boxes,
-        meta["instruction"],
-        meta["held_object"]["footprint_half_extents"],
-        meta["camera"],
+        record.instruction,
+        record.held_object.footprint_half_extents,
+        record.camera,
         aabbs,
         name=record.id,
     )
@@ -160,12 +142,13 @@ def describe_policy(policy, name: str, backbone_spec: str, adapters_file: Path |
                     "aabbs": "dataset (simulator AABBs of boxed objects)",
                 },
             },
-            default=_jsonable,
+            default=json_default,
         )
     )
 
 
-def _jsonable(value):
+def json_default(value):
+    """`json.dumps`'s `default` for numpy arrays and scalars; anything else is a TypeError."""
     if isinstance(value, np.ndarray):
         return value.tolist()
     if isinstance(value, (np.floating, np.integer)):
@@ -186,13 +169,19 @@ def _policy(ctx: LoadContext, adapters_file: Path | None):
 
 
 def load_ours(ctx: LoadContext) -> PolicyMethod:
-    from ocplace.errors import TrainingError
-    from ocplace.models.trained_adapters import ADAPTERS_FILE
-
-    if ctx.run_dir is None or not (Path(ctx.run_dir) / ADAPTERS_FILE).exists():
-        raise TrainingError(f"no trained adapters in {ctx.run_dir}; train the 'ours' method first")
-    adapters_file = Path(ctx.run_dir) / ADAPTERS_FILE
+    adapters_file = trained_run_weights(ctx.run_dir, "adapters", "ours")
     return PolicyMethod("ours", _policy(ctx, adapters_file), ctx.backbone, adapters_file)
+
+
+def trained_run_weights(run_dir: Path | None, what: str, method: str) -> Path:
+    """The weights file of `method`'s finished run in `run_dir`; TrainingError when there is none."""
+    from ocplace.errors import TrainingError
+    from ocplace.paths import trained_weights
+
+    how_to_train = f"train the {method!r} method first"
+    if run_dir is None:
+        raise TrainingError(f"no trained {what}: no run directory; {how_to_train}")
+    return trained_weights(run_dir, what, how_to_train)
 
 
 def load_no_adapter(ctx: LoadContext) -> PolicyMethod:

@@ -1,4 +1,4 @@
-"""`ocplace reproduce`: the paper's experiments end to end, at three scales.
+"""`ocplace reproduce`: one experiment (`ocplace.configs`: smoke, demo, default) end to end.
 
     library -> dataset -> offline backbone -> training of every registered method (and data
     fractions) -> evaluation on the test subsets -> results.json, results.md, the paper's figures
@@ -26,61 +26,21 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
 from ocplace.eval.api import MethodSpec, TrainContext
+from ocplace.eval.experiment import Experiment
 from ocplace.eval.harness import EvalSettings, Evaluation, MethodRun
-from ocplace.vocabulary import TEST_SUBSETS
 
-# The sample-efficiency study (paper Fig. 7) trains these on 25/50/75/100% of the training set.
-FRACTION_METHODS = ("ours", "grids", "no_pretrain", "no_llm")
-FRACTIONS = (0.25, 0.5, 0.75, 1.0)
-# `make demo` shows the method against its ablations; the baselines (Raw Image Grids, CLIPort-Place)
-# take half its time and are run by `make reproduce` or `--methods all`.
-DEMO_METHODS = ("ours", "no_adapter", "no_llm", "no_pretrain")
 SUMMARY_FILE = "results.summary.json"  # aggregates, no per-scene outcomes: small enough to commit
 
 
 @dataclasses.dataclass(frozen=True)
 class PipelineConfig:
-    scale: str  # "smoke" | "demo" | "default": the dataset size, backbone recipe and method recipes
-    train_scenes: int
-    test_scenes: int  # per test subset
-    physical_scenes: int | None  # first K scenes per subset get the drop check; None: all
-    default_out: Path
-    fractions: tuple[float, ...] = (1.0,)
-    fraction_methods: tuple[str, ...] = FRACTION_METHODS
-    methods: tuple[str, ...] | None = None  # None: every registered method
-    backbone: str | None = None  # a backbone spec to use instead of pretraining the scale's recipe
+    """An experiment, and how this run of it goes about it (none of which changes its results)."""
+
+    experiment: Experiment
+    backbone: str | None = None  # a backbone spec to use instead of pretraining the experiment's recipe
     dataset: Path | None = None  # an existing (or wanted) dataset folder instead of OUT/dataset
-    dataset_seed: int = 0
-    seed: int = 0  # training and evaluation
-    num_samples: int = 1024
-    parser: str = "offline"
-    subsets: tuple[str, ...] = TEST_SUBSETS
     workers: int = 0  # dataset generation processes; 0: every CPU
     progress: bool = True
-
-
-def default_config() -> PipelineConfig:
-    """The paper's protocol: 2000 + 3 x 400 scenes, every fraction, 100 physical drops per subset."""
-    return PipelineConfig(
-        "default", 2000, 400, physical_scenes=100, default_out=Path("out/reproduce"), fractions=FRACTIONS
-    )
-
-
-def demo_config() -> PipelineConfig:
-    """`make demo`: 200 + 4 x 40 scenes, Ours and its ablations with the demo recipes, ~10 min on 2 cores."""
-    return PipelineConfig("demo", 200, 40, physical_scenes=10, default_out=Path("out/demo"), methods=DEMO_METHODS)
-
-
-def smoke_config() -> PipelineConfig:
-    """Tests and CI: the smoke dataset (12 + 3 x 8 scenes) and the smoke recipes."""
-    return PipelineConfig("smoke", 12, 8, physical_scenes=2, default_out=Path("out/smoke"), num_samples=64)
-
-
-SCALES: dict[str, Callable[[], PipelineConfig]] = {
-    "default": default_config,
-    "demo": demo_config,
-    "smoke": smoke_config,
-}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -141,7 +101,8 @@ def dataset_config(config: PipelineConfig):
 
     from ocplace.sim.dataset.config import make_config
 
-    return dc.replace(make_config(config.train_scenes, config.test_scenes), seed=config.dataset_seed)
+    sizes = config.experiment.dataset
+    return dc.replace(make_config(sizes.train_scenes, sizes.test_scenes), seed=sizes.seed)
 
 
 def dataset_step(config: PipelineConfig, dataset_dir: Path) -> str:
@@ -161,27 +122,28 @@ def dataset_step(config: PipelineConfig, dataset_dir: Path) -> str:
 
 
 def backbone_step(config: PipelineConfig, library) -> str:
-    """The backbone spec: `config.backbone`, or the scale's offline recipe, pretrained if needed."""
+    """The backbone spec: `config.backbone`, or the experiment's offline recipe, pretrained if needed."""
     if config.backbone is not None:
         return config.backbone
-    from ocplace.models.offline_recipes import recipe_config
     from ocplace.train.pretrain.loop import pretrain
 
-    result = pretrain(recipe_config(config.scale), library, progress=config.progress)
+    result = pretrain(config.experiment.backbone, library, progress=config.progress)
     return f"offline:{result.directory}"
 
 
 def selected_specs(config: PipelineConfig, specs: Mapping[str, MethodSpec]) -> list[MethodSpec]:
     from ocplace.eval.registry import select_specs
 
-    return select_specs("all" if config.methods is None else ",".join(config.methods), dict(specs))
+    methods = config.experiment.evaluation.methods
+    return select_specs("all" if methods is None else ",".join(methods), dict(specs))
 
 
 def planned_runs(config: PipelineConfig, specs: Sequence[MethodSpec]) -> list[tuple[MethodSpec, float]]:
     """(method, training fraction) pairs: 1.0 for every method, plus the fractions for the sample-efficiency methods."""
+    plan = config.experiment.evaluation
     runs = []
     for spec in specs:
-        fractions = config.fractions if spec.name in config.fraction_methods and spec.train is not None else (1.0,)
+        fractions = plan.fractions if spec.name in plan.fraction_methods and spec.train is not None else (1.0,)
         runs += [(spec, fraction) for fraction in sorted(set(fractions) | {1.0})]
     return runs
 
@@ -200,13 +162,15 @@ def train_step(
 
     if spec.train is None:
         return None, False
+    experiment = config.experiment
     context = TrainContext(
         dataset_dir=dataset_dir,
         backbone=backbone,
         out_dir=run_directory(out, spec.name, fraction),
-        scale=config.scale,
+        recipe=experiment.recipes.of(spec.name),
         fraction=fraction,
-        seed=config.seed,
+        seed=experiment.seed,
+        experiment=experiment.name,
     )
     record = context.out_dir.with_name(context.out_dir.name + ".done.json")
     wanted = jsonable(dataclasses.asdict(context))
@@ -220,14 +184,15 @@ def train_step(
 
 
 def evaluation_settings(config: PipelineConfig, backbone: str) -> EvalSettings:
+    experiment = config.experiment
     return EvalSettings(
         backbone=backbone,
-        scale=config.scale,
-        parser=config.parser,
-        num_samples=config.num_samples,
-        subsets=config.subsets,
-        physical_scenes=config.physical_scenes,
-        seed=config.seed,
+        scale=experiment.name,
+        parser=experiment.evaluation.parser,
+        num_samples=experiment.evaluation.num_samples,
+        subsets=experiment.evaluation.subsets,
+        physical_scenes=experiment.dataset.physical_scenes,
+        seed=experiment.seed,
     )
 
 
@@ -242,8 +207,9 @@ def placement_figure_step(run_dir: Path, config: PipelineConfig, dataset_dir: Pa
     from ocplace.sim.dataset.records import read_scene
 
     scene_dir = scene_dirs(dataset_dir, "seen")[0]
-    policy = PlacementPolicy.from_run(load_backbone_spec(backbone), run_dir, parser=config.parser)
-    placement = save_placement(policy, scene_input(read_scene(scene_dir)), jax.random.key(config.seed), path)
+    experiment = config.experiment
+    policy = PlacementPolicy.from_run(load_backbone_spec(backbone), run_dir, parser=experiment.evaluation.parser)
+    placement = save_placement(policy, scene_input(read_scene(scene_dir)), jax.random.key(experiment.seed), path)
     print(placement.summary(), flush=True)
     return f"{path} ({scene_dir.name}, {'placed' if placement.error is None else placement.failure})"
 
@@ -306,7 +272,7 @@ def run_pipeline(
     """
     from ocplace.eval.results import build_results, dataset_identity, summarise, write_outputs, write_results
 
-    out = Path(out or config.default_out)
+    out = Path(out or config.experiment.out)
     out.mkdir(parents=True, exist_ok=True)
     summary = PipelineSummary(out)
     if specs is None:
@@ -374,13 +340,13 @@ def run_pipeline(
             try:
                 from ocplace.eval.figures import write_figures
 
-                summary.figures = write_figures(results, out / "figures", dataset_dir, config.seed)
+                summary.figures = write_figures(results, out / "figures", dataset_dir, config.experiment.seed)
                 step.detail = ", ".join(str(path) for path in summary.figures)
             except Exception as error:
                 summary.errors.append(_error("figures", "figures", error))
                 step.detail = f"FAILED: {type(error).__name__}: {error}"
     ours = [run for run in runs if run.spec.name == "ours" and run.fraction == 1.0 and run.run_dir is not None]
-    if ours and "seen" in config.subsets:
+    if ours and "seen" in config.experiment.evaluation.subsets:
         with _Timer(summary, "figure") as step:
             try:
                 step.detail = placement_figure_step(

@@ -304,6 +304,37 @@ def random_clip_params(shapes, seed: int) -> dict:
     return jax.tree_util.tree_map_with_path(draw, shapes)
 
 
+def write_clip_tokenizer(directory: Path, merges: Sequence[tuple[str, str]] = ()):
+    """A CLIP-format byte-level BPE tokenizer (`vocab.json`, `merges.txt`) written to `directory`, no download.
+
+    For tests and benchmarks, beside `random_clip_params`. The vocabulary is CLIP's byte alphabet,
+    the same with `</w>` word ends, the tokens `merges` make, then the start and end tokens last,
+    so the end token (also padding and unknown) has the highest id, as in OpenAI's vocabulary.
+    """
+    from transformers import CLIPTokenizerFast
+    from transformers.models.clip.tokenization_clip import bytes_to_unicode
+
+    bos, eos = "<|startoftext|>", "<|endoftext|>"
+    chars = list(bytes_to_unicode().values())
+    vocab = [*chars, *(c + "</w>" for c in chars)]
+    for left, right in merges:
+        if left + right not in vocab:
+            vocab.append(left + right)
+    vocab += [bos, eos]
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    (directory / "vocab.json").write_text(json.dumps({token: i for i, token in enumerate(vocab)}))
+    (directory / "merges.txt").write_text("#version: 0.2\n" + "".join(f"{a} {b}\n" for a, b in merges))
+    return CLIPTokenizerFast(
+        vocab_file=str(directory / "vocab.json"),
+        merges_file=str(directory / "merges.txt"),
+        bos_token=bos,
+        eos_token=eos,
+        pad_token=eos,
+        unk_token=eos,
+    )
+
+
 def load_clip_backbone(name_or_dir: str = DEFAULT_CLIP, max_batch: int = 32) -> ClipBackbone:
     """A CLIP checkpoint from a local directory or the Hugging Face hub (cache first).
 

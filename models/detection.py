@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 
 from ocplace.errors import PolicyInputError
-from ocplace.models.pinhole import PinholeCamera
+from ocplace.sim.pinhole import PinholeCamera
 from ocplace.vocabulary import TEST_SUBSETS
 
 
@@ -170,7 +170,7 @@ def box_recall(records: Iterable, config: DetectorConfig = DetectorConfig(), iou
     matched = total = detections = scenes = 0
     for record in records:
         truth = record.boxes.boxes
-        detected = detect_boxes(record.depth, record.meta["camera"], config)
+        detected = detect_boxes(record.depth, record.camera, config)
         matched += matched_count(detected, truth, iou_threshold)
         total, detections, scenes = total + len(truth), detections + len(detected), scenes + 1
     return Recall(matched, total, detections, scenes, iou_threshold)

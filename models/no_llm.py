@@ -1,4 +1,4 @@
-"""Ours w/o LLM (the paper's GT-ref#): no parser, the whole instruction is one text token.
+"""Ours w/o LLM (`no_llm`): no parser, the whole instruction is one text token.
 
 The visual tokens are Ours' (the N crops, then the workspace image standing for the table) and
 go through the same CLIP-Adapters; the sentence token goes through the text adapter. The L
@@ -35,7 +35,7 @@ REFERENCES_BY_LEVEL = {"table": 1, "1obj": 1, "2obj": 2}
 
 @dataclasses.dataclass(frozen=True)
 class NoLlmConfig:
-    """Shapes of the GT-ref# model; everything that shapes its parameters or its text."""
+    """Shapes of the no_llm model; everything that shapes its parameters or its text."""
 
     dim: int = 512  # D, the backbone's embedding width
     reduction: int = 4  # adapter hidden width = D / reduction
@@ -178,7 +178,7 @@ def loss_terms(config: NoLlmConfig, params, batch: dict, logit_scale):
 
 @dataclasses.dataclass(frozen=True)
 class NoLlmModel:
-    """Trained GT-ref# parameters and what is needed to apply them to backbone features."""
+    """Trained no_llm parameters and what is needed to apply them to backbone features."""
 
     config: NoLlmConfig
     params: dict

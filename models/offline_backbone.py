@@ -42,11 +42,10 @@ from ocplace.models.backbone import (
     update_with_params,
 )
 from ocplace.models.grounding import l2_normalize
-from ocplace.paths import atomic_path, cache_dir, write_text_atomic
+from ocplace.paths import WEIGHTS_FILE, atomic_path, cache_dir, write_text_atomic
 from ocplace.vocabulary import CLIP_IMAGE_MEAN, CLIP_IMAGE_STD
 
-CONFIG_FILE = "config.json"
-WEIGHTS_FILE = "weights.safetensors"
+CONFIG_FILE = "config.json"  # the model's description, not a run's identity (a pretraining run keeps that in run/)
 FINGERPRINT_FILE = "fingerprint.txt"
 BACKBONES_DIR = "backbones"
 FORMAT = "ocplace-offline-backbone-v1"

@@ -34,12 +34,12 @@ from ocplace.models.backbone import Backbone, PromptConfig
 from ocplace.models.detection import DetectorConfig, detect_boxes, estimate_aabbs
 from ocplace.models.grounding import GroundingModel
 from ocplace.models.parsing import ParsedTuple, Parser
-from ocplace.models.pinhole import PinholeCamera
 from ocplace.models.placement.sampler import SamplerConfig
 from ocplace.models.trained_adapters import TrainedAdapters, load_adapters
 from ocplace.sim import metric
 from ocplace.sim.camera import DEFAULT_CAMERA
 from ocplace.sim.dataset.loader import CROP_SIZE, MAX_BOXES, letterbox
+from ocplace.sim.pinhole import PinholeCamera
 from ocplace.vocabulary import MAX_PARSED_TUPLES
 
 DEFAULT_THRESHOLD = 0.5
@@ -241,7 +241,7 @@ class PlacementPolicy:
           instruction: free text, e.g. "put it behind the red bowl and to the left of the mug."
           held_footprint: `(hx, hy)` half-extents of the held object's x-y footprint, metres.
           key: a `jax.random` key for the samples.
-          camera: a `PinholeCamera`, a `sim.camera.Camera`, a dict like the dataset's `meta["camera"]`
+          camera: a `PinholeCamera`, a `sim.camera.Camera`, a dict like a dataset scene.json's `camera`
             (intrinsics, world_from_camera, width, height) or a path to such a JSON file.
           object_aabbs: `(N, 2, 2)` table-frame x-y AABBs `[[xmin, ymin], [xmax, ymax]]` per box; None:
             estimated from depth.

@@ -85,7 +85,7 @@ def save_placement(policy, scene, key, path) -> object:
 
 def save_placement_figure(placement, scene, path) -> None:
     """Draws what the policy did in `scene` (a `models.policy.SceneInput`) into the PNG `path`."""
-    from ocplace.models.pinhole import PinholeCamera
     from ocplace.models.placement.figures import save_figure
+    from ocplace.sim.pinhole import PinholeCamera
 
     save_figure(placement_figure(placement, scene.rgb, PinholeCamera.from_any(scene.camera)), path)

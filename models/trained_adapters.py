@@ -1,6 +1,6 @@
 """The adapters file a training run ends with, and its loader.
 
-`RUN/adapters.safetensors` holds the adapter weights with, in its metadata, what the policy needs
+`RUN/weights.safetensors` (`paths.WEIGHTS_FILE`) holds the adapter weights with, in its metadata, what the policy needs
 to use them: the adapter config, the logit scale, the fingerprint of the backbone whose features
 they were trained on and the prompt the reference phrases were written with. Written and read
 through `models.weights_file`, so a damaged file is a `WeightsError`, never silently wrong weights.
@@ -19,8 +19,7 @@ from ocplace.models.adapters import AdapterConfig, init_adapters
 from ocplace.models.backbone import PromptConfig
 from ocplace.models.grounding import GroundingModel
 from ocplace.models.weights_file import flatten_state, load_weights, save_weights, unflatten_state
-
-ADAPTERS_FILE = "adapters.safetensors"
+from ocplace.paths import trained_weights
 
 
 @dataclasses.dataclass(frozen=True)
@@ -60,11 +59,12 @@ def save_adapters(
 
 
 def load_adapters(source) -> TrainedAdapters:
-    """Trained adapters from a run directory or an `adapters.safetensors` file, verified."""
+    """Trained adapters from a run directory or its weights file, verified."""
     source = Path(source)
-    path = source / ADAPTERS_FILE if source.is_dir() else source
+    how_to_train = "train them with `ocplace train`"
+    path = trained_weights(source, "adapters", how_to_train) if source.is_dir() else source
     if not path.exists():
-        raise TrainingError(f"no trained adapters at {path}; train them with `ocplace train`")
+        raise TrainingError(f"no trained adapters at {path}; {how_to_train}")
     arrays, metadata = load_weights(
         path,
         f"delete {path.parent} and train it again (`ocplace train ... --out "

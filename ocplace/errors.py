@@ -109,3 +109,11 @@ class LLMConfigError(OcplaceError, ValueError):
 
 class OutputError(OcplaceError):
     """An output that cannot be written: a path under a file, a read-only folder, a full disk."""
+
+
+class ConfigError(OcplaceError, ValueError):
+    """A configuration override that names no setting or gives a value its setting cannot take."""
+
+
+class UnknownExperiment(OcplaceError, ValueError):
+    """An experiment name that `ocplace.configs` does not hold."""

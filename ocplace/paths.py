@@ -1,4 +1,5 @@
-"""Where ocplace keeps what it builds: the cache root, atomic file writes, and names read from files."""
+"""Where ocplace keeps what it builds: the cache root, the files of a run directory, atomic file writes,
+and names read from files."""
 
 from __future__ import annotations
 
@@ -8,7 +9,12 @@ import os
 import tempfile
 from pathlib import Path
 
-from ocplace.errors import OutputError
+from ocplace.errors import OutputError, TrainingError
+
+RUN_FILE = "run.json"  # a run's identity: a rerun with other contents is refused, a rerun with the same resumes
+WEIGHTS_FILE = "weights.safetensors"  # what a run ends with; its presence marks the run finished
+# What older versions called those files: a run holding one is refused, never read with mixed names.
+OLD_RUN_FILES = ("config.json", "adapters.safetensors", "model.safetensors")
 
 _DISK_FULL = (errno.ENOSPC, errno.EDQUOT)
 
@@ -34,6 +40,26 @@ def inside(root: str | os.PathLike, relative: str) -> Path:
     real_root = os.path.join(os.path.realpath(root), "")  # strings: Path.resolve and .parents are 3x slower
     if not os.path.realpath(path).startswith(real_root):
         raise ValueError(f"{relative!r} is {root} itself or a symlink that leads out of it")
+    return path
+
+
+def refuse_old_run(run_dir: str | os.PathLike, how_to_train: str) -> None:
+    """Raises TrainingError when `run_dir` holds a file under a name from `OLD_RUN_FILES`."""
+    run_dir = Path(run_dir)
+    old = [name for name in OLD_RUN_FILES if (run_dir / name).is_file()]
+    if old:
+        raise TrainingError(
+            f"{run_dir} is a run written by an older ocplace (it holds {', '.join(old)}; a run now keeps "
+            f"{RUN_FILE} and {WEIGHTS_FILE}): delete it, then {how_to_train}"
+        )
+
+
+def trained_weights(run_dir: str | os.PathLike, what: str, how_to_train: str) -> Path:
+    """`run_dir/WEIGHTS_FILE`, the final `what` of a finished run; TrainingError when missing or from an older run."""
+    refuse_old_run(run_dir, how_to_train)
+    path = Path(run_dir) / WEIGHTS_FILE
+    if not path.is_file():
+        raise TrainingError(f"no trained {what} at {path}; {how_to_train}")
     return path
 
 

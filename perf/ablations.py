@@ -21,9 +21,10 @@ import numpy as np
 
 
 def time_no_llm(scale: str, dim: int, steps: int, num_scenes: int) -> dict:
+    from ocplace import configs
     from ocplace.train import no_llm
 
-    config = no_llm.recipe(scale)
+    config = configs.get(scale).recipes.no_llm
     rng = np.random.default_rng(0)
     arrays = {
         "visual": rng.normal(size=(num_scenes, 6, dim)).astype(np.float32),
@@ -59,10 +60,12 @@ def time_no_llm(scale: str, dim: int, steps: int, num_scenes: int) -> dict:
 
 
 def time_no_pretrain(scale: str, steps: int, num_scenes: int) -> dict:
+    from ocplace import configs
     from ocplace.models import no_pretrain
+    from ocplace.models.offline_backbone import split_trainable
     from ocplace.train import no_pretrain as train_no_pretrain
 
-    recipe = train_no_pretrain.recipe(scale)
+    recipe = configs.get(scale).recipes.no_pretrain
     model, config = recipe.model, recipe.train
     size = model.backbone.image_size
     rng = np.random.default_rng(0)
@@ -74,14 +77,15 @@ def time_no_pretrain(scale: str, steps: int, num_scenes: int) -> dict:
         "targets": rng.integers(6, size=(num_scenes, 2)).astype(np.int32),
     }
     params = no_pretrain.init_params(model, jax.random.key(0))
-    state = (params, train_no_pretrain.make_optimizer(config).init(params))
+    trainable, frozen = split_trainable(no_pretrain.trainable_mask(model, params), params)
+    state = (trainable, train_no_pretrain.make_optimizer(config).init(trainable))
 
     def step(index):
         nonlocal state
         rows = train_no_pretrain.batch_indices(num_scenes, 0, index, 1, config.batch_size)[0]
         batch = {name: jnp.asarray(array[rows]) for name, array in arrays.items()}
         state, loss = train_no_pretrain.train_step(
-            model, config, state, batch, jnp.asarray(train_no_pretrain.step_codes(config, index))
+            model, config, state, frozen, batch, jnp.asarray(train_no_pretrain.step_codes(config, index))
         )
         return loss
 
@@ -91,7 +95,7 @@ def time_no_pretrain(scale: str, steps: int, num_scenes: int) -> dict:
         for index in range(1, steps + 1):
             loss = step(index)
         jax.block_until_ready(loss)
-    parameters = sum(int(leaf.size) for leaf in jax.tree_util.tree_leaves(state[0]))
+    parameters = sum(int(leaf.size) for leaf in jax.tree_util.tree_leaves(params))
     return {
         "method": "no_pretrain",
         "scale": scale,

@@ -18,12 +18,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ocplace import configs
 from ocplace.models import offline_backbone as ob
 from ocplace.models.baselines import cliport, grids
 from ocplace.sim.camera import Camera
 from ocplace.train import cliport as train_cliport
 from ocplace.train import grids as train_grids
-from ocplace.train import optim
 
 CPU_SECONDS: dict[str, float] = {}  # process CPU time (all threads) per measurement, beside the wall clock
 
@@ -61,7 +61,7 @@ def grid_step_seconds(recipe: train_grids.GridsRecipe, dim: int, steps: int) -> 
 
     def run():
         fresh = jax.tree_util.tree_map(jnp.copy, params)  # the step donates its state
-        state = (fresh, optim.adam(schedule.learning_rate_schedule()).init(fresh))
+        state = (fresh, schedule.optimizer().init(fresh))
         indices = jnp.asarray(rng.integers(0, 200, (steps, schedule.batch_size)), jnp.int32)
         return train_grids.train_chunk(config, schedule, 30.0, state, data, indices)[1]
 
@@ -84,7 +84,7 @@ def cliport_seconds(recipe: train_cliport.CliportRecipe, dim: int, steps: int) -
 
     def run():
         fresh = jax.tree_util.tree_map(jnp.copy, params)  # the step donates its state
-        state = (fresh, optim.adam(schedule.learning_rate_schedule()).init(fresh))
+        state = (fresh, schedule.optimizer().init(fresh))
         indices = jnp.asarray(rng.integers(0, count, (steps, schedule.batch_size)), jnp.int32)
         keys = jax.random.split(jax.random.key(0), steps)
         return train_cliport.train_chunk(config, schedule, state, data, mask, indices, keys)[1]
@@ -102,7 +102,7 @@ def cliport_seconds(recipe: train_cliport.CliportRecipe, dim: int, steps: int) -
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--scale", default="default", choices=sorted(train_grids.RECIPES))
+    parser.add_argument("--scale", default="default", choices=sorted(configs.EXPERIMENTS))
     parser.add_argument("--grid-steps", type=int, default=2000)
     parser.add_argument("--cliport-steps", type=int, default=6)
     parser.add_argument("--scenes", type=int, default=4, help="scenes for the featurisation timing")
@@ -110,7 +110,8 @@ def main() -> None:
 
     config = ob.default_config() if args.scale == "default" else ob.smoke_config()
     backbone = ob.OfflineBackbone(config, ob.init_params(config, jax.random.key(0)))
-    grid_recipe, cliport_recipe = train_grids.recipe(args.scale), train_cliport.recipe(args.scale)
+    recipes = configs.get(args.scale).recipes
+    grid_recipe, cliport_recipe = recipes.grids, recipes.cliport
     featurize = grid_featurize_seconds(backbone, grid_recipe.grid, args.scenes)
     grid_step = grid_step_seconds(grid_recipe, backbone.dim, args.grid_steps)
     cliport_step, cliport_infer = cliport_seconds(cliport_recipe, backbone.dim, args.cliport_steps)

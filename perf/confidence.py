@@ -21,7 +21,7 @@ THRESHOLDS = (0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)
 
 def absent_scene(scene, record, names: list[str], rng: np.random.Generator):
     """`scene` with its first reference renamed to an object that is not in it, or None."""
-    present = {obj["human_name"] for obj in record.meta["objects"]}
+    present = {obj.human_name for obj in record.objects}
     reference = record.tuples[0].reference_name
     choices = [name for name in names if name not in present]
     if reference == "table" or reference not in scene.instruction or not choices:
@@ -48,7 +48,7 @@ def main() -> None:
         load_backbone_spec(args.backbone), args.adapters, threshold=0.0, sampler=SamplerConfig(num_samples=16)
     )
     scenes = [scene_input(r) for r in records]
-    names = sorted({obj["human_name"] for r in records for obj in r.meta["objects"]})
+    names = sorted({obj.human_name for r in records for obj in r.objects})
     rng = np.random.default_rng(0)
     absent = [(i, absent_scene(s, r, names, rng)) for i, (s, r) in enumerate(zip(scenes, records))]
     absent = [s for _, s in absent if s is not None]

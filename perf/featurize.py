@@ -20,38 +20,10 @@ import time
 import jax
 import jax.numpy as jnp
 import numpy as np
+from random_clip import VIT_B32, clip_preprocessing, random_clip_model
 
-from ocplace.models.backbone import ImagePreprocessing, normalize_pixels, random_clip_params, resize_and_crop
+from ocplace.models.backbone import normalize_pixels, resize_and_crop
 from ocplace.models.grounding import l2_normalize
-from ocplace.vocabulary import CLIP_IMAGE_MEAN, CLIP_IMAGE_STD
-
-# openai/clip-vit-base-patch32's architecture and preprocessing.
-VIT_B32 = dict(
-    text_config=dict(
-        vocab_size=49408,
-        hidden_size=512,
-        intermediate_size=2048,
-        num_hidden_layers=12,
-        num_attention_heads=8,
-        max_position_embeddings=77,
-    ),
-    vision_config=dict(
-        image_size=224,
-        patch_size=32,
-        hidden_size=768,
-        intermediate_size=3072,
-        num_hidden_layers=12,
-        num_attention_heads=12,
-    ),
-    projection_dim=512,
-)
-PREP = ImagePreprocessing(
-    resize=224,
-    crop=(224, 224),
-    mean=CLIP_IMAGE_MEAN,
-    std=CLIP_IMAGE_STD,
-    resample=3,
-)
 
 
 def best_seconds(fn, repeats: int) -> float:
@@ -64,12 +36,10 @@ def best_seconds(fn, repeats: int) -> float:
 
 
 def clip_tower():
-    from transformers import CLIPConfig, FlaxCLIPModel
-
-    model = FlaxCLIPModel(CLIPConfig(**VIT_B32), _do_init=False)
-    params = jax.device_put(random_clip_params(model.params_shape_tree, seed=0))
-    encode = jax.jit(lambda p, x: l2_normalize(model.get_image_features(normalize_pixels(x, PREP), params=p)))
-    return encode, params, PREP, "ViT-B/32"
+    model, params = random_clip_model(VIT_B32)
+    prep = clip_preprocessing(VIT_B32)
+    encode = jax.jit(lambda p, x: l2_normalize(model.get_image_features(normalize_pixels(x, prep), params=p)))
+    return encode, jax.device_put(params), prep, "ViT-B/32"
 
 
 def offline_tower():

@@ -5,7 +5,7 @@ encode (N + 1 images and L phrases through the backbone; images and texts also t
 ground (adapters + softmax), sample (1024 placements, one scene), and the whole `place` call.
 Backbones: the offline backbone (`--offline SPEC`; by default random weights of the default
 architecture, which cost the same as trained ones) and a ViT-B/32-sized Flax CLIP with random
-weights and a byte-level CLIP-format tokenizer written on the spot (no download). The scene is a
+weights and a byte-level CLIP-format tokenizer written on the spot (`perf/random_clip.py`, no download). The scene is a
 2-reference scene of a dataset.
 Usage: `python perf/policy.py --dataset DIR [--repeats 20] [--size tiny]` (tiny: smoke-size models,
 to try the script).
@@ -16,7 +16,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import datetime
-import json
 import os
 import statistics
 import tempfile
@@ -25,89 +24,10 @@ from pathlib import Path
 
 import jax
 import numpy as np
+from random_clip import TINY_CLIP, VIT_B32, random_clip_backbone
 
-from ocplace.models.backbone import ClipBackbone, ImagePreprocessing, random_clip_params
 from ocplace.models.placement.sampler import SamplerConfig
 from ocplace.models.policy import PlacementPolicy, load_backbone_spec
-from ocplace.vocabulary import CLIP_IMAGE_MEAN, CLIP_IMAGE_STD
-
-VIT_B32 = dict(
-    text_config=dict(
-        hidden_size=512,
-        intermediate_size=2048,
-        num_hidden_layers=12,
-        num_attention_heads=8,
-        max_position_embeddings=77,
-        vocab_size=49408,
-    ),
-    vision_config=dict(
-        image_size=224,
-        patch_size=32,
-        hidden_size=768,
-        intermediate_size=3072,
-        num_hidden_layers=12,
-        num_attention_heads=12,
-    ),
-    projection_dim=512,
-)
-TINY_CLIP = dict(
-    text_config=dict(
-        hidden_size=32,
-        intermediate_size=64,
-        num_hidden_layers=2,
-        num_attention_heads=2,
-        max_position_embeddings=16,
-        vocab_size=49408,
-    ),
-    vision_config=dict(
-        image_size=32, patch_size=8, hidden_size=32, intermediate_size=64, num_hidden_layers=2, num_attention_heads=2
-    ),
-    projection_dim=16,
-)
-
-
-def byte_level_tokenizer(directory: Path):
-    """A CLIP-format tokenizer with CLIP's byte alphabet and no merges, written to `directory`.
-
-    Texts are padded to the model's context length, so the tower costs what it costs with
-    OpenAI's 49,408-token vocabulary.
-    """
-    from transformers import CLIPTokenizerFast
-    from transformers.models.clip.tokenization_clip import bytes_to_unicode
-
-    bos, eos = "<|startoftext|>", "<|endoftext|>"
-    chars = list(bytes_to_unicode().values())
-    vocab = [*chars, *(c + "</w>" for c in chars), bos, eos]  # end token last, as in OpenAI's vocabulary
-    directory.mkdir(parents=True, exist_ok=True)
-    (directory / "vocab.json").write_text(json.dumps({token: i for i, token in enumerate(vocab)}))
-    (directory / "merges.txt").write_text("#version: 0.2\n")
-    return CLIPTokenizerFast(
-        vocab_file=str(directory / "vocab.json"),
-        merges_file=str(directory / "merges.txt"),
-        bos_token=bos,
-        eos_token=eos,
-        pad_token=eos,
-        unk_token=eos,
-    )
-
-
-def random_clip_backbone(sizes: dict, directory: Path) -> ClipBackbone:
-    """A Flax CLIP of `sizes` with random weights and a byte-level tokenizer."""
-    from transformers import CLIPConfig, FlaxCLIPModel
-
-    tokenizer = byte_level_tokenizer(directory)
-    ids = dict(
-        bos_token_id=tokenizer.bos_token_id, eos_token_id=tokenizer.eos_token_id, pad_token_id=tokenizer.eos_token_id
-    )
-    config = CLIPConfig(
-        text_config={**sizes["text_config"], **ids},
-        vision_config=sizes["vision_config"],
-        projection_dim=sizes["projection_dim"],
-    )
-    model = FlaxCLIPModel(config, _do_init=False)
-    size = sizes["vision_config"]["image_size"]
-    prep = ImagePreprocessing(size, (size, size), CLIP_IMAGE_MEAN, CLIP_IMAGE_STD, resample=3)
-    return ClipBackbone(model, random_clip_params(model.params_shape_tree, seed=0), tokenizer, prep, source="random")
 
 
 def random_offline_backbone(tiny: bool):
@@ -124,7 +44,7 @@ def pick_scene(dataset: Path):
     from ocplace.sim.dataset.records import read_scene
 
     records = [read_scene(d) for d in scene_dirs(dataset, "seen")[:40]]
-    record = max(records, key=lambda r: (len(r.meta["tuples"]), len(r.meta["boxes"])))
+    record = max(records, key=lambda r: (len(r.tuples), len(r.boxes)))
     return scene_input(record), [t.token_index for t in record.tuples]
 
 

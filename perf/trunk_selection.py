@@ -56,7 +56,7 @@ def measure(backbone, data: Path, held_out: list[str], seen_names: list[str], li
     for scene_dir in scene_dirs(data, "seen")[:limit]:
         record = read_scene(scene_dir)
         example = example_from_record(record, CROP_SIZE)
-        object_names = {o["object_id"]: o["name"] for o in record.meta["objects"]}
+        object_names = {o.object_id: o.name for o in record.objects}
         crop_names = [object_names[int(i)] for i in example.box_object_ids]
         wanted = [
             k for k, target in enumerate(example.targets) if target < len(crop_names) and crop_names[target] in held_out

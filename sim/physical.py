@@ -14,6 +14,7 @@ import dataclasses
 
 import numpy as np
 
+from ocplace.sim.dataset.records import SceneInfo
 from ocplace.sim.mujoco_backend import MujocoScenes
 
 
@@ -40,23 +41,21 @@ def release_height(placement: np.ndarray, half_extents: np.ndarray, aabbs: np.nd
 
 
 def physical_check(
-    arena: MujocoScenes, meta: dict, placement: np.ndarray, config: PhysicalCheckConfig = PhysicalCheckConfig()
+    arena: MujocoScenes, scene: SceneInfo, placement: np.ndarray, config: PhysicalCheckConfig = PhysicalCheckConfig()
 ) -> PhysicalResult:
-    """Drops the held object of the scene described by `meta` (a dataset scene.json) at `placement`."""
+    """Drops the held object of a dataset scene (a `SceneInfo` or `SceneRecord`) at `placement`."""
     placement = np.asarray(placement, dtype=np.float64)
-    names = [obj["name"] for obj in meta["objects"]]
-    held = meta["held_object"]["name"]
-    positions = np.array([obj["position"] for obj in meta["objects"]])
-    quaternions = np.array([obj["quaternion"] for obj in meta["objects"]])
-    aabbs = np.array([obj["aabb"] for obj in meta["objects"]])
-    height = release_height(
-        placement, np.asarray(meta["held_object"]["footprint_half_extents"]), aabbs, config.drop_clearance
-    )
-    arena.activate(names, meta["table_texture"])
+    names = [obj.name for obj in scene.objects]
+    held = scene.held_object.name
+    positions = np.stack([obj.position for obj in scene.objects])
+    quaternions = np.stack([obj.quaternion for obj in scene.objects])
+    aabbs = np.stack([obj.aabb for obj in scene.objects])
+    height = release_height(placement, scene.held_object.footprint_half_extents, aabbs, config.drop_clearance)
+    arena.activate(names, scene.table_texture)
     arena.set_poses(names, positions, quaternions)
     arena.settle(names)
     undisturbed, _ = arena.poses(names)
-    arena.activate([*names, held], meta["table_texture"])
+    arena.activate([*names, held], scene.table_texture)
     arena.set_poses(names, positions, quaternions)
     arena.set_poses([held], np.array([[placement[0], placement[1], height]]), np.array([[1.0, 0, 0, 0]]))
     arena.settle([*names, held])

@@ -29,6 +29,11 @@ class Table:
         """`(2,)` size of one cell of the 3x3 grid."""
         return 2.0 * np.asarray(self.half_extents) / 3.0
 
+    @classmethod
+    def from_dict(cls, fields: dict) -> Table:
+        """The table of `dataclasses.asdict(table)`, also after a JSON round trip (lists back to tuples)."""
+        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in fields.items()})
+
     def cell_bounds(self, column: int, row: int) -> np.ndarray:
         """`(2, 2)` bounds of grid cell (column 0..2 left to right, row 0..2 front to back)."""
         low = self.bounds[0] + self.cell_size * np.array([column, row])

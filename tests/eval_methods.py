@@ -39,20 +39,20 @@ class OracleMethod:
         return {"dataset": str(self.dataset_dir)}
 
     def run(self, scenes, key):
-        from ocplace.sim.dataset.records import problem_from_meta
+        from ocplace.sim.dataset.records import SceneInfo, read_meta
         from ocplace.sim.metric import feasible_grid, sample_oracle_placements
 
         rng = _rng(key)
         outputs = []
         for scene in scenes:
-            meta = json.loads((self.dataset_dir / scene.meta["split"] / scene.id / "scene.json").read_text())
-            samples = sample_oracle_placements(feasible_grid(problem_from_meta(meta)), 8, rng)
+            truth = SceneInfo(read_meta(self.dataset_dir / scene.split / scene.id))
+            samples = sample_oracle_placements(feasible_grid(truth.problem()), 8, rng)
             outputs.append(
                 MethodOutput(
-                    mode=np.asarray(meta["oracle"]["placement"]),
+                    mode=truth.oracle.placement,
                     samples=samples,
-                    parsed=tuple((t["reference_name"], t["relation"]) for t in meta["tuples"]),
-                    grounded=tuple(t["token_index"] for t in meta["tuples"]),
+                    parsed=tuple((t.reference_name, t.relation) for t in truth.tuples),
+                    grounded=tuple(t.token_index for t in truth.tuples),
                 )
             )
         return outputs
@@ -96,7 +96,7 @@ class FlakyMethod:
         return {}
 
     def run(self, scenes, key):
-        odd = [s.id for s in scenes if s.meta["index"] % 2]
+        odd = [s.id for s in scenes if s.index % 2]
         if odd:
             raise RuntimeError(f"cannot handle {odd[0]}")
         return [MethodOutput(mode=np.zeros(2), samples=None) for _ in scenes]

@@ -1,4 +1,4 @@
-"""Ablations of Table I: Ours w/o LLM (GT-ref#) and Ours w/o CLIP pre-train, on the smoke benchmark."""
+"""Ablations of Table I: Ours w/o LLM (`no_llm`) and Ours w/o CLIP pre-train, on the smoke benchmark."""
 
 import json
 
@@ -8,9 +8,11 @@ import numpy as np
 import pytest
 from safetensors.numpy import load_file
 
+from ocplace.configs import smoke
 from ocplace.eval.api import LoadContext, TrainContext
 from ocplace.eval.harness import redacted
 from ocplace.models import no_llm
+from ocplace.paths import RUN_FILE, WEIGHTS_FILE
 from ocplace.sim.dataset.job import scene_dirs
 from ocplace.sim.dataset.records import read_scene
 from ocplace.sim.relations import RELATION_NAMES
@@ -18,6 +20,7 @@ from ocplace.sim.workspace import DEFAULT_TABLE
 from ocplace.train.metrics import MetricsLog
 
 MIDDLE = RELATION_NAMES.index("middle")
+RECIPES = smoke.get_config().recipes
 
 
 @pytest.fixture(scope="module")
@@ -39,7 +42,9 @@ def specs():
 def runs(isolated_cache, specs, smoke_dataset, tiny_backbone_spec, tmp_path_factory):
     """Both methods trained at smoke scale: {name: run directory}."""
     return {
-        name: spec.train(TrainContext(smoke_dataset, tiny_backbone_spec, tmp_path_factory.mktemp(name), scale="smoke"))
+        name: spec.train(
+            TrainContext(smoke_dataset, tiny_backbone_spec, tmp_path_factory.mktemp(name), RECIPES.of(name))
+        )
         for name, spec in specs.items()
     }
 
@@ -51,13 +56,10 @@ def scenes(smoke_dataset):
 
 @pytest.fixture(scope="module")
 def methods(runs, specs, tiny_backbone_spec):
-    return {
-        name: specs[name].load(LoadContext(runs[name], tiny_backbone_spec, scale="smoke", num_samples=32))
-        for name in specs
-    }
+    return {name: specs[name].load(LoadContext(runs[name], tiny_backbone_spec, num_samples=32)) for name in specs}
 
 
-# ----------------------------------------------------------------------------- GT-ref# pieces
+# ----------------------------------------------------------------------------- no_llm pieces
 
 
 def test_select_references_takes_top_l_and_never_a_padded_token():
@@ -151,10 +153,10 @@ def synthetic_scenes(num_scenes: int, dim: int, seed: int) -> dict:
 def test_no_llm_learns_references_and_relations_when_the_sentence_holds_them(tmp_path):
     import dataclasses
 
-    from ocplace.train.no_llm import recipe, train_on_arrays
+    from ocplace.train.no_llm import train_on_arrays
 
     arrays = synthetic_scenes(96, 16, seed=0)
-    config = dataclasses.replace(recipe("smoke"), steps=400, chunk_steps=200, checkpoint_every=200, hidden=64)
+    config = dataclasses.replace(RECIPES.no_llm, steps=400, chunk_steps=200, checkpoint_every=200, hidden=64)
     model = train_on_arrays(
         arrays, tmp_path / "run", config, 10.0, {"synthetic": True}, progress=False, backbone_fingerprint="synthetic"
     )
@@ -170,19 +172,19 @@ def test_no_llm_learns_references_and_relations_when_the_sentence_holds_them(tmp
 def test_training_at_smoke_scale_lowers_the_loss(runs, name):
     records = MetricsLog(runs[name] / "metrics.jsonl").records()
     assert len(records) >= 3 and records[-1]["loss"] < records[0]["loss"]
-    config = json.loads((runs[name] / "config.json").read_text())
+    config = json.loads((runs[name] / RUN_FILE).read_text())
     assert config["train_scenes"] == 12
 
 
 def test_training_is_deterministic_and_idempotent(runs, specs, smoke_dataset, tiny_backbone_spec, tmp_path):
     from ocplace.train.no_llm import load_model
 
-    again = specs["no_llm"].train(TrainContext(smoke_dataset, tiny_backbone_spec, tmp_path / "again", scale="smoke"))
+    again = specs["no_llm"].train(TrainContext(smoke_dataset, tiny_backbone_spec, tmp_path / "again", RECIPES.no_llm))
     assert load_model(again).sha256 == load_model(runs["no_llm"]).sha256
-    model_file = runs["no_llm"] / "model.safetensors"
+    model_file = runs["no_llm"] / WEIGHTS_FILE
     before = model_file.stat().st_mtime_ns
     assert (
-        specs["no_llm"].train(TrainContext(smoke_dataset, tiny_backbone_spec, runs["no_llm"], scale="smoke"))
+        specs["no_llm"].train(TrainContext(smoke_dataset, tiny_backbone_spec, runs["no_llm"], RECIPES.no_llm))
         == runs["no_llm"]
     )
     assert model_file.stat().st_mtime_ns == before
@@ -190,19 +192,19 @@ def test_training_is_deterministic_and_idempotent(runs, specs, smoke_dataset, ti
 
 def test_from_scratch_tower_is_deterministic(runs, specs, smoke_dataset, tiny_backbone_spec, tmp_path):
     again = specs["no_pretrain"].train(
-        TrainContext(smoke_dataset, tiny_backbone_spec, tmp_path / "again", scale="smoke")
+        TrainContext(smoke_dataset, tiny_backbone_spec, tmp_path / "again", RECIPES.no_pretrain)
     )
     read = lambda run: (run / "backbone" / "fingerprint.txt").read_text()  # noqa: E731
     assert read(again) == read(runs["no_pretrain"])
-    first, second = (load_file(str(run / "adapters.safetensors")) for run in (runs["no_pretrain"], again))
+    first, second = (load_file(str(run / WEIGHTS_FILE)) for run in (runs["no_pretrain"], again))
     assert first.keys() == second.keys() and all(np.array_equal(first[k], second[k]) for k in first)
 
 
 def test_fraction_trains_on_a_nested_subset(specs, isolated_cache, smoke_dataset, tiny_backbone_spec, tmp_path):
     run = specs["no_llm"].train(
-        TrainContext(smoke_dataset, tiny_backbone_spec, tmp_path / "half", scale="smoke", fraction=0.5)
+        TrainContext(smoke_dataset, tiny_backbone_spec, tmp_path / "half", RECIPES.no_llm, fraction=0.5)
     )
-    assert json.loads((run / "config.json").read_text())["train_scenes"] == 6
+    assert json.loads((run / RUN_FILE).read_text())["train_scenes"] == 6
 
 
 # ----------------------------------------------------------------------------- the methods
@@ -223,10 +225,10 @@ def test_method_places_every_scene_on_the_table(methods, scenes, name):
         assert np.all((output.mode >= low) & (output.mode <= high))
         assert np.all((output.samples >= low) & (output.samples <= high))
         assert output.grounded is not None
-        assert all(0 <= t <= len(scene.meta["boxes"]) for t in output.grounded)
+        assert all(0 <= t <= len(scene.boxes) for t in output.grounded)
         if name == "no_llm":
             assert output.parsed is None
-            assert len(output.grounded) == (2 if scene.meta["level"] == "2obj" else 1)
+            assert len(output.grounded) == (2 if scene.level == "2obj" else 1)
         else:
             assert len(output.parsed) == len(output.grounded)
 

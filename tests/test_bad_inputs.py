@@ -26,9 +26,9 @@ from ocplace.cli import main
 from ocplace.errors import OutputError, ParseError, PolicyInputError
 from ocplace.eval.results import ResultsError, read_results
 from ocplace.models.parsing import as_pairs, make_parser
-from ocplace.models.pinhole import PinholeCamera
 from ocplace.paths import atomic_path, check_writable
 from ocplace.sim.camera import DEFAULT_CAMERA
+from ocplace.sim.pinhole import PinholeCamera
 
 NO_MODEL = "offline:/nonexistent/ocplace-backbone"  # loading it fails: reaching it means checks came too late
 FLOATS = st.floats(allow_nan=True, allow_infinity=True, width=64)
@@ -279,6 +279,32 @@ def test_truncated_results_are_refused(tmp_path, capsys):
     assert code == 2 and "is missing or not JSON" in err
 
 
+# --- configuration overrides -----------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "override, message",
+    [
+        ("recipes.ours.stepz=1", "unknown key 'recipes.ours.stepz': valid keys under 'recipes.ours' are steps, "),
+        ("dataset.train_scenes=many", "--set dataset.train_scenes=many: expected an integer, got 'many'"),
+        ("evaluation", "--set takes KEY=VALUE, got 'evaluation'"),
+    ],
+)
+def test_reproduce_refuses_a_bad_override_before_any_work(tmp_path, capsys, monkeypatch, override, message):
+    from ocplace.eval import pipeline
+
+    monkeypatch.setattr(pipeline, "run_pipeline", lambda *args, **kwargs: pytest.fail("the pipeline started"))
+    code, _, err = _cli(capsys, "reproduce", "--scale", "smoke", "--set", override, "--out", tmp_path / "out")
+    assert code == 2 and err.startswith(f"ocplace reproduce: error: {message}")
+
+
+def test_train_refuses_a_flag_value_its_field_cannot_take(capsys):
+    with pytest.raises(SystemExit) as caught:
+        main(["train", "--features", "f", "--out", "run", "--steps", "many"])
+    assert caught.value.code == 2
+    assert "argument --steps: expected an integer, got 'many'" in capsys.readouterr().err
+
+
 # --- outputs ---------------------------------------------------------------------------------
 
 
@@ -354,7 +380,8 @@ def saved_cache(tmp_path_factory):
     from ocplace.models import offline_backbone as ob
     from ocplace.models.adapters import AdapterConfig, init_adapters
     from ocplace.models.backbone import PromptConfig
-    from ocplace.models.trained_adapters import ADAPTERS_FILE, save_adapters
+    from ocplace.models.trained_adapters import save_adapters
+    from ocplace.paths import WEIGHTS_FILE
 
     cache = tmp_path_factory.mktemp("cache")
     config = ob.smoke_config()
@@ -370,7 +397,7 @@ def saved_cache(tmp_path_factory):
         adapters = AdapterConfig(dim=config.embed_dim)
         runs[name] = tmp_path_factory.mktemp(name)
         save_adapters(
-            runs[name] / ADAPTERS_FILE,
+            runs[name] / WEIGHTS_FILE,
             init_adapters(adapters, jax.random.key(1)),
             adapters,
             10.0,

@@ -1,6 +1,7 @@
 """The baselines of Table I: Raw Image Grids and CLIPort-Place (real jitted JAX, the smoke dataset)."""
 
 import dataclasses
+import functools
 import json
 
 import jax
@@ -9,14 +10,17 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from ocplace.configs import smoke
 from ocplace.eval.api import LoadContext, TrainContext
 from ocplace.models.baselines import cliport, grids
+from ocplace.paths import RUN_FILE, WEIGHTS_FILE
 from ocplace.sim.camera import Camera
 from ocplace.sim.dataset.job import scene_dirs
 from ocplace.sim.dataset.records import SceneRecord, read_scene
 from ocplace.sim.workspace import DEFAULT_TABLE
 
 GRID = grids.GridConfig()
+SMOKE = smoke.get_config()
 BOUNDS = DEFAULT_TABLE.bounds
 
 
@@ -146,24 +150,27 @@ def specs(monkeypatch, tmp_path):
 def test_grids_trains_resumes_and_places_in_the_chosen_cell(specs, smoke_dataset, tiny_backbone_spec, tmp_path):
     spec = specs["grids"]
     assert spec.label == "Raw Image Grids"
-    run_dir = spec.train(TrainContext(smoke_dataset, tiny_backbone_spec, tmp_path / "grids", scale="smoke"))
+    grids_context = functools.partial(
+        TrainContext, smoke_dataset, tiny_backbone_spec, recipe=SMOKE.recipes.grids, experiment="smoke"
+    )
+    run_dir = spec.train(grids_context(tmp_path / "grids"))
     losses = _losses(run_dir)
     assert losses[-1] < losses[0]
-    weights = (run_dir / "weights.safetensors").read_bytes()
-    spec.train(TrainContext(smoke_dataset, tiny_backbone_spec, run_dir, scale="smoke"))  # finished: skipped
-    assert (run_dir / "weights.safetensors").read_bytes() == weights and _losses(run_dir) == losses
+    weights = (run_dir / WEIGHTS_FILE).read_bytes()
+    spec.train(grids_context(run_dir))  # finished: skipped
+    assert (run_dir / WEIGHTS_FILE).read_bytes() == weights and _losses(run_dir) == losses
 
     resumed = tmp_path / "resumed"  # an interrupted run: no weights, newest checkpoint lost
-    spec.train(TrainContext(smoke_dataset, tiny_backbone_spec, resumed, scale="smoke"))
-    (resumed / "weights.safetensors").unlink()
+    spec.train(grids_context(resumed))
+    (resumed / WEIGHTS_FILE).unlink()
     sorted((resumed / "checkpoints").glob("step_*"))[-1].unlink()
-    spec.train(TrainContext(smoke_dataset, tiny_backbone_spec, resumed, scale="smoke"))
-    assert (resumed / "weights.safetensors").read_bytes() == weights and _losses(resumed) == losses
+    spec.train(grids_context(resumed))
+    assert (resumed / WEIGHTS_FILE).read_bytes() == weights and _losses(resumed) == losses
 
-    half = spec.train(TrainContext(smoke_dataset, tiny_backbone_spec, tmp_path / "half", scale="smoke", fraction=0.5))
-    assert json.loads((half / "config.json").read_text())["train_scenes"] == 6
+    half = spec.train(grids_context(tmp_path / "half", fraction=0.5))
+    assert json.loads((half / RUN_FILE).read_text())["train_scenes"] == 6
 
-    method = spec.load(LoadContext(run_dir, tiny_backbone_spec, scale="smoke", num_samples=16))
+    method = spec.load(LoadContext(run_dir, tiny_backbone_spec, num_samples=16))
     scenes = _test_scenes(smoke_dataset)
     outputs = method.run(scenes, jax.random.key(0))
     assert len(outputs) == len(scenes)
@@ -180,7 +187,7 @@ def test_grids_trains_resumes_and_places_in_the_chosen_cell(specs, smoke_dataset
     cached = sorted(method.cells_cache.glob("*.npy"))
     assert method.cells_cache.is_relative_to(tmp_path / "cache") and len(cached) == len(scenes)
     cached[0].write_bytes(b"damaged")
-    again = spec.load(LoadContext(run_dir, tiny_backbone_spec, scale="smoke", num_samples=16))
+    again = spec.load(LoadContext(run_dir, tiny_backbone_spec, num_samples=16))
     assert again.cells_cache == method.cells_cache
     for first, second in zip(outputs, again.run(scenes, jax.random.key(0))):
         assert np.array_equal(first.mode, second.mode) and np.array_equal(first.samples, second.samples)
@@ -191,11 +198,13 @@ def test_grids_trains_resumes_and_places_in_the_chosen_cell(specs, smoke_dataset
 def test_cliport_trains_and_places_from_its_pixel_distribution(specs, smoke_dataset, tiny_backbone_spec, tmp_path):
     spec = specs["cliport"]
     assert spec.label == "CLIPort-Place"
-    run_dir = spec.train(TrainContext(smoke_dataset, tiny_backbone_spec, tmp_path / "cliport", scale="smoke"))
+    run_dir = spec.train(
+        TrainContext(smoke_dataset, tiny_backbone_spec, tmp_path / "cliport", SMOKE.recipes.cliport, experiment="smoke")
+    )
     losses = _losses(run_dir)
     assert losses[-1] < losses[0]
 
-    method = spec.load(LoadContext(run_dir, tiny_backbone_spec, scale="smoke", num_samples=16))
+    method = spec.load(LoadContext(run_dir, tiny_backbone_spec, num_samples=16))
     scenes = _test_scenes(smoke_dataset, "unseen_inst")
     outputs = method.run(scenes, jax.random.key(0))
     assert len(outputs) == len(scenes)

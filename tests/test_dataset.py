@@ -14,7 +14,7 @@ from ocplace.errors import DatasetConfigError, DatasetError
 from ocplace.sim.dataset.config import SPLIT_NAMES, SplitConfig, make_config, smoke_config
 from ocplace.sim.dataset.job import DIE_AFTER_SCENES_ENV, MANIFEST_FILE, generate_dataset, verify_dataset
 from ocplace.sim.dataset.loader import batches, iter_examples
-from ocplace.sim.dataset.records import read_scene
+from ocplace.sim.dataset.records import SceneInfo, read_scene
 from ocplace.sim.language import TABLE_NAME
 from ocplace.sim.metric import placement_success
 from ocplace.sim.physical import physical_check
@@ -44,42 +44,42 @@ def test_counts_and_levels_follow_the_config(dataset):
 def test_ground_truth_matches_instruction_and_boxes(dataset, library):
     for split in ("train", "unseen_obj", "unseen_inst", "unseen_cat"):
         for record in _records(dataset, split):
-            meta, tuples, boxes = record.meta, record.tuples, record.boxes
-            assert len(tuples) == {"table": 1, "1obj": 1, "2obj": 2}[meta["level"]]
+            tuples, boxes = record.tuples, record.boxes
+            assert len(tuples) == {"table": 1, "1obj": 1, "2obj": 2}[record.level]
             referenced = [t.reference_object_id for t in tuples]
             assert len(set(referenced)) == len(referenced)
             for t in tuples:
-                assert t.reference_name in meta["instruction"]
+                assert t.reference_name in record.instruction
                 if t.reference_object_id == 0:
                     assert t.reference_name == TABLE_NAME and t.token_index == len(boxes)
                 else:
                     assert boxes.object_ids[t.token_index] == t.reference_object_id
-                    obj = meta["objects"][t.reference_object_id - 1]
-                    assert obj["human_name"] == t.reference_name
+                    obj = record.objects[t.reference_object_id - 1]
+                    assert obj.human_name == t.reference_name
             wanted = {"unseen_obj": "unseen", "unseen_cat": "unseen_cat"}.get(split, "seen")
-            assert all(library.get(obj["name"]).split == wanted for obj in meta["objects"])
-            assert library.textures[meta["table_texture"]].split == ("seen" if wanted == "seen" else "unseen")
-            assert meta["instruction_style"] == ("unseen" if split == "unseen_inst" else "seen")
+            assert all(library.get(obj.name).split == wanted for obj in record.objects)
+            assert library.textures[record.table_texture].split == ("seen" if wanted == "seen" else "unseen")
+            assert record.instruction_style == ("unseen" if split == "unseen_inst" else "seen")
 
 
 def test_oracle_placements_pass_the_metric(dataset):
     for split in SPLIT_NAMES:
         for record in _records(dataset, split):
-            placement = np.asarray([record.meta["oracle"]["placement"]])
+            placement = record.oracle.placement[None]
             assert placement_success(placement, record.problem()).all(), record.id
 
 
 def test_physical_check_accepts_oracle_and_rejects_a_violent_drop(dataset, arena):
     record = _records(dataset, "seen")[0]
-    good = physical_check(arena, record.meta, np.asarray(record.meta["oracle"]["placement"]))
+    good = physical_check(arena, record, record.oracle.placement)
     assert good.success, good
-    tallest = max(record.meta["objects"], key=lambda obj: obj["aabb"][1][2])
-    centre = np.mean(np.asarray(tallest["aabb"])[:, :2], axis=0)
-    on_top = physical_check(arena, record.meta, centre)
-    assert on_top.release_height > tallest["aabb"][1][2]
+    tallest = max(record.objects, key=lambda obj: obj.aabb[1, 2])
+    centre = np.mean(tallest.aabb[:, :2], axis=0)
+    on_top = physical_check(arena, record, centre)
+    assert on_top.release_height > tallest.aabb[1, 2]
     # Released with its centre beyond the table edge: the held object tips over and falls off.
     hx, _ = DEFAULT_TABLE.half_extents
-    off_edge = physical_check(arena, record.meta, np.array([hx + 0.02, 0.0]))
+    off_edge = physical_check(arena, record, np.array([hx + 0.02, 0.0]))
     assert not off_edge.success
     assert off_edge.held_offset > 0.02
 
@@ -196,8 +196,8 @@ def test_a_scene_whose_objects_keep_falling_off_is_resampled(library, monkeypatc
 
     monkeypatch.setattr(MujocoScenes, "build", failing_first)
     try:
-        meta = json.loads(generator.make("train", 0, "1obj")["scene.json"])
+        scene = SceneInfo(json.loads(generator.make("train", 0, "1obj")["scene.json"]))
     finally:
         generator.close()
-    assert meta["resamples"]["scenes"] >= 1
-    assert meta["spec"]["objects"] != list(calls[0].objects) or meta["spec"]["seed"] != calls[0].seed
+    assert scene.resamples.scenes >= 1
+    assert scene.spec.objects != tuple(calls[0].objects) or scene.spec.seed != calls[0].seed

@@ -55,19 +55,19 @@ def test_oracle_placement_scores_full_marks(results_json):
         assert oracle["subsets"][subset]["aggregate"]["overall"]["scenes"] == 8
 
 
-def hand_checked_centre_success(meta) -> bool:
+def hand_checked_centre_success(record) -> bool:
     """The success metric at (0, 0), written out for the centre placement only."""
-    hx, hy = meta["held_object"]["footprint_half_extents"]
-    for obj in meta["objects"]:
-        (x0, y0, _), (x1, y1, _) = obj["aabb"]
+    hx, hy = record.held_object.footprint_half_extents
+    for obj in record.objects:
+        (x0, y0, _), (x1, y1, _) = obj.aabb
         if x0 < hx and x1 > -hx and y0 < hy and y1 > -hy:
             return False
-    for t in meta["tuples"]:
-        if t["reference_object_id"] == 0:
-            if t["relation"] != "middle":
+    for t in record.tuples:
+        if t.reference_object_id == 0:
+            if t.relation != "middle":
                 return False
             continue
-        (x0, y0, _), (x1, y1, _) = meta["objects"][t["reference_object_id"] - 1]["aabb"]
+        (x0, y0, _), (x1, y1, _) = record.objects[t.reference_object_id - 1].aabb
         offset = -np.array([(x0 + x1) / 2, (y0 + y1) / 2])
         direction = {
             "left": (-1, 0),
@@ -78,7 +78,7 @@ def hand_checked_centre_success(meta) -> bool:
             "back right": (1, 1),
             "front left": (-1, -1),
             "front right": (1, -1),
-        }[t["relation"]]
+        }[t.relation]
         direction = np.array(direction) / np.linalg.norm(direction)
         distance = np.linalg.norm(offset)
         if not 0.10 <= distance <= 0.30 or offset @ direction < distance * np.cos(np.pi / 4) - 1e-9:
@@ -91,8 +91,8 @@ def test_centre_placement_matches_a_hand_check(results_json, smoke_dataset):
     checked = 0
     for subset in TEST_SUBSETS:
         for scene in centre["subsets"][subset]["scenes"]:
-            meta = read_scene(smoke_dataset / subset / scene["id"]).meta
-            assert scene["success"] == hand_checked_centre_success(meta), scene["id"]
+            record = read_scene(smoke_dataset / subset / scene["id"])
+            assert scene["success"] == hand_checked_centre_success(record), scene["id"]
             assert scene["mode"] == [0.0, 0.0] and scene["failure"] is None
             assert scene["sample_success"] == float(scene["success"])  # no samples: the mode's
             assert scene["stage"] in (None, "placement")
@@ -128,11 +128,11 @@ def test_an_exception_fails_only_its_scene(results_json):
 
 
 def test_methods_never_see_the_ground_truth(smoke_dataset):
-    seen_meta = []
+    seen = []
 
     class Spy(eval_methods.CentreMethod):
         def run(self, scenes, key):
-            seen_meta.extend(scene.meta for scene in scenes)
+            seen.extend(scenes)
             return super().run(scenes, key)
 
     harness.evaluate_run(
@@ -142,16 +142,17 @@ def test_methods_never_see_the_ground_truth(smoke_dataset):
         progress=False,
         method=Spy(),
     )
-    assert len(seen_meta) == 8
-    assert all(meta["tuples"] == [] and "oracle" not in meta and meta["boxes"] for meta in seen_meta)
+    assert len(seen) == 8
+    assert all(scene.tuples == () and scene.oracle is None and len(scene.boxes) for scene in seen)
+    assert all(scene.meta["tuples"] == [] and "oracle" not in scene.meta for scene in seen)  # the raw JSON too
 
 
 def test_grounding_and_parse_are_judged_through_box_order(smoke_dataset):
     record = read_scene(scene_dirs(smoke_dataset, "seen")[0])
     truth = record.tuples
-    boxes = record.meta["boxes"]
-    assert harness.token_object_ids(record.meta, [len(boxes), 0, len(boxes) + 1]) == (0, boxes[0]["object_id"], -1)
-    mode = np.asarray(record.meta["oracle"]["placement"])
+    boxes = record.boxes
+    assert harness.token_object_ids(boxes, [len(boxes), 0, len(boxes) + 1]) == (0, boxes.object_ids[0], -1)
+    mode = record.oracle.placement
     right = tuple((t.reference_name.upper(), t.relation) for t in truth)  # case and articles do not matter
     tokens = tuple(t.token_index for t in truth)
     good = harness.score_scene(record, MethodOutput(mode, None, right, tokens))
@@ -297,6 +298,8 @@ def test_cli_evaluate_and_rerun(smoke_dataset, oracle_run, tmp_path, monkeypatch
     saved = results.read_results(out)
     assert [e["key"] for e in saved["evaluations"]] == list(eval_methods.SPECS)
     assert saved["settings"]["subsets"] == ["seen", "unseen_inst"] and saved["settings"]["limit"] == 4
+    wanted = EvalSettings(backbone="none", num_samples=8, subsets=("seen", "unseen_inst"), limit=4, physical_scenes=0)
+    assert saved["settings"] == wanted.to_json()  # options left out keep EvalSettings' defaults
     assert saved["command"]["arguments"]["methods"] == "all" and saved["command"]["argv"][0] == "ocplace"
     assert out.with_suffix(".md").read_text().startswith("Dataset ")
     pipeline_out = tmp_path / "reproduce"

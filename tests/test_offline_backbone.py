@@ -16,7 +16,6 @@ from ocplace.models import offline_backbone as ob
 from ocplace.models.backbone import Backbone, PromptConfig, load_backbone
 from ocplace.models.offline_backbone import (
     FINGERPRINT_FILE,
-    WEIGHTS_FILE,
     OfflineBackbone,
     compute_fingerprint,
     init_params,
@@ -27,6 +26,7 @@ from ocplace.models.offline_backbone import (
     smoke_config as smoke_model,
 )
 from ocplace.models.offline_recipes import PretrainConfig, default_config, recipe_config, smoke_config
+from ocplace.paths import RUN_FILE, WEIGHTS_FILE
 from ocplace.train.pretrain.captions import ObjectDescription, build_caption_bank
 from ocplace.train.pretrain.loss import contrastive_loss
 from ocplace.train.pretrain.render import training_pool
@@ -250,7 +250,7 @@ def test_pretraining_resumes_to_the_same_weights(smoke_run, library, tmp_path):
     out = tmp_path / "resumed"
     (out / "run").mkdir(parents=True)
     shutil.copytree(full.directory / "run" / "renders", out / "run" / "renders")
-    shutil.copy(full.directory / "run" / "run.json", out / "run" / "run.json")
+    shutil.copy(full.directory / "run" / RUN_FILE, out / "run" / RUN_FILE)
     partial = pretrain(smoke_config(), library, out, progress=False, stop_after=5)
     assert not (out / FINGERPRINT_FILE).exists()
     resumed = pretrain(smoke_config(), library, out, progress=False)

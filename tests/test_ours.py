@@ -7,10 +7,12 @@ import jax
 import numpy as np
 import pytest
 
+from ocplace.configs import smoke
 from ocplace.errors import TrainingError
 from ocplace.eval import ours
 from ocplace.eval.api import LoadContext, MethodOutput, TrainContext
 from ocplace.eval.registry import method_specs
+from ocplace.paths import RUN_FILE
 from ocplace.sim.dataset.job import scene_dirs
 from ocplace.sim.dataset.records import SceneRecord, read_scene
 
@@ -36,7 +38,7 @@ def trained_run(smoke_dataset, tiny_backbone_spec, tmp_path_factory):
                 smoke_dataset,
                 tiny_backbone_spec,
                 tmp_path_factory.mktemp("ours") / "run",
-                scale="smoke",
+                smoke.get_config().recipes.ours,
                 fraction=0.5,
                 seed=3,
             )
@@ -51,28 +53,20 @@ def test_methods_are_registered():
     assert specs["no_adapter"].label == "Ours w/o Adapter" and specs["no_adapter"].train is None
 
 
-def test_recipes_by_scale():
-    assert ours.train_recipe("default").steps == 200_000 and ours.train_recipe("default").batch_size == 1
-    assert ours.train_recipe("smoke").steps < ours.train_recipe("demo").steps < 200_000
-    ours.train_recipe("demo").validate()
-    with pytest.raises(ValueError, match="unknown scale"):
-        ours.train_recipe("huge")
-
-
 def test_ours_trains_at_smoke_scale_and_places_every_scene(trained_run, tiny_backbone_spec, seen_records):
     run, features = trained_run
     assert len(features) == 1  # the training split's features, cached where `ocplace featurize` puts them
-    config = json.loads((run / "config.json").read_text())
+    config = json.loads((run / RUN_FILE).read_text())
     assert config["train_config"]["fraction"] == 0.5 and config["train_config"]["seed"] == 3
     assert config["train_scenes"] == 6  # half of the 12 smoke training scenes
 
-    method = method_specs()["ours"].load(LoadContext(run, tiny_backbone_spec, scale="smoke", num_samples=128))
+    method = method_specs()["ours"].load(LoadContext(run, tiny_backbone_spec, num_samples=128))
     outputs = method.run(seen_records, jax.random.key(0))
     assert len(outputs) == len(seen_records)
     for record, output in zip(seen_records, outputs):
         assert isinstance(output, MethodOutput)
         assert output.parsed and len(output.grounded) == len(output.parsed)
-        num_tokens = len(record.meta["boxes"]) + 1
+        num_tokens = len(record.boxes) + 1
         assert all(0 <= token < num_tokens for token in output.grounded)
         # An untrained tiny backbone is unsure of most things: the default threshold refuses to place
         # blindly, and a confident wrong grounding ("the table" on an object) is a typed failure too.
@@ -91,7 +85,7 @@ def test_ours_trains_at_smoke_scale_and_places_every_scene(trained_run, tiny_bac
 
 
 def test_no_adapter_places_with_zero_threshold(tiny_backbone_spec, seen_records):
-    method = method_specs()["no_adapter"].load(LoadContext(None, tiny_backbone_spec, scale="smoke", num_samples=128))
+    method = method_specs()["no_adapter"].load(LoadContext(None, tiny_backbone_spec, num_samples=128))
     method.policy = dataclasses.replace(method.policy, threshold=0.0)
     outputs = method.run(seen_records[:4], jax.random.key(0))
     assert len(outputs) == 4
@@ -115,8 +109,7 @@ def test_pipeline_draws_ours_on_the_first_seen_scene(trained_run, smoke_dataset,
     from ocplace.eval import pipeline
 
     path = tmp_path / "placement.png"
-    detail = pipeline.placement_figure_step(
-        trained_run[0], pipeline.smoke_config(), smoke_dataset, tiny_backbone_spec, path
-    )
+    config = pipeline.PipelineConfig(smoke.get_config())
+    detail = pipeline.placement_figure_step(trained_run[0], config, smoke_dataset, tiny_backbone_spec, path)
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert detail.startswith(f"{path} (seen-00000, ")

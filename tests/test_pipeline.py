@@ -12,6 +12,7 @@ from pathlib import Path
 import eval_methods
 import pytest
 
+from ocplace import configs
 from ocplace.errors import OcplaceError
 from ocplace.eval import figures, pipeline, registry, results
 from ocplace.vocabulary import TEST_SUBSETS
@@ -28,15 +29,13 @@ def specs():
 
 @pytest.fixture(scope="module")
 def config(smoke_dataset, tiny_backbone_spec):
-    return dataclasses.replace(
-        pipeline.smoke_config(),
-        dataset=smoke_dataset,
-        backbone=tiny_backbone_spec,
-        fractions=(0.5, 1.0),
-        fraction_methods=("oracle",),
-        physical_scenes=1,
-        progress=False,
+    smoke = configs.get("smoke")
+    experiment = dataclasses.replace(
+        smoke,
+        dataset=dataclasses.replace(smoke.dataset, physical_scenes=1),
+        evaluation=dataclasses.replace(smoke.evaluation, fractions=(0.5, 1.0), fraction_methods=("oracle",)),
     )
+    return pipeline.PipelineConfig(experiment, backbone=tiny_backbone_spec, dataset=smoke_dataset, progress=False)
 
 
 @pytest.fixture(scope="module")
@@ -161,10 +160,12 @@ def test_results_notebook_executes_on_the_smoke_results(first_run, tmp_path, mon
 
 
 def test_scale_configs():
-    demo, default = pipeline.demo_config(), pipeline.default_config()
-    assert (default.train_scenes, default.test_scenes, default.fractions) == (2000, 400, (0.25, 0.5, 0.75, 1.0))
-    assert demo.fractions == (1.0,) and str(demo.default_out) == "out/demo"
-    assert str(default.default_out) == "out/reproduce"
+    demo, default = configs.get("demo"), configs.get("default")
+    sizes = (default.dataset.train_scenes, default.dataset.test_scenes, default.evaluation.fractions)
+    assert sizes == (2000, 400, (0.25, 0.5, 0.75, 1.0))
+    assert demo.evaluation.fractions == (1.0,) and str(demo.out) == "out/demo"
+    assert str(default.out) == "out/reproduce"
+    demo, default = pipeline.PipelineConfig(demo), pipeline.PipelineConfig(default)
     specs = registry.method_specs()
     assert [s.name for s in pipeline.selected_specs(demo, specs)] == ["ours", "no_adapter", "no_llm", "no_pretrain"]
     assert [s.name for s in pipeline.selected_specs(default, specs)] == list(specs)
@@ -218,20 +219,62 @@ def test_reproduce_options_reach_the_config(tmp_path, monkeypatch):
         *("--fractions", "1", "0.5", "1", "--physical", "5", "--no-progress"),
     )
     assert out == tmp_path / "out"
-    assert config == dataclasses.replace(
-        pipeline.default_config(),
+    default = configs.get("default")
+    assert config == pipeline.PipelineConfig(
+        dataclasses.replace(
+            default,
+            dataset=dataclasses.replace(default.dataset, physical_scenes=5),
+            evaluation=dataclasses.replace(default.evaluation, methods=("oracle", "centre"), fractions=(0.5, 1.0)),
+        ),
         backbone="offline:spec",
-        methods=("oracle", "centre"),
         workers=3,
         dataset=tmp_path / "dataset",
-        fractions=(0.5, 1.0),
-        physical_scenes=5,
         progress=False,
     )
     config, out = reproduce("--methods", "all", "--physical", "-1")  # the demo scale by default
-    assert out == pipeline.demo_config().default_out
-    assert config == dataclasses.replace(pipeline.demo_config(), methods=None, physical_scenes=None)
+    demo = configs.get("demo")
+    assert out == demo.out
+    assert config == pipeline.PipelineConfig(
+        dataclasses.replace(
+            demo,
+            dataset=dataclasses.replace(demo.dataset, physical_scenes=None),
+            evaluation=dataclasses.replace(demo.evaluation, methods=None),
+        )
+    )
     config, _ = reproduce("--scale", "smoke")
-    assert config == pipeline.smoke_config()
+    assert config == pipeline.PipelineConfig(configs.get("smoke"))
     with pytest.raises(SystemExit):
         build_parser().parse_args(["reproduce", "--fractions", "0"])
+
+
+def test_reproduce_set_reaches_the_experiment(tmp_path, monkeypatch):
+    from ocplace.cli import build_parser
+
+    calls = []
+
+    def record(config, out, command):
+        calls.append((config, out))
+        return pipeline.PipelineSummary(out)
+
+    monkeypatch.setattr(pipeline, "run_pipeline", record)
+    args = build_parser().parse_args(
+        [
+            *("reproduce", "--scale", "smoke", "--methods", "all", "--workers", "2"),
+            *("--set", "recipes.ours.steps=5000", "--set", "dataset.train_scenes=100"),
+            *("--set", "evaluation.methods=oracle, centre", "--set", f"out={tmp_path / 'elsewhere'}"),
+        ]
+    )
+    assert args.func(args) == 0
+    smoke = configs.get("smoke")
+    config, out = calls.pop()
+    assert out == tmp_path / "elsewhere"
+    assert config == pipeline.PipelineConfig(
+        dataclasses.replace(
+            smoke,
+            out=tmp_path / "elsewhere",
+            recipes=dataclasses.replace(smoke.recipes, ours=dataclasses.replace(smoke.recipes.ours, steps=5000)),
+            dataset=dataclasses.replace(smoke.dataset, train_scenes=100),
+            evaluation=dataclasses.replace(smoke.evaluation, methods=("oracle", "centre")),  # after --methods
+        ),
+        workers=2,
+    )

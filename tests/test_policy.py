@@ -20,7 +20,6 @@ from ocplace.models import detection
 from ocplace.models.backbone import PromptConfig, load_backbone
 from ocplace.models.grounding import GroundingModel
 from ocplace.models.parsing import make_parser
-from ocplace.models.pinhole import PinholeCamera
 from ocplace.models.placement.sampler import SamplerConfig
 from ocplace.models.policy import PlacementPolicy, SceneInput
 from ocplace.sim import metric
@@ -50,7 +49,7 @@ class OracleBackbone:
         names = {"table"}
         self.image_names = {}
         for record in records:
-            by_id = {obj["object_id"]: obj["human_name"] for obj in record.meta["objects"]}
+            by_id = {obj.object_id: obj.human_name for obj in record.objects}
             example = example_from_record(record)
             for crop, object_id in zip(example.crops, example.box_object_ids):
                 self.image_names[_digest(crop)] = by_id[int(object_id)]
@@ -137,10 +136,8 @@ def test_place_with_segmentation_or_detector_lands_on_the_table(tiny_policy, rec
         assert len(placement.boxes) == len(placement.aabbs) >= 3
         assert np.all((placement.samples >= bounds[0]) & (placement.samples <= bounds[1]))
         assert placement.samples.shape == (SAMPLER.num_samples, 2)
-        assert np.allclose(
-            placement.mode_px, PinholeCamera.from_any(record.meta["camera"]).table_to_pixel(placement.mode)
-        )
-        half = np.asarray(record.meta["held_object"]["footprint_half_extents"])
+        assert np.allclose(placement.mode_px, record.camera.table_to_pixel(placement.mode))
+        half = record.held_object.footprint_half_extents
         for box in placement.aabbs:  # the footprint avoids every (estimated) obstacle
             overlap = np.all((placement.mode + half > box[0]) & (placement.mode - half < box[1]))
             assert not overlap
@@ -154,7 +151,7 @@ def test_place_single_scene_equals_batched_path(tiny_policy, records):
 
 
 def test_pixels_and_table_frame_round_trip(records):
-    camera = PinholeCamera.from_any(records[0].meta["camera"])
+    camera = records[0].camera
     xy = np.random.default_rng(0).uniform(DEFAULT_TABLE.bounds[0], DEFAULT_TABLE.bounds[1], size=(500, 2))
     pixels = camera.table_to_pixel(xy)
     np.testing.assert_allclose(camera.pixel_to_table(pixels), xy, atol=1e-9)
@@ -176,8 +173,8 @@ def test_estimated_aabbs_cover_the_true_ones(records):
     coverage = []
     for record in records[:6]:
         boxes = record.boxes
-        truth = np.array([record.meta["objects"][int(i) - 1]["aabb"] for i in boxes.object_ids])[:, :, :2]
-        estimate = detection.estimate_aabbs(record.depth, record.meta["camera"], boxes.boxes)
+        truth = np.array([record.objects[int(i) - 1].aabb for i in boxes.object_ids])[:, :, :2]
+        estimate = detection.estimate_aabbs(record.depth, record.camera, boxes.boxes)
         low, high = np.maximum(truth[:, 0], estimate[:, 0]), np.minimum(truth[:, 1], estimate[:, 1])
         coverage += list(np.prod(np.clip(high - low, 0, None), axis=1) / np.prod(truth[:, 1] - truth[:, 0], axis=1))
     assert np.median(coverage) > 0.9
@@ -322,7 +319,7 @@ def test_cli_place_on_a_dataset_scene_and_on_images(smoke_dataset, tiny_backbone
             "--camera",
             str(camera),
             "--instruction",
-            record.meta["instruction"],
+            record.instruction,
             "--held-footprint",
             "0.03",
             "0.03",

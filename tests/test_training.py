@@ -3,6 +3,7 @@
 import argparse
 import dataclasses
 import json
+import re
 
 import numpy as np
 import pytest
@@ -13,8 +14,9 @@ from ocplace.errors import TrainingError
 from ocplace.models import trained_adapters
 from ocplace.models.features import save_features
 from ocplace.models.grounding import GroundingModel
+from ocplace.paths import OLD_RUN_FILES, RUN_FILE, WEIGHTS_FILE
 from ocplace.train import checkpoints
-from ocplace.train.config import smoke_config
+from ocplace.train.config import TrainConfig, smoke_config
 from ocplace.train.loop import batch_indices, subset_indices, train
 from ocplace.train.metrics import MetricsLog, evaluate_features
 from ocplace.train.synthetic import synthetic_features
@@ -38,7 +40,7 @@ def short_config():
 
 
 def adapter_arrays(run_dir):
-    return load_file(str(run_dir / trained_adapters.ADAPTERS_FILE))
+    return load_file(str(run_dir / WEIGHTS_FILE))
 
 
 def test_training_fits_a_separable_problem(fitted, features):
@@ -91,7 +93,7 @@ def test_same_seed_same_weights_and_resume_equals_uninterrupted(tmp_path, featur
 
     with pytest.raises(KeyboardInterrupt):
         train(features, tmp_path / "c", config, progress=False, callback=crash_after_first_checkpoint)
-    assert not (tmp_path / "c" / trained_adapters.ADAPTERS_FILE).exists()
+    assert not (tmp_path / "c" / WEIGHTS_FILE).exists()
     train(features, tmp_path / "c", config, progress=False)
     train(features, tmp_path / "d", dataclasses.replace(config, seed=1), progress=False)
 
@@ -109,6 +111,25 @@ def test_a_run_directory_refuses_other_settings(tmp_path, features):
     train(features, tmp_path, config, progress=False)
     with pytest.raises(TrainingError, match="holds another run"):
         train(features, tmp_path, dataclasses.replace(config, learning_rate=1e-3), progress=False)
+
+
+@pytest.mark.parametrize("old_name", OLD_RUN_FILES)
+def test_a_run_with_old_file_names_is_refused_not_mixed(fitted, tmp_path, old_name):
+    """A run an older version wrote is neither resumed nor loaded, even beside a current weights file."""
+    run = tmp_path / "old"
+    run.mkdir()
+    (run / old_name).write_text("{}")
+    (run / WEIGHTS_FILE).write_bytes((fitted.run_dir / WEIGHTS_FILE).read_bytes())
+    with pytest.raises(TrainingError, match=f"older ocplace \\(it holds {re.escape(old_name)};.*delete it"):
+        checkpoints.claim_run_dir(run, {"run": "new"})
+    with pytest.raises(TrainingError, match="older ocplace.*train them with `ocplace train`"):
+        trained_adapters.load_adapters(run)
+    assert not (run / RUN_FILE).exists()
+
+
+def test_a_run_without_weights_says_how_to_train(tmp_path):
+    with pytest.raises(TrainingError, match="no trained adapters at .*weights.safetensors; train them"):
+        trained_adapters.load_adapters(tmp_path)
 
 
 def test_adam_matches_optax_adam():
@@ -178,6 +199,40 @@ def test_train_command(tmp_path, features):
         ]
     )  # 0: do not pin the test process
     assert args.func(args) == 0
-    meta = json.loads((run / "config.json").read_text())
+    meta = json.loads((run / RUN_FILE).read_text())
     assert meta["train_scenes"] == 24 and meta["train_config"]["steps"] == 100
     assert trained_adapters.load_adapters(run).steps == 100
+
+
+def _train_args(*options):
+    parser = argparse.ArgumentParser()
+    train_command.register(parser.add_subparsers())
+    return parser.parse_args(["train", "--features", "f.safetensors", "--out", "run", *options])
+
+
+def test_train_flags_mirror_every_config_field_and_keep_the_old_names():
+    assert train_command.train_config_from_args(_train_args()) == TrainConfig()
+    assert train_command.train_config_from_args(_train_args("--smoke")) == smoke_config()
+    every_field = [
+        *("--steps", "7", "--batch-size", "2", "--lr", "0.5", "--warmup-steps", "3", "--seed", "4"),
+        *("--fraction", "0.25", "--subset-seed", "5", "--reduction", "8", "--residual-ratio", "0.3"),
+        *("--logit-scale", "50", "--chunk-steps", "10", "--eval-every", "20", "--checkpoint-every", "30"),
+        *("--keep-checkpoints", "3"),
+    ]
+    assert train_command.train_config_from_args(_train_args("--smoke", *every_field)) == TrainConfig(
+        steps=7,
+        batch_size=2,
+        learning_rate=0.5,
+        warmup_steps=3,
+        seed=4,
+        fraction=0.25,
+        subset_seed=5,
+        reduction=8,
+        residual_ratio=0.3,
+        logit_scale=50.0,
+        chunk_steps=10,
+        eval_every=20,
+        checkpoint_every=30,
+        keep_checkpoints=3,
+    )
+    assert train_command.train_config_from_args(_train_args("--learning-rate", "0.25")).learning_rate == 0.25

@@ -61,11 +61,11 @@ def test_unseen_cat_scenes_hold_only_unseen_cat_objects(smoke_dataset, library):
     dirs = scene_dirs(smoke_dataset, "unseen_cat")
     assert len(dirs) == smoke_config().split("unseen_cat").num_scenes == 8
     for directory in dirs:
-        meta = read_scene(directory).meta
-        names = [obj["name"] for obj in meta["objects"]] + [meta["held_object"]["name"]]
+        record = read_scene(directory)
+        names = [obj.name for obj in record.objects] + [record.held_object.name]
         assert all(library.get(name).split == "unseen_cat" for name in names), names
-        assert library.textures[meta["table_texture"]].split == "unseen"
-        assert meta["instruction_style"] == "seen"
+        assert library.textures[record.table_texture].split == "unseen"
+        assert record.instruction_style == "seen"
 
 
 def test_a_small_pool_is_used_whole_and_a_too_small_one_refused():

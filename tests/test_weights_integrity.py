@@ -29,6 +29,7 @@ from ocplace.models.grounding import GroundingModel
 from ocplace.models.no_llm import NoLlmConfig, NoLlmModel
 from ocplace.models.no_llm import init_params as init_no_llm
 from ocplace.models.policy import PlacementPolicy, PreparedScene
+from ocplace.paths import WEIGHTS_FILE
 from ocplace.train import baseline_runs, checkpoints, no_llm
 from ocplace.train import cliport as train_cliport
 from ocplace.train import grids as train_grids
@@ -62,7 +63,7 @@ def _checkpoint(run_dir):
 def _adapters(run_dir):
     config = AdapterConfig(dim=DIM)
     params = _random_like(lambda: init_adapters(config, KEY))
-    path = run_dir / trained_adapters.ADAPTERS_FILE
+    path = run_dir / WEIGHTS_FILE
     trained_adapters.save_adapters(
         path,
         params,
@@ -79,7 +80,7 @@ def _adapters(run_dir):
 
 def _grids(run_dir):
     config = grids.smoke_grid_config()
-    checkpoints.claim_run_dir(run_dir, {"grid": json.loads(config.to_json())}, baseline_runs.RUN_FILE)
+    checkpoints.claim_run_dir(run_dir, {"grid": json.loads(config.to_json())})
     params = _random_like(lambda: grids.init_grids(config, DIM, KEY))
     path = baseline_runs.save_weights(run_dir, params, {"run": "test"})
     return path, lambda: train_grids.load_params(run_dir)[0], params
@@ -87,7 +88,7 @@ def _grids(run_dir):
 
 def _cliport(run_dir):
     config = cliport.smoke_config()
-    checkpoints.claim_run_dir(run_dir, {"network": json.loads(config.to_json()), "dim": DIM}, baseline_runs.RUN_FILE)
+    checkpoints.claim_run_dir(run_dir, {"network": json.loads(config.to_json()), "dim": DIM})
     params = _random_like(lambda: cliport.init_network(config, DIM, KEY))
     path = baseline_runs.save_weights(run_dir, params, {"run": "test"})
     return path, lambda: train_cliport.load_params(run_dir)[0], params
@@ -96,7 +97,7 @@ def _cliport(run_dir):
 def _no_llm(run_dir):
     config = NoLlmConfig(dim=DIM, hidden=8)
     params = _random_like(lambda: init_no_llm(config, KEY))
-    path = run_dir / no_llm.MODEL_FILE
+    path = run_dir / WEIGHTS_FILE
     no_llm.save_model(
         path, NoLlmModel(config, params, 30.0), backbone_fingerprint="f", train_config=no_llm.NoLlmTrainConfig()
     )
@@ -122,7 +123,7 @@ def no_pretrain_backbone(saved_backbone):
 
     def write(run_dir):
         directory = shutil.copytree(saved_backbone[0], run_dir / "backbone")
-        return directory / ob.WEIGHTS_FILE, lambda: ob.load_saved_backbone(directory).params, saved_backbone[1]
+        return directory / WEIGHTS_FILE, lambda: ob.load_saved_backbone(directory).params, saved_backbone[1]
 
     return write
 

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ocplace.models.backbone import random_clip_params
+from ocplace.models.backbone import random_clip_params, write_clip_tokenizer
 
 CORPUS = (
     "a photo of a red bowl.",
@@ -29,7 +29,6 @@ CORPUS = (
     "put it behind the mug and in front of the shoe.",
     "the thing on the table.",
 )
-BOS, EOS = "<|startoftext|>", "<|endoftext|>"
 FORMATS = ("flax-msgpack", "flax-safetensors", "pt-safetensors")
 
 
@@ -62,28 +61,8 @@ def train_merges(corpus=CORPUS, num_merges: int = 120) -> list[tuple[str, str]]:
 
 
 def write_tokenizer(directory: Path, corpus=CORPUS):
-    """CLIP-format tokenizer files in `directory`; returns the fast tokenizer."""
-    from transformers import CLIPTokenizerFast
-    from transformers.models.clip.tokenization_clip import bytes_to_unicode
-
-    directory.mkdir(parents=True, exist_ok=True)
-    merges = train_merges(corpus)
-    chars = list(bytes_to_unicode().values())
-    vocab = chars + [c + "</w>" for c in chars]
-    for left, right in merges:
-        if left + right not in vocab:
-            vocab.append(left + right)
-    vocab += [BOS, EOS]
-    (directory / "vocab.json").write_text(json.dumps({token: i for i, token in enumerate(vocab)}))
-    (directory / "merges.txt").write_text("#version: 0.2\n" + "".join(f"{a} {b}\n" for a, b in merges))
-    tokenizer = CLIPTokenizerFast(
-        vocab_file=str(directory / "vocab.json"),
-        merges_file=str(directory / "merges.txt"),
-        bos_token=BOS,
-        eos_token=EOS,
-        pad_token=EOS,
-        unk_token=EOS,
-    )
+    """CLIP-format tokenizer files in `directory`, with merges learnt from `corpus`; returns the fast tokenizer."""
+    tokenizer = write_clip_tokenizer(directory, train_merges(corpus))
     tokenizer.save_pretrained(directory)
     return tokenizer
 

@@ -1,6 +1,6 @@
 """The run directory of the baselines (Raw Image Grids, CLIPort-Place), trained by `train.runner`.
 
-    RUN/config.json           the run: method, recipe, fraction, seed, data keys, backbone fingerprint
+    RUN/run.json              the run: method, recipe, fraction, seed, data keys, backbone fingerprint
     RUN/metrics.jsonl         per chunk of steps: step, loss (chunk mean), learning_rate, elapsed_s
     RUN/checkpoints/step_*.safetensors   params + optimiser state (the newest `keep` kept)
     RUN/weights.safetensors   the final parameters; its presence marks the run finished
@@ -26,10 +26,8 @@ import optax
 
 from ocplace.errors import TrainingError
 from ocplace.models import weights_file
-from ocplace.train import checkpoints, runner
-
-WEIGHTS_FILE = "weights.safetensors"
-RUN_FILE = runner.RUN_FILE
+from ocplace.paths import RUN_FILE, WEIGHTS_FILE, trained_weights
+from ocplace.train import checkpoints, optim, runner
 
 
 @dataclasses.dataclass(frozen=True)
@@ -56,6 +54,10 @@ class Schedule:
             0.0, self.learning_rate, self.warmup_steps, max(self.steps, self.warmup_steps + 1), 0.0
         )
 
+    def optimizer(self):
+        """`train/optim.py`'s Adam on this learning-rate schedule."""
+        return optim.adam(self.learning_rate_schedule())
+
 
 def is_finished(run_dir: Path) -> bool:
     return (Path(run_dir) / WEIGHTS_FILE).is_file()
@@ -64,7 +66,7 @@ def is_finished(run_dir: Path) -> bool:
 def train(
     run_dir: Path,
     run_meta: dict,
-    init_state: Callable,
+    init_params: Callable,
     chunk: Callable,
     schedule: Schedule,
     progress: bool = True,
@@ -72,7 +74,8 @@ def train(
 ) -> None:
     """Runs `chunk(state, start_step, num_steps) -> (state, losses)` up to `schedule.steps`, then saves the weights.
 
-    `init_state()` is the fresh `(params, opt_state)`: the template a checkpoint is restored into.
+    `init_params()` gives the fresh parameters; with their fresh Adam state, `(params, opt_state)` is the
+    template a checkpoint is restored into.
     """
     schedule.validate()
     run_dir = Path(run_dir)
@@ -85,38 +88,37 @@ def train(
         log_every=schedule.chunk_steps,
         checkpoint_every=schedule.checkpoint_every,
         keep_checkpoints=schedule.keep_checkpoints,
-        init_state=init_state,
+        init_state=lambda: _with_adam_state(init_params(), schedule),
         chunk=chunk,
         record=runner.loss_and_learning_rate(schedule.learning_rate_schedule()),
         artefact=run_dir / WEIGHTS_FILE,
         save_artefact=lambda _artefact, state: save_weights(run_dir, state[0], weights_meta),
-        run_file=RUN_FILE,
         desc=desc,
     )
     runner.run(spec, progress)
+
+
+def _with_adam_state(params, schedule: Schedule) -> tuple:
+    return params, schedule.optimizer().init(params)
 
 
 def save_weights(run_dir: Path, params, metadata: dict[str, str]) -> Path:
     return weights_file.save_weights(Path(run_dir) / WEIGHTS_FILE, checkpoints.flatten_state(params), metadata)
 
 
-def load_weights(run_dir: Path) -> tuple[dict[str, np.ndarray], str]:
-    """`(flat arrays, sha256 of the file)`, verified; `checkpoints.unflatten_state` makes the tree of them."""
-    path = Path(run_dir) / WEIGHTS_FILE
-    if not path.is_file():
-        raise TrainingError(
-            f"no trained weights at {path}; train the method first (`ocplace evaluate` trains missing runs)"
-        )
+def load_run(run_dir: Path) -> tuple[dict, dict[str, np.ndarray], str]:
+    """`(run_meta, flat arrays, sha256 of the weights file)` of a finished run, verified.
+
+    `checkpoints.unflatten_state` makes the tree of the arrays.
+    """
+    path = trained_weights(run_dir, "weights", "train the method first (`ocplace evaluate` trains missing runs)")
+    run_meta = json.loads((Path(run_dir) / RUN_FILE).read_text())
     arrays, _ = weights_file.load_weights(
         path, f"delete {path.parent} and rerun `ocplace evaluate` or `ocplace reproduce` (they train missing runs)"
     )
-    return arrays, hashlib.sha256(path.read_bytes()).hexdigest()
+    return run_meta, arrays, hashlib.sha256(path.read_bytes()).hexdigest()
 
 
 def step_keys(seed: int, start: int, count: int):
     """`(count,)` keys of steps `start ...`: `fold_in(key(seed), step)`, the same whether resumed or not."""
     return jax.vmap(lambda s: jax.random.fold_in(jax.random.key(seed), s))(np.arange(start, start + count))
-
-
-def read_run(run_dir: Path) -> dict:
-    return json.loads((Path(run_dir) / RUN_FILE).read_text())

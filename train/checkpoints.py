@@ -15,7 +15,7 @@ from pathlib import Path
 
 from ocplace.errors import TrainingError
 from ocplace.models.weights_file import flatten_state, load_weights, save_weights, unflatten_state
-from ocplace.paths import write_text_atomic
+from ocplace.paths import RUN_FILE, refuse_old_run, write_text_atomic
 
 CHECKPOINT_DIR = "checkpoints"
 
@@ -47,9 +47,10 @@ def load_checkpoint(path: Path, template) -> tuple[object, int, dict[str, str]]:
     return unflatten_state(arrays, template), int(metadata["step"]), metadata
 
 
-def claim_run_dir(run_dir: Path, run_meta: dict, filename: str) -> None:
-    """Writes `run_meta` to `run_dir/filename`, or checks that an existing run directory holds this very run."""
-    path = run_dir / filename
+def claim_run_dir(run_dir: Path, run_meta: dict) -> None:
+    """Writes `run_meta` to `run_dir/RUN_FILE`, or checks that an existing run directory holds this very run."""
+    refuse_old_run(run_dir, "train again")
+    path = run_dir / RUN_FILE
     if path.exists():
         existing = json.loads(path.read_text())
         if existing != run_meta:

@@ -19,15 +19,14 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from ocplace.errors import TrainingError
 from ocplace.models.backbone import Backbone
 from ocplace.models.baselines import cliport
-from ocplace.models.baselines.common import camera_from_meta
+from ocplace.models.baselines.common import top_down_camera
 from ocplace.paths import atomic_path, cache_dir
 from ocplace.sim import metric
 from ocplace.sim.dataset.job import scene_dirs
 from ocplace.sim.dataset.records import read_scene
-from ocplace.train import baseline_runs, checkpoints, optim
+from ocplace.train import baseline_runs, checkpoints
 from ocplace.train.baseline_runs import Schedule
 from ocplace.train.loop import batch_indices, subset_indices
 
@@ -42,26 +41,12 @@ class CliportRecipe:
     num_targets: int = 16  # feasible pixels cached per scene
 
 
-RECIPES = {
-    # 0.6-1.3 s per step of 8 on 2 CPU cores: 10-20 min, 4 epochs of 2000 scenes (docs/baselines.md).
-    "default": CliportRecipe(cliport.CliportConfig(), Schedule(1_000, 8, 1e-3, 50, 50, 250)),
-    "demo": CliportRecipe(cliport.CliportConfig(), Schedule(100, 8, 1e-3, 10, 50, 50)),
-    "smoke": CliportRecipe(cliport.smoke_config(), Schedule(60, 4, 3e-3, 5, 20, 20), num_targets=4),
-}
-
-
-def recipe(scale: str) -> CliportRecipe:
-    if scale not in RECIPES:
-        raise TrainingError(f"unknown scale {scale!r} for CLIPort-Place; choose one of {', '.join(RECIPES)}")
-    return RECIPES[scale]
-
-
 def target_pixels(record, num_targets: int, seed: int, config: cliport.CliportConfig) -> np.ndarray:
     """`(num_targets,)` flat pixels of points drawn from the scene's feasible region (ground truth)."""
     feasible = metric.feasible_grid(record.problem())
-    rng = np.random.default_rng([seed, record.meta["index"]])
+    rng = np.random.default_rng([seed, record.index])
     points = metric.sample_oracle_placements(feasible, num_targets, rng, scene=record.id)
-    camera = camera_from_meta(record.meta)
+    camera = top_down_camera(record)
     return cliport.pixel_to_flat(cliport.table_to_pixel(points, camera, config), config)
 
 
@@ -74,11 +59,11 @@ def scene_arrays(
     rgbs, heights, targets, instructions, ids = [], [], [], [], []
     for scene_dir in tqdm(scene_dirs(dataset_dir, split), desc="cliport data", unit="scene", disable=not progress):
         record = read_scene(scene_dir)
-        rgb, height = cliport.prepare_image(record.rgb, record.depth, camera_from_meta(record.meta), config)
+        rgb, height = cliport.prepare_image(record.rgb, record.depth, top_down_camera(record), config)
         rgbs.append(rgb)
         heights.append(height)
         targets.append(target_pixels(record, recipe_.num_targets, 0, config))
-        instructions.append(record.meta["instruction"])
+        instructions.append(record.instruction)
         ids.append(record.id)
     arrays = {
         "rgb": np.stack(rgbs),
@@ -121,7 +106,7 @@ def train_step(config: cliport.CliportConfig, schedule: Schedule, state, data, m
     choice = jax.random.randint(key, (indices.shape[0],), 0, targets.shape[-1])
     target = jnp.take_along_axis(targets, choice[:, None], axis=-1)[:, 0]
     loss, grads = jax.value_and_grad(cliport.pixel_loss, argnums=1)(config, params, rgb, height, text, mask, target)
-    updates, opt_state = optim.adam(schedule.learning_rate_schedule()).update(grads, opt_state, params)
+    updates, opt_state = schedule.optimizer().update(grads, opt_state, params)
     return (optax.apply_updates(params, updates), opt_state), loss
 
 
@@ -145,27 +130,30 @@ def train_cliport(
     dataset_dir: Path,
     backbone_spec: str,
     out_dir: Path,
-    scale: str = "default",
+    chosen: CliportRecipe,
     fraction: float = 1.0,
     seed: int = 0,
     progress: bool = True,
+    experiment: str = "default",
 ) -> Path:
-    """Trains CLIPort-Place into `out_dir` (skipped when finished, resumed when interrupted)."""
+    """Trains CLIPort-Place into `out_dir` (skipped when finished, resumed when interrupted).
+
+    `experiment` names the experiment in the run's metadata only.
+    """
     from ocplace.models.backbone import load_backbone
 
     out_dir = Path(out_dir)
     if baseline_runs.is_finished(out_dir):
         return out_dir
-    chosen = recipe(scale)
     config = chosen.network
     backbone = load_backbone(backbone_spec)
     arrays, data_key = training_data(Path(dataset_dir), backbone, chosen, progress=progress)
     num_scenes = len(arrays["rgb"])
     subset = subset_indices(num_scenes, fraction, 0)
-    camera = camera_from_meta(read_scene(scene_dirs(dataset_dir, "train")[0]).meta)
+    camera = top_down_camera(read_scene(scene_dirs(dataset_dir, "train")[0]))
     run_meta = {
         "method": "cliport",
-        "scale": scale,
+        "scale": experiment,
         "fraction": fraction,
         "seed": seed,
         "network": json.loads(config.to_json()),
@@ -178,9 +166,8 @@ def train_cliport(
         "camera": camera.to_json(),
     }
 
-    def init_state():
-        params = cliport.init_network(config, backbone.dim, jax.random.key(seed))
-        return params, optim.adam(chosen.schedule.learning_rate_schedule()).init(params)
+    def init_params():
+        return cliport.init_network(config, backbone.dim, jax.random.key(seed))
 
     data = jax.device_put({name: arrays[name][subset] for name in DATA_ARRAYS})
     mask = jnp.asarray(cliport.table_mask(camera, config))
@@ -190,14 +177,13 @@ def train_cliport(
         keys = baseline_runs.step_keys(seed, start, count)
         return train_chunk(config, chosen.schedule, state, data, mask, jnp.asarray(indices), keys)
 
-    baseline_runs.train(out_dir, run_meta, init_state, chunk, chosen.schedule, progress, "cliport")
+    baseline_runs.train(out_dir, run_meta, init_params, chunk, chosen.schedule, progress, "cliport")
     return out_dir
 
 
 def load_params(run_dir: Path) -> tuple[dict, dict, str]:
     """`(params, run_meta, weights sha256)` of a finished run."""
-    run_meta = baseline_runs.read_run(run_dir)
+    run_meta, arrays, sha = baseline_runs.load_run(run_dir)
     config = cliport.CliportConfig.from_json(json.dumps(run_meta["network"]))
     template = jax.eval_shape(lambda: cliport.init_network(config, run_meta["dim"], jax.random.key(0)))
-    arrays, sha = baseline_runs.load_weights(run_dir)
     return checkpoints.unflatten_state(arrays, template), run_meta, sha

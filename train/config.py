@@ -14,14 +14,18 @@ class TrainConfig:
     steps: int = 200_000
     batch_size: int = 1
     # Adam (train/optim.py) with a linear warm-up from 0 to `learning_rate`, then cosine decay to 0.
-    learning_rate: float = 1e-4
+    learning_rate: float = dataclasses.field(default=1e-4, metadata={"help": "peak learning rate"})
     warmup_steps: int = 1_000
     seed: int = 0  # adapter initialisation and example order
-    fraction: float = 1.0  # share of the training scenes used (sample-efficiency curve)
+    fraction: float = dataclasses.field(
+        default=1.0, metadata={"help": "train on this seeded share of the scenes (sample-efficiency curve)"}
+    )
     subset_seed: int = 0  # fixed apart from `seed`, so a 25% subset is part of the 50% one
     reduction: int = 4  # adapter hidden width = D / reduction
     residual_ratio: float = 0.2
-    logit_scale: float | None = None  # None: the backbone's own (stored in the feature file)
+    logit_scale: float | None = dataclasses.field(
+        default=None, metadata={"help": "grounding logit scale; none means the backbone's own, from the feature file"}
+    )
     chunk_steps: int = 2_000  # steps fused into one jitted lax.scan call
     eval_every: int = 10_000  # grounding accuracy on the training subset (and validation set)
     checkpoint_every: int = 50_000

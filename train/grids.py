@@ -3,7 +3,7 @@
 Cell features of the training split are encoded once per (dataset, backbone, grid) with the
 feature cache of `models/features.py` (chunked, resumable, atomic): a scene's 48 cell crops play
 the part of its object crops, its tuple texts ("to the left of the red bowl") of the phrases, and
-the target is the cell holding the oracle's placement (`meta["oracle"]["placement"]`, the
+the target is the cell holding the oracle's placement (`SceneRecord.oracle.placement`, the
 deepest point of the feasible region), the same for every tuple. The workspace token the cache
 appends after the crops is not used.
 """
@@ -22,16 +22,15 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from ocplace.errors import TrainingError
 from ocplace.models import features as feature_cache
 from ocplace.models.backbone import Backbone
 from ocplace.models.baselines import grids
-from ocplace.models.baselines.common import camera_from_meta
+from ocplace.models.baselines.common import top_down_camera
 from ocplace.paths import cache_dir
 from ocplace.sim.dataset.job import scene_dirs
 from ocplace.sim.dataset.loader import letterbox
 from ocplace.sim.dataset.records import read_scene
-from ocplace.train import baseline_runs, checkpoints, optim
+from ocplace.train import baseline_runs, checkpoints
 from ocplace.train.baseline_runs import Schedule
 from ocplace.train.loop import batch_indices, subset_indices
 from ocplace.vocabulary import MAX_INSTRUCTION_TUPLES
@@ -43,30 +42,15 @@ class GridsRecipe:
     schedule: Schedule
 
 
-RECIPES = {
-    # The paper's budget for the adapters: 200K steps at batch 1, warm-up then cosine decay.
-    "default": GridsRecipe(grids.GridConfig(), Schedule(200_000, 1, 1e-4, 1_000, 2_000, 50_000)),
-    "demo": GridsRecipe(grids.GridConfig(), Schedule(4_000, 4, 1e-3, 100, 1_000, 2_000)),
-    "smoke": GridsRecipe(grids.smoke_grid_config(), Schedule(120, 4, 1e-2, 5, 40, 40)),
-}
-
-
-def recipe(scale: str) -> GridsRecipe:
-    if scale not in RECIPES:
-        raise TrainingError(f"unknown scale {scale!r} for Raw Image Grids; choose one of {', '.join(RECIPES)}")
-    return RECIPES[scale]
-
-
 def scene_examples(dataset_dir: Path, split: str, config: grids.GridConfig) -> Iterator[feature_cache.SceneToFeaturize]:
     """The cache's scene examples: cells as crops, tuple texts, the oracle's cell as every tuple's target."""
     for scene_dir in scene_dirs(dataset_dir, split):
         record = read_scene(scene_dir)
-        meta = record.meta
-        texts = tuple(grids.tuple_text(t["reference_name"], t["relation"]) for t in meta["tuples"])
-        target = int(grids.cell_of(meta["oracle"]["placement"], config))
+        texts = tuple(grids.tuple_text(t.reference_name, t.relation) for t in record.tuples)
+        target = int(grids.cell_of(record.oracle.placement, config))
         yield feature_cache.SceneToFeaturize(
             scene_id=record.id,
-            crops=grids.cell_crops(record.rgb, camera_from_meta(meta), config),
+            crops=grids.cell_crops(record.rgb, top_down_camera(record), config),
             workspace=letterbox(record.rgb, config.crop_size),
             texts=texts,
             targets=np.full(len(texts), target, np.int32),
@@ -107,7 +91,7 @@ def train_step(config: grids.GridConfig, schedule: Schedule, logit_scale: float,
     params, opt_state = state
     batch = tuple(array[indices] for array in data)
     loss, grads = jax.value_and_grad(grids.grid_loss, argnums=1)(config, params, *batch, logit_scale)
-    updates, opt_state = optim.adam(schedule.learning_rate_schedule()).update(grads, opt_state, params)
+    updates, opt_state = schedule.optimizer().update(grads, opt_state, params)
     return (optax.apply_updates(params, updates), opt_state), loss
 
 
@@ -122,25 +106,28 @@ def train_grids(
     dataset_dir: Path,
     backbone_spec: str,
     out_dir: Path,
-    scale: str = "default",
+    chosen: GridsRecipe,
     fraction: float = 1.0,
     seed: int = 0,
     progress: bool = True,
+    experiment: str = "default",
 ) -> Path:
-    """Trains Raw Image Grids into `out_dir` (skipped when finished, resumed when interrupted)."""
+    """Trains Raw Image Grids into `out_dir` (skipped when finished, resumed when interrupted).
+
+    `experiment` names the experiment in the run's metadata only.
+    """
     from ocplace.models.backbone import load_backbone
 
     out_dir = Path(out_dir)
     if baseline_runs.is_finished(out_dir):
         return out_dir
-    chosen = recipe(scale)
     backbone = load_backbone(backbone_spec)
     features = cell_features(Path(dataset_dir), backbone, chosen.grid, progress=progress)
     subset = features.subset(subset_indices(features.num_scenes, fraction, 0))
     logit_scale = float(features.info.logit_scale)
     run_meta = {
         "method": "grids",
-        "scale": scale,
+        "scale": experiment,
         "fraction": fraction,
         "seed": seed,
         "grid": json.loads(chosen.grid.to_json()),
@@ -151,9 +138,8 @@ def train_grids(
         "train_scenes": subset.num_scenes,
     }
 
-    def init_state():
-        params = grids.init_grids(chosen.grid, features.dim, jax.random.key(seed))
-        return params, optim.adam(chosen.schedule.learning_rate_schedule()).init(params)
+    def init_params():
+        return grids.init_grids(chosen.grid, features.dim, jax.random.key(seed))
 
     data = jax.device_put(training_arrays(subset, chosen.grid))
 
@@ -161,15 +147,14 @@ def train_grids(
         indices = batch_indices(subset.num_scenes, seed, start, count, chosen.schedule.batch_size)
         return train_chunk(chosen.grid, chosen.schedule, logit_scale, state, data, jnp.asarray(indices))
 
-    baseline_runs.train(out_dir, run_meta, init_state, chunk, chosen.schedule, progress, "grids")
+    baseline_runs.train(out_dir, run_meta, init_params, chunk, chosen.schedule, progress, "grids")
     return out_dir
 
 
 def load_params(run_dir: Path) -> tuple[dict, dict, str]:
     """`(params, run_meta, weights sha256)` of a finished run."""
-    run_meta = baseline_runs.read_run(run_dir)
+    run_meta, arrays, sha = baseline_runs.load_run(run_dir)
     config = grids.GridConfig.from_json(json.dumps(run_meta["grid"]))
-    arrays, sha = baseline_runs.load_weights(run_dir)
     dim = int(arrays["['visual']['up']['kernel']"].shape[-1])  # the feature size is not in the run's config
     template = jax.eval_shape(lambda: grids.init_grids(config, dim, jax.random.key(0)))
     return checkpoints.unflatten_state(arrays, template), run_meta, sha

@@ -6,10 +6,10 @@ run is a pure function of its configuration and features, so a resumed run ends 
 weights of an uninterrupted one.
 
 Run directory:
-    config.json              configuration and the keys of the features it trains on
+    run.json                 configuration and the keys of the features it trains on
     metrics.jsonl            one record per fused chunk of steps; accuracies every `eval_every`
     checkpoints/step_*.safetensors   params + Adam state (the newest `keep_checkpoints`)
-    adapters.safetensors     the final adapters, with what the policy needs to use them
+    weights.safetensors      the final adapters, with what the policy needs to use them
 """
 
 from __future__ import annotations
@@ -29,6 +29,7 @@ from ocplace.models import trained_adapters
 from ocplace.models.adapters import AdapterConfig, init_adapters
 from ocplace.models.features import Features
 from ocplace.models.grounding import GroundingModel, adapted_logits, grounding_loss
+from ocplace.paths import WEIGHTS_FILE
 from ocplace.train import optim, runner
 from ocplace.train.config import TrainConfig
 from ocplace.train.metrics import GroundingAccuracy, evaluate_features
@@ -161,7 +162,7 @@ def train(
         init_state=lambda: init_state(adapter_config, make_optimizer(config), config.seed),
         chunk=chunk,
         record=record,
-        artefact=run_dir / trained_adapters.ADAPTERS_FILE,
+        artefact=run_dir / WEIGHTS_FILE,
         save_artefact=save,
         checkpoint_meta={"run": json.dumps(run_meta, sort_keys=True)},
     )

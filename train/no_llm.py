@@ -1,4 +1,4 @@
-"""Training Ours w/o LLM (GT-ref#) on cached backbone features.
+"""Training Ours w/o LLM (`no_llm`) on cached backbone features.
 
 Visual tokens come from the shared feature cache (`models.features`, the same file `ocplace
 featurize` writes and Ours trains on); the only extra encoding is one sentence token per scene,
@@ -7,10 +7,10 @@ order and the initial weights are functions of the seed (as in `train.loop`), so
 ends with the weights of an uninterrupted one.
 
 Run directory:
-    config.json          recipe, feature keys, backbone fingerprint, scene count
+    run.json             recipe, feature keys, backbone fingerprint, scene count
     metrics.jsonl        per chunk: step, loss, reference_loss, relation_loss, learning_rate, elapsed_s
     checkpoints/         params + Adam state (newest two)
-    model.safetensors    the trained model, with its config, logit scale and backbone fingerprint
+    weights.safetensors  the trained model, with its config, logit scale and backbone fingerprint
 
 Checkpoints and the model file carry a content hash (`models.weights_file`), checked on load.
 """
@@ -33,12 +33,12 @@ from ocplace.models.backbone import Backbone
 from ocplace.models.features import Features, FeaturizeConfig, featurize, load_features
 from ocplace.models.no_llm import NoLlmConfig, NoLlmModel, init_params, loss_terms
 from ocplace.models.weights_file import load_weights, save_weights
-from ocplace.paths import atomic_path, cache_dir
+from ocplace.paths import WEIGHTS_FILE, atomic_path, cache_dir, trained_weights
 from ocplace.sim.relations import relation_index
 from ocplace.train import checkpoints, runner
 from ocplace.train.loop import batch_indices, subset_indices
 
-MODEL_FILE = "model.safetensors"
+# The paper's name in the cache key: renaming it would orphan every cached sentence file.
 SENTENCES_FORMAT = "ocplace-gtref-sentences-v1"
 
 
@@ -72,21 +72,6 @@ class NoLlmTrainConfig:
 
     def to_json(self) -> str:
         return json.dumps(dataclasses.asdict(self), sort_keys=True)
-
-
-RECIPES = {
-    "smoke": NoLlmTrainConfig(
-        steps=120, batch_size=8, learning_rate=3e-3, warmup_steps=10, chunk_steps=40, checkpoint_every=40, hidden=32
-    ),
-    "demo": NoLlmTrainConfig(steps=3_000, warmup_steps=200, chunk_steps=500, checkpoint_every=1_500),
-    "default": NoLlmTrainConfig(),
-}
-
-
-def recipe(scale: str, fraction: float = 1.0, seed: int = 0) -> NoLlmTrainConfig:
-    if scale not in RECIPES:
-        raise TrainingError(f"unknown scale {scale!r}; choose one of {sorted(RECIPES)}")
-    return dataclasses.replace(RECIPES[scale], fraction=fraction, seed=seed)
 
 
 # ----------------------------------------------------------------------------- cached inputs
@@ -146,7 +131,7 @@ def split_sentences(dataset_dir: Path, split: str, backbone: Backbone, config: N
 
     from ocplace.sim.dataset.identity import dataset_hash
     from ocplace.sim.dataset.job import scene_dirs
-    from ocplace.sim.dataset.records import read_meta
+    from ocplace.sim.dataset.records import SceneInfo, read_meta
 
     digest = dataset_hash(dataset_dir, split)
     key = sentences_key(backbone.fingerprint, digest, config)
@@ -157,12 +142,12 @@ def split_sentences(dataset_dir: Path, split: str, backbone: Backbone, config: N
         if meta.get("key") == key:
             arrays = load_file(str(path))
             return Sentences(tuple(json.loads(meta["scene_ids"])), arrays["sentence"], arrays["relations"], key)
-    metas = [read_meta(d) for d in scene_dirs(dataset_dir, split)]
-    relations = np.zeros((len(metas), 2), np.int32)
-    for row, meta in enumerate(metas):
-        relations[row, : len(meta["tuples"])] = [relation_index(t["relation"]) for t in meta["tuples"]]
-    sentence = encode_sentences(backbone, config, [meta["instruction"] for meta in metas])
-    scene_ids = tuple(meta["id"] for meta in metas)
+    scenes = [SceneInfo(read_meta(d)) for d in scene_dirs(dataset_dir, split)]
+    relations = np.zeros((len(scenes), 2), np.int32)
+    for row, scene in enumerate(scenes):
+        relations[row, : len(scene.tuples)] = [relation_index(t.relation) for t in scene.tuples]
+    sentence = encode_sentences(backbone, config, [scene.instruction for scene in scenes])
+    scene_ids = tuple(scene.id for scene in scenes)
     with atomic_path(path) as tmp:
         save_file(
             {"sentence": sentence, "relations": relations},
@@ -231,7 +216,7 @@ def train_on_arrays(
     backbone_fingerprint: str,
 ) -> NoLlmModel:
     """Trains on the scene rows of `arrays` into `run_dir` (resuming from its newest checkpoint) and
-    saves `MODEL_FILE`, tagged with the backbone whose features `arrays` hold."""
+    saves `WEIGHTS_FILE`, tagged with the backbone whose features `arrays` hold."""
     config.validate()
     run_dir = Path(run_dir)
     num_scenes = len(arrays["visual"])
@@ -272,7 +257,7 @@ def train_on_arrays(
         init_state=init_state,
         chunk=chunk,
         record=record,
-        artefact=run_dir / MODEL_FILE,
+        artefact=run_dir / WEIGHTS_FILE,
         save_artefact=save,
         checkpoint_meta={"step_of": str(config.steps)},
         desc="train no_llm",
@@ -283,7 +268,7 @@ def train_on_arrays(
 def train_no_llm(
     dataset_dir: Path, backbone: Backbone, run_dir: Path, config: NoLlmTrainConfig, progress: bool = True
 ) -> Path:
-    """Featurizes the train split (cached), trains, writes `run_dir/model.safetensors`; a finished run is kept."""
+    """Featurizes the train split (cached), trains, writes `run_dir/WEIGHTS_FILE`; a finished run is kept."""
     run_dir = Path(run_dir)
     features = split_features(dataset_dir, "train", backbone, progress)
     sentences = split_sentences(dataset_dir, "train", backbone, config.model_config(backbone.dim))
@@ -296,8 +281,8 @@ def train_no_llm(
         "backbone_fingerprint": backbone.fingerprint,
         "train_scenes": int(len(chosen)),
     }
-    if (run_dir / MODEL_FILE).exists():
-        checkpoints.claim_run_dir(run_dir, run_meta, runner.RUN_FILE)
+    if (run_dir / WEIGHTS_FILE).exists():
+        checkpoints.claim_run_dir(run_dir, run_meta)
         return run_dir
     logit_scale = float(features.info.logit_scale)
     train_on_arrays(arrays, run_dir, config, logit_scale, run_meta, progress, backbone_fingerprint=backbone.fingerprint)
@@ -327,12 +312,11 @@ class TrainedNoLlm:
 
 def load_model(run_dir: Path) -> TrainedNoLlm:
     """The trained model of a finished run, verified."""
-    path = Path(run_dir) / MODEL_FILE
-    if not path.exists():
-        raise TrainingError(
-            f"no trained GT-ref# model at {path}; train it first (`ocplace evaluate` trains "
-            "registered methods, or call ocplace.train.no_llm.train_no_llm)"
-        )
+    path = trained_weights(
+        run_dir,
+        "no_llm model",
+        "train it first (`ocplace evaluate` trains registered methods, or call ocplace.train.no_llm.train_no_llm)",
+    )
     arrays, metadata = load_weights(
         path, f"delete {path.parent} and rerun `ocplace evaluate` or `ocplace reproduce` (they train missing runs)"
     )

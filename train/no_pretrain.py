@@ -9,9 +9,10 @@ loss. Example order, symmetries and initial weights are functions of the seed an
 a resumed run ends with the weights of an uninterrupted one.
 
 Run directory:
-    config.json, metrics.jsonl, checkpoints/     as in train.loop
+    run.json, metrics.jsonl, checkpoints/        as in train.loop
     backbone/                                    the trained tower as an offline backbone directory
-    adapters.safetensors                         the trained adapters (train.checkpoints format)
+                                                 (its own config.json, weights.safetensors, fingerprint.txt)
+    weights.safetensors                          the trained adapters (`models.trained_adapters`), written last
 """
 
 from __future__ import annotations
@@ -32,12 +33,13 @@ from ocplace.errors import TrainingError
 from ocplace.models import no_pretrain, trained_adapters
 from ocplace.models import offline_backbone as ob
 from ocplace.models.backbone import PromptConfig
-from ocplace.paths import atomic_path, cache_dir
+from ocplace.paths import WEIGHTS_FILE, atomic_path, cache_dir
 from ocplace.train import checkpoints, runner
 from ocplace.train.loop import batch_indices, subset_indices
 from ocplace.vocabulary import MAX_INSTRUCTION_TUPLES as MAX_TUPLES
 
 BACKBONE_DIR = "backbone"
+# The format and its <cache>/scratch/ folder keep their old name: renaming would orphan every cached input.
 INPUTS_FORMAT = "ocplace-scratch-inputs-v1"
 MAX_TOKENS = 6  # 5 crops + the workspace
 
@@ -71,28 +73,6 @@ class NoPretrainRecipe:
 
     def to_dict(self) -> dict:
         return {"model": self.model.to_dict(), "train": dataclasses.asdict(self.train)}
-
-
-RECIPES = {
-    "smoke": NoPretrainRecipe(
-        no_pretrain.smoke_config(),
-        NoPretrainTrainConfig(
-            steps=150, batch_size=4, learning_rate=1e-3, warmup_steps=3, log_every=10, checkpoint_every=50
-        ),
-    ),
-    "demo": NoPretrainRecipe(
-        no_pretrain.demo_config(),
-        NoPretrainTrainConfig(steps=75, batch_size=8, warmup_steps=8, log_every=25, checkpoint_every=25),
-    ),
-    "default": NoPretrainRecipe(no_pretrain.default_config(), NoPretrainTrainConfig()),
-}
-
-
-def recipe(scale: str, fraction: float = 1.0, seed: int = 0) -> NoPretrainRecipe:
-    if scale not in RECIPES:
-        raise TrainingError(f"unknown scale {scale!r}; choose one of {sorted(RECIPES)}")
-    base = RECIPES[scale]
-    return dataclasses.replace(base, train=dataclasses.replace(base.train, fraction=fraction, seed=seed))
 
 
 # ----------------------------------------------------------------------------- cached inputs
@@ -258,7 +238,7 @@ def train_on_inputs(
         init_state=lambda: (trainable, make_optimizer(config).init(trainable)),
         chunk=chunk,
         record=record,
-        artefact=run_dir / trained_adapters.ADAPTERS_FILE,
+        artefact=run_dir / WEIGHTS_FILE,
         save_artefact=save,
         checkpoint_meta={"step_of": str(config.steps)},
         desc="train no_pretrain",
@@ -277,7 +257,7 @@ def save_trained(
         model.backbone,
         params["backbone"],
         text_digest,
-        {"trained_by": "ocplace.train.scratch (Ours w/o CLIP pre-train)", "recipe": recipe_.to_dict()},
+        {"trained_by": "ocplace.train.no_pretrain (Ours w/o CLIP pre-train)", "recipe": recipe_.to_dict()},
     )
     fingerprint = (backbone_dir / ob.FINGERPRINT_FILE).read_text().strip()
     scale = float(np.exp(min(float(params["backbone"]["log_logit_scale"]), math.log(model.max_logit_scale))))
@@ -295,14 +275,14 @@ def save_trained(
 
 
 def train_no_pretrain(dataset_dir: Path, run_dir: Path, recipe_: NoPretrainRecipe, progress: bool = True) -> Path:
-    """Caches the inputs, trains, saves `backbone/` and `adapters.safetensors`; a finished run is kept."""
+    """Caches the inputs, trains, saves `backbone/` and the adapters (`WEIGHTS_FILE`); a finished run is kept."""
     run_dir = Path(run_dir)
     prompt = PromptConfig()
     inputs = no_pretrain_inputs(dataset_dir, "train", recipe_.model.backbone, prompt, progress)
     chosen = subset_indices(len(inputs.scene_ids), recipe_.train.fraction, recipe_.train.subset_seed)
     run_meta = {"recipe": recipe_.to_dict(), "inputs_key": inputs.key, "train_scenes": int(len(chosen))}
-    if (run_dir / trained_adapters.ADAPTERS_FILE).exists() and (run_dir / BACKBONE_DIR / ob.FINGERPRINT_FILE).exists():
-        checkpoints.claim_run_dir(run_dir, run_meta, runner.RUN_FILE)
+    if (run_dir / WEIGHTS_FILE).exists() and (run_dir / BACKBONE_DIR / ob.FINGERPRINT_FILE).exists():
+        checkpoints.claim_run_dir(run_dir, run_meta)
         return run_dir
     arrays = {name: array[chosen] for name, array in inputs.arrays.items()}
     train_on_inputs(arrays, run_dir, recipe_, run_meta, progress, prompt=prompt, inputs_key=inputs.key)

@@ -1,7 +1,7 @@
 """The resumable training loop every training in ocplace runs: one `Run` describes it, `run` runs it.
 
 Run directory:
-    RUN_FILE (config.json)               the run's metadata; a rerun with other metadata is refused
+    run.json (`paths.RUN_FILE`)           the run's metadata; a rerun with other metadata is refused
     metrics.jsonl                         one record per `log_every` steps and at the end
     checkpoints/step_*.safetensors        the state (the newest `keep_checkpoints`)
     the artefact (its `artefact` path)   written last, once every step is done
@@ -28,7 +28,6 @@ from ocplace.train.metrics import MetricsLog
 
 log = logging.getLogger(__name__)
 
-RUN_FILE = "config.json"
 METRICS_FILE = "metrics.jsonl"
 
 
@@ -56,7 +55,6 @@ class Run:
     artefact: Path
     save_artefact: Callable[[Path, Any], Any]
     checkpoint_meta: dict[str, str] = dataclasses.field(default_factory=dict)
-    run_file: str = RUN_FILE
     desc: str = "train"
 
     def validate(self) -> None:
@@ -84,7 +82,7 @@ def run(
 
     spec.validate()
     run_dir = Path(spec.run_dir)
-    checkpoints.claim_run_dir(run_dir, spec.run_meta, spec.run_file)
+    checkpoints.claim_run_dir(run_dir, spec.run_meta)
     state, start = resume(run_dir, spec.init_state())
     metrics = MetricsLog(run_dir / METRICS_FILE)
     metrics.truncate_after(start)

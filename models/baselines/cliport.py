@@ -46,15 +46,12 @@ class CliportConfig:
         return self.width * self.height
 
     def to_json(self) -> str:
-        fields = dataclasses.asdict(self)
-        fields["table"] = dataclasses.asdict(self.table)
-        return json.dumps(fields, sort_keys=True)
+        return json.dumps(dataclasses.asdict(self), sort_keys=True)
 
     @classmethod
     def from_json(cls, text: str) -> CliportConfig:
         fields = json.loads(text)
-        table = Table(**{k: tuple(v) if isinstance(v, list) else v for k, v in fields.pop("table").items()})
-        return cls(**{**fields, "channels": tuple(fields["channels"])}, table=table)
+        return cls(**{**fields, "channels": tuple(fields["channels"]), "table": Table.from_dict(fields["table"])})
 
 
 def smoke_config() -> CliportConfig:

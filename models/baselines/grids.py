@@ -58,15 +58,12 @@ class GridConfig:
         return 2.0 * np.asarray(self.table.half_extents) / np.array([self.columns, self.rows])
 
     def to_json(self) -> str:
-        fields = dataclasses.asdict(self)
-        fields["table"] = dataclasses.asdict(self.table)
-        return json.dumps(fields, sort_keys=True)
+        return json.dumps(dataclasses.asdict(self), sort_keys=True)
 
     @classmethod
     def from_json(cls, text: str) -> GridConfig:
         fields = json.loads(text)
-        table = Table(**{k: tuple(v) if isinstance(v, list) else v for k, v in fields.pop("table").items()})
-        return cls(**fields, table=table)
+        return cls(**{**fields, "table": Table.from_dict(fields["table"])})
 
 
 def smoke_grid_config() -> GridConfig:

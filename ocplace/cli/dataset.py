@@ -101,7 +101,7 @@ def _show(args: argparse.Namespace) -> int:
     split = identifier.rsplit("-", 1)[0]
     record = read_scene(args.dir / split / identifier)
     save_png(args.out, scene_figure(record))
-    print(f"wrote {args.out}: {record.meta['instruction']}")
+    print(f"wrote {args.out}: {record.instruction}")
     return 0
 
 

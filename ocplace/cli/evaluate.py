@@ -6,7 +6,12 @@ import argparse
 import sys
 from pathlib import Path
 
+from ocplace.cli.options import config_from_arguments
 from ocplace.vocabulary import TEST_SUBSETS
+
+# `ocplace evaluate` options named after EvalSettings fields: left out (None), they keep its defaults.
+# Written by hand, not generated: EvalSettings sits behind NumPy, too slow to import for `--help`.
+EVAL_SETTINGS_OPTIONS = ("backbone", "scale", "parser", "num_samples", "limit", "seed", "chunk_size")
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -37,7 +42,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="OUT",
         help="take missing run directories from a pipeline output: OUT/runs/METHOD/fraction-1.00",
     )
-    evaluate.add_argument("--backbone", default="offline", help="backbone spec (default: offline)")
+    evaluate.add_argument("--backbone", help="backbone spec (default: offline)")
     evaluate.add_argument("--out", type=Path, help="results JSON (the markdown goes beside it, .md)")
     evaluate.add_argument("--subsets", nargs="+", choices=TEST_SUBSETS, default=list(TEST_SUBSETS))
     evaluate.add_argument("--limit", type=int, help="first N scenes of each subset")
@@ -48,13 +53,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="K",
         help="physical check on the first K scenes of each subset (default 50; 0: none; -1: all)",
     )
-    evaluate.add_argument("--parser", default="offline", help="parser for methods that parse (default: offline)")
-    evaluate.add_argument("--num-samples", type=int, default=1024, help="placement samples per scene")
+    evaluate.add_argument("--parser", help="parser for methods that parse (default: offline)")
+    evaluate.add_argument("--num-samples", type=int, help="placement samples per scene (default: 1024)")
     evaluate.add_argument(
-        "--scale", choices=("smoke", "demo", "default"), default="default", help="which recipe the methods load with"
+        "--scale",
+        choices=("smoke", "demo", "default"),
+        help="the experiment the runs come from, recorded in the results (each run carries its own recipe; "
+        "default: default)",
     )
-    evaluate.add_argument("--seed", type=int, default=0)
-    evaluate.add_argument("--chunk-size", type=int, default=32, help="scenes per method call")
+    evaluate.add_argument("--seed", type=int, help="default: 0")
+    evaluate.add_argument("--chunk-size", type=int, help="scenes per method call (default: 32)")
     evaluate.add_argument(
         "--rerun",
         type=Path,
@@ -97,6 +105,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         default=None,
         metavar="K",
         help="physical check on the first K scenes per subset (default: the scale's)",
+    )
+    reproduce.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="set any setting of the experiment (ocplace.configs), applied after the other options; KEY is a "
+        "dotted path such as recipes.ours.steps or dataset.train_scenes, an unknown one lists the valid keys "
+        "(repeatable; see docs/evaluation.md)",
     )
     reproduce.add_argument("--no-progress", action="store_true")
     reproduce.set_defaults(func=_reproduce)
@@ -190,16 +208,12 @@ def _evaluate(args: argparse.Namespace) -> int:
 
     if args.dataset is None or args.out is None:
         raise EvaluationError("`ocplace evaluate` needs --dataset DIR and --out RESULTS.json (or --rerun RESULTS.json)")
-    settings = EvalSettings(
-        backbone=args.backbone,
-        scale=args.scale,
-        parser=args.parser,
-        num_samples=args.num_samples,
-        subsets=tuple(args.subsets),
-        limit=args.limit,
-        physical_scenes=physical_setting(args.physical, DEFAULT_PHYSICAL_SCENES),
-        seed=args.seed,
-        chunk_size=args.chunk_size,
+    settings = config_from_arguments(
+        args,
+        EvalSettings(
+            subsets=tuple(args.subsets), physical_scenes=physical_setting(args.physical, DEFAULT_PHYSICAL_SCENES)
+        ),
+        fields=EVAL_SETTINGS_OPTIONS,
     )
     runs = method_runs(select_specs(args.methods, method_specs()), parse_runs(args.run), args.runs_from)
     with physical_arena(settings) as arena:
@@ -231,26 +245,29 @@ def _rerun(args: argparse.Namespace) -> int:
 def _reproduce(args: argparse.Namespace) -> int:
     import dataclasses
 
-    from ocplace.eval.pipeline import SCALES, run_pipeline
+    from ocplace import configs
+    from ocplace.cli.options import apply_overrides
+    from ocplace.eval.pipeline import PipelineConfig, run_pipeline
 
-    config = SCALES[args.scale]()
-    changes = {"progress": not args.no_progress}
-    if args.backbone:
-        changes["backbone"] = args.backbone
+    experiment = configs.get(args.scale)
+    plan, sizes = experiment.evaluation, experiment.dataset
     if args.methods == "all":
-        changes["methods"] = None
+        plan = dataclasses.replace(plan, methods=None)
     elif args.methods:
-        changes["methods"] = tuple(n.strip() for n in args.methods.split(",") if n.strip())
-    if args.workers:
-        changes["workers"] = args.workers
-    if args.dataset:
-        changes["dataset"] = args.dataset
+        plan = dataclasses.replace(plan, methods=tuple(n.strip() for n in args.methods.split(",") if n.strip()))
     if args.fractions:
-        changes["fractions"] = tuple(sorted(set(args.fractions)))
+        plan = dataclasses.replace(plan, fractions=tuple(sorted(set(args.fractions))))
     if args.physical is not None:
-        changes["physical_scenes"] = physical_setting(args.physical, config.physical_scenes)
-    config = dataclasses.replace(config, **changes)
-    summary = run_pipeline(config, args.out or config.default_out, command=_command(args))
+        sizes = dataclasses.replace(sizes, physical_scenes=physical_setting(args.physical, sizes.physical_scenes))
+    experiment = apply_overrides(dataclasses.replace(experiment, evaluation=plan, dataset=sizes), args.overrides)
+    config = PipelineConfig(
+        experiment,
+        backbone=args.backbone or None,
+        dataset=args.dataset,
+        workers=args.workers or 0,
+        progress=not args.no_progress,
+    )
+    summary = run_pipeline(config, args.out or experiment.out, command=_command(args))
     print(summary.markdown)
     print(summary.report())
     return 1 if summary.errors else 0

@@ -165,9 +165,9 @@ def _image_scene(args):
     import numpy as np
 
     from ocplace.errors import PolicyInputError
-    from ocplace.models.pinhole import PinholeCamera
     from ocplace.models.policy import SceneInput, check_depth
     from ocplace.sim.camera import DEFAULT_CAMERA
+    from ocplace.sim.pinhole import PinholeCamera
 
     def read(path: Path, flags: int):
         image = cv2.imread(str(path), flags)

@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import importlib
 import importlib.util
 import os
 from collections.abc import Callable, Iterable
 from pathlib import Path
+
+from ocplace.cli.options import add_config_arguments, config_from_arguments
+from ocplace.train.config import TrainConfig, default_config, smoke_config  # light: no JAX behind it
 
 # The dataset's reader: `iter_examples(dataset_dir, split) -> Iterable[SceneExample]`.
 DATASET_READER = ("ocplace.sim.dataset.loader", "iter_examples")
@@ -39,7 +41,7 @@ def _register_featurize(subparsers, reader: Callable[[Path, str], Iterable]) -> 
     )
     parser.add_argument("--split", default="train")
     parser.add_argument("--out", type=Path, help="feature file (default: in the cache, printed at the end)")
-    parser.add_argument("--chunk-scenes", type=int, default=64)
+    parser.add_argument("--chunk-scenes", type=int, help="scenes per resumable chunk (default: 64)")
     parser.set_defaults(func=lambda args: run_featurize(args, reader))
 
 
@@ -57,7 +59,7 @@ def run_featurize(args, read_examples: Callable[[Path, str], Iterable]) -> int:
         backbone,
         out,
         dataset_hash=digest,
-        config=FeaturizeConfig(chunk_scenes=args.chunk_scenes),
+        config=config_from_arguments(args, FeaturizeConfig(), fields=("chunk_scenes",)),
         total=num_scenes,
     )
     print(path)
@@ -82,28 +84,17 @@ def _register_train(subparsers) -> None:
         help="CPUs XLA may use (default 1: batch-1 steps are too small to gain from splitting "
         "them across cores, and waiting for a busy core stalls every step; 0: all)",
     )
-    overrides = parser.add_argument_group("configuration overrides (defaults: the paper's schedule)")
-    overrides.add_argument("--steps", type=int)
-    overrides.add_argument("--batch-size", type=int)
-    overrides.add_argument("--lr", dest="learning_rate", type=float, help="peak learning rate")
-    overrides.add_argument("--warmup-steps", type=int)
-    overrides.add_argument("--fraction", type=float, help="train on this seeded share of the scenes")
-    overrides.add_argument("--seed", type=int)
-    overrides.add_argument("--residual-ratio", type=float)
-    overrides.add_argument("--logit-scale", type=float, help="default: the backbone's")
-    overrides.add_argument("--chunk-steps", type=int)
-    overrides.add_argument("--eval-every", type=int)
-    overrides.add_argument("--checkpoint-every", type=int)
+    overrides = parser.add_argument_group(
+        "configuration overrides",
+        "One flag per TrainConfig field. Defaults: the paper's schedule (shown), or with --smoke the smoke one.",
+    )
+    add_config_arguments(overrides, TrainConfig, aliases={"learning_rate": ("--lr",)})
     parser.set_defaults(func=run_train)
 
 
-def train_config_from_args(args: argparse.Namespace):
-    from ocplace.train.config import TrainConfig, default_config, smoke_config
-
+def train_config_from_args(args: argparse.Namespace) -> TrainConfig:
     base = smoke_config() if args.smoke else default_config()
-    names = [field.name for field in dataclasses.fields(TrainConfig)]
-    changes = {name: getattr(args, name) for name in names if getattr(args, name, None) is not None}
-    return dataclasses.replace(base, **changes)
+    return config_from_arguments(args, base)
 
 
 def run_train(args) -> int:

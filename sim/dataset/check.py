@@ -2,11 +2,10 @@
 
 from __future__ import annotations
 
-import numpy as np
 from tqdm import tqdm
 
 from ocplace.sim.dataset.job import scene_dirs
-from ocplace.sim.dataset.records import problem_from_meta, read_meta
+from ocplace.sim.dataset.records import SceneInfo, read_meta
 from ocplace.sim.metric import placement_success
 from ocplace.sim.mujoco_backend import MujocoScenes
 from ocplace.sim.physical import physical_check
@@ -21,12 +20,12 @@ def check_oracle(dataset_dir, splits: list[str], library=None, physical: bool = 
             dirs = scene_dirs(dataset_dir, split)
             metric_failures, physical_failures = [], []
             for scene_dir in tqdm(dirs, desc=f"oracle {split}", disable=not progress):
-                meta = read_meta(scene_dir)
-                placement = np.asarray(meta["oracle"]["placement"])
-                if not placement_success(placement[None], problem_from_meta(meta))[0]:
-                    metric_failures.append(meta["id"])
-                if arena is not None and not physical_check(arena, meta, placement).success:
-                    physical_failures.append(meta["id"])
+                scene = SceneInfo(read_meta(scene_dir))
+                placement = scene.oracle.placement
+                if not placement_success(placement[None], scene.problem())[0]:
+                    metric_failures.append(scene.id)
+                if arena is not None and not physical_check(arena, scene, placement).success:
+                    physical_failures.append(scene.id)
             report[split] = {
                 "scenes": len(dirs),
                 "metric_success": len(dirs) - len(metric_failures),

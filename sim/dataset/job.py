@@ -30,7 +30,7 @@ from ocplace.errors import DatasetError
 from ocplace.paths import inside, write_text_atomic
 from ocplace.sim.dataset.config import DatasetConfig
 from ocplace.sim.dataset.generate import SceneGenerator, describe, level_schedule, scene_id
-from ocplace.sim.dataset.records import IMAGE_FILES, SCENE_FILE, read_meta
+from ocplace.sim.dataset.records import IMAGE_FILES, SCENE_FILE, SceneInfo, read_meta
 
 CONFIG_FILE = "dataset.json"
 MANIFEST_FILE = "manifest.json"
@@ -294,11 +294,11 @@ def write_manifest(out: Path, config: DatasetConfig, regenerated: int = 0) -> di
             scene_dir = _scene_dir(out, split.name, index)
             if not scene_dir.exists():
                 continue
-            meta = read_meta(scene_dir)
+            scene = SceneInfo(read_meta(scene_dir))
             level_counts = counts.setdefault(split.name, {})
-            level_counts[meta["level"]] = level_counts.get(meta["level"], 0) + 1
-            for key in resamples:
-                resamples[key] += meta["resamples"][key]
+            level_counts[scene.level] = level_counts.get(scene.level, 0) + 1
+            resamples["scenes"] += scene.resamples.scenes
+            resamples["relations"] += scene.resamples.relations
             for name in SCENE_FILES:
                 files[f"{split.name}/{scene_dir.name}/{name}"] = _sha256(scene_dir / name)
     manifest = {

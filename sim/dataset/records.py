@@ -18,6 +18,8 @@ import numpy as np
 from ocplace.errors import DatasetError
 from ocplace.sim.boxes import Boxes
 from ocplace.sim.metric import GroundedTuple, PlacementProblem, encode_problem
+from ocplace.sim.pinhole import PinholeCamera
+from ocplace.sim.scene import SceneSpec
 
 SCHEMA_VERSION = 1
 IMAGE_FILES = ("rgb.png", "depth.png", "segmentation.png")
@@ -49,42 +51,127 @@ class TupleRecord:
     token_index: int  # index of the reference among the N + 1 visual tokens (N = the table)
 
 
+@dataclasses.dataclass(frozen=True, eq=False)
+class ObjectRecord:
+    object_id: int  # segmentation id, 1..N: its position in `objects` + 1
+    name: str  # library name
+    human_name: str  # the name instructions use
+    position: np.ndarray  # (3,) float64 world position of the object frame, metres
+    quaternion: np.ndarray  # (4,) float64 orientation, w x y z
+    aabb: np.ndarray  # (2, 3) float64 world AABB [[xmin, ymin, zmin], [xmax, ymax, zmax]], metres
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class HeldObjectRecord:
+    name: str  # library name
+    human_name: str
+    footprint_half_extents: np.ndarray  # (2,) float64 (hx, hy) of its upright x-y footprint, metres
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class OracleRecord:
+    placement: np.ndarray  # (2,) float64 table-plane x-y, metres: the feasible point deepest inside the region
+
+
 @dataclasses.dataclass(frozen=True)
-class SceneRecord:
-    meta: dict  # the scene.json content
+class ResampleCounts:
+    scenes: int  # scenes drawn again because no relations fitted
+    relations: int  # relation draws repeated because the feasible region was empty
+
+
+def _parsed():
+    return dataclasses.field(init=False, repr=False)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class SceneInfo:
+    """A scene.json, parsed on construction: the one reader of its fields.
+
+    `dataclasses.replace(record, meta=...)` parses again, so a redacted copy has redacted fields: the
+    ground truth (`tuples`, `oracle`) is None where `meta` lacks it.
+    """
+
+    meta: dict  # the raw JSON, only for code that writes or hashes it
+    id: str = _parsed()  # "<split>-<index, 5 digits>"
+    split: str = _parsed()
+    index: int = _parsed()  # position in the split
+    level: str = _parsed()  # "table", "1obj" or "2obj"
+    instruction: str = _parsed()
+    instruction_style: str = _parsed()  # the split's templates, "seen" or "unseen"
+    tuples: tuple[TupleRecord, ...] | None = _parsed()  # ground truth, in instruction order
+    held_object: HeldObjectRecord = _parsed()
+    table_texture: str = _parsed()  # library texture name
+    spec: SceneSpec = _parsed()  # rebuilds the scene
+    objects: tuple[ObjectRecord, ...] = _parsed()  # in object-id order, visible or not
+    boxes: Boxes = _parsed()  # the visible objects' boxes, ascending id: visual tokens 0..N-1
+    camera: PinholeCamera = _parsed()  # what rendered the images
+    oracle: OracleRecord | None = _parsed()  # ground truth
+    resamples: ResampleCounts = _parsed()
+
+    def __post_init__(self):
+        for name, value in _parse(self.meta).items():
+            object.__setattr__(self, name, value)
+
+    def problem(self) -> PlacementProblem:
+        """The placement problem of the scene, with the ground-truth grounding."""
+        aabbs = np.stack([obj.aabb for obj in self.objects])[:, :, :2]
+        tuples = [
+            GroundedTuple(t.relation, None if t.reference_object_id == 0 else aabbs[t.reference_object_id - 1])
+            for t in self.tuples
+        ]
+        return encode_problem(tuples, aabbs, self.held_object.footprint_half_extents)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class SceneRecord(SceneInfo):
+    """A scene.json and its images; built as `SceneRecord(meta, rgb, depth, segmentation)`."""
+
     rgb: np.ndarray  # (H, W, 3) uint8
     depth: np.ndarray  # (H, W) float32 metres
     segmentation: np.ndarray  # (H, W) int32
 
-    @property
-    def id(self) -> str:
-        return self.meta["id"]
 
-    @property
-    def tuples(self) -> tuple[TupleRecord, ...]:
-        return tuple(TupleRecord(**t) for t in self.meta["tuples"])
+def _parse(meta: dict) -> dict:
+    """The typed fields of `SceneInfo`, by name."""
+    tuples, held, spec, oracle = meta.get("tuples"), meta["held_object"], meta["spec"], meta.get("oracle")
+    return {
+        "id": meta["id"],
+        "split": meta["split"],
+        "index": meta["index"],
+        "level": meta["level"],
+        "instruction": meta["instruction"],
+        "instruction_style": meta["instruction_style"],
+        "tuples": None if tuples is None else tuple(TupleRecord(**t) for t in tuples),
+        "held_object": HeldObjectRecord(
+            held["name"], held["human_name"], np.asarray(held["footprint_half_extents"], np.float64)
+        ),
+        "table_texture": meta["table_texture"],
+        "spec": SceneSpec(tuple(spec["objects"]), spec["table_texture"], spec["held_object"], spec["seed"]),
+        "objects": tuple(_object(obj) for obj in meta["objects"]),
+        "boxes": _boxes(meta["boxes"]),
+        "camera": PinholeCamera.from_json(meta["camera"]),
+        "oracle": None if oracle is None else OracleRecord(np.asarray(oracle["placement"], np.float64)),
+        "resamples": ResampleCounts(meta["resamples"]["scenes"], meta["resamples"]["relations"]),
+    }
 
-    @property
-    def boxes(self) -> Boxes:
-        entries = self.meta["boxes"]
-        return Boxes(
-            np.array([b["object_id"] for b in entries], np.int32).reshape(-1),
-            np.array([b["box"] for b in entries], np.int32).reshape(-1, 4),
-            np.array([b["pixels"] for b in entries], np.int64).reshape(-1),
-        )
 
-    def problem(self) -> PlacementProblem:
-        return problem_from_meta(self.meta)
+def _object(entry: dict) -> ObjectRecord:
+    return ObjectRecord(
+        entry["object_id"],
+        entry["name"],
+        entry["human_name"],
+        np.asarray(entry["position"], np.float64),
+        np.asarray(entry["quaternion"], np.float64),
+        np.asarray(entry["aabb"], np.float64),
+    )
 
 
-def problem_from_meta(meta: dict) -> PlacementProblem:
-    """The placement problem of a scene.json, with the ground-truth grounding."""
-    aabbs = np.array([obj["aabb"] for obj in meta["objects"]], dtype=np.float64)[:, :, :2]
-    tuples = [
-        GroundedTuple(t["relation"], None if t["reference_object_id"] == 0 else aabbs[t["reference_object_id"] - 1])
-        for t in meta["tuples"]
-    ]
-    return encode_problem(tuples, aabbs, meta["held_object"]["footprint_half_extents"])
+def _boxes(entries: list[dict]) -> Boxes:
+    return Boxes(
+        np.array([b["object_id"] for b in entries], np.int32).reshape(-1),
+        np.array([b["box"] for b in entries], np.int32).reshape(-1, 4),
+        np.array([b["pixels"] for b in entries], np.int64).reshape(-1),
+    )
 
 
 def _encode_png(image: np.ndarray, compression: int) -> bytes:

@@ -13,14 +13,13 @@ from ocplace.sim.metric import DEFAULT_GRID, feasible_grid
 FEASIBLE_COLOUR = np.array([40, 220, 90], np.float32)
 
 
-def _camera(meta: dict) -> Camera:
-    pose = np.asarray(meta["camera"]["world_from_camera"])
-    return Camera(width=meta["camera"]["width"], height=meta["camera"]["height"], position=tuple(pose[:3, 3]))
+def _camera(record: SceneRecord) -> Camera:
+    return Camera(width=record.camera.width, height=record.camera.height, position=tuple(record.camera.position))
 
 
 def feasible_overlay(record: SceneRecord, alpha: float = 0.45) -> np.ndarray:
     """The RGB image with the oracle's feasible region painted over the table."""
-    camera = _camera(record.meta)
+    camera = _camera(record)
     feasible = feasible_grid(record.problem())
     half = DEFAULT_GRID.resolution / 2.0
     image = record.rgb.astype(np.float32)
@@ -35,20 +34,19 @@ def feasible_overlay(record: SceneRecord, alpha: float = 0.45) -> np.ndarray:
 
 def scene_figure(record: SceneRecord) -> np.ndarray:
     """`(H + banner, W, 3)`: feasible region, labelled boxes (references in bold), oracle point."""
-    meta = record.meta
-    labels = {obj["object_id"]: obj["human_name"] for obj in meta["objects"]}
+    labels = {obj.object_id: obj.human_name for obj in record.objects}
     references = {t.reference_object_id for t in record.tuples}
     canvas = draw_boxes(feasible_overlay(record), record.boxes, labels)
     for object_id, (u0, v0, u1, v1) in zip(record.boxes.object_ids, record.boxes.boxes, strict=True):
         if object_id in references:
             cv2.rectangle(canvas, (int(u0) - 2, int(v0) - 2), (int(u1) + 1, int(v1) + 1), (255, 255, 255), 2)
-    u, v = _camera(meta).table_to_pixel(np.asarray(meta["oracle"]["placement"]))
+    u, v = _camera(record).table_to_pixel(record.oracle.placement)
     cv2.drawMarker(canvas, (int(round(u)), int(round(v))), (255, 0, 255), cv2.MARKER_TILTED_CROSS, 18, 3)
     lines = [
-        f"{meta['id']} ({meta['level']}): {meta['instruction']}",
+        f"{record.id} ({record.level}): {record.instruction}",
         "truth: "
         + "; ".join(f"{t.relation} of {t.reference_name} (token {t.token_index})" for t in record.tuples)
-        + f" | held: {meta['held_object']['human_name']}",
+        + f" | held: {record.held_object.human_name}",
     ]
     banner = np.full((22 * len(lines) + 8, canvas.shape[1], 3), 255, np.uint8)
     for row, text in enumerate(lines):

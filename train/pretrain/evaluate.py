@@ -57,14 +57,14 @@ def evaluate_split(
         visual = backbone.encode_images(np.concatenate([example.crops, example.workspace[None]]))
         text = encode_texts([prompt.text_for(t) for t in example.texts])
         predictions = np.argmax(text @ visual.T, axis=1)
-        level = record.meta["level"]
+        level = record.level
         for prediction, target in zip(predictions, example.targets, strict=True):
             kind = "table" if target == len(example.crops) else "object"
             for group in ("all", f"level_{level}", f"{kind}_tuples"):
                 counts[group, "tuples"] += 1
                 counts[group, "correct"] += int(prediction == target)
             chance.append(1.0 / len(visual))
-        names = {obj["object_id"]: obj["name"] for obj in record.meta["objects"]}
+        names = {obj.object_id: obj.name for obj in record.objects}
         crop_features.append(visual[:-1])
         crop_names += [names[int(i)] for i in example.box_object_ids]
     pools["split"] = sorted(set(crop_names))

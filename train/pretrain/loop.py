@@ -2,7 +2,7 @@
 
 Output directory (default `<cache>/backbones/offline-<recipe hash>/`):
     config.json, weights.safetensors, fingerprint.txt   the backbone (`models/offline_backbone.py`)
-    run/run.json                                         the recipe and pool this run belongs to
+    run/run.json (`paths.RUN_FILE`)                      the recipe and pool this run belongs to
     run/metrics.jsonl                                    loss, temperature, learning rate per logged step
     run/renders/chunk_*.npz, run/checkpoints/            removed once the backbone is saved
 
@@ -29,6 +29,7 @@ import optax
 
 from ocplace.errors import TrainingError
 from ocplace.models.offline_backbone import (
+    CONFIG_FILE,
     FINGERPRINT_FILE,
     FrozenTextTower,
     OfflineBackbone,
@@ -37,6 +38,7 @@ from ocplace.models.offline_backbone import (
     init_params,
     join_params,
     load_saved_backbone,
+    read_backbone_config,
     split_trainable,
     text_embeddings,
     trainable_mask,
@@ -51,7 +53,6 @@ from ocplace.train.pretrain.render import RenderedImages, TrainingPool, render_a
 log = logging.getLogger(__name__)
 
 RUN_DIR = "run"
-RUN_FILE = "run.json"
 LOG_EVERY = 10
 
 
@@ -233,9 +234,9 @@ def pretrain(
     if (out_dir / FINGERPRINT_FILE).exists() and _finished_meta(out_dir) == run_meta:
         log.info("the offline backbone of recipe %r is already built in %s", config.recipe, out_dir)
         backbone = load_saved_backbone(out_dir)
-        summary = json.loads((out_dir / "config.json").read_text())["pretraining"]
+        summary = read_backbone_config(out_dir)["pretraining"]
         return PretrainResult(out_dir, backbone, summary["probe_loss_before"], summary["probe_loss_after"], {})
-    checkpoints.claim_run_dir(run_dir, run_meta, RUN_FILE)
+    checkpoints.claim_run_dir(run_dir, run_meta)
 
     text_tower = FrozenTextTower.load(config.model.text_max_length)
     bank_sentences = jnp.asarray(
@@ -315,7 +316,6 @@ def pretrain(
         artefact=out_dir / FINGERPRINT_FILE,
         save_artefact=save,
         checkpoint_meta={"run": json.dumps(run_meta, sort_keys=True)},
-        run_file=RUN_FILE,
         desc="pretrain",
     )
     outcome = runner.run(spec, progress, stop_after=stop_after)
@@ -340,6 +340,6 @@ def _run_metadata(config: PretrainConfig, pool: TrainingPool, bank: CaptionBank)
 
 def _finished_meta(out_dir: Path) -> dict | None:
     try:
-        return json.loads((out_dir / "config.json").read_text())["pretraining"]["run"]
+        return json.loads((out_dir / CONFIG_FILE).read_text())["pretraining"]["run"]
     except (OSError, ValueError, KeyError):
         return None

@@ -1,7 +1,7 @@
 """A pinhole camera from intrinsics and a pose: what a robot's RGB-D input comes with.
 
 `sim.camera.Camera` is the simulator's fixed top-down camera; this is the general model the
-policy accepts (any intrinsics, any pose), built from the dataset's `meta["camera"]` JSON, a
+policy accepts (any intrinsics, any pose), built from the `camera` of a dataset scene.json, a
 `sim.camera.Camera`, or arrays. Pixels are (u, v), u right and v down, pixel centres at integers;
 depth is planar (along the optical axis), in metres; the camera axes are OpenCV's (x right,
 y down, z forward). The table plane is world z = 0.
@@ -63,7 +63,7 @@ class PinholeCamera:
 
     @classmethod
     def from_json(cls, fields: dict) -> PinholeCamera:
-        """From the dataset's `meta["camera"]` (`sim.camera.Camera.to_json`) or `to_json`'s output."""
+        """From a dataset scene.json's `camera` (`sim.camera.Camera.to_json`) or `to_json`'s output."""
         if not isinstance(fields, dict):
             raise PolicyInputError(f"a camera JSON is an object, not {type(fields).__name__}; {_FIELDS_HELP}")
         missing = [k for k in ("intrinsics", "world_from_camera", "width", "height") if k not in fields]

@@ -1,0 +1,28 @@
+"""The experiments, one file per scale: each `get_config()` spells out everything its scale decides.
+
+    smoke     tests and CI: 12 + 4 x 8 scenes, seconds-long recipes
+    demo      `make demo`: 200 + 4 x 40 scenes, Ours and its ablations, ~10 min on 2 cores
+    default   the paper's protocol: 2000 + 4 x 400 scenes, every method and training fraction
+
+`get(name)` returns the named `Experiment`; `ocplace reproduce --scale NAME` runs it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from ocplace.configs import default, demo, smoke
+from ocplace.errors import UnknownExperiment
+from ocplace.eval.experiment import Experiment
+
+EXPERIMENTS: dict[str, Callable[[], Experiment]] = {
+    "smoke": smoke.get_config,
+    "demo": demo.get_config,
+    "default": default.get_config,
+}
+
+
+def get(name: str) -> Experiment:
+    if name not in EXPERIMENTS:
+        raise UnknownExperiment(f"unknown experiment {name!r}; choose one of {', '.join(EXPERIMENTS)}")
+    return EXPERIMENTS[name]()

@@ -1,0 +1,65 @@
+"""`make demo`: 200 + 4 x 40 scenes, Ours and its ablations with a few minutes of training each.
+
+The baselines (Raw Image Grids, CLIPort-Place) take half the demo's time: `make reproduce` runs
+them, or `--methods all`.
+"""
+
+from pathlib import Path
+
+from ocplace.eval.experiment import DatasetSizes, EvalPlan, Experiment, MethodRecipes
+from ocplace.models import no_pretrain, offline_recipes
+from ocplace.models.baselines.cliport import CliportConfig
+from ocplace.models.baselines.grids import GridConfig
+from ocplace.train.baseline_runs import Schedule
+from ocplace.train.cliport import CliportRecipe
+from ocplace.train.config import TrainConfig
+from ocplace.train.grids import GridsRecipe
+from ocplace.train.no_llm import NoLlmTrainConfig
+from ocplace.train.no_pretrain import NoPretrainRecipe, NoPretrainTrainConfig
+from ocplace.vocabulary import TEST_SUBSETS
+
+
+def get_config() -> Experiment:
+    return Experiment(
+        name="demo",
+        out=Path("out/demo"),
+        seed=0,
+        dataset=DatasetSizes(train_scenes=200, test_scenes=40, physical_scenes=10, seed=0),
+        backbone=offline_recipes.demo_config(),  # the default architecture, 100 scenes, 75 steps
+        recipes=MethodRecipes(
+            # A tenth of the paper's steps at a higher peak rate: the demo dataset is small too.
+            ours=TrainConfig(
+                steps=20_000, learning_rate=5e-4, warmup_steps=500, eval_every=10_000, checkpoint_every=10_000
+            ),
+            no_llm=NoLlmTrainConfig(steps=3_000, warmup_steps=200, chunk_steps=500, checkpoint_every=1_500),
+            no_pretrain=NoPretrainRecipe(
+                no_pretrain.demo_config(),
+                NoPretrainTrainConfig(steps=75, batch_size=8, warmup_steps=8, log_every=25, checkpoint_every=25),
+            ),
+            grids=GridsRecipe(
+                GridConfig(),
+                Schedule(
+                    steps=4_000,
+                    batch_size=4,
+                    learning_rate=1e-3,
+                    warmup_steps=100,
+                    chunk_steps=1_000,
+                    checkpoint_every=2_000,
+                ),
+            ),
+            cliport=CliportRecipe(
+                CliportConfig(),
+                Schedule(
+                    steps=100, batch_size=8, learning_rate=1e-3, warmup_steps=10, chunk_steps=50, checkpoint_every=50
+                ),
+            ),
+        ),
+        evaluation=EvalPlan(
+            methods=("ours", "no_adapter", "no_llm", "no_pretrain"),
+            fractions=(1.0,),
+            fraction_methods=("ours", "grids", "no_pretrain", "no_llm"),
+            num_samples=1024,
+            parser="offline",
+            subsets=TEST_SUBSETS,
+        ),
+    )

@@ -1,0 +1,63 @@
+"""Tests and CI: the smoke dataset (12 + 4 x 8 scenes), seconds-long recipes, every method."""
+
+from pathlib import Path
+
+from ocplace.eval.experiment import DatasetSizes, EvalPlan, Experiment, MethodRecipes
+from ocplace.models import no_pretrain, offline_recipes
+from ocplace.models.baselines import cliport, grids
+from ocplace.train import config as ours
+from ocplace.train.baseline_runs import Schedule
+from ocplace.train.cliport import CliportRecipe
+from ocplace.train.grids import GridsRecipe
+from ocplace.train.no_llm import NoLlmTrainConfig
+from ocplace.train.no_pretrain import NoPretrainRecipe, NoPretrainTrainConfig
+from ocplace.vocabulary import TEST_SUBSETS
+
+
+def get_config() -> Experiment:
+    return Experiment(
+        name="smoke",
+        out=Path("out/smoke"),
+        seed=0,
+        dataset=DatasetSizes(train_scenes=12, test_scenes=8, physical_scenes=2, seed=0),
+        backbone=offline_recipes.smoke_config(),  # a tiny tower, four objects, two scenes, a few steps
+        recipes=MethodRecipes(
+            ours=ours.smoke_config(),
+            no_llm=NoLlmTrainConfig(
+                steps=120,
+                batch_size=8,
+                learning_rate=3e-3,
+                warmup_steps=10,
+                chunk_steps=40,
+                checkpoint_every=40,
+                hidden=32,
+            ),
+            no_pretrain=NoPretrainRecipe(
+                no_pretrain.smoke_config(),
+                NoPretrainTrainConfig(
+                    steps=150, batch_size=4, learning_rate=1e-3, warmup_steps=3, log_every=10, checkpoint_every=50
+                ),
+            ),
+            grids=GridsRecipe(
+                grids.smoke_grid_config(),
+                Schedule(
+                    steps=120, batch_size=4, learning_rate=1e-2, warmup_steps=5, chunk_steps=40, checkpoint_every=40
+                ),
+            ),
+            cliport=CliportRecipe(
+                cliport.smoke_config(),
+                Schedule(
+                    steps=60, batch_size=4, learning_rate=3e-3, warmup_steps=5, chunk_steps=20, checkpoint_every=20
+                ),
+                num_targets=4,
+            ),
+        ),
+        evaluation=EvalPlan(
+            methods=None,
+            fractions=(1.0,),
+            fraction_methods=("ours", "grids", "no_pretrain", "no_llm"),
+            num_samples=64,
+            parser="offline",
+            subsets=TEST_SUBSETS,
+        ),
+    )

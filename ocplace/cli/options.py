@@ -1,0 +1,230 @@
+"""Command-line options derived from frozen config dataclasses, so flags and configs cannot drift apart.
+
+`add_config_arguments` turns fields into `--field-name` flags and `config_from_arguments` applies the
+ones given; `apply_overrides` applies `--set KEY=VALUE` items on dotted paths into nested configs.
+
+Why argparse and not tyro: the whole CLI is argparse subcommands whose modules import heavy
+libraries (JAX, MuJoCo) only inside their handlers, so that `ocplace --help` stays instant. These
+helpers add flags to those existing parsers and import only the standard library; a config class
+is imported at registration only where its module is as light (`ocplace.train.config`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import types
+import typing
+from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
+
+from ocplace.errors import ConfigError
+
+_BOOLS = {"true": True, "false": False}
+_SEPARATORS = (",", ":")  # between a tuple's items, and between the items of a tuple inside it
+_DESCRIPTIONS = {int: "an integer", float: "a number", str: "a string", Path: "a path", bool: "true or false"}
+
+
+def add_config_arguments(
+    parser: argparse.ArgumentParser | argparse._ArgumentGroup,
+    config_cls: type,
+    fields: Sequence[str] | None = None,
+    aliases: Mapping[str, Sequence[str]] | None = None,
+) -> None:
+    """Adds `--field-name` for each of `fields` (default: every field a flag can hold) of `config_cls`.
+
+    Every flag defaults to None, meaning "keep the base configuration's value" (so an optional field's
+    flag cannot set None: `--set` can); a bool field gets `--name/--no-name`, a tuple one takes
+    comma-separated items. `aliases` maps a field to extra flag names. Help comes from
+    `dataclasses.field(metadata={"help": ...})` or the type, followed by the class default.
+    """
+    hints = typing.get_type_hints(config_cls)
+    for field in _selected_fields(config_cls, hints, fields):
+        flags = ["--" + field.name.replace("_", "-"), *(aliases or {}).get(field.name, ())]
+        hint = _unwrap_optional(hints[field.name])[1]  # a flag left out already means "keep", so no `none`
+        help_text = _help(field, hint)
+        if hint is bool:
+            parser.add_argument(
+                *flags, dest=field.name, action=argparse.BooleanOptionalAction, default=None, help=help_text
+            )
+        else:
+            parser.add_argument(*flags, dest=field.name, type=_flag_parser(hint), help=help_text)
+
+
+def config_from_arguments(args: argparse.Namespace, base_config, fields: Sequence[str] | None = None):
+    """`base_config` with every flag of `add_config_arguments(..., type(base_config), fields)` that was given."""
+    hints = typing.get_type_hints(type(base_config))
+    names = [field.name for field in _selected_fields(type(base_config), hints, fields)]
+    return dataclasses.replace(
+        base_config, **{name: getattr(args, name) for name in names if getattr(args, name, None) is not None}
+    )
+
+
+def apply_overrides(config, overrides: Iterable[str]):
+    """`config` with each `KEY=VALUE` applied in order; KEY is a dotted path into nested frozen dataclasses.
+
+    VALUE is parsed by the field's annotation (see `parse_value`). Raises ConfigError, naming the
+    valid keys, for an unknown key, and naming the expected type for a value that does not parse.
+    """
+    for item in overrides:
+        key, sep, text = item.partition("=")
+        if not sep or not key.strip():
+            raise ConfigError(f"--set takes KEY=VALUE, got {item!r}")
+        config = _set(config, key.strip().split("."), text, key.strip())
+    return config
+
+
+def parse_value(text: str, hint):
+    """`text` as a value of type `hint`: int, float, str, Path, bool (true/false), `X | None` (none),
+    a Literal, or a tuple of those (items separated by commas and stripped, an empty text being the
+    empty tuple; items of a tuple inside a tuple separated by colons: `object:0.5,primitive:0.5`).
+    Raises ValueError saying what was expected."""
+    return _parse(text, hint, 0)
+
+
+def format_value(value) -> str:
+    """The text `parse_value` reads back as `value` (given strings without separators or edge spaces)."""
+    return _format(value, 0)
+
+
+def describe(hint) -> str:
+    """What a value of type `hint` looks like, for messages: "an integer", "comma-separated items, ..."."""
+    return _describe(hint, 0)
+
+
+def _parse(text: str, hint, depth: int):
+    optional, inner = _unwrap_optional(hint)
+    if optional and text.strip().lower() == "none":
+        return None
+    origin = typing.get_origin(inner)
+    if origin is tuple:
+        return _parse_tuple(text, typing.get_args(inner), depth)
+    if origin is typing.Literal:
+        for choice in typing.get_args(inner):
+            if str(choice) == text:
+                return choice
+        raise ValueError(f"expected {describe(hint)}, got {text!r}")
+    if inner not in _DESCRIPTIONS:
+        raise TypeError(f"no command-line form for type {hint!r}")
+    try:
+        if inner is bool:
+            return _BOOLS[text.strip().lower()]
+        return inner(text)
+    except (KeyError, ValueError):
+        raise ValueError(f"expected {describe(hint)}, got {text!r}") from None
+
+
+def _parse_tuple(text: str, items: tuple, depth: int) -> tuple:
+    separator = _separator(depth)
+    parts = [part.strip() for part in text.split(separator)] if text.strip() else []
+    if _is_variadic(items):
+        return tuple(_parse(part, items[0], depth + 1) for part in parts)
+    if len(parts) != len(items):
+        raise ValueError(f"expected {len(items)} items separated by {separator!r}, got {text!r}")
+    return tuple(_parse(part, hint, depth + 1) for part, hint in zip(parts, items, strict=True))
+
+
+def _format(value, depth: int) -> str:
+    if value is None:
+        return "none"
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, tuple):
+        return _separator(depth).join(_format(item, depth + 1) for item in value)
+    return str(value)
+
+
+def _describe(hint, depth: int) -> str:
+    optional, inner = _unwrap_optional(hint)
+    origin = typing.get_origin(inner)
+    if origin is tuple:
+        items, separator = typing.get_args(inner), _separator(depth)
+        if _is_variadic(items):
+            text = f"items separated by {separator!r}, each {_describe(items[0], depth + 1)}"
+        else:
+            kinds = "; ".join(_describe(item, depth + 1) for item in items)
+            text = f"{len(items)} items separated by {separator!r} ({kinds})"
+    elif origin is typing.Literal:
+        text = "one of " + ", ".join(map(str, typing.get_args(inner)))
+    elif inner in _DESCRIPTIONS:
+        text = _DESCRIPTIONS[inner]
+    else:
+        raise TypeError(f"no command-line form for type {hint!r}")
+    return text + " or none" if optional else text
+
+
+def _separator(depth: int) -> str:
+    if depth >= len(_SEPARATORS):
+        raise TypeError(f"no command-line form for tuples nested deeper than {len(_SEPARATORS)}")
+    return _SEPARATORS[depth]
+
+
+def _is_variadic(items: tuple) -> bool:
+    return len(items) == 2 and items[1] is Ellipsis
+
+
+def _selected_fields(config_cls: type, hints: dict, names: Sequence[str] | None) -> list[dataclasses.Field]:
+    fields = {field.name: field for field in dataclasses.fields(config_cls) if field.init}
+    if names is None:
+        return [field for field in fields.values() if not _is_group(hints[field.name])]
+    unknown = [name for name in names if name not in fields]
+    if unknown:
+        raise TypeError(f"{config_cls.__name__} has no field(s) {', '.join(unknown)}")
+    return [fields[name] for name in names]
+
+
+def _flag_parser(hint):
+    describe(hint)  # an unsupported type fails when the parser is built, not when a user passes the flag
+
+    def parse(text: str):
+        try:
+            return parse_value(text, hint)
+        except ValueError as error:
+            raise argparse.ArgumentTypeError(str(error)) from None
+
+    return parse
+
+
+def _help(field: dataclasses.Field, hint) -> str:
+    text = field.metadata.get("help", describe(hint))
+    if field.default is not dataclasses.MISSING:
+        text += f" (default: {format_value(field.default)})"
+    return text.replace("%", "%%")  # argparse %-formats help
+
+
+def _set(node, path: list[str], text: str, key: str):
+    """`node` (a dataclass) with the setting at `path` parsed from `text`; `key` is the whole dotted key."""
+    name, rest = path[0], path[1:]
+    done = key[: len(key) - len(".".join(path))].rstrip(".")  # the part of the key already walked
+    if not dataclasses.is_dataclass(node):
+        raise ConfigError(f"unknown key {key!r}: {done} is a value, not a group of settings")
+    hints = typing.get_type_hints(type(node))
+    fields = [field.name for field in dataclasses.fields(node) if field.init]
+    if name not in fields:
+        raise ConfigError(
+            f"unknown key {key!r}: valid keys {'under ' + repr(done) if done else 'at the top level'} are "
+            + ", ".join(f"{n}.*" if dataclasses.is_dataclass(getattr(node, n)) else n for n in fields)
+        )
+    current = getattr(node, name)
+    if rest:
+        return dataclasses.replace(node, **{name: _set(current, rest, text, key)})
+    if dataclasses.is_dataclass(current):
+        keys = ", ".join(f"{key}.{field.name}" for field in dataclasses.fields(current) if field.init)
+        raise ConfigError(f"key {key!r} names a group of settings; set one of its keys: {keys}")
+    try:
+        return dataclasses.replace(node, **{name: parse_value(text, hints[name])})
+    except ValueError as error:
+        raise ConfigError(f"--set {key}={text}: {error}") from None
+
+
+def _unwrap_optional(hint) -> tuple[bool, object]:
+    """(whether `hint` admits None, `hint` without None)."""
+    if typing.get_origin(hint) in (typing.Union, types.UnionType):
+        rest = [arg for arg in typing.get_args(hint) if arg is not type(None)]
+        if len(rest) == 1:
+            return len(rest) < len(typing.get_args(hint)), rest[0]
+    return False, hint
+
+
+def _is_group(hint) -> bool:
+    return dataclasses.is_dataclass(_unwrap_optional(hint)[1])

@@ -1,0 +1,43 @@
+"""The experiments of `ocplace.configs`: one per scale, each complete and valid."""
+
+import pytest
+
+from ocplace import configs
+from ocplace.errors import UnknownExperiment
+from ocplace.models.offline_recipes import output_dir, recipe_dir
+
+
+@pytest.mark.parametrize("name", list(configs.EXPERIMENTS))
+def test_each_experiment_is_named_after_its_scale_and_its_recipes_are_valid(name):
+    experiment = configs.get(name)
+    assert experiment.name == name
+    recipes = experiment.recipes
+    trainings = (
+        recipes.ours,
+        recipes.no_llm,
+        recipes.no_pretrain.train,
+        recipes.grids.schedule,
+        recipes.cliport.schedule,
+    )
+    for config in trainings:
+        config.validate()
+    experiment.backbone.validate()
+    # `reproduce` pretrains into the folder that the backbone spec `offline:NAME` loads from.
+    assert output_dir(experiment.backbone) == recipe_dir(name)
+
+
+def test_ours_recipes_by_scale():
+    default, demo, smoke = (configs.get(name).recipes.ours for name in ("default", "demo", "smoke"))
+    assert default.steps == 200_000 and default.batch_size == 1
+    assert smoke.steps < demo.steps < 200_000
+
+
+def test_a_method_finds_its_recipe_by_name():
+    recipes = configs.get("smoke").recipes
+    assert recipes.of("grids") is recipes.grids and recipes.of("no_pretrain") is recipes.no_pretrain
+    assert recipes.of("no_adapter") is None  # learns nothing
+
+
+def test_an_unknown_experiment_lists_the_choices():
+    with pytest.raises(UnknownExperiment, match="unknown experiment 'huge'; choose one of smoke, demo, default"):
+        configs.get("huge")

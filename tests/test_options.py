@@ -1,0 +1,285 @@
+"""Flags generated from config dataclasses and `--set KEY=VALUE` overrides (ocplace/cli/options.py)."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import math
+import re
+import typing
+from pathlib import Path
+from typing import Literal
+
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from ocplace import configs
+from ocplace.cli.options import (
+    add_config_arguments,
+    apply_overrides,
+    config_from_arguments,
+    describe,
+    format_value,
+    parse_value,
+)
+from ocplace.errors import ConfigError, OcplaceError
+from ocplace.train.config import TrainConfig, smoke_config
+
+
+@dataclasses.dataclass(frozen=True)
+class Inner:
+    rate: float = 0.5
+    name: str = "inner"
+    shares: tuple[tuple[str, float], ...] = (("object", 0.5), ("primitive", 0.5))
+
+
+@dataclasses.dataclass(frozen=True)
+class Leaves:
+    count: int = 3
+    rate: float = dataclasses.field(default=1e-3, metadata={"help": "how fast"})
+    name: str = "leaves"
+    path: Path = Path("out")
+    flag: bool = True
+    limit: int | None = None
+    folder: Path | None = None
+    sizes: tuple[int, ...] = (1, 2)
+    names: tuple[str, ...] = ("a", "b")
+    pair: tuple[str, float] = ("x", 1.0)
+    kind: Literal["small", "large"] = "small"
+    inner: Inner = Inner()
+
+
+@dataclasses.dataclass(frozen=True)
+class Root:
+    seed: int = 0
+    leaves: Leaves = Leaves()
+    maybe: Inner | None = None
+
+
+# Text a value of each field can be written as: no separators, no edge spaces, not "none".
+WORDS = st.text(st.characters(codec="utf-8", exclude_characters=",:\x00"), min_size=1).filter(
+    lambda text: text == text.strip() and text.lower() != "none"
+)
+FLOATS = st.floats(allow_nan=False, width=64)
+VALUES = {
+    "count": st.integers(),
+    "rate": FLOATS,
+    "name": WORDS,
+    "path": WORDS.map(Path),
+    "flag": st.booleans(),
+    "limit": st.none() | st.integers(),
+    "folder": st.none() | WORDS.map(Path),
+    "sizes": st.tuples() | st.lists(st.integers(), min_size=1).map(tuple),
+    "names": st.lists(WORDS, min_size=1).map(tuple),
+    "pair": st.tuples(WORDS, FLOATS),
+    "kind": st.sampled_from(["small", "large"]),
+    "inner.rate": FLOATS,
+    "inner.name": WORDS,
+    "inner.shares": st.lists(st.tuples(WORDS, FLOATS), min_size=1).map(tuple),
+}
+
+
+def _get(config, key: str):
+    for name in key.split("."):
+        config = getattr(config, name)
+    return config
+
+
+def _leaf_keys(config, prefix: str = ""):
+    """Every dotted key of a setting (not a group) in a dataclass tree."""
+    for field in dataclasses.fields(config):
+        value = getattr(config, field.name)
+        if dataclasses.is_dataclass(value):
+            yield from _leaf_keys(value, f"{prefix}{field.name}.")
+        else:
+            yield prefix + field.name
+
+
+def test_the_strategies_cover_every_setting():
+    assert set(VALUES) == set(_leaf_keys(Leaves()))
+
+
+@given(st.data())
+def test_every_field_type_round_trips_through_set(data):
+    root = Root()
+    key = data.draw(st.sampled_from(sorted(VALUES)))
+    value = data.draw(VALUES[key])
+    changed = apply_overrides(root, [f"leaves.{key}={format_value(value)}"])
+    assert _get(changed, f"leaves.{key}") == value
+    assert type(_get(changed, f"leaves.{key}")) is type(value)
+    assert root == Root()  # the original is untouched
+    assert changed == apply_overrides(changed, [f"leaves.{key}={format_value(value)}"])
+
+
+@given(st.data())
+def test_overrides_apply_in_order_and_the_last_one_wins(data):
+    expected, overrides = {}, []
+    for key in data.draw(st.lists(st.sampled_from(sorted(VALUES)), max_size=6)):
+        expected[key] = data.draw(VALUES[key])
+        overrides.append(f"leaves.{key}={format_value(expected[key])}")
+    changed = apply_overrides(Root(), overrides)
+    for key, value in expected.items():
+        assert _get(changed, f"leaves.{key}") == value
+    untouched = set(VALUES) - set(expected)
+    assert all(_get(changed, f"leaves.{key}") == _get(Root(), f"leaves.{key}") for key in untouched)
+
+
+def test_the_result_is_a_new_frozen_config_of_the_same_types():
+    root = Root()
+    changed = apply_overrides(root, ["leaves.inner.rate=2", "seed=7"])
+    assert type(changed) is Root and type(changed.leaves.inner) is Inner
+    assert (changed.seed, changed.leaves.inner.rate, root.seed, root.leaves.inner.rate) == (7, 2.0, 0, 0.5)
+    assert changed.leaves.inner.name == "inner" and changed.leaves.count == 3
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        changed.leaves.inner.rate = 3.0
+    assert apply_overrides(root, []) is root
+
+
+@pytest.mark.parametrize(
+    "text, hint, value",
+    [
+        ("none", int | None, None),
+        (" None ", Path | None, None),
+        ("TRUE", bool, True),
+        (" false", bool, False),
+        ("", tuple[int, ...], ()),
+        ("1, 2 ,3", tuple[int, ...], (1, 2, 3)),
+        ("object:0.5, primitive : 0.25", tuple[tuple[str, float], ...], (("object", 0.5), ("primitive", 0.25))),
+        ("1e-4", float, 1e-4),
+        ("-inf", float, -math.inf),
+        ("200_000", int, 200_000),
+        ("large", Literal["small", "large"], "large"),
+        ("none", tuple[str, ...] | None, None),
+    ],
+)
+def test_values_parse_by_annotation(text, hint, value):
+    assert parse_value(text, hint) == value
+
+
+@pytest.mark.parametrize(
+    "override, message",
+    [
+        ("leaves.count=1.5", "leaves.count=1.5: expected an integer, got '1.5'"),
+        ("leaves.count=none", "expected an integer, got 'none'"),
+        ("leaves.limit=many", "expected an integer or none, got 'many'"),
+        ("leaves.rate=fast", "expected a number"),
+        ("leaves.flag=yes", "expected true or false, got 'yes'"),
+        ("leaves.sizes=1,a", "expected an integer, got 'a'"),
+        ("leaves.pair=x", "expected 2 items separated by ','"),
+        ("leaves.inner.shares=object", "expected 2 items separated by ':'"),
+        ("leaves.kind=medium", "expected one of small, large, got 'medium'"),
+    ],
+)
+def test_bad_values_name_the_key_and_the_expected_type(override, message):
+    with pytest.raises(ConfigError, match=re.escape(message)):
+        apply_overrides(Root(), [override])
+
+
+@pytest.mark.parametrize(
+    "override, message",
+    [
+        ("sede=1", "unknown key 'sede': valid keys at the top level are seed, leaves.*, maybe"),
+        ("leaves.inner.speed=1", "valid keys under 'leaves.inner' are rate, name, shares"),
+        ("leaves.count.value=1", "unknown key 'leaves.count.value': leaves.count is a value"),
+        ("maybe.rate=1", "maybe is a value"),  # an unset optional group has no keys to set
+        ("leaves.inner=1", "'leaves.inner' names a group of settings; set one of its keys: leaves.inner.rate"),
+        ("seed", "--set takes KEY=VALUE, got 'seed'"),
+        ("=1", "--set takes KEY=VALUE"),
+    ],
+)
+def test_unknown_keys_name_the_valid_ones(override, message):
+    with pytest.raises(ConfigError, match=re.escape(message)) as caught:
+        apply_overrides(Root(), [override])
+    assert isinstance(caught.value, OcplaceError)
+
+
+def test_a_value_may_hold_equals_signs():
+    assert apply_overrides(Root(), ["leaves.name=a=b"]).leaves.name == "a=b"
+
+
+def test_every_setting_of_every_experiment_and_training_config_round_trips():
+    for config in (TrainConfig(), smoke_config(), *(configs.get(name) for name in configs.EXPERIMENTS)):
+        for key in _leaf_keys(config):
+            assert apply_overrides(config, [f"{key}={format_value(_get(config, key))}"]) == config, key
+
+
+def test_an_experiment_takes_nested_overrides():
+    experiment = configs.get("smoke")
+    changed = apply_overrides(
+        experiment, ["recipes.ours.steps=5000", "dataset.train_scenes=100", "evaluation.methods=ours, grids"]
+    )
+    assert changed == dataclasses.replace(
+        experiment,
+        recipes=dataclasses.replace(experiment.recipes, ours=dataclasses.replace(experiment.recipes.ours, steps=5000)),
+        dataset=dataclasses.replace(experiment.dataset, train_scenes=100),
+        evaluation=dataclasses.replace(experiment.evaluation, methods=("ours", "grids")),
+    )
+    with pytest.raises(ConfigError, match=re.escape("valid keys under 'recipes' are ours.*, no_llm.*, no_pretrain.*")):
+        apply_overrides(experiment, ["recipes.oursx.steps=1"])
+
+
+# --- generated flags -------------------------------------------------------------------------
+
+
+def _parser(**options) -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(exit_on_error=False)
+    add_config_arguments(parser, Leaves, **options)
+    return parser
+
+
+def test_flags_are_generated_for_every_setting_but_groups():
+    flags = {action.dest: action.option_strings for action in _parser()._actions if action.dest != "help"}
+    assert set(flags) == {field.name for field in dataclasses.fields(Leaves)} - {"inner"}
+    assert flags["count"] == ["--count"] and flags["flag"] == ["--flag", "--no-flag"]
+    assert all(value is None for value in vars(_parser().parse_args([])).values())
+
+
+def test_flags_left_out_keep_the_base_values():
+    base = Leaves(count=9, flag=False, limit=4)
+    assert config_from_arguments(_parser().parse_args([]), base) == base
+
+
+def test_given_flags_replace_the_base_values():
+    args = _parser().parse_args(
+        ["--count", "5", "--flag", "--limit", "7", "--folder", "runs", "--sizes", "3,4", "--pair", "y,2", "--rate=1"]
+    )
+    assert config_from_arguments(args, Leaves(flag=False)) == Leaves(
+        count=5, flag=True, limit=7, folder=Path("runs"), sizes=(3, 4), pair=("y", 2.0), rate=1.0
+    )
+    assert config_from_arguments(_parser().parse_args(["--no-flag"]), Leaves()).flag is False
+
+
+def test_only_the_chosen_fields_get_flags_and_are_applied():
+    parser = _parser(fields=("count",), aliases={"count": ("-n", "--number")})
+    args = parser.parse_args(["--number", "4"])
+    args.rate = 9.0  # another option of the same name is not the config's
+    assert config_from_arguments(args, Leaves(), fields=("count",)) == Leaves(count=4)
+    with pytest.raises(TypeError, match="has no field"):
+        _parser(fields=("counts",))
+    with pytest.raises(TypeError, match="no command-line form"):
+        _parser(fields=("inner",))  # a group is set key by key, with --set
+
+
+def test_a_bad_flag_value_is_a_usage_error_naming_the_type():
+    with pytest.raises(argparse.ArgumentError, match="expected an integer, got 'x'"):
+        _parser().parse_args(["--count", "x"])
+    with pytest.raises(argparse.ArgumentError, match="expected an integer, got 'none'"):
+        _parser().parse_args(["--limit", "none"])  # left out means "keep", so a flag cannot set None
+
+
+def test_help_comes_from_the_metadata_then_the_type_with_the_default():
+    text = _parser().format_help()
+    assert "how fast (default: 0.001)" in text
+    assert "items separated by ',', each an integer (default: 1,2)" in text
+
+
+def test_unsupported_types_fail_when_the_parser_is_built():
+    @dataclasses.dataclass(frozen=True)
+    class Odd:
+        table: dict = dataclasses.field(default_factory=dict)
+
+    with pytest.raises(TypeError, match="no command-line form"):
+        add_config_arguments(argparse.ArgumentParser(), Odd)
+    with pytest.raises(TypeError, match="no command-line form"):
+        describe(typing.get_type_hints(Odd)["table"])
