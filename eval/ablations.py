@@ -49,7 +49,7 @@ class NoLlmMethod:
 
     name: str
     policy: object  # PlacementPolicy: prepare, encode (visual tokens only), sample
-    trained: object  # train.no_llm.TrainedNoLlm
+    trained: object  # models.no_llm.TrainedNoLlm
     backbone_spec: str
     run_dir: Path
 
@@ -73,10 +73,9 @@ class NoLlmMethod:
 
     def program(self, prepared: Sequence, levels: Sequence[str]) -> list[tuple]:
         """Per scene, the chosen references with their predicted relations (`GroundedReference`s)."""
-        from ocplace.models.no_llm import REFERENCES_BY_LEVEL
+        from ocplace.models.no_llm import REFERENCES_BY_LEVEL, encode_sentences
         from ocplace.models.policy import GroundedReference
         from ocplace.sim.relations import RELATION_NAMES
-        from ocplace.train.no_llm import encode_sentences
 
         model = self.trained.model
         tokens = self.policy.encode(prepared, [()] * len(prepared))
@@ -152,9 +151,9 @@ class NoLlmMethod:
 def load_no_llm(ctx: LoadContext) -> NoLlmMethod:
     from ocplace.models.backbone import PromptConfig
     from ocplace.models.grounding import GroundingModel
+    from ocplace.models.no_llm import load_model
     from ocplace.models.placement.sampler import SamplerConfig
     from ocplace.models.policy import PlacementPolicy, load_backbone_spec
-    from ocplace.train.no_llm import load_model
 
     if ctx.run_dir is None:
         raise TrainingError("no_llm needs a run directory; train it first")
@@ -194,7 +193,7 @@ class NoPretrainMethod(PolicyMethod):
 
     def describe(self) -> dict:
         described = describe_policy(self.policy, self.name, self.backbone_spec, self.adapters_file)
-        from ocplace.train.no_llm import params_sha256
+        from ocplace.models.no_llm import params_sha256
 
         described["from_scratch"] = json.loads((Path(self.run_dir) / RUN_FILE).read_text())
         described["backbone"]["weights_sha256"] = params_sha256(self.policy.backbone.params)
@@ -203,10 +202,10 @@ class NoPretrainMethod(PolicyMethod):
 
 
 def load_no_pretrain(ctx: LoadContext) -> NoPretrainMethod:
+    from ocplace.models.no_pretrain import BACKBONE_DIR
     from ocplace.models.offline_backbone import load_saved_backbone
     from ocplace.models.placement.sampler import SamplerConfig
     from ocplace.models.policy import PlacementPolicy
-    from ocplace.train.no_pretrain import BACKBONE_DIR
 
     adapters_file = trained_run_weights(ctx.run_dir, "tower and adapters", "no_pretrain")
     run_dir = Path(ctx.run_dir)

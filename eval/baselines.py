@@ -19,7 +19,7 @@ from ocplace.errors import OcplaceError, TrainingError
 from ocplace.eval.api import LoadContext, MethodOutput, MethodSpec, TrainContext
 from ocplace.models.baselines import cliport, grids
 from ocplace.models.baselines.common import free_grid, top_down_camera
-from ocplace.paths import atomic_path, cache_dir
+from ocplace.paths import atomic_path, baselines_cache
 from ocplace.sim.dataset.records import SceneRecord
 
 SCENES_PER_BATCH = 8  # CLIPort scenes per network call (a fixed shape: one compilation)
@@ -136,13 +136,12 @@ def train_grids(context: TrainContext):
 
 def load_grids(context: LoadContext) -> GridsMethod:
     from ocplace.models.parsing import make_parser
-    from ocplace.train.grids import load_params
 
-    params, run_meta, sha = load_params(context.run_dir)
+    params, run_meta, sha = grids.load_params(context.run_dir)
     config = grids.GridConfig.from_json(json.dumps(run_meta["grid"]))
     backbone = _load_backbone(context.backbone, run_meta, "Raw Image Grids")
     grid_key = hashlib.sha256(config.to_json().encode()).hexdigest()[:12]
-    cells_cache = cache_dir() / "baselines" / f"test-cells-{backbone.fingerprint[:16]}-{grid_key}"
+    cells_cache = baselines_cache() / f"test-cells-{backbone.fingerprint[:16]}-{grid_key}"
     return GridsMethod(
         backbone, make_parser(context.parser), params, config, run_meta, sha, context.num_samples, cells_cache
     )
@@ -212,9 +211,7 @@ def train_cliport(context: TrainContext):
 
 
 def load_cliport(context: LoadContext) -> CliportMethod:
-    from ocplace.train.cliport import load_params
-
-    params, run_meta, sha = load_params(context.run_dir)
+    params, run_meta, sha = cliport.load_params(context.run_dir)
     config = cliport.CliportConfig.from_json(json.dumps(run_meta["network"]))
     return CliportMethod(
         _load_backbone(context.backbone, run_meta, "CLIPort-Place"), params, config, run_meta, sha, context.num_samples

@@ -99,7 +99,7 @@ class PolicyMethod:
 def describe_policy(policy, name: str, backbone_spec: str, adapters_file: Path | None) -> dict:
     """JSON-able record of everything that decides the policy's placements."""
     from ocplace.models.parsing import default_config as parsing_config
-    from ocplace.paths import cache_dir
+    from ocplace.paths import llm_cache
 
     parser_name = getattr(policy.parser, "name", type(policy.parser).__name__)
     parsing = dataclasses.asdict(parsing_config())
@@ -129,7 +129,7 @@ def describe_policy(policy, name: str, backbone_spec: str, adapters_file: Path |
                 "parser": {
                     "name": parser_name,
                     "config": parsing,
-                    "cache": str(cache_dir() / parsing["llm"]["cache_subdir"]) if parser_name == "llm" else None,
+                    "cache": str(llm_cache(parsing["llm"]["cache_subdir"])) if parser_name == "llm" else None,
                 },
                 "sampler": dataclasses.asdict(policy.sampler),
                 "threshold": policy.threshold,

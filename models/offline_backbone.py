@@ -42,12 +42,11 @@ from ocplace.models.backbone import (
     update_with_params,
 )
 from ocplace.models.grounding import l2_normalize
-from ocplace.paths import WEIGHTS_FILE, atomic_path, cache_dir, write_text_atomic
+from ocplace.paths import WEIGHTS_FILE, atomic_path, backbones_cache, write_text_atomic
 from ocplace.vocabulary import CLIP_IMAGE_MEAN, CLIP_IMAGE_STD
 
 CONFIG_FILE = "config.json"  # the model's description, not a run's identity (a pretraining run keeps that in run/)
 FINGERPRINT_FILE = "fingerprint.txt"
-BACKBONES_DIR = "backbones"
 FORMAT = "ocplace-offline-backbone-v1"
 VIT = "vit"
 MINILM_DIM = 384
@@ -506,17 +505,13 @@ def load_saved_backbone(directory: str | Path, max_batch: int = 64) -> OfflineBa
     return backbone
 
 
-def backbones_root() -> Path:
-    return cache_dir() / BACKBONES_DIR
-
-
 def saved_backbone_with(fingerprint: str) -> Path | None:
     """The saved offline backbone in the cache whose fingerprint is `fingerprint`, if any.
 
     Trained adapters record only their backbone's fingerprint; this finds that backbone without
     loading any weights (each directory's `fingerprint.txt` is written last, so it is complete).
     """
-    for path in sorted(backbones_root().glob(f"*/{FINGERPRINT_FILE}")):
+    for path in sorted(backbones_cache().glob(f"*/{FINGERPRINT_FILE}")):
         if path.read_text().strip() == fingerprint:
             return path.parent
     return None

@@ -17,6 +17,7 @@ from pathlib import Path
 from ocplace.errors import TrainingError
 from ocplace.models import offline_backbone
 from ocplace.models.offline_backbone import OfflineConfig
+from ocplace.paths import backbones_cache
 from ocplace.sim.colour_terms import BASIC_COLOURS, COLOUR_TERMS
 from ocplace.sim.primitives import SHAPES, SIZES
 
@@ -179,7 +180,7 @@ def recipe_config(name: str) -> PretrainConfig:
 
 
 def output_dir(config: PretrainConfig) -> Path:
-    return offline_backbone.backbones_root() / f"offline-{config.key()}"
+    return backbones_cache() / f"offline-{config.key()}"
 
 
 def recipe_dir(name: str) -> Path:

@@ -55,13 +55,14 @@ def load_backbone_spec(spec: str) -> Backbone:
 
 def backbone_hint(fingerprint: str) -> str:
     """How to get the backbone with `fingerprint`: its saved directory, or how to build or pass it."""
-    from ocplace.models.offline_backbone import backbones_root, saved_backbone_with
+    from ocplace.models.offline_backbone import saved_backbone_with
+    from ocplace.paths import backbones_cache
 
     directory = saved_backbone_with(fingerprint)
     if directory is not None:
         return f"the backbone they were trained with is saved in {directory}: pass `--backbone offline:{directory}`"
     return (
-        f"no saved offline backbone in {backbones_root()} has that fingerprint: pass the backbone they were "
+        f"no saved offline backbone in {backbones_cache()} has that fingerprint: pass the backbone they were "
         "trained with (`--backbone SPEC`, the spec their training used), or train adapters on a backbone you "
         "have (`ocplace reproduce` pretrains its scale's backbone and trains on it)"
     )

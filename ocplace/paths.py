@@ -25,6 +25,47 @@ def cache_dir() -> Path:
     return Path(root).expanduser()
 
 
+# The cache's folders, each named here once (docs/architecture.md, "Cache"). Their names are what caches on
+# disk already use: renaming one would orphan every file in it.
+
+
+def library_cache(cache: str | os.PathLike | None = None) -> Path:
+    """The object library (meshes, textures, manifest), under `cache` when given, else under `cache_dir()`."""
+    return Path(cache if cache is not None else cache_dir()).expanduser() / "library"
+
+
+def sources_cache() -> Path:
+    return cache_dir() / "sources"  # asset packages fetched for the library (the robosuite wheel, unpacked)
+
+
+def features_cache() -> Path:
+    return cache_dir() / "features"  # backbone features of dataset splits, and no_llm's sentence tokens
+
+
+def baselines_cache() -> Path:
+    return cache_dir() / "baselines"  # the baselines' inputs: grid cell features, CLIPort data, test cells
+
+
+def scratch_cache() -> Path:
+    return cache_dir() / "scratch"  # no_pretrain's decoded training images and phrase embeddings
+
+
+def backbones_cache() -> Path:
+    return cache_dir() / "backbones"  # pretrained offline backbones, one folder each
+
+
+def weights_cache() -> Path:
+    return cache_dir() / "weights"  # ImageNet EfficientNet weights, converted from the pip package's file
+
+
+def primitives_cache() -> Path:
+    return cache_dir() / "primitives"  # generated primitive meshes of the pretraining arenas
+
+
+def llm_cache(subdir: str) -> Path:
+    return cache_dir() / subdir  # the LLM parser's answers; `subdir` is `LLMConfig.cache_subdir` ("parser")
+
+
 def inside(root: str | os.PathLike, relative: str) -> Path:
     """`root / relative`, or ValueError unless it names something strictly inside `root`.
 

@@ -177,7 +177,7 @@ def test_training_at_smoke_scale_lowers_the_loss(runs, name):
 
 
 def test_training_is_deterministic_and_idempotent(runs, specs, smoke_dataset, tiny_backbone_spec, tmp_path):
-    from ocplace.train.no_llm import load_model
+    from ocplace.models.no_llm import load_model
 
     again = specs["no_llm"].train(TrainContext(smoke_dataset, tiny_backbone_spec, tmp_path / "again", RECIPES.no_llm))
     assert load_model(again).sha256 == load_model(runs["no_llm"]).sha256

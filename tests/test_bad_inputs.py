@@ -386,7 +386,7 @@ def saved_cache(tmp_path_factory):
     cache = tmp_path_factory.mktemp("cache")
     config = ob.smoke_config()
     directory = ob.save_backbone(
-        cache / ob.BACKBONES_DIR / "offline-tiny",
+        cache / "backbones" / "offline-tiny",  # paths.backbones_cache() once OCPLACE_CACHE names `cache`
         config,
         ob.init_params(config, jax.random.key(7)),  # not tiny_backbone_spec's
         ob.FrozenTextTower.load(config.text_max_length).digest,

@@ -310,26 +310,26 @@ def test_fig5_panels_draw_on_any_image(tmp_path):
     assert (tmp_path / "camera.png").stat().st_size > 1000
 
 
-def _demo_parser():
+def _densities_parser():
     import argparse
 
-    from ocplace.cli import place_demo
+    from ocplace.cli import densities
 
     parser = argparse.ArgumentParser()
-    place_demo.register(parser.add_subparsers(dest="command"))
+    densities.register(parser.add_subparsers(dest="command"))
     return parser
 
 
-def test_place_demo_command_is_registered():
-    args = _demo_parser().parse_args(["place-demo", "--seed", "3", "--out", "x.png"])
+def test_densities_command_is_registered():
+    args = _densities_parser().parse_args(["densities", "--seed", "3", "--out", "x.png"])
     assert (args.seed, args.split, str(args.out)) == (3, "seen", "x.png")
 
 
 @pytest.mark.slow
-def test_place_demo_draws_fig5_on_a_real_scene(tmp_path, library):
+def test_densities_draws_fig5_on_a_real_scene(tmp_path, library):
     from PIL import Image
 
     out = tmp_path / "fig5.png"
-    args = _demo_parser().parse_args(["place-demo", "--seed", "1", "--out", str(out)])
+    args = _densities_parser().parse_args(["densities", "--seed", "1", "--out", str(out)])
     assert args.func(args) == 0
     assert Image.open(out).size[0] > 1000

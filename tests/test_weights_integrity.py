@@ -28,11 +28,10 @@ from ocplace.models.baselines import cliport, grids
 from ocplace.models.grounding import GroundingModel
 from ocplace.models.no_llm import NoLlmConfig, NoLlmModel
 from ocplace.models.no_llm import init_params as init_no_llm
+from ocplace.models.no_llm import load_model as load_no_llm
 from ocplace.models.policy import PlacementPolicy, PreparedScene
 from ocplace.paths import WEIGHTS_FILE
 from ocplace.train import baseline_runs, checkpoints, no_llm
-from ocplace.train import cliport as train_cliport
-from ocplace.train import grids as train_grids
 from ocplace.train.config import smoke_config
 from ocplace.train.loop import init_state, make_optimizer, train
 from ocplace.train.metrics import MetricsLog
@@ -83,7 +82,7 @@ def _grids(run_dir):
     checkpoints.claim_run_dir(run_dir, {"grid": json.loads(config.to_json())})
     params = _random_like(lambda: grids.init_grids(config, DIM, KEY))
     path = baseline_runs.save_weights(run_dir, params, {"run": "test"})
-    return path, lambda: train_grids.load_params(run_dir)[0], params
+    return path, lambda: grids.load_params(run_dir)[0], params
 
 
 def _cliport(run_dir):
@@ -91,7 +90,7 @@ def _cliport(run_dir):
     checkpoints.claim_run_dir(run_dir, {"network": json.loads(config.to_json()), "dim": DIM})
     params = _random_like(lambda: cliport.init_network(config, DIM, KEY))
     path = baseline_runs.save_weights(run_dir, params, {"run": "test"})
-    return path, lambda: train_cliport.load_params(run_dir)[0], params
+    return path, lambda: cliport.load_params(run_dir)[0], params
 
 
 def _no_llm(run_dir):
@@ -101,7 +100,7 @@ def _no_llm(run_dir):
     no_llm.save_model(
         path, NoLlmModel(config, params, 30.0), backbone_fingerprint="f", train_config=no_llm.NoLlmTrainConfig()
     )
-    return path, lambda: no_llm.load_model(run_dir).model.params, params
+    return path, lambda: load_no_llm(run_dir).model.params, params
 
 
 @pytest.fixture(scope="module")

@@ -5,7 +5,8 @@
     RUN/checkpoints/step_*.safetensors   params + optimiser state (the newest `keep` kept)
     RUN/weights.safetensors   the final parameters; its presence marks the run finished
 
-Checkpoints and weights carry a content hash (`models.weights_file`), checked on load.
+Checkpoints and weights carry a content hash (`models.weights_file`), checked on load; a finished
+run is read back by `models.baselines.trained_run.load_run`.
 
 A rerun with the same directory and settings skips a finished run and resumes an interrupted one
 from its newest checkpoint (`metrics.jsonl` is cut back to it); other settings are refused. Steps
@@ -15,7 +16,6 @@ are functions of (seed, step) alone, so a resumed run ends where an uninterrupte
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import json
 from collections.abc import Callable
 from pathlib import Path
@@ -26,7 +26,7 @@ import optax
 
 from ocplace.errors import TrainingError
 from ocplace.models import weights_file
-from ocplace.paths import RUN_FILE, WEIGHTS_FILE, trained_weights
+from ocplace.paths import WEIGHTS_FILE
 from ocplace.train import checkpoints, optim, runner
 
 
@@ -104,19 +104,6 @@ def _with_adam_state(params, schedule: Schedule) -> tuple:
 
 def save_weights(run_dir: Path, params, metadata: dict[str, str]) -> Path:
     return weights_file.save_weights(Path(run_dir) / WEIGHTS_FILE, checkpoints.flatten_state(params), metadata)
-
-
-def load_run(run_dir: Path) -> tuple[dict, dict[str, np.ndarray], str]:
-    """`(run_meta, flat arrays, sha256 of the weights file)` of a finished run, verified.
-
-    `checkpoints.unflatten_state` makes the tree of the arrays.
-    """
-    path = trained_weights(run_dir, "weights", "train the method first (`ocplace evaluate` trains missing runs)")
-    run_meta = json.loads((Path(run_dir) / RUN_FILE).read_text())
-    arrays, _ = weights_file.load_weights(
-        path, f"delete {path.parent} and rerun `ocplace evaluate` or `ocplace reproduce` (they train missing runs)"
-    )
-    return run_meta, arrays, hashlib.sha256(path.read_bytes()).hexdigest()
 
 
 def step_keys(seed: int, start: int, count: int):

@@ -22,11 +22,11 @@ import optax
 from ocplace.models.backbone import Backbone
 from ocplace.models.baselines import cliport
 from ocplace.models.baselines.common import top_down_camera
-from ocplace.paths import atomic_path, cache_dir
+from ocplace.paths import atomic_path, baselines_cache
 from ocplace.sim import metric
 from ocplace.sim.dataset.job import scene_dirs
 from ocplace.sim.dataset.records import read_scene
-from ocplace.train import baseline_runs, checkpoints
+from ocplace.train import baseline_runs
 from ocplace.train.baseline_runs import Schedule
 from ocplace.train.loop import batch_indices, subset_indices
 
@@ -89,7 +89,7 @@ def training_data(
             [CACHE_FORMAT, digest, backbone.fingerprint, recipe_.network.to_json(), recipe_.num_targets]
         ).encode()
     ).hexdigest()
-    path = cache_dir() / "baselines" / f"cliport-{digest[:16]}-{split}-{key[:16]}.safetensors"
+    path = baselines_cache() / f"cliport-{digest[:16]}-{split}-{key[:16]}.safetensors"
     if path.is_file():
         with safe_open(str(path), framework="numpy") as handle:
             if (handle.metadata() or {}).get("key") == key:
@@ -179,11 +179,3 @@ def train_cliport(
 
     baseline_runs.train(out_dir, run_meta, init_params, chunk, chosen.schedule, progress, "cliport")
     return out_dir
-
-
-def load_params(run_dir: Path) -> tuple[dict, dict, str]:
-    """`(params, run_meta, weights sha256)` of a finished run."""
-    run_meta, arrays, sha = baseline_runs.load_run(run_dir)
-    config = cliport.CliportConfig.from_json(json.dumps(run_meta["network"]))
-    template = jax.eval_shape(lambda: cliport.init_network(config, run_meta["dim"], jax.random.key(0)))
-    return checkpoints.unflatten_state(arrays, template), run_meta, sha

@@ -26,11 +26,11 @@ from ocplace.models import features as feature_cache
 from ocplace.models.backbone import Backbone
 from ocplace.models.baselines import grids
 from ocplace.models.baselines.common import top_down_camera
-from ocplace.paths import cache_dir
+from ocplace.paths import baselines_cache
 from ocplace.sim.dataset.job import scene_dirs
 from ocplace.sim.dataset.loader import letterbox
 from ocplace.sim.dataset.records import read_scene
-from ocplace.train import baseline_runs, checkpoints
+from ocplace.train import baseline_runs
 from ocplace.train.baseline_runs import Schedule
 from ocplace.train.loop import batch_indices, subset_indices
 from ocplace.vocabulary import MAX_INSTRUCTION_TUPLES
@@ -66,7 +66,7 @@ def cell_features(
     digest = dataset_hash(dataset_dir, split)
     grid_key = hashlib.sha256(config.to_json().encode()).hexdigest()
     name = f"grids-{digest[:16]}-{split}-{backbone.fingerprint[:16]}-{grid_key[:8]}.safetensors"
-    path = cache_dir() / "baselines" / name
+    path = baselines_cache() / name
     featurize_config = feature_cache.FeaturizeConfig(
         max_objects=config.num_cells, max_tuples=MAX_INSTRUCTION_TUPLES, prompt=grids.PLAIN_PROMPT
     )
@@ -149,12 +149,3 @@ def train_grids(
 
     baseline_runs.train(out_dir, run_meta, init_params, chunk, chosen.schedule, progress, "grids")
     return out_dir
-
-
-def load_params(run_dir: Path) -> tuple[dict, dict, str]:
-    """`(params, run_meta, weights sha256)` of a finished run."""
-    run_meta, arrays, sha = baseline_runs.load_run(run_dir)
-    config = grids.GridConfig.from_json(json.dumps(run_meta["grid"]))
-    dim = int(arrays["['visual']['up']['kernel']"].shape[-1])  # the feature size is not in the run's config
-    template = jax.eval_shape(lambda: grids.init_grids(config, dim, jax.random.key(0)))
-    return checkpoints.unflatten_state(arrays, template), run_meta, sha

@@ -31,9 +31,9 @@ import optax
 from ocplace.errors import FeaturesError, TrainingError
 from ocplace.models.backbone import Backbone
 from ocplace.models.features import Features, FeaturizeConfig, featurize, load_features
-from ocplace.models.no_llm import NoLlmConfig, NoLlmModel, init_params, loss_terms
-from ocplace.models.weights_file import load_weights, save_weights
-from ocplace.paths import WEIGHTS_FILE, atomic_path, cache_dir, trained_weights
+from ocplace.models.no_llm import NoLlmConfig, NoLlmModel, encode_sentences, init_params, loss_terms
+from ocplace.models.weights_file import save_weights
+from ocplace.paths import WEIGHTS_FILE, atomic_path, features_cache
 from ocplace.sim.relations import relation_index
 from ocplace.train import checkpoints, runner
 from ocplace.train.loop import batch_indices, subset_indices
@@ -113,15 +113,7 @@ def sentences_key(backbone_fingerprint: str, dataset_hash: str, config: NoLlmCon
 
 
 def sentences_path(dataset_hash: str, split: str, backbone_fingerprint: str) -> Path:
-    return cache_dir() / "features" / f"{dataset_hash[:16]}-{split}-{backbone_fingerprint[:16]}-sentences.safetensors"
-
-
-def encode_sentences(backbone: Backbone, config: NoLlmConfig, instructions, batch: int = 64) -> np.ndarray:
-    """`(len(instructions), D)` sentence tokens."""
-    texts = [config.sentence_text(text) for text in instructions]
-    if not texts:
-        return np.zeros((0, backbone.dim), np.float32)
-    return np.concatenate([backbone.encode_texts(texts[i : i + batch]) for i in range(0, len(texts), batch)])
+    return features_cache() / f"{dataset_hash[:16]}-{split}-{backbone_fingerprint[:16]}-sentences.safetensors"
 
 
 def split_sentences(dataset_dir: Path, split: str, backbone: Backbone, config: NoLlmConfig) -> Sentences:
@@ -293,6 +285,7 @@ def train_no_llm(
 
 
 def save_model(path: Path, model: NoLlmModel, *, backbone_fingerprint: str, train_config: NoLlmTrainConfig) -> None:
+    """Writes the model file that `models.no_llm.load_model` reads back."""
     metadata = {
         "model_config": model.config.to_json(),
         "logit_scale": repr(model.logit_scale),
@@ -300,42 +293,3 @@ def save_model(path: Path, model: NoLlmModel, *, backbone_fingerprint: str, trai
         "train_config": train_config.to_json(),
     }
     save_weights(path, checkpoints.flatten_state(model.params), metadata)
-
-
-@dataclasses.dataclass(frozen=True)
-class TrainedNoLlm:
-    model: NoLlmModel
-    backbone_fingerprint: str
-    train_config: dict
-    sha256: str  # of the weights (`params_sha256`)
-
-
-def load_model(run_dir: Path) -> TrainedNoLlm:
-    """The trained model of a finished run, verified."""
-    path = trained_weights(
-        run_dir,
-        "no_llm model",
-        "train it first (`ocplace evaluate` trains registered methods, or call ocplace.train.no_llm.train_no_llm)",
-    )
-    arrays, metadata = load_weights(
-        path, f"delete {path.parent} and rerun `ocplace evaluate` or `ocplace reproduce` (they train missing runs)"
-    )
-    config = NoLlmConfig.from_json(metadata["model_config"])
-    template = jax.eval_shape(lambda: init_params(config, jax.random.key(0)))
-    params = checkpoints.unflatten_state(arrays, template)
-    return TrainedNoLlm(
-        NoLlmModel(config, params, float(metadata["logit_scale"])),
-        metadata["backbone_fingerprint"],
-        json.loads(metadata["train_config"]),
-        params_sha256(params),
-    )
-
-
-def params_sha256(params) -> str:
-    """sha256 over every weight's path, dtype, shape and bytes: a file's hash would not do, because
-    safetensors writes its metadata in no fixed order."""
-    from ocplace.models.backbone import update_with_params
-
-    digest = hashlib.sha256()
-    update_with_params(digest, params)
-    return digest.hexdigest()

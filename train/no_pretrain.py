@@ -33,13 +33,13 @@ from ocplace.errors import TrainingError
 from ocplace.models import no_pretrain, trained_adapters
 from ocplace.models import offline_backbone as ob
 from ocplace.models.backbone import PromptConfig
-from ocplace.paths import WEIGHTS_FILE, atomic_path, cache_dir
+from ocplace.models.no_pretrain import BACKBONE_DIR
+from ocplace.paths import WEIGHTS_FILE, atomic_path, scratch_cache
 from ocplace.train import checkpoints, runner
 from ocplace.train.loop import batch_indices, subset_indices
 from ocplace.vocabulary import MAX_INSTRUCTION_TUPLES as MAX_TUPLES
 
-BACKBONE_DIR = "backbone"
-# The format and its <cache>/scratch/ folder keep their old name: renaming would orphan every cached input.
+# The format and its cache folder (`paths.scratch_cache`) keep their old name: renaming would orphan every cached input.
 INPUTS_FORMAT = "ocplace-scratch-inputs-v1"
 MAX_TOKENS = 6  # 5 crops + the workspace
 
@@ -114,7 +114,7 @@ def no_pretrain_inputs(
             [INPUTS_FORMAT, digest, config.image_size, config.text_max_length, prompt.to_json(), text_tower.digest]
         ).encode()
     ).hexdigest()
-    path = cache_dir() / "scratch" / f"{digest[:16]}-{split}-{config.image_size}px-{key[:12]}.safetensors"
+    path = scratch_cache() / f"{digest[:16]}-{split}-{config.image_size}px-{key[:12]}.safetensors"
     if path.exists():
         with safe_open(str(path), framework="numpy") as handle:
             scene_ids = tuple(json.loads(handle.metadata()["scene_ids"]))

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from pathlib import Path
 
 import cv2
 import flax.linen as nn
@@ -27,6 +28,8 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from ocplace.models.baselines.trained_run import load_run
+from ocplace.models.weights_file import unflatten_state
 from ocplace.sim.camera import Camera
 from ocplace.sim.workspace import DEFAULT_TABLE, Table
 from ocplace.vocabulary import CLIP_IMAGE_MEAN, CLIP_IMAGE_STD
@@ -196,3 +199,11 @@ def mode_and_samples(
     samples = pixel_to_table(flat_to_pixel(flat, config) + jitter, camera, config)
     samples = np.clip(samples, config.table.bounds[0], config.table.bounds[1])  # edge pixels overhang the table
     return mode.astype(np.float32), samples.astype(np.float32)
+
+
+def load_params(run_dir: Path) -> tuple[dict, dict, str]:
+    """`(params, run_meta, weights sha256)` of a finished run."""
+    run_meta, arrays, sha = load_run(run_dir)
+    config = CliportConfig.from_json(json.dumps(run_meta["network"]))
+    template = jax.eval_shape(lambda: init_network(config, run_meta["dim"], jax.random.key(0)))
+    return unflatten_state(arrays, template), run_meta, sha

@@ -18,6 +18,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import json
+from pathlib import Path
 
 import flax.linen as nn
 import jax
@@ -27,7 +28,9 @@ import optax
 
 from ocplace.models.adapters import ClipAdapter, blend
 from ocplace.models.backbone import PromptConfig
+from ocplace.models.baselines.trained_run import load_run
 from ocplace.models.grounding import l2_normalize
+from ocplace.models.weights_file import unflatten_state
 from ocplace.sim import language, metric, relations
 from ocplace.sim.boxes import square_crop
 from ocplace.sim.camera import Camera
@@ -205,3 +208,12 @@ def sample_in_cell(
     mode = candidates[np.argmin(np.sum((candidates - [(x0 + x1) / 2, (y0 + y1) / 2]) ** 2, axis=-1))]
     picks = np.asarray(jax.random.randint(key, (num_samples,), 0, len(candidates)))
     return candidates[picks].astype(np.float32), mode.astype(np.float32), collision_free
+
+
+def load_params(run_dir: Path) -> tuple[dict, dict, str]:
+    """`(params, run_meta, weights sha256)` of a finished run."""
+    run_meta, arrays, sha = load_run(run_dir)
+    config = GridConfig.from_json(json.dumps(run_meta["grid"]))
+    dim = int(arrays["['visual']['up']['kernel']"].shape[-1])  # the feature size is not in the run's config
+    template = jax.eval_shape(lambda: init_grids(config, dim, jax.random.key(0)))
+    return unflatten_state(arrays, template), run_meta, sha

@@ -43,7 +43,7 @@ class LLMConfig:
     backoff_s: float = 0.5  # doubled after each failed attempt
     temperature: float = 0.0  # at 0 an invalid answer is final: the same request gets it again
     use_cache: bool = True
-    cache_subdir: str = "parser"  # under ocplace.paths.cache_dir()
+    cache_subdir: str = "parser"  # the cache folder of answers (`ocplace.paths.llm_cache`)
 
     def __post_init__(self):
         check_base_url(self.base_url, self.api_key_env)

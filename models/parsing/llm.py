@@ -118,7 +118,7 @@ class LLMParser:
 
     @property
     def cache_dir(self) -> Path:
-        return paths.cache_dir() / self.config.cache_subdir
+        return paths.llm_cache(self.config.cache_subdir)
 
     def parse(self, instruction: str) -> list[ParsedTuple]:
         cleaned = text.validate(instruction)

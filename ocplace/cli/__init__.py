@@ -22,7 +22,7 @@ COMMAND_MODULES = (
     "ocplace.cli.parse",
     "ocplace.cli.train",
     "ocplace.cli.backbone",
-    "ocplace.cli.place_demo",
+    "ocplace.cli.densities",
     "ocplace.cli.evaluate",
     "ocplace.cli.place",
 )

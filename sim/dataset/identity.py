@@ -11,7 +11,7 @@ import json
 from pathlib import Path
 
 from ocplace.errors import FeaturesError
-from ocplace.paths import cache_dir
+from ocplace.paths import features_cache
 
 
 def split_files(dataset_dir: Path, split: str) -> list[tuple[str, str]]:
@@ -36,4 +36,4 @@ def dataset_hash(dataset_dir: Path, split: str) -> str:
 def split_features_path(dataset_dir: Path, split: str, backbone_fingerprint: str) -> Path:
     """Where `ocplace featurize` caches a split's features, so every user of them shares one file."""
     digest = dataset_hash(dataset_dir, split)
-    return cache_dir() / "features" / f"{digest[:16]}-{split}-{backbone_fingerprint[:16]}.safetensors"
+    return features_cache() / f"{digest[:16]}-{split}-{backbone_fingerprint[:16]}.safetensors"

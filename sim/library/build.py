@@ -18,7 +18,7 @@ from PIL import Image
 from tqdm import tqdm
 
 from ocplace.errors import AssetBuildError, UnknownObject
-from ocplace.paths import atomic_path, write_text_atomic
+from ocplace.paths import atomic_path, library_cache, write_text_atomic
 from ocplace.sim.library.config import LibraryConfig, default_config
 from ocplace.sim.library.library import Library, load_library
 from ocplace.sim.library.metadata import ObjectSpec, packaged_objects, table_textures
@@ -31,7 +31,6 @@ from ocplace.sim.library.records import (
     TEXTURES_DIRNAME,
     TMP_DIRNAME,
     asset_from_json,
-    library_root,
 )
 from ocplace.sim.library.sources import SourceFiles, gso_specs, libero_root, pybullet_root, source_files
 
@@ -250,7 +249,7 @@ def build_library(
     Objects that fail are logged, marked failed in the manifest and left out of the library.
     """
     config = config or default_config()
-    root = library_root(cache)
+    root = library_cache(cache)
     jobs = [_job(spec, config) for spec in resolve_specs(config)]
     _remove_abandoned_tmp(root / TMP_DIRNAME)
     results = {}

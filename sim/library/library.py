@@ -10,13 +10,12 @@ from collections.abc import Mapping
 from pathlib import Path
 
 from ocplace.errors import LibraryNotBuilt, UnknownObject
-from ocplace.paths import inside
+from ocplace.paths import inside, library_cache
 from ocplace.sim.library.records import (
     ASSET_FILE,
     MANIFEST_FILE,
     MANIFEST_VERSION,
     asset_from_json,
-    library_root,
 )
 from ocplace.sim.library.types import ObjectAsset
 from ocplace.vocabulary import LIBRARY_SPLITS
@@ -84,11 +83,11 @@ def _read_asset(root: Path, entry: dict) -> ObjectAsset:
 
 
 def load_library(cache: str | Path | None = None) -> Library:
-    """Reads the library under `<cache>/library` (default cache: `ocplace.paths.cache_dir()`).
+    """Reads the library under `<cache>/library` (`ocplace.paths.library_cache`).
 
     Raises `LibraryNotBuilt` when the manifest or any object it lists as built is missing.
     """
-    root = library_root(cache)
+    root = library_cache(cache)
     manifest = _read_manifest(root)
     objects = {entry["name"]: _read_asset(root, entry) for entry in manifest["objects"] if entry["status"] == "ok"}
     textures = {}

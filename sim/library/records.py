@@ -8,20 +8,12 @@ from pathlib import Path
 from ocplace.paths import inside
 from ocplace.sim.library.types import ObjectAsset
 
-LIBRARY_DIRNAME = "library"
 OBJECTS_DIRNAME = "objects"
 TEXTURES_DIRNAME = "textures"
 TMP_DIRNAME = "tmp"
 MANIFEST_FILE = "manifest.json"
 ASSET_FILE = "asset.json"  # written last inside an object's folder: its presence marks it complete
 MANIFEST_VERSION = 1
-
-
-def library_root(cache: str | Path | None = None) -> Path:
-    """`<cache>/library`, with `cache` defaulting to `ocplace.paths.cache_dir()`."""
-    from ocplace.paths import cache_dir
-
-    return Path(cache if cache is not None else cache_dir()).expanduser() / LIBRARY_DIRNAME
 
 
 def asset_to_json(asset: ObjectAsset) -> dict:

@@ -18,7 +18,7 @@ import zipfile
 from pathlib import Path
 
 from ocplace.errors import MissingAssetPackage
-from ocplace.paths import cache_dir
+from ocplace.paths import sources_cache
 
 ROBOSUITE_VERSION = "1.5.2"
 WHEEL_NAME = f"robosuite-{ROBOSUITE_VERSION}-py3-none-any.whl"
@@ -33,7 +33,7 @@ def robosuite_root() -> Path:
     machine without PyPI), else downloaded with pip. Raises `MissingAssetPackage` when neither
     works.
     """
-    root = cache_dir() / "sources" / f"robosuite-{ROBOSUITE_VERSION}"
+    root = sources_cache() / f"robosuite-{ROBOSUITE_VERSION}"
     if (root / "LICENSE").is_file():
         return root
     root.parent.mkdir(parents=True, exist_ok=True)

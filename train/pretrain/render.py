@@ -28,7 +28,7 @@ import numpy as np
 from ocplace.errors import SceneError, TrainingError
 from ocplace.models.offline_backbone import OfflineConfig, preprocess_images
 from ocplace.models.offline_recipes import RenderConfig
-from ocplace.paths import atomic_path, cache_dir
+from ocplace.paths import atomic_path, primitives_cache
 from ocplace.sim.boxes import boxes_from_segmentation, square_crop
 from ocplace.sim.colour_terms import COLOUR_TERMS
 from ocplace.sim.dataset.loader import letterbox
@@ -39,7 +39,6 @@ from ocplace.train.pretrain.classes import PretrainClasses, pretraining_classes
 from ocplace.train.pretrain.colours import hsv_to_rgb, recolour_objects, sample_hsv
 
 RENDERS_DIR = "renders"
-PRIMITIVES_DIR = "primitives"  # under the cache: generated meshes, rewritten whenever an arena is built
 MAX_SCENE_DRAWS = 20
 
 log = logging.getLogger(__name__)
@@ -82,7 +81,8 @@ def training_arena(library, pool: TrainingPool, primitives: Sequence[Primitive] 
     from ocplace.sim.mujoco_backend import MujocoScenes
 
     objects = [library.get(name) for name in pool.objects]
-    objects += [primitive_asset(primitive, cache_dir() / PRIMITIVES_DIR) for primitive in primitives]
+    # The primitives' meshes are rewritten whenever an arena is built.
+    objects += [primitive_asset(primitive, primitives_cache()) for primitive in primitives]
     return MujocoScenes(objects, {name: library.textures[name].path for name in pool.textures})
 
 

@@ -1,4 +1,4 @@
-"""`ocplace place-demo`: the paper's Fig. 5 on a real scene."""
+"""`ocplace densities`: the paper's Fig. 5 (placement densities) on a real scene."""
 
 from __future__ import annotations
 
@@ -9,22 +9,22 @@ from ocplace.vocabulary import LIBRARY_SPLITS
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    demo = subparsers.add_parser(
-        "place-demo",
+    densities = subparsers.add_parser(
+        "densities",
         help="draw placement densities and samples on a real scene (paper Fig. 5)",
         description="Drops objects on the table (MuJoCo), then draws three placement densities over "
         "the top-down image: a table region, one object relation and a two-relation "
         "composition, with 1024 samples each (300 drawn) and the mode.",
     )
-    demo.add_argument("--seed", type=int, default=0, help="scene seed; also picks the relations")
-    demo.add_argument(
+    densities.add_argument("--seed", type=int, default=0, help="scene seed; also picks the relations")
+    densities.add_argument(
         "--split", choices=LIBRARY_SPLITS, default="seen", help="object and table-texture split to draw from"
     )
-    demo.add_argument("--out", type=Path, default=Path("place_demo.png"), help="PNG to write")
-    demo.set_defaults(func=_place_demo)
+    densities.add_argument("--out", type=Path, default=Path("densities.png"), help="PNG to write")
+    densities.set_defaults(func=_draw_densities)
 
 
-def _place_demo(args: argparse.Namespace) -> int:
+def _draw_densities(args: argparse.Namespace) -> int:
     import jax
     import numpy as np
 

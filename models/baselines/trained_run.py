@@ -1,0 +1,30 @@
+"""A finished baseline run read back: its `run.json` and its weights file, verified.
+
+`train/baseline_runs.py` writes the run (layout in its docstring); `grids.load_params` and
+`cliport.load_params` build each network's parameters from what this returns, so evaluating a
+baseline never needs `train`.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+
+import numpy as np
+
+from ocplace.models import weights_file
+from ocplace.paths import RUN_FILE, trained_weights
+
+
+def load_run(run_dir: Path) -> tuple[dict, dict[str, np.ndarray], str]:
+    """`(run_meta, flat arrays, sha256 of the weights file)` of a finished run, verified.
+
+    `weights_file.unflatten_state` makes the tree of the arrays.
+    """
+    path = trained_weights(run_dir, "weights", "train the method first (`ocplace evaluate` trains missing runs)")
+    run_meta = json.loads((Path(run_dir) / RUN_FILE).read_text())
+    arrays, _ = weights_file.load_weights(
+        path, f"delete {path.parent} and rerun `ocplace evaluate` or `ocplace reproduce` (they train missing runs)"
+    )
+    return run_meta, arrays, hashlib.sha256(path.read_bytes()).hexdigest()
