@@ -1,0 +1,44 @@
+"""The layer contracts of pyproject.toml, run by scripts/check_layers.py, hold and catch upward imports."""
+
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+CHECK = ROOT / "scripts" / "check_layers.py"
+
+
+@pytest.fixture
+def checkout(tmp_path):
+    """A copy of the package sources and pyproject.toml that a test may break."""
+    for folder in ("ocplace", "sim", "models", "train", "eval", "configs", "assets"):
+        shutil.copytree(ROOT / folder, tmp_path / folder, ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copy(ROOT / "pyproject.toml", tmp_path / "pyproject.toml")
+    return tmp_path
+
+
+def _check(root: Path) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, CHECK, "--root", root], capture_output=True, text=True, timeout=300)
+
+
+def test_the_layers_hold(checkout):
+    result = _check(checkout)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "0 broken" in result.stdout
+
+
+def test_an_upward_import_inside_a_function_breaks_the_layers(checkout):
+    (checkout / "sim" / "upward.py").write_text("def load():\n    from ocplace.eval import api\n\n    return api\n")
+    result = _check(checkout)
+    assert result.returncode != 0
+    assert "ocplace.sim.upward -> ocplace.eval.api" in result.stdout
+
+
+def test_eval_loading_through_train_breaks_its_contract(checkout):
+    (checkout / "eval" / "loader.py").write_text("from ocplace.train import runner\n")
+    result = _check(checkout)
+    assert result.returncode != 0
+    assert "ocplace.eval.loader -> ocplace.train.runner" in result.stdout
