@@ -121,17 +121,9 @@ class GridsMethod:
 
 
 def train_grids(context: TrainContext):
-    from ocplace.train.grids import train_grids as train
+    from ocplace.train.grids import train_grids
 
-    return train(
-        context.dataset_dir,
-        context.backbone,
-        context.out_dir,
-        context.recipe,
-        context.fraction,
-        context.seed,
-        experiment=context.experiment,
-    )
+    return _train(train_grids, context)
 
 
 def load_grids(context: LoadContext) -> GridsMethod:
@@ -197,8 +189,13 @@ class CliportMethod:
 
 
 def train_cliport(context: TrainContext):
-    from ocplace.train.cliport import train_cliport as train
+    from ocplace.train.cliport import train_cliport
 
+    return _train(train_cliport, context)
+
+
+def _train(train, context: TrainContext):
+    """Both baselines train from the same context fields."""
     return train(
         context.dataset_dir,
         context.backbone,

@@ -42,13 +42,22 @@ def load(path: Path, replacements: list[tuple[str, str]]):
     return cleaned(json.loads(text), str(path.resolve().parent))
 
 
+def _replacement(pair: str) -> tuple[str, str]:
+    before, equals, after = pair.partition("=")
+    if not before or not equals:
+        raise argparse.ArgumentTypeError(f"--map takes OLD=NEW, not {pair!r}")
+    return before, after
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("old", type=Path)
     parser.add_argument("new", type=Path)
-    parser.add_argument("--map", action="append", default=[], metavar="OLD=NEW", help="text to replace in OLD")
+    parser.add_argument(
+        "--map", action="append", default=[], type=_replacement, metavar="OLD=NEW", help="text to replace in OLD"
+    )
     args = parser.parse_args()
-    replacements = [tuple(pair.split("=", 1)) for pair in args.map]
+    replacements = args.map
     found = differences(load(args.old, replacements), load(args.new, []))
     print("IDENTICAL" if not found else f"DIFFERENT ({len(found)} places)")
     for line in found[:40]:

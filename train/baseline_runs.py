@@ -85,13 +85,11 @@ def train(
         run_meta=run_meta,
         steps=schedule.steps,
         chunk_steps=schedule.chunk_steps,
-        log_every=schedule.chunk_steps,
         checkpoint_every=schedule.checkpoint_every,
         keep_checkpoints=schedule.keep_checkpoints,
         init_state=lambda: _with_adam_state(init_params(), schedule),
         chunk=chunk,
         record=runner.loss_and_learning_rate(schedule.learning_rate_schedule()),
-        artefact=run_dir / WEIGHTS_FILE,
         save_artefact=lambda _artefact, state: save_weights(run_dir, state[0], weights_meta),
         desc=desc,
     )

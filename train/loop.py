@@ -29,7 +29,6 @@ from ocplace.models import trained_adapters
 from ocplace.models.adapters import AdapterConfig, init_adapters
 from ocplace.models.features import Features
 from ocplace.models.grounding import GroundingModel, adapted_logits, grounding_loss
-from ocplace.paths import WEIGHTS_FILE
 from ocplace.train import optim, runner
 from ocplace.train.config import TrainConfig
 from ocplace.train.metrics import GroundingAccuracy, evaluate_features
@@ -156,13 +155,11 @@ def train(
         run_meta=run_meta,
         steps=config.steps,
         chunk_steps=config.chunk_steps,
-        log_every=config.chunk_steps,
         checkpoint_every=config.checkpoint_every,
         keep_checkpoints=config.keep_checkpoints,
         init_state=lambda: init_state(adapter_config, make_optimizer(config), config.seed),
         chunk=chunk,
         record=record,
-        artefact=run_dir / WEIGHTS_FILE,
         save_artefact=save,
         checkpoint_meta={"run": json.dumps(run_meta, sort_keys=True)},
     )

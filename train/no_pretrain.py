@@ -238,7 +238,6 @@ def train_on_inputs(
         init_state=lambda: (trainable, make_optimizer(config).init(trainable)),
         chunk=chunk,
         record=record,
-        artefact=run_dir / WEIGHTS_FILE,
         save_artefact=save,
         checkpoint_meta={"step_of": str(config.steps)},
         desc="train no_pretrain",

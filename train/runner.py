@@ -4,7 +4,7 @@ Run directory:
     run.json (`paths.RUN_FILE`)           the run's metadata; a rerun with other metadata is refused
     metrics.jsonl                         one record per `log_every` steps and at the end
     checkpoints/step_*.safetensors        the state (the newest `keep_checkpoints`)
-    the artefact (its `artefact` path)   written last, once every step is done
+    weights.safetensors (`paths.WEIGHTS_FILE`) or the run's own `artefact`: written last, once every step is done
 
 A run resumes from its newest checkpoint (`metrics.jsonl` cut back to it). Each `chunk` call must
 be a pure function of the state and its step range (keys and example order drawn from the seed and
@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from ocplace.errors import TrainingError
+from ocplace.paths import WEIGHTS_FILE
 from ocplace.train import checkpoints
 from ocplace.train.metrics import MetricsLog
 
@@ -46,21 +47,29 @@ class Run:
     run_meta: dict  # JSON: what makes this run this run
     steps: int
     chunk_steps: int  # steps per `chunk` call
-    log_every: int  # a multiple of chunk_steps
     checkpoint_every: int  # a multiple of chunk_steps
     keep_checkpoints: int
     init_state: Callable[[], Any]  # the fresh state, also the template a checkpoint is restored into
     chunk: Callable[[Any, int, int], tuple[Any, Any]]
     record: Callable[[Any, int, np.ndarray], dict]
-    artefact: Path
     save_artefact: Callable[[Path, Any], Any]
+    log_every: int | None = None  # a multiple of chunk_steps; None: every chunk
+    artefact: Path | None = None  # None: the run directory's WEIGHTS_FILE
     checkpoint_meta: dict[str, str] = dataclasses.field(default_factory=dict)
     desc: str = "train"
 
+    @property
+    def log_steps(self) -> int:
+        return self.chunk_steps if self.log_every is None else self.log_every
+
+    @property
+    def artefact_path(self) -> Path:
+        return Path(self.run_dir) / WEIGHTS_FILE if self.artefact is None else Path(self.artefact)
+
     def validate(self) -> None:
-        if min(self.steps, self.chunk_steps, self.log_every, self.checkpoint_every, self.keep_checkpoints) < 1:
+        if min(self.steps, self.chunk_steps, self.log_steps, self.checkpoint_every, self.keep_checkpoints) < 1:
             raise TrainingError(f"{self.desc}: steps, cadences and keep_checkpoints must be positive")
-        if self.log_every % self.chunk_steps or self.checkpoint_every % self.chunk_steps:
+        if self.log_steps % self.chunk_steps or self.checkpoint_every % self.chunk_steps:
             raise TrainingError(f"{self.desc}: log_every and checkpoint_every must be multiples of chunk_steps")
 
 
@@ -95,7 +104,7 @@ def run(
             pending.append(losses)
             step += count
             record = None
-            if step % spec.log_every == 0 or step == spec.steps:
+            if step % spec.log_steps == 0 or step == spec.steps:
                 record = {"step": step, **spec.record(state, step, _joined(pending))}
                 record["elapsed_s"] = round(time.perf_counter() - began, 3)
                 # Before the checkpoint: a crash between the two leaves a record the resume cuts back, not a gap.
@@ -107,7 +116,7 @@ def run(
             bar.update(count)
             if record is not None and callback is not None:
                 callback(record)
-    saved = spec.save_artefact(Path(spec.artefact), state) if step == spec.steps else None
+    saved = spec.save_artefact(spec.artefact_path, state) if step == spec.steps else None
     return Outcome(state, saved)
 
 
