@@ -61,5 +61,6 @@ def get_config() -> Experiment:
             num_samples=1024,
             parser="offline",
             subsets=TEST_SUBSETS,
+            seeds=1,
         ),
     )

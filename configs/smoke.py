@@ -59,5 +59,6 @@ def get_config() -> Experiment:
             num_samples=64,
             parser="offline",
             subsets=TEST_SUBSETS,
+            seeds=1,
         ),
     )

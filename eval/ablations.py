@@ -22,7 +22,14 @@ import numpy as np
 
 from ocplace.errors import OcplaceError, TrainingError
 from ocplace.eval.api import LoadContext, MethodOutput, MethodSpec, TrainContext
-from ocplace.eval.ours import PolicyMethod, describe_policy, json_default, scene_input, trained_run_weights
+from ocplace.eval.ours import (
+    PolicyMethod,
+    describe_policy,
+    json_default,
+    prepare_train_features,
+    scene_input,
+    trained_run_weights,
+)
 from ocplace.paths import RUN_FILE, WEIGHTS_FILE
 from ocplace.sim.dataset.records import SceneRecord
 
@@ -217,6 +224,6 @@ def load_no_pretrain(ctx: LoadContext) -> NoPretrainMethod:
 
 
 METHODS = (
-    MethodSpec("no_llm", "Ours w/o LLM", load=load_no_llm, train=train_no_llm),
+    MethodSpec("no_llm", "Ours w/o LLM", load=load_no_llm, train=train_no_llm, prepare=prepare_train_features),
     MethodSpec("no_pretrain", "Ours w/o CLIP pre-train", load=load_no_pretrain, train=train_no_pretrain),
 )

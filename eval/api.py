@@ -71,3 +71,6 @@ class MethodSpec:
     label: str  # the row of Table I, e.g. "Ours w/o Adapter"
     load: Callable[[LoadContext], Method]
     train: Callable[[TrainContext], Path] | None = None  # returns the run directory; None: nothing to train
+    # Makes the cached inputs that all of this method's trainings read (e.g. the training split's features)
+    # once, before those trainings run side by side; None: nothing shared to make.
+    prepare: Callable[[TrainContext], object] | None = None

@@ -5,13 +5,13 @@ from __future__ import annotations
 from collections.abc import Mapping
 from pathlib import Path
 
-from ocplace.eval.table import unseen_mean
+from ocplace.eval.table import base_runs, unseen_mean
 
 
 def efficiency_curves(results: Mapping) -> dict[str, dict[str, list[tuple[float, float]]]]:
     """Per method label: `seen` and `unseen` (1:1 mean of unseen_obj and unseen_inst) as (fraction, %) points."""
     curves: dict[str, dict[str, list[tuple[float, float]]]] = {}
-    for entry in sorted(results["evaluations"], key=lambda e: e["fraction"]):
+    for entry in sorted(base_runs(results), key=lambda e: e["fraction"]):
         seen = entry["subsets"].get("seen", {}).get("aggregate", {}).get("overall", {}).get("success")
         unseen = unseen_mean(entry)
         lines = curves.setdefault(entry["label"], {"seen": [], "unseen": []})

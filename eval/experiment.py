@@ -53,6 +53,7 @@ class EvalPlan:
     num_samples: int  # placement samples per scene
     parser: str  # models.parsing.make_parser name, for methods that parse
     subsets: tuple[str, ...]  # test subsets scored
+    seeds: int  # each run trained and scored with this many seeds (the experiment's, then the next ones)
 
 
 @dataclasses.dataclass(frozen=True)

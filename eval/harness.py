@@ -71,10 +71,16 @@ class MethodRun:
     spec: MethodSpec
     run_dir: Path | None = None
     fraction: float = 1.0
+    seed: int | None = None  # a repeat's own training and evaluation seed; None: the settings' seed
 
     @property
     def key(self) -> str:
-        return self.spec.name if self.fraction == 1.0 else f"{self.spec.name}@{self.fraction:g}"
+        key = self.spec.name if self.fraction == 1.0 else f"{self.spec.name}@{self.fraction:g}"
+        return key if self.seed is None else f"{key}~seed{self.seed}"
+
+    def settings(self, settings: EvalSettings) -> EvalSettings:
+        """The settings this run is scored with: its own seed, when it is a repeat."""
+        return settings if self.seed is None else dataclasses.replace(settings, seed=self.seed)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -138,6 +144,7 @@ class Evaluation:
     description: dict  # the method's describe(), made JSON-able
     subsets: dict[str, tuple[SceneOutcome, ...]]
     wall_s: float
+    seed: int | None = None  # MethodRun.seed
 
 
 # ----------------------------------------------------------------------------- keys and scenes
@@ -400,6 +407,7 @@ def evaluate_run(
     sample-efficiency curve, which plots the metric).
     """
     began = time.perf_counter()
+    settings = run.settings(settings)
     method = method or load_method(run, settings)
     arena = arena if run.fraction == 1.0 else None
     subsets = {
@@ -415,7 +423,34 @@ def evaluate_run(
         description=jsonable(method.describe()),
         subsets=subsets,
         wall_s=time.perf_counter() - began,
+        seed=run.seed,
     )
+
+
+def evaluate_in_worker(
+    run: MethodRun, dataset_dir: str | Path, settings: EvalSettings, method: Method | None = None
+) -> Evaluation:
+    """`evaluate_run` as an executor task: its own physical arena (for runs on the whole training set)."""
+    checked = run.settings(settings)
+    if run.fraction != 1.0:
+        checked = dataclasses.replace(checked, physical_scenes=0)
+    with physical_arena(checked) as arena:
+        return evaluate_run(run, dataset_dir, settings, arena, progress=False, method=method)
+
+
+def evaluate_runs(
+    runs: Sequence[MethodRun], dataset_dir: str | Path, settings: EvalSettings, executor, progress: bool = True
+) -> list[Evaluation]:
+    """Every run scored as one task of `executor` (a fresh process each, JAX one CPU wide); in `runs` order."""
+    from ocplace.runtime import Task, map_tasks
+
+    tasks = [Task(evaluate_in_worker, (run, dataset_dir, settings), fresh_process=True) for run in runs]
+    evaluations: list[Evaluation | None] = [None] * len(runs)
+    for index, evaluation in map_tasks(executor, tasks):
+        evaluations[index] = evaluation
+        if progress:
+            print(f"evaluated {runs[index].key} in {evaluation.wall_s:.1f} s", flush=True)
+    return evaluations
 
 
 # ----------------------------------------------------------------------------- aggregates

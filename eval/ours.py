@@ -20,26 +20,17 @@ from ocplace.eval.api import LoadContext, MethodOutput, MethodSpec, TrainContext
 from ocplace.sim.dataset.records import SceneRecord
 
 
-def featurize_split(dataset_dir: Path, split: str, backbone, progress: bool = True) -> Path:
-    """The split's feature file, encoded once per backbone and dataset (a cached no-op afterwards)."""
-    from ocplace.models.features import featurize
-    from ocplace.sim.dataset.identity import dataset_hash, split_features_path
-    from ocplace.sim.dataset.job import scene_dirs
-    from ocplace.sim.dataset.loader import iter_examples
+def prepare_train_features(ctx: TrainContext) -> Path:
+    """The training split's features, which Ours and no_llm read (one file per backbone and dataset)."""
+    from ocplace.models.features import featurize_split
+    from ocplace.models.policy import load_backbone_spec
 
-    return featurize(
-        iter_examples(dataset_dir, split),
-        backbone,
-        split_features_path(dataset_dir, split, backbone.fingerprint),
-        dataset_hash=dataset_hash(dataset_dir, split),
-        total=len(scene_dirs(dataset_dir, split)),
-        progress=progress,
-    )
+    return featurize_split(Path(ctx.dataset_dir), "train", load_backbone_spec(ctx.backbone), progress=False)
 
 
 def train_ours(ctx: TrainContext) -> Path:
     """Featurize the training split, then train the adapters into `ctx.out_dir` (resumable)."""
-    from ocplace.models.features import load_features
+    from ocplace.models.features import featurize_split, load_features
     from ocplace.models.policy import load_backbone_spec
     from ocplace.train.loop import train
 
@@ -189,6 +180,6 @@ def load_no_adapter(ctx: LoadContext) -> PolicyMethod:
 
 
 METHODS = (
-    MethodSpec("ours", "Ours", load=load_ours, train=train_ours),
+    MethodSpec("ours", "Ours", load=load_ours, train=train_ours, prepare=prepare_train_features),
     MethodSpec("no_adapter", "Ours w/o Adapter", load=load_no_adapter),
 )

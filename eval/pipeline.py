@@ -22,12 +22,15 @@ import hashlib
 import json
 import time
 import traceback
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
+from ocplace.errors import ConfigError
 from ocplace.eval.api import MethodSpec, TrainContext
 from ocplace.eval.experiment import Experiment
 from ocplace.eval.harness import EvalSettings, Evaluation, MethodRun
+from ocplace.runtime import Executor, ExecutorConfig, Task, open_executor
+from ocplace.runtime.graph import Node, run_graph
 
 SUMMARY_FILE = "results.summary.json"  # aggregates, no per-scene outcomes: small enough to commit
 
@@ -39,7 +42,7 @@ class PipelineConfig:
     experiment: Experiment
     backbone: str | None = None  # a backbone spec to use instead of pretraining the experiment's recipe
     dataset: Path | None = None  # an existing (or wanted) dataset folder instead of OUT/dataset
-    workers: int = 0  # dataset generation processes; 0: every CPU
+    executor: ExecutorConfig = ExecutorConfig()  # where the graph's tasks run (local pool or Ray)
     progress: bool = True
 
 
@@ -62,11 +65,12 @@ class PipelineSummary:
     markdown: str = ""
     figures: list[Path] = dataclasses.field(default_factory=list)
     placement_figure: Path | None = None
+    wall_s: float = 0.0  # the whole run; steps of the task graph overlap, so their sum is more
 
     def report(self) -> str:
         lines = [step.line() for step in self.steps]
         lines += [f"ERROR {e['stage']} {e['key']}: {e['message']}" for e in self.errors]
-        lines.append(f"total {sum(s.wall_s for s in self.steps):.1f} s; results in {self.results_path}")
+        lines.append(f"total {self.wall_s:.1f} s wall; results in {self.results_path}")
         return "\n".join(lines)
 
 
@@ -86,49 +90,33 @@ class _Timer:
         print(step.line(), flush=True)
 
 
-# ----------------------------------------------------------------------------- steps
+# ----------------------------------------------------------------------------- steps in this process
 
 
-def build_library_step(progress: bool):
+def build_library_step(executor: Executor, progress: bool):
     from ocplace.sim.library import build_library
     from ocplace.sim.library import default_config as library_config
 
-    return build_library(library_config(), progress=progress)
+    return build_library(library_config(), progress=progress, executor=executor)
 
 
 def dataset_config(config: PipelineConfig):
-    import dataclasses as dc
-
     from ocplace.sim.dataset.config import make_config
 
     sizes = config.experiment.dataset
-    return dc.replace(make_config(sizes.train_scenes, sizes.test_scenes), seed=sizes.seed)
+    return dataclasses.replace(make_config(sizes.train_scenes, sizes.test_scenes), seed=sizes.seed)
 
 
-def dataset_step(config: PipelineConfig, dataset_dir: Path) -> str:
+def dataset_step(config: PipelineConfig, dataset_dir: Path, executor: Executor) -> str:
     """Generates (or completes) the dataset unless its manifest already records this configuration."""
-    import os
-
     from ocplace.sim.dataset.generate import describe
     from ocplace.sim.dataset.job import MANIFEST_FILE, generate_dataset, read_manifest
 
     wanted = dataset_config(config)
     if (dataset_dir / MANIFEST_FILE).exists() and read_manifest(dataset_dir).get("config") == describe(wanted):
         return f"{dataset_dir}: already complete"
-    manifest = generate_dataset(
-        dataset_dir, wanted, workers=config.workers or os.cpu_count() or 1, progress=config.progress
-    )
+    manifest = generate_dataset(dataset_dir, wanted, executor=executor, progress=config.progress)
     return f"{dataset_dir}: {sum(sum(c.values()) for c in manifest['counts'].values())} scenes"
-
-
-def backbone_step(config: PipelineConfig, library) -> str:
-    """The backbone spec: `config.backbone`, or the experiment's offline recipe, pretrained if needed."""
-    if config.backbone is not None:
-        return config.backbone
-    from ocplace.train.pretrain.loop import pretrain
-
-    result = pretrain(config.experiment.backbone, library, progress=config.progress)
-    return f"offline:{result.directory}"
 
 
 def selected_specs(config: PipelineConfig, specs: Mapping[str, MethodSpec]) -> list[MethodSpec]:
@@ -138,49 +126,25 @@ def selected_specs(config: PipelineConfig, specs: Mapping[str, MethodSpec]) -> l
     return select_specs("all" if methods is None else ",".join(methods), dict(specs))
 
 
-def planned_runs(config: PipelineConfig, specs: Sequence[MethodSpec]) -> list[tuple[MethodSpec, float]]:
-    """(method, training fraction) pairs: 1.0 for every method, plus the fractions for the sample-efficiency methods."""
-    plan = config.experiment.evaluation
+def planned_runs(config: PipelineConfig, specs: Sequence[MethodSpec]) -> list[MethodRun]:
+    """Every run to train and evaluate: each method on the whole training set, the sample-efficiency
+    methods on every fraction, and each of those again per extra seed (`EvalPlan.seeds`)."""
+    plan, base = config.experiment.evaluation, config.experiment.seed
+    if plan.seeds < 1:
+        raise ConfigError(f"evaluation.seeds must be at least 1, got {plan.seeds}")
     runs = []
     for spec in specs:
-        fractions = plan.fractions if spec.name in plan.fraction_methods and spec.train is not None else (1.0,)
-        runs += [(spec, fraction) for fraction in sorted(set(fractions) | {1.0})]
+        learns = spec.train is not None
+        fractions = plan.fractions if spec.name in plan.fraction_methods and learns else (1.0,)
+        for fraction in sorted(set(fractions) | {1.0}):
+            seeds = [None, *range(base + 1, base + plan.seeds)]
+            runs += [MethodRun(spec, None, fraction, seed) for seed in seeds]
     return runs
 
 
-def run_directory(out: Path, name: str, fraction: float) -> Path:
-    return out / "runs" / name / f"fraction-{fraction:.2f}"
-
-
-def train_step(
-    spec: MethodSpec, fraction: float, config: PipelineConfig, dataset_dir: Path, backbone: str, out: Path
-) -> tuple[Path | None, bool]:
-    """(run directory, reused). A finished training is recorded beside its run directory and not
-    repeated: a method's own resume may rewrite its files, which would change checkpoint hashes."""
-    from ocplace.eval.harness import jsonable
-    from ocplace.paths import write_text_atomic
-
-    if spec.train is None:
-        return None, False
-    experiment = config.experiment
-    context = TrainContext(
-        dataset_dir=dataset_dir,
-        backbone=backbone,
-        out_dir=run_directory(out, spec.name, fraction),
-        recipe=experiment.recipes.of(spec.name),
-        fraction=fraction,
-        seed=experiment.seed,
-        experiment=experiment.name,
-    )
-    record = context.out_dir.with_name(context.out_dir.name + ".done.json")
-    wanted = jsonable(dataclasses.asdict(context))
-    if record.exists():
-        done = json.loads(record.read_text())
-        if done["context"] == wanted and Path(done["run_dir"]).exists():
-            return Path(done["run_dir"]), True
-    run_dir = Path(spec.train(context))
-    write_text_atomic(record, json.dumps({"context": wanted, "run_dir": str(run_dir)}, indent=1))
-    return run_dir, False
+def run_directory(out: Path, name: str, fraction: float, seed: int | None = None) -> Path:
+    folder = f"fraction-{fraction:.2f}" + ("" if seed is None else f"-seed-{seed}")
+    return out / "runs" / name / folder
 
 
 def evaluation_settings(config: PipelineConfig, backbone: str) -> EvalSettings:
@@ -229,29 +193,139 @@ def evaluation_key(run: MethodRun, description: dict, settings: EvalSettings, da
     return hashlib.sha256(json.dumps(fields, sort_keys=True).encode()).hexdigest()[:16]
 
 
-def evaluate_step(
-    run: MethodRun,
-    settings: EvalSettings,
-    dataset_dir: Path,
-    dataset_hash: str,
-    out: Path,
-    arena_factory: Callable,
-    progress: bool,
-) -> tuple[Evaluation, bool]:
-    """The run's evaluation, from OUT/evaluations/ when an identical one is stored; (evaluation, reused)."""
-    from ocplace.eval.harness import evaluate_run, jsonable, load_method
+# ----------------------------------------------------------------------------- tasks of the graph (any worker)
+
+
+def pretrain_task(recipe, progress: bool) -> str:
+    """The offline backbone of `recipe`, pretrained unless cached; returns its spec."""
+    from ocplace.sim.library import load_library
+    from ocplace.train.pretrain.loop import pretrain
+
+    return f"offline:{pretrain(recipe, load_library(), progress=progress).directory}"
+
+
+def train_context(run: MethodRun, config: PipelineConfig, dataset_dir: Path, backbone: str, out: Path) -> TrainContext:
+    experiment = config.experiment
+    return TrainContext(
+        dataset_dir=dataset_dir,
+        backbone=backbone,
+        out_dir=run_directory(out, run.spec.name, run.fraction, run.seed),
+        recipe=experiment.recipes.of(run.spec.name),
+        fraction=run.fraction,
+        seed=experiment.seed if run.seed is None else run.seed,
+        experiment=experiment.name,
+    )
+
+
+def prepare_task(spec: MethodSpec, context: TrainContext) -> str:
+    spec.prepare(context)
+    return f"inputs of {spec.name} ready"
+
+
+def train_task(spec: MethodSpec, context: TrainContext) -> tuple[Path, bool]:
+    """(run directory, reused). A finished training is recorded beside its run directory and not
+    repeated: a method's own resume may rewrite its files, which would change checkpoint hashes."""
+    from ocplace.eval.harness import jsonable
+    from ocplace.paths import write_text_atomic
+
+    record = context.out_dir.with_name(context.out_dir.name + ".done.json")
+    wanted = jsonable(dataclasses.asdict(context))
+    if record.exists():
+        done = json.loads(record.read_text())
+        if done["context"] == wanted and Path(done["run_dir"]).exists():
+            return Path(done["run_dir"]), True
+    run_dir = Path(spec.train(context))
+    write_text_atomic(record, json.dumps({"context": wanted, "run_dir": str(run_dir)}, indent=1))
+    return run_dir, False
+
+
+def evaluate_task(run: MethodRun, settings: EvalSettings, dataset_dir: Path, dataset_hash: str, out: Path):
+    """(stored evaluation's path, reused, seen success): from OUT/evaluations/ when an identical one is
+    stored, else scored now and stored."""
+    from ocplace.eval.harness import evaluate_in_worker, jsonable, load_method
     from ocplace.eval.results import evaluation_from_json, evaluation_to_json
     from ocplace.paths import write_text_atomic
 
+    settings = run.settings(settings)
     method = load_method(run, settings)
     key = evaluation_key(run, jsonable(method.describe()), settings, dataset_hash)
     path = out / "evaluations" / f"{run.key}-{key}.json"
-    if path.exists():
-        return evaluation_from_json(json.loads(path.read_text())), True
-    arena = arena_factory() if settings.physical_scenes != 0 and run.fraction == 1.0 else None
-    evaluation = evaluate_run(run, dataset_dir, settings, arena, progress, method=method)
-    write_text_atomic(path, json.dumps(evaluation_to_json(evaluation), indent=1))
-    return evaluation, False
+    reused = path.exists()
+    if reused:
+        evaluation = evaluation_from_json(json.loads(path.read_text()))
+    else:
+        evaluation = evaluate_in_worker(run, dataset_dir, settings, method)
+        write_text_atomic(path, json.dumps(evaluation_to_json(evaluation), indent=1))
+    seen = evaluation.subsets.get("seen")
+    return path, reused, f"seen success {sum(o.success for o in seen) / max(len(seen), 1):.1%}" if seen else ""
+
+
+# ----------------------------------------------------------------------------- the graph
+
+
+def task_graph(
+    config: PipelineConfig, runs: list[MethodRun], dataset_dir: Path, out: Path, dataset_hash: str
+) -> list[Node]:
+    """backbone -> each method's shared inputs -> (train method x fraction x seed) -> evaluate each run.
+
+    Every task declares one CPU and runs in a fresh process, so JAX compiles for one CPU wherever it
+    runs and the results are the same bits on any executor (ocplace/runtime/width.py).
+    """
+    nodes = []
+    if config.backbone is None:
+        recipe = config.experiment.backbone
+        nodes.append(Node("backbone", lambda done: Task(pretrain_task, (recipe, False), fresh_process=True)))
+        backbone_after, backbone_of = ("backbone",), (lambda done: done["backbone"])
+    else:
+        backbone_after, backbone_of = (), (lambda done, spec=config.backbone: spec)
+
+    def method_node(key: str, function, run: MethodRun, after: tuple[str, ...]) -> Node:
+        """A node running `function(spec, TrainContext)` for `run`, once its backbone is known."""
+
+        def make(done):
+            context = train_context(run, config, dataset_dir, backbone_of(done), out)
+            return Task(function, (run.spec, context), fresh_process=True)
+
+        return Node(key, make, after)
+
+    prepared = {}  # method name -> its first run, whose context (dataset, backbone) the shared inputs need
+    for run in runs:
+        if run.spec.prepare is not None:
+            prepared.setdefault(run.spec.name, run)
+    nodes += [method_node(f"prepare {name}", prepare_task, run, backbone_after) for name, run in prepared.items()]
+    for run in runs:
+        if run.spec.train is not None:
+            after = backbone_after + ((f"prepare {run.spec.name}",) if run.spec.name in prepared else ())
+            nodes.append(method_node(f"train {run.key}", train_task, run, after))
+    for run in runs:
+        after = backbone_after + ((f"train {run.key}",) if run.spec.train is not None else ())
+        nodes.append(
+            Node(
+                f"evaluate {run.key}", _evaluate_maker(config, run, dataset_dir, out, dataset_hash, backbone_of), after
+            )
+        )
+    return nodes
+
+
+def _evaluate_maker(config, run, dataset_dir, out, dataset_hash, backbone_of):
+    def make(done):
+        backbone = backbone_of(done)
+        trained = done.get(f"train {run.key}")
+        ready = run if trained is None else dataclasses.replace(run, run_dir=trained[0])
+        settings = evaluation_settings(config, backbone)
+        return Task(evaluate_task, (ready, settings, dataset_dir, dataset_hash, out), fresh_process=True)
+
+    return make
+
+
+def _node_detail(key: str, value) -> str:
+    if key == "backbone" or key.startswith("prepare "):
+        return str(value)
+    if key.startswith("train "):
+        run_dir, reused = value
+        return ("done before: " if reused else "") + str(run_dir)
+    _, reused, seen = value
+    return ("stored " if reused else "") + seen
 
 
 # ----------------------------------------------------------------------------- the pipeline
@@ -263,15 +337,21 @@ def run_pipeline(
     specs: Mapping[str, MethodSpec] | None = None,
     command=None,
     library=None,
-    arena=None,
 ) -> PipelineSummary:
     """Runs (or resumes) every step; a method whose training or evaluation raises is reported, not fatal.
 
-    `specs` defaults to the registry; `library` and `arena` (a compiled MujocoScenes) may be passed in
-    to reuse them.
+    `specs` defaults to the registry; a `library` passed in is not built again (the tasks load it from
+    the cache, where it was built).
     """
-    from ocplace.eval.results import build_results, dataset_identity, summarise, write_outputs, write_results
+    with open_executor(config.executor) as executor:
+        return _run(config, executor, out, specs, command, library)
 
+
+def _run(config, executor, out, specs, command, library) -> PipelineSummary:
+    from ocplace.eval.results import dataset_identity
+    from ocplace.models.offline_recipes import output_dir
+
+    began = time.perf_counter()
     out = Path(out or config.experiment.out)
     out.mkdir(parents=True, exist_ok=True)
     summary = PipelineSummary(out)
@@ -279,51 +359,85 @@ def run_pipeline(
         from ocplace.eval.registry import method_specs
 
         specs = method_specs()
-    chosen = selected_specs(config, specs)
+    runs = planned_runs(config, selected_specs(config, specs))
     dataset_dir = Path(config.dataset or out / "dataset")
+    print(f"running on a {config.executor.describe()}", flush=True)
 
     with _Timer(summary, "library") as step:
-        library = library or build_library_step(config.progress)
+        library = library or build_library_step(executor, config.progress)
         step.detail = library.summary()
     with _Timer(summary, "dataset") as step:
-        step.detail = dataset_step(config, dataset_dir)
-    with _Timer(summary, "backbone") as step:
-        backbone = backbone_step(config, library)
-        step.detail = backbone
-
-    runs = []
-    for spec, fraction in planned_runs(config, chosen):
-        run = MethodRun(spec, None, fraction)
-        with _Timer(summary, f"train {run.key}") as step:
-            try:
-                run_dir, reused = train_step(spec, fraction, config, dataset_dir, backbone, out)
-                runs.append(dataclasses.replace(run, run_dir=run_dir))
-                step.detail = ("done before: " if reused else "") + str(run_dir or "nothing to train")
-            except Exception as error:
-                summary.errors.append(_error(run.key, "train", error))
-                step.detail = f"FAILED: {type(error).__name__}: {error}"
-
-    settings = evaluation_settings(config, backbone)
+        step.detail = dataset_step(config, dataset_dir, executor)
+    executor.release_workers()  # the generators they hold are not needed by the graph's fresh processes
+    if config.backbone is not None:
+        with _Timer(summary, "backbone") as step:
+            step.detail = f"{config.backbone} (given)"
     dataset_hash = dataset_identity(dataset_dir)["dataset_hash"]
-    evaluations, arena = [], _LazyArena(library, arena)
-    try:
-        for run in runs:
-            with _Timer(summary, f"evaluate {run.key}") as step:
-                try:
-                    evaluation, reused = evaluate_step(
-                        run, settings, dataset_dir, dataset_hash, out, arena.get, config.progress
-                    )
-                    evaluations.append(evaluation)
-                    seen = evaluation.subsets.get("seen")
-                    step.detail = ("stored " if reused else "") + (
-                        f"seen success {sum(o.success for o in seen) / max(len(seen), 1):.1%}" if seen else ""
-                    )
-                except Exception as error:
-                    summary.errors.append(_error(run.key, "evaluate", error))
-                    step.detail = f"FAILED: {type(error).__name__}: {error}"
-    finally:
-        arena.close()
+    nodes = task_graph(config, runs, dataset_dir, out, dataset_hash)
+    outcomes = _run_graph(summary, executor, nodes)
 
+    backbone = config.backbone or f"offline:{output_dir(config.experiment.backbone)}"
+    evaluations = _evaluations(runs, outcomes)
+    _write_results(summary, config, evaluations, dataset_dir, evaluation_settings(config, backbone), command)
+    trained_ours = [
+        outcomes[f"train {run.key}"].value[0]
+        for run in runs
+        if run.spec.name == "ours" and run.fraction == 1.0 and run.seed is None and outcomes[f"train {run.key}"].ok
+    ]
+    if trained_ours and "seen" in config.experiment.evaluation.subsets:
+        with _Timer(summary, "figure") as step:
+            try:
+                step.detail = placement_figure_step(
+                    trained_ours[0], config, dataset_dir, backbone, out / "placement.png"
+                )
+                summary.placement_figure = out / "placement.png"
+            except Exception as error:
+                summary.errors.append(_error("ours", "figure", error))
+                step.detail = f"FAILED: {type(error).__name__}: {error}"
+    summary.wall_s = time.perf_counter() - began
+    return summary
+
+
+def _run_graph(summary: PipelineSummary, executor: Executor, nodes: list[Node]) -> dict:
+    """Runs the graph, printing each step as it starts and ends; records steps and errors in graph order
+    (not the order they happened to end in), so results.json does not depend on the executor."""
+    started, steps, errors = {}, {}, {}
+
+    def on_start(key):
+        started[key] = time.perf_counter()
+        print(f"[{key}] started", flush=True)
+
+    def on_outcome(outcome):
+        if outcome.skipped_because is not None:
+            print(f"[{outcome.key}] skipped: {outcome.skipped_because} failed", flush=True)
+            return
+        wall = time.perf_counter() - started.get(outcome.key, time.perf_counter())
+        if outcome.error is None:
+            detail = _node_detail(outcome.key, outcome.value)
+        else:
+            stage, _, key = outcome.key.partition(" ")
+            errors[outcome.key] = _error(key or stage, stage, outcome.error)
+            detail = f"FAILED: {type(outcome.error).__name__}: {outcome.error}"
+        steps[outcome.key] = Step(outcome.key, wall, detail)
+        print(steps[outcome.key].line(), flush=True)
+
+    outcomes = run_graph(executor, nodes, on_outcome, on_start)
+    summary.steps += [steps[node.key] for node in nodes if node.key in steps]
+    summary.errors += [errors[node.key] for node in nodes if node.key in errors]
+    return outcomes
+
+
+def _evaluations(runs: list[MethodRun], outcomes: dict) -> list[Evaluation]:
+    from ocplace.eval.results import evaluation_from_json
+
+    evaluated = [outcomes[f"evaluate {run.key}"] for run in runs]
+    return [evaluation_from_json(json.loads(o.value[0].read_text())) for o in evaluated if o.ok]
+
+
+def _write_results(summary, config, evaluations, dataset_dir, settings, command) -> None:
+    from ocplace.eval.results import build_results, summarise, write_outputs, write_results
+
+    out = summary.out
     with _Timer(summary, "results") as step:
         results = build_results(evaluations, dataset_dir, settings, command)
         results["pipeline"] = {
@@ -345,45 +459,16 @@ def run_pipeline(
             except Exception as error:
                 summary.errors.append(_error("figures", "figures", error))
                 step.detail = f"FAILED: {type(error).__name__}: {error}"
-    ours = [run for run in runs if run.spec.name == "ours" and run.fraction == 1.0 and run.run_dir is not None]
-    if ours and "seen" in config.experiment.evaluation.subsets:
-        with _Timer(summary, "figure") as step:
-            try:
-                step.detail = placement_figure_step(
-                    ours[0].run_dir, config, dataset_dir, backbone, out / "placement.png"
-                )
-                summary.placement_figure = out / "placement.png"
-            except Exception as error:
-                summary.errors.append(_error("ours", "figure", error))
-                step.detail = f"FAILED: {type(error).__name__}: {error}"
-    return summary
 
 
-class _LazyArena:
-    """Compiles the MuJoCo arena on first use only (all evaluations may be stored already)."""
-
-    def __init__(self, library, arena=None):
-        self.library, self.arena, self.owned = library, arena, False
-
-    def get(self):
-        if self.arena is None:
-            from ocplace.sim.mujoco_backend import MujocoScenes
-
-            self.arena, self.owned = MujocoScenes.from_library(self.library), True
-        return self.arena
-
-    def close(self):
-        if self.owned:
-            self.arena.close()
-
-
-def _error(key: str, stage: str, error: Exception) -> dict:
+def _error(key: str, stage: str, error: BaseException) -> dict:
     print(f"ERROR in step {stage} of {key}:", flush=True)
     traceback.print_exception(error)
     return {"key": key, "stage": stage, "message": f"{type(error).__name__}: {error}"}
 
 
 def _config_json(config: PipelineConfig) -> dict:
+    """The experiment and its inputs; not the executor, which changes nothing in the results."""
     from ocplace.eval.harness import jsonable
 
-    return jsonable(dataclasses.asdict(config))
+    return jsonable({field: value for field, value in dataclasses.asdict(config).items() if field != "executor"})

@@ -7,6 +7,7 @@
      "settings": EvalSettings (backbone spec, scale, parser, samples, subsets, limit, physical, seed, chunk),
      "evaluations": [{"key", "method", "label", "fraction", "run_dir", "description" (the method's
                       describe(): configs, seeds, checkpoint hashes, backbone fingerprint, parser),
+                      "seed" (only for a repeat of `--seeds`: its training and evaluation seed),
                       "wall_s", "subsets": {subset: {"aggregate": {level|overall: rates},
                                                      "scenes": [SceneOutcome, ...]}}}]}
 
@@ -34,6 +35,7 @@ from ocplace.eval.harness import (
     SceneOutcome,
     aggregate_subset,
     evaluate_run,
+    evaluate_runs,
     jsonable,
 )
 from ocplace.paths import write_text_atomic
@@ -132,7 +134,7 @@ def evaluation_to_json(evaluation: Evaluation) -> dict:
             subset: {"aggregate": aggregate_subset(outcomes), "scenes": [o.to_json() for o in outcomes]}
             for subset, outcomes in evaluation.subsets.items()
         },
-    }
+    } | ({} if evaluation.seed is None else {"seed": evaluation.seed})
 
 
 def evaluation_from_json(entry: dict) -> Evaluation:
@@ -148,6 +150,7 @@ def evaluation_from_json(entry: dict) -> Evaluation:
             subset: tuple(SceneOutcome.from_json(s) for s in body["scenes"])
             for subset, body in entry["subsets"].items()
         },
+        seed=entry.get("seed"),
     )
 
 
@@ -262,14 +265,23 @@ def runs_of(results: Mapping, specs: Mapping[str, MethodSpec] | None = None) -> 
                 f"run directory {run_dir} of {entry['key']!r} is gone; train it again with the "
                 "same settings (runs are deterministic) or restore it"
             )
-        runs.append(MethodRun(specs[entry["method"]], run_dir, entry["fraction"]))
+        runs.append(MethodRun(specs[entry["method"]], run_dir, entry["fraction"], entry.get("seed")))
     return runs
 
 
 def rerun(
-    results: Mapping, specs: Mapping[str, MethodSpec] | None = None, arena=None, progress: bool = True, command=None
+    results: Mapping,
+    specs: Mapping[str, MethodSpec] | None = None,
+    arena=None,
+    progress: bool = True,
+    command=None,
+    executor=None,
 ) -> dict:
-    """Evaluates again every run of `results` with its settings, on its dataset; returns the new results."""
+    """Evaluates again every run of `results` with its settings, on its dataset; returns the new results.
+
+    With `executor`, each run is a task as in `ocplace evaluate` and `reproduce` (JAX one CPU wide);
+    without, the runs are scored in this process with `arena`.
+    """
     if results.get("summary"):
         raise ResultsError(
             "these results are a summary without per-scene outcomes; rerun from the full results.json it was made from"
@@ -282,7 +294,11 @@ def rerun(
             f"{identity['manifest_hash'][:16]} != {results['dataset']['manifest_hash'][:16]})"
         )
     settings = settings_of(results)
-    fresh = [evaluate_run(run, dataset_dir, settings, arena, progress) for run in runs_of(results, specs)]
+    runs = runs_of(results, specs)
+    if executor is not None:
+        fresh = evaluate_runs(runs, dataset_dir, settings, executor, progress)
+    else:
+        fresh = [evaluate_run(run, dataset_dir, settings, arena, progress) for run in runs]
     return build_results(fresh, dataset_dir, settings, command)
 
 

@@ -4,6 +4,10 @@ Table I: one row per method (runs on the whole training set), column groups seen
 unseen inst (the paper's), then unseen cat (ours, not in the paper), each with Table / 1 Obj / 2 Obj /
 Overall success of the mode in percent. Markdown has one header row, so the group names form the
 header and the level names the first (bold) row.
+
+With repeats over seeds (`ocplace reproduce --seeds N`), Table I and the mean-over-samples table
+show each cell's mean ± sample standard deviation over the seeds; the diagnostic tables, the
+sample-efficiency table and the figures show the experiment's own seed.
 """
 
 from __future__ import annotations
@@ -32,9 +36,29 @@ def _row(cells: Sequence[str]) -> str:
     return "| " + " | ".join(cells) + " |"
 
 
+def base_runs(results: Mapping) -> list[dict]:
+    """Evaluations with the experiment's own seed: every one unless `--seeds` added repeats."""
+    return [e for e in results["evaluations"] if e.get("seed") is None]
+
+
 def full_runs(results: Mapping) -> list[dict]:
     """Evaluations of runs trained on the whole training set (Table I's rows), in results order."""
-    return [e for e in results["evaluations"] if e["fraction"] == 1.0]
+    return [e for e in base_runs(results) if e["fraction"] == 1.0]
+
+
+def repeats(results: Mapping, entry: Mapping) -> list[dict]:
+    """`entry` and its repeats with other seeds (`--seeds`): the same method and fraction."""
+    return [e for e in results["evaluations"] if e["method"] == entry["method"] and e["fraction"] == entry["fraction"]]
+
+
+def spread(values: Sequence[float | None], digits: int = 2) -> str:
+    """One value in percent, or the mean and sample standard deviation of several (one per seed)."""
+    known = [v for v in values if v is not None]
+    if len(known) < 2:
+        return percent(known[0] if known else None, digits)
+    mean = sum(known) / len(known)
+    std = (sum((v - mean) ** 2 for v in known) / (len(known) - 1)) ** 0.5
+    return f"{100 * mean:.{digits}f} ± {100 * std:.{digits}f}"
 
 
 def _subsets(results: Mapping) -> list[str]:
@@ -43,11 +67,13 @@ def _subsets(results: Mapping) -> list[str]:
 
 
 def level_table(results: Mapping, metric: str, title: str) -> str:
-    """Rows = methods; per subset Table / 1 Obj / 2 Obj / Overall of `metric` (an aggregate rate) in %."""
+    """Rows = methods; per subset Table / 1 Obj / 2 Obj / Overall of `metric` (an aggregate rate) in %;
+    with repeats over seeds, their mean ± sample standard deviation."""
     subsets = _subsets(results)
     columns = [*LEVELS, "overall"]
+    seeds = max((len(repeats(results, entry)) for entry in full_runs(results)), default=1)
     lines = [
-        f"**{title}**",
+        f"**{title}**" + (f" (mean ± standard deviation over {seeds} seeds)" if seeds > 1 else ""),
         "",
         _row(["", *[SUBSET_TITLES[s] if i == 0 else "" for s in subsets for i in range(len(columns))]]),
         _row(["---", *["---:"] * (len(subsets) * len(columns))]),
@@ -56,8 +82,8 @@ def level_table(results: Mapping, metric: str, title: str) -> str:
     for entry in full_runs(results):
         cells = [entry["label"]]
         for subset in subsets:
-            aggregate = entry["subsets"].get(subset, {}).get("aggregate")
-            cells += [percent(aggregate[c][metric]) if aggregate else MISSING for c in columns]
+            aggregates = [e["subsets"].get(subset, {}).get("aggregate") for e in repeats(results, entry)]
+            cells += [spread([a[c][metric] for a in aggregates if a]) for c in columns]
         lines.append(_row(cells))
     return "\n".join(lines)
 
@@ -179,7 +205,7 @@ def unseen_mean(entry: Mapping) -> float | None:
 
 def efficiency_table(results: Mapping) -> str:
     """Overall success on seen and unseen per method and training fraction (empty without fractions)."""
-    fractions = sorted({e["fraction"] for e in results["evaluations"]})
+    fractions = sorted({e["fraction"] for e in base_runs(results)})
     if fractions == [1.0]:
         return ""
     lines = [
@@ -188,7 +214,7 @@ def efficiency_table(results: Mapping) -> str:
         _row(["Method", "Fraction", "Seen", "Unseen (mean of obj and inst)"]),
         _row(["---", "---:", "---:", "---:"]),
     ]
-    for entry in sorted(results["evaluations"], key=lambda e: (e["method"], e["fraction"])):
+    for entry in sorted(base_runs(results), key=lambda e: (e["method"], e["fraction"])):
         seen = entry["subsets"].get("seen", {}).get("aggregate", {}).get("overall", {}).get("success")
         lines.append(_row([entry["label"], f"{entry['fraction']:g}", percent(seen), percent(unseen_mean(entry))]))
     return "\n".join(lines)

@@ -29,7 +29,7 @@ import numpy as np
 
 from ocplace.errors import FeaturesError
 from ocplace.models.backbone import Backbone, PromptConfig
-from ocplace.paths import atomic_path
+from ocplace.paths import atomic_path, file_lock
 
 log = logging.getLogger(__name__)
 
@@ -194,25 +194,53 @@ def featurize(
         float(backbone.logit_scale),
         int(backbone.dim),
     )
-    if _holds_key(out_path, info.key):
-        log.info("features up to date: %s", out_path)
-        return out_path
-    parts = _parts_dir(out_path, info.key, config.chunk_scenes)
-    _remove_stale_parts(out_path, keep=parts)
-    parts.mkdir(parents=True, exist_ok=True)
-    iterator = iter(examples)
-    with tqdm(total=total, unit="scene", desc="featurize", disable=not progress) as bar:
-        for index in itertools.count():
-            chunk = list(itertools.islice(iterator, config.chunk_scenes))
-            if not chunk:
-                break
-            path = parts / f"chunk_{index:06d}.safetensors"
-            if not path.exists():
-                _write(path, encode_chunk(chunk, backbone, config), info, _scene_meta(chunk))
-            bar.update(len(chunk))
-    _write(out_path, *_merge(sorted(parts.glob("chunk_*.safetensors")), info))
-    shutil.rmtree(parts)
+    with file_lock(out_path):  # concurrent trainings share this file: one encodes, the others wait for it
+        if _holds_key(out_path, info.key):
+            log.info("features up to date: %s", out_path)
+            return out_path
+        parts = _parts_dir(out_path, info.key, config.chunk_scenes)
+        _remove_stale_parts(out_path, keep=parts)
+        parts.mkdir(parents=True, exist_ok=True)
+        iterator = iter(examples)
+        with tqdm(total=total, unit="scene", desc="featurize", disable=not progress) as bar:
+            for index in itertools.count():
+                chunk = list(itertools.islice(iterator, config.chunk_scenes))
+                if not chunk:
+                    break
+                path = parts / f"chunk_{index:06d}.safetensors"
+                if not path.exists():
+                    _write(path, encode_chunk(chunk, backbone, config), info, _scene_meta(chunk))
+                bar.update(len(chunk))
+        _write(out_path, *_merge(sorted(parts.glob("chunk_*.safetensors")), info))
+        shutil.rmtree(parts)
     return out_path
+
+
+def featurize_split(
+    dataset_dir, split: str, backbone: Backbone, out=None, config: FeaturizeConfig = FeaturizeConfig(), progress=True
+) -> Path:
+    """A dataset split's feature file: at `out`, or at the cache path every method reads (one per backbone
+    and dataset); a cached no-op once made."""
+    from ocplace.sim.dataset.identity import dataset_hash, split_features_path
+    from ocplace.sim.dataset.job import scene_dirs
+    from ocplace.sim.dataset.loader import iter_examples
+
+    return featurize(
+        iter_examples(dataset_dir, split),
+        backbone,
+        out or split_features_path(dataset_dir, split, backbone.fingerprint),
+        dataset_hash=dataset_hash(dataset_dir, split),
+        config=config,
+        total=len(scene_dirs(dataset_dir, split)),
+        progress=progress,
+    )
+
+
+def featurize_split_task(dataset_dir, split: str, backbone_spec: str, out, config: FeaturizeConfig) -> Path:
+    """`featurize_split` as an executor task: loads the backbone in the worker."""
+    from ocplace.models.backbone import load_backbone
+
+    return featurize_split(dataset_dir, split, load_backbone(backbone_spec), out, config, progress=False)
 
 
 def encode_chunk(chunk: list[SceneToFeaturize], backbone: Backbone, config: FeaturizeConfig) -> dict[str, np.ndarray]:

@@ -117,3 +117,7 @@ class ConfigError(OcplaceError, ValueError):
 
 class UnknownExperiment(OcplaceError, ValueError):
     """An experiment name that `ocplace.configs` does not hold."""
+
+
+class ClusterError(OcplaceError):
+    """A Ray cluster that cannot be started or reached, or that lost a task for good."""

@@ -105,6 +105,23 @@ def trained_weights(run_dir: str | os.PathLike, what: str, how_to_train: str) ->
 
 
 @contextlib.contextmanager
+def file_lock(target: str | os.PathLike):
+    """Holds an exclusive lock on `.<name>.lock` beside `target` (blocking), for work that concurrent
+    processes on any node of a shared filesystem must not do twice at once (flock: advisory, so only
+    code that takes the lock waits for it)."""
+    import fcntl
+
+    target = Path(target)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    with open(target.with_name(f".{target.name}.lock"), "a") as handle:
+        fcntl.flock(handle, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(handle, fcntl.LOCK_UN)
+
+
+@contextlib.contextmanager
 def atomic_path(target: str | os.PathLike):
     """Yields a temporary path beside `target`; renames it onto `target` only on success.
 

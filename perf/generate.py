@@ -14,13 +14,15 @@ import time
 from pathlib import Path
 
 import ocplace  # noqa: F401  (sets the headless OpenGL default before MuJoCo loads)
+from ocplace.runtime import ExecutorConfig, open_executor
 from ocplace.sim.dataset.config import default_config, make_config
 from ocplace.sim.dataset.job import generate_dataset
 
 
 def timed(out: Path, config, workers: int) -> tuple[float, dict]:
     start = time.perf_counter()
-    manifest = generate_dataset(out, config, workers=workers, progress=False)
+    with open_executor(ExecutorConfig(workers=workers)) as executor:
+        manifest = generate_dataset(out, config, executor=executor, progress=False)
     return time.perf_counter() - start, manifest
 
 

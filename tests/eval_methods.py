@@ -122,11 +122,29 @@ class RandomMethod:
         return outputs
 
 
+# Module-level loaders, not lambdas: the pipeline sends specs to worker processes, which pickle them by name.
+def load_centre(context: LoadContext) -> CentreMethod:
+    return CentreMethod()
+
+
+def load_failing(context: LoadContext) -> FailingMethod:
+    return FailingMethod()
+
+
+def load_flaky(context: LoadContext) -> FlakyMethod:
+    return FlakyMethod()
+
+
+def load_random(context: LoadContext) -> RandomMethod:
+    return RandomMethod(min(context.num_samples, 64))
+
+
 METHODS = (
     MethodSpec("oracle", "Oracle", load=load_oracle, train=train_oracle),
-    MethodSpec("centre", "Table centre", load=lambda context: CentreMethod()),
-    MethodSpec("failing", "Always fails", load=lambda context: FailingMethod()),
-    MethodSpec("flaky", "Raises on odd scenes", load=lambda context: FlakyMethod()),
-    MethodSpec("random", "Uniform random", load=lambda context: RandomMethod(min(context.num_samples, 64))),
+    MethodSpec("centre", "Table centre", load=load_centre),
+    MethodSpec("failing", "Always fails", load=load_failing),
+    MethodSpec("flaky", "Raises on odd scenes", load=load_flaky),
+    MethodSpec("random", "Uniform random", load=load_random),
 )
+
 SPECS = {spec.name: spec for spec in METHODS}

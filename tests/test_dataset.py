@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from ocplace.errors import DatasetConfigError, DatasetError
+from ocplace.runtime import ExecutorConfig, open_executor
 from ocplace.sim.dataset.config import SPLIT_NAMES, SplitConfig, make_config, smoke_config
 from ocplace.sim.dataset.job import DIE_AFTER_SCENES_ENV, MANIFEST_FILE, generate_dataset, verify_dataset
 from ocplace.sim.dataset.loader import batches, iter_examples
@@ -99,8 +100,9 @@ def test_loader_yields_crops_and_targets(dataset):
 
 def test_same_seed_same_bytes_with_one_or_two_workers(tmp_path, library, dataset):
     config = dataclasses.replace(TINY, splits=TINY.splits[:1])
-    one = generate_dataset(tmp_path / "one", config, workers=1, progress=False)
-    two = generate_dataset(tmp_path / "two", config, workers=2, progress=False)
+    one = generate_dataset(tmp_path / "one", config, progress=False)
+    with open_executor(ExecutorConfig(workers=2)) as executor:
+        two = generate_dataset(tmp_path / "two", config, executor=executor, progress=False)
     assert one["files"] == two["files"]
 
 

@@ -1,5 +1,9 @@
 """The feature cache: layout, no-op second run, resume after a crash, invalidation, bad input."""
 
+import os
+import threading
+import time
+
 import numpy as np
 import pytest
 from tiny_clip import build_tiny_clip, write_tokenizer
@@ -132,6 +136,48 @@ def test_resumes_after_a_crash_without_redoing_chunks(tmp_path, backbone):
     resumed, whole = load_features(out), load_features(uninterrupted)
     for name in ("visual", "visual_mask", "text", "text_mask", "targets"):
         np.testing.assert_array_equal(getattr(resumed, name), getattr(whole, name))
+
+
+def _waits_for_lock(path) -> bool:
+    """Whether some thread or process is blocked in flock() on `path` (Linux lists waiters with `->`)."""
+    inode = f":{os.stat(path).st_ino} "
+    with open("/proc/locks") as locks:
+        return any("->" in line and "FLOCK" in line and inode in line for line in locks)
+
+
+def test_concurrent_featurize_encodes_once(tmp_path, backbone):
+    examples, out = make_examples(), tmp_path / "f.safetensors"
+    first_chunk_done, may_finish = threading.Event(), threading.Event()
+
+    def held_after_first_chunk():  # the first encoder stops mid-file, holding the lock, until told to go on
+        for index, example in enumerate(examples):
+            if index == CONFIG.chunk_scenes:
+                first_chunk_done.set()
+                assert may_finish.wait(120)
+            yield example
+
+    first, second = Counting(backbone), Counting(backbone)
+    results = {}
+
+    def encode(name, source, counting):
+        results[name] = featurize(source, counting, out, dataset_hash="d1", config=CONFIG, progress=False)
+
+    one = threading.Thread(target=encode, args=("first", held_after_first_chunk(), first))
+    one.start()
+    assert first_chunk_done.wait(120)
+    two = threading.Thread(target=encode, args=("second", iter(examples), second))
+    two.start()
+    lock = tmp_path / ".f.safetensors.lock"
+    deadline = time.monotonic() + 120
+    while not _waits_for_lock(lock):  # a condition, not a sleep: the second encoder is blocked on the lock
+        assert time.monotonic() < deadline, "the second featurize never waited for the first"
+        time.sleep(0.01)
+    may_finish.set()
+    one.join(120)
+    two.join(120)
+    assert results == {"first": out, "second": out}
+    assert second.images == 0  # it found the first one's file and encoded nothing
+    assert load_features(out).num_scenes == len(examples)
 
 
 def test_a_new_backbone_or_dataset_invalidates_the_cache(tmp_path, backbone, other_backbone):

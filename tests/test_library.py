@@ -15,7 +15,7 @@ from PIL import Image
 from ocplace.errors import MissingAssetPackage, UnknownObject
 from ocplace.sim.library import build_library, smoke_config, sources
 
-FAST = dataclasses.replace(smoke_config(), objects=("butter", "cookies"), workers=1)
+FAST = dataclasses.replace(smoke_config(), objects=("butter", "cookies"))
 
 
 def _gso_object(root, folder, name, corrupt=False):

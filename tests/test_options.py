@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Literal
 
 import pytest
-from hypothesis import given
+from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from ocplace import configs
@@ -100,6 +100,12 @@ def test_the_strategies_cover_every_setting():
     assert set(VALUES) == set(_leaf_keys(Leaves()))
 
 
+# The value strategies are built lazily on their first draw, which takes over a second when the 2-core
+# machine is busy; Hypothesis's too_slow check would then measure the machine, not these tests.
+SETTINGS = settings(suppress_health_check=[HealthCheck.too_slow])
+
+
+@SETTINGS
 @given(st.data())
 def test_every_field_type_round_trips_through_set(data):
     root = Root()
@@ -112,6 +118,7 @@ def test_every_field_type_round_trips_through_set(data):
     assert changed == apply_overrides(changed, [f"leaves.{key}={format_value(value)}"])
 
 
+@SETTINGS
 @given(st.data())
 def test_overrides_apply_in_order_and_the_last_one_wins(data):
     expected, overrides = {}, []

@@ -15,6 +15,7 @@ import pytest
 from ocplace import configs
 from ocplace.errors import OcplaceError
 from ocplace.eval import figures, pipeline, registry, results
+from ocplace.runtime import ExecutorConfig
 from ocplace.vocabulary import TEST_SUBSETS
 
 LOCAL = ("oracle", "centre", "failing")
@@ -39,9 +40,9 @@ def config(smoke_dataset, tiny_backbone_spec):
 
 
 @pytest.fixture(scope="module")
-def first_run(config, specs, library, arena, tmp_path_factory):
+def first_run(config, specs, library, tmp_path_factory):
     out = tmp_path_factory.mktemp("reproduce")
-    return pipeline.run_pipeline(config, out, specs=specs, library=library, arena=arena, command=["pytest"])
+    return pipeline.run_pipeline(config, out, specs=specs, library=library, command=["pytest"])
 
 
 def test_smoke_pipeline_trains_and_evaluates_every_method(first_run, specs):
@@ -70,8 +71,8 @@ def test_smoke_pipeline_trains_and_evaluates_every_method(first_run, specs):
     assert "already complete" in first_run.steps[1].detail
 
 
-def test_smoke_pipeline_resumes_without_redoing_work(first_run, config, specs, library, arena):
-    again = pipeline.run_pipeline(config, first_run.out, specs=specs, library=library, arena=arena, command=["pytest"])
+def test_smoke_pipeline_resumes_without_redoing_work(first_run, config, specs, library):
+    again = pipeline.run_pipeline(config, first_run.out, specs=specs, library=library, command=["pytest"])
     assert again.errors == []
     assert all(step.detail.startswith("stored") for step in again.steps if step.name.startswith("evaluate"))
     assert all(
@@ -170,15 +171,20 @@ def test_scale_configs():
     assert [s.name for s in pipeline.selected_specs(demo, specs)] == ["ours", "no_adapter", "no_llm", "no_pretrain"]
     assert [s.name for s in pipeline.selected_specs(default, specs)] == list(specs)
     runs = pipeline.planned_runs(default, list(eval_methods.SPECS.values()))
-    assert [(s.name, f) for s, f in runs] == [
-        ("oracle", 1.0),
-        ("centre", 1.0),
-        ("failing", 1.0),
-        ("flaky", 1.0),
-        ("random", 1.0),
-    ]
+    assert [run.key for run in runs] == ["oracle", "centre", "failing", "flaky", "random"]
     ours_like = dataclasses.replace(eval_methods.SPECS["oracle"], name="ours")
-    assert [f for _, f in pipeline.planned_runs(default, [ours_like])] == [0.25, 0.5, 0.75, 1.0]
+    assert [run.fraction for run in pipeline.planned_runs(default, [ours_like])] == [0.25, 0.5, 0.75, 1.0]
+    three_seeds = dataclasses.replace(
+        default, experiment=with_seeds(default.experiment, 3, fractions=(0.5, 1.0), methods=("ours",))
+    )
+    assert [run.key for run in pipeline.planned_runs(three_seeds, [ours_like, eval_methods.SPECS["centre"]])] == [
+        *("ours@0.5", "ours@0.5~seed1", "ours@0.5~seed2", "ours", "ours~seed1", "ours~seed2"),
+        *("centre", "centre~seed1", "centre~seed2"),
+    ]
+
+
+def with_seeds(experiment, seeds: int, **plan):
+    return dataclasses.replace(experiment, evaluation=dataclasses.replace(experiment.evaluation, seeds=seeds, **plan))
 
 
 @pytest.mark.slow
@@ -216,7 +222,7 @@ def test_reproduce_options_reach_the_config(tmp_path, monkeypatch):
     config, out = reproduce(
         *("--scale", "default", "--out", str(tmp_path / "out"), "--backbone", "offline:spec"),
         *("--methods", "oracle, centre", "--workers", "3", "--dataset", str(tmp_path / "dataset")),
-        *("--fractions", "1", "0.5", "1", "--physical", "5", "--no-progress"),
+        *("--fractions", "1", "0.5", "1", "--physical", "5", "--no-progress", "--seeds", "2", "--ray"),
     )
     assert out == tmp_path / "out"
     default = configs.get("default")
@@ -224,10 +230,12 @@ def test_reproduce_options_reach_the_config(tmp_path, monkeypatch):
         dataclasses.replace(
             default,
             dataset=dataclasses.replace(default.dataset, physical_scenes=5),
-            evaluation=dataclasses.replace(default.evaluation, methods=("oracle", "centre"), fractions=(0.5, 1.0)),
+            evaluation=dataclasses.replace(
+                default.evaluation, methods=("oracle", "centre"), fractions=(0.5, 1.0), seeds=2
+            ),
         ),
         backbone="offline:spec",
-        workers=3,
+        executor=ExecutorConfig(kind="ray", workers=3),
         dataset=tmp_path / "dataset",
         progress=False,
     )
@@ -276,5 +284,5 @@ def test_reproduce_set_reaches_the_experiment(tmp_path, monkeypatch):
             dataset=dataclasses.replace(smoke.dataset, train_scenes=100),
             evaluation=dataclasses.replace(smoke.evaluation, methods=("oracle", "centre")),  # after --methods
         ),
-        workers=2,
+        executor=ExecutorConfig(workers=2),
     )

@@ -30,7 +30,7 @@ import optax
 
 from ocplace.errors import FeaturesError, TrainingError
 from ocplace.models.backbone import Backbone
-from ocplace.models.features import Features, FeaturizeConfig, featurize, load_features
+from ocplace.models.features import Features, featurize_split, load_features
 from ocplace.models.no_llm import NoLlmConfig, NoLlmModel, encode_sentences, init_params, loss_terms
 from ocplace.models.weights_file import save_weights
 from ocplace.paths import WEIGHTS_FILE, atomic_path, features_cache
@@ -75,26 +75,6 @@ class NoLlmTrainConfig:
 
 
 # ----------------------------------------------------------------------------- cached inputs
-
-
-def split_features(dataset_dir: Path, split: str, backbone: Backbone, progress: bool = False) -> Features:
-    """The split's feature file, encoded once into the cache path `ocplace featurize` uses."""
-    from ocplace.sim.dataset.identity import dataset_hash, split_features_path, split_files
-    from ocplace.sim.dataset.loader import iter_examples
-
-    digest = dataset_hash(dataset_dir, split)
-    total = len({Path(name).parent for name, _ in split_files(dataset_dir, split)})
-    out = split_features_path(dataset_dir, split, backbone.fingerprint)
-    featurize(
-        iter_examples(dataset_dir, split),
-        backbone,
-        out,
-        dataset_hash=digest,
-        config=FeaturizeConfig(),
-        total=total,
-        progress=progress,
-    )
-    return load_features(out, backbone.fingerprint)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -260,7 +240,7 @@ def train_no_llm(
 ) -> Path:
     """Featurizes the train split (cached), trains, writes `run_dir/WEIGHTS_FILE`; a finished run is kept."""
     run_dir = Path(run_dir)
-    features = split_features(dataset_dir, "train", backbone, progress)
+    features = load_features(featurize_split(dataset_dir, "train", backbone, progress=progress), backbone.fingerprint)
     sentences = split_sentences(dataset_dir, "train", backbone, config.model_config(backbone.dim))
     chosen = subset_indices(features.num_scenes, config.fraction, config.subset_seed)
     arrays = {name: array[chosen] for name, array in training_arrays(features, sentences).items()}

@@ -6,6 +6,7 @@ import argparse
 import dataclasses
 from pathlib import Path
 
+from ocplace.cli.executor_options import add_executor_arguments, executor_config
 from ocplace.vocabulary import LIBRARY_SPLITS
 
 
@@ -18,7 +19,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     actions = assets.add_subparsers(dest="action", metavar="ACTION", required=True)
     build = actions.add_parser("build", help="process every object into the cache (a no-op when cached)")
-    build.add_argument("--workers", type=int, help="parallel processes (default: all cores)")
     build.add_argument("--objects", help="comma-separated object names to build (default: all)")
     build.add_argument(
         "--gso",
@@ -28,6 +28,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="also import every object of this Google-Scanned-Objects-layout folder",
     )
     build.add_argument("--smoke", action="store_true", help="a handful of objects with fast settings")
+    add_executor_arguments(build, "each object is a task")
     build.set_defaults(func=_build)
     listing = actions.add_parser("list", help="show the objects of the built library")
     listing.add_argument("--split", choices=LIBRARY_SPLITS)
@@ -35,19 +36,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _build(args: argparse.Namespace) -> int:
-    from ocplace.errors import OcplaceError
+    from ocplace.runtime import open_executor
     from ocplace.sim.library import build_library, default_config, smoke_config
 
     config = smoke_config() if args.smoke else default_config()
-    if args.workers is not None:
-        if args.workers < 1:
-            raise OcplaceError("--workers must be at least 1")
-        config = dataclasses.replace(config, workers=args.workers)
     if args.objects:
         config = dataclasses.replace(config, objects=tuple(n.strip() for n in args.objects.split(",") if n.strip()))
     if args.gso:
         config = dataclasses.replace(config, gso_dirs=tuple(str(d) for d in args.gso))
-    library = build_library(config)
+    with open_executor(executor_config(args)) as executor:
+        library = build_library(config, executor=executor)
     failed = [entry["name"] for entry in library.manifest["objects"] if entry["status"] != "ok"]
     print(f"object library: {library.summary()}" + (f"; failed: {', '.join(failed)}" if failed else ""))
     return 0

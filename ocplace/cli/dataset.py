@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import os
 from pathlib import Path
 
+from ocplace.cli.executor_options import add_executor_arguments, executor_config
 from ocplace.sim.dataset.config import SPLIT_NAMES
 
 SPLIT_CHOICES = ("all", *SPLIT_NAMES)
@@ -23,11 +23,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     generate.add_argument("--out", type=Path, required=True, help="dataset folder")
     generate.add_argument("--split", choices=SPLIT_CHOICES, default="all")
-    generate.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     generate.add_argument("--seed", type=int, default=0)
     generate.add_argument("--train", type=int, default=2000, help="training scenes")
     generate.add_argument("--test", type=int, default=400, help="scenes per test subset")
     generate.add_argument("--smoke", action="store_true", help="a tiny dataset (12 train, 8 per test subset)")
+    add_executor_arguments(generate, "each scene is a task")
     generate.set_defaults(func=_generate)
 
     dataset = subparsers.add_parser("dataset", help="check or draw a generated dataset")
@@ -51,11 +51,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     check.add_argument("dir", type=Path)
     check.add_argument("--split", choices=SPLIT_CHOICES, default="all")
     check.add_argument("--physical", action="store_true", help="also drop the held object in MuJoCo")
+    add_executor_arguments(check, "with --physical, each chunk of scenes is a task")
     check.set_defaults(func=_check)
 
 
 def _generate(args: argparse.Namespace) -> int:
     from ocplace.errors import DatasetConfigError
+    from ocplace.runtime import open_executor
     from ocplace.sim.dataset.config import make_config, smoke_config
     from ocplace.sim.dataset.job import generate_dataset
 
@@ -64,7 +66,8 @@ def _generate(args: argparse.Namespace) -> int:
     config = smoke_config() if args.smoke else make_config(args.train, args.test)
     config = dataclasses.replace(config, seed=args.seed)
     splits = None if args.split == "all" else [args.split]
-    manifest = generate_dataset(args.out, config, splits, workers=args.workers)
+    with open_executor(executor_config(args)) as executor:
+        manifest = generate_dataset(args.out, config, splits, executor=executor)
     for split, counts in manifest["counts"].items():
         print(f"{split:>12}: {sum(counts.values())} scenes {counts}")
     stats = manifest["statistics"]
@@ -106,13 +109,14 @@ def _show(args: argparse.Namespace) -> int:
 
 
 def _check(args: argparse.Namespace) -> int:
+    from ocplace.runtime import open_executor
     from ocplace.sim.dataset.check import check_oracle
     from ocplace.sim.dataset.job import read_manifest
-    from ocplace.sim.library import load_library
 
     listed = {relative.split("/")[0] for relative in read_manifest(args.dir)["files"]}
     splits = [s for s in SPLIT_NAMES if s in listed] if args.split == "all" else [args.split]
-    report = check_oracle(args.dir, splits, load_library() if args.physical else None, args.physical)
+    with open_executor(executor_config(args)) as executor:
+        report = check_oracle(args.dir, splits, args.physical, executor)
     total = {"scenes": 0, "metric_success": 0, "physical_success": 0}
     for split, row in report.items():
         line = f"{split:>12}: metric {row['metric_success']}/{row['scenes']}"

@@ -6,6 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from ocplace.cli.executor_options import add_executor_arguments, executor_config
 from ocplace.cli.options import config_from_arguments
 from ocplace.vocabulary import TEST_SUBSETS
 
@@ -70,6 +71,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="evaluate again from this results JSON (its settings and runs) and compare",
     )
     evaluate.add_argument("--no-progress", action="store_true")
+    add_executor_arguments(evaluate, "each method's evaluation is a task")
     evaluate.set_defaults(func=_evaluate)
 
     reproduce = subparsers.add_parser(
@@ -88,7 +90,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="comma-separated method names, or `all` (default: the scale's: "
         "every method; at the demo scale Ours and its ablations)",
     )
-    reproduce.add_argument("--workers", type=int, help="dataset generation processes (default: all CPUs)")
+    reproduce.add_argument(
+        "--seeds",
+        type=int,
+        metavar="N",
+        help="train and evaluate every run with N seeds; Table I shows mean and spread (default: the scale's, 1)",
+    )
     reproduce.add_argument(
         "--dataset", type=Path, help="dataset folder to use, or to generate into (default: OUT/dataset)"
     )
@@ -117,6 +124,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "(repeatable; see docs/evaluation.md)",
     )
     reproduce.add_argument("--no-progress", action="store_true")
+    add_executor_arguments(
+        reproduce, "objects, scenes, the pretraining, each training and each evaluation are tasks of one graph"
+    )
     reproduce.set_defaults(func=_reproduce)
 
     figures = subparsers.add_parser(
@@ -196,15 +206,10 @@ def _command(args: argparse.Namespace) -> dict:
 def _evaluate(args: argparse.Namespace) -> int:
     if args.rerun is not None:
         return _rerun(args)
-    from ocplace.eval.harness import (
-        DEFAULT_PHYSICAL_SCENES,
-        EvalSettings,
-        EvaluationError,
-        evaluate_run,
-        physical_arena,
-    )
+    from ocplace.eval.harness import DEFAULT_PHYSICAL_SCENES, EvalSettings, EvaluationError, evaluate_runs
     from ocplace.eval.registry import method_specs, select_specs
     from ocplace.eval.results import build_results, write_outputs
+    from ocplace.runtime import open_executor
 
     if args.dataset is None or args.out is None:
         raise EvaluationError("`ocplace evaluate` needs --dataset DIR and --out RESULTS.json (or --rerun RESULTS.json)")
@@ -216,8 +221,8 @@ def _evaluate(args: argparse.Namespace) -> int:
         fields=EVAL_SETTINGS_OPTIONS,
     )
     runs = method_runs(select_specs(args.methods, method_specs()), parse_runs(args.run), args.runs_from)
-    with physical_arena(settings) as arena:
-        evaluations = [evaluate_run(run, args.dataset, settings, arena, progress=not args.no_progress) for run in runs]
+    with open_executor(executor_config(args)) as executor:
+        evaluations = evaluate_runs(runs, args.dataset, settings, executor, progress=not args.no_progress)
     markdown = write_outputs(build_results(evaluations, args.dataset, settings, _command(args)), args.out)
     print(markdown)
     print(f"wrote {args.out} and {args.out.with_suffix('.md')}")
@@ -225,12 +230,12 @@ def _evaluate(args: argparse.Namespace) -> int:
 
 
 def _rerun(args: argparse.Namespace) -> int:
-    from ocplace.eval.harness import physical_arena
-    from ocplace.eval.results import compare, read_results, rerun, settings_of, write_outputs
+    from ocplace.eval.results import compare, read_results, rerun, write_outputs
+    from ocplace.runtime import open_executor
 
     original = read_results(args.rerun)
-    with physical_arena(settings_of(original)) as arena:
-        fresh = rerun(original, arena=arena, progress=not args.no_progress, command=_command(args))
+    with open_executor(executor_config(args)) as executor:
+        fresh = rerun(original, progress=not args.no_progress, command=_command(args), executor=executor)
     out = args.out or args.rerun.with_name(args.rerun.stem + ".rerun.json")
     write_outputs(fresh, out)
     differences = compare(original, fresh)
@@ -247,6 +252,7 @@ def _reproduce(args: argparse.Namespace) -> int:
 
     from ocplace import configs
     from ocplace.cli.options import apply_overrides
+    from ocplace.errors import ConfigError
     from ocplace.eval.pipeline import PipelineConfig, run_pipeline
 
     experiment = configs.get(args.scale)
@@ -257,6 +263,10 @@ def _reproduce(args: argparse.Namespace) -> int:
         plan = dataclasses.replace(plan, methods=tuple(n.strip() for n in args.methods.split(",") if n.strip()))
     if args.fractions:
         plan = dataclasses.replace(plan, fractions=tuple(sorted(set(args.fractions))))
+    if args.seeds is not None:
+        if args.seeds < 1:
+            raise ConfigError(f"--seeds must be at least 1, got {args.seeds}")
+        plan = dataclasses.replace(plan, seeds=args.seeds)
     if args.physical is not None:
         sizes = dataclasses.replace(sizes, physical_scenes=physical_setting(args.physical, sizes.physical_scenes))
     experiment = apply_overrides(dataclasses.replace(experiment, evaluation=plan, dataset=sizes), args.overrides)
@@ -264,7 +274,7 @@ def _reproduce(args: argparse.Namespace) -> int:
         experiment,
         backbone=args.backbone or None,
         dataset=args.dataset,
-        workers=args.workers or 0,
+        executor=executor_config(args),
         progress=not args.no_progress,
     )
     summary = run_pipeline(config, args.out or experiment.out, command=_command(args))

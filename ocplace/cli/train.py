@@ -9,6 +9,7 @@ import os
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
+from ocplace.cli.executor_options import add_executor_arguments, executor_config
 from ocplace.cli.options import add_config_arguments, config_from_arguments
 from ocplace.train.config import TrainConfig, default_config, smoke_config  # light: no JAX behind it
 
@@ -42,6 +43,7 @@ def _register_featurize(subparsers, reader: Callable[[Path, str], Iterable]) -> 
     parser.add_argument("--split", default="train")
     parser.add_argument("--out", type=Path, help="feature file (default: in the cache, printed at the end)")
     parser.add_argument("--chunk-scenes", type=int, help="scenes per resumable chunk (default: 64)")
+    add_executor_arguments(parser, "the split is encoded by one task, in this process unless --ray")
     parser.set_defaults(func=lambda args: run_featurize(args, reader))
 
 
@@ -50,6 +52,10 @@ def run_featurize(args, read_examples: Callable[[Path, str], Iterable]) -> int:
     from ocplace.models.features import FeaturizeConfig, featurize
     from ocplace.sim.dataset.identity import dataset_hash, split_features_path, split_files
 
+    executor = executor_config(args)
+    if executor.kind == "ray":
+        print(_featurize_on_ray(args, executor))
+        return 0
     backbone = load_backbone(args.backbone)
     digest = dataset_hash(args.dataset, args.split)
     num_scenes = len({Path(name).parent for name, _ in split_files(args.dataset, args.split)})
@@ -64,6 +70,17 @@ def run_featurize(args, read_examples: Callable[[Path, str], Iterable]) -> int:
     )
     print(path)
     return 0
+
+
+def _featurize_on_ray(args, executor) -> Path:
+    """The split encoded by one Ray task (a fresh worker process, JAX one CPU wide, as in `reproduce`)."""
+    from ocplace.models.features import FeaturizeConfig, featurize_split_task
+    from ocplace.runtime import Task, map_tasks, open_executor
+
+    config = config_from_arguments(args, FeaturizeConfig(), fields=("chunk_scenes",))
+    task = Task(featurize_split_task, (args.dataset, args.split, args.backbone, args.out, config), fresh_process=True)
+    with open_executor(executor) as running:
+        return next(map_tasks(running, [task]))[1]
 
 
 def _register_train(subparsers) -> None:

@@ -1,42 +1,92 @@
-"""Scoring the oracle on a whole dataset: the success metric and the optional physical check."""
+"""Scoring the oracle on a whole dataset: the success metric and the optional physical check.
+
+The metric is cheap and runs here. The physical check drops the held object in MuJoCo for every
+scene, so its scenes go to the executor's workers in chunks; each worker compiles the arena once.
+"""
 
 from __future__ import annotations
 
+import contextlib
+from pathlib import Path
+
 from tqdm import tqdm
 
+from ocplace.runtime import Executor, ExecutorConfig, Task, map_tasks, open_executor
 from ocplace.sim.dataset.job import scene_dirs
 from ocplace.sim.dataset.records import SceneInfo, read_meta
 from ocplace.sim.metric import placement_success
-from ocplace.sim.mujoco_backend import MujocoScenes
-from ocplace.sim.physical import physical_check
+
+_ARENA: dict = {}  # per worker process: the compiled MuJoCo arena of one library cache
+CHUNKS_PER_WORKER = 4  # small enough to balance the workers, large enough to amortise each task
 
 
-def check_oracle(dataset_dir, splits: list[str], library=None, physical: bool = False, progress: bool = True) -> dict:
+def _arena(cache: str | None):
+    if _ARENA.get("cache", object()) != cache:
+        from ocplace.sim.library import load_library
+        from ocplace.sim.mujoco_backend import MujocoScenes
+
+        _close_arena()
+        _ARENA.update(cache=cache, arena=MujocoScenes.from_library(load_library(cache)))
+    return _ARENA["arena"]
+
+
+def _close_arena() -> None:
+    if "arena" in _ARENA:
+        _ARENA.pop("arena").close()
+        _ARENA.clear()
+
+
+def physical_failures(dirs: list[str], cache: str | None) -> list[str]:
+    """The ids of the scenes whose oracle placement fails the physical drop check."""
+    from ocplace.sim.physical import physical_check
+
+    failures = []
+    for scene_dir in dirs:
+        scene = SceneInfo(read_meta(Path(scene_dir)))
+        if not physical_check(_arena(cache), scene, scene.oracle.placement).success:
+            failures.append(scene.id)
+    return failures
+
+
+def _physical_report(dirs: list[Path], executor: Executor, cache: str | None, progress: bool, desc: str) -> list:
+    size = max(1, -(-len(dirs) // (executor.capacity * CHUNKS_PER_WORKER)))
+    chunks = [[str(d) for d in dirs[start : start + size]] for start in range(0, len(dirs), size)]
+    failures = []
+    bar = tqdm(total=len(dirs), desc=desc, disable=not progress)
+    for index, failed in map_tasks(executor, [Task(physical_failures, (chunk, cache)) for chunk in chunks]):
+        failures += failed
+        bar.update(len(chunks[index]))
+    bar.close()
+    return sorted(failures)
+
+
+def check_oracle(
+    dataset_dir,
+    splits: list[str],
+    physical: bool = False,
+    executor: Executor | None = None,
+    cache: str | None = None,
+    progress: bool = True,
+) -> dict:
     """Per split: how many oracle placements pass the metric (and, optionally, the physical check)."""
     report = {}
-    arena = MujocoScenes.from_library(library) if physical else None
-    try:
+    with contextlib.ExitStack() as stack:
+        stack.callback(_close_arena)  # the one this process made, when tasks ran here
+        if executor is None and physical:
+            executor = stack.enter_context(open_executor(ExecutorConfig(workers=1)))
         for split in splits:
             dirs = scene_dirs(dataset_dir, split)
-            metric_failures, physical_failures = [], []
+            metric_failures = []
             for scene_dir in tqdm(dirs, desc=f"oracle {split}", disable=not progress):
                 scene = SceneInfo(read_meta(scene_dir))
-                placement = scene.oracle.placement
-                if not placement_success(placement[None], scene.problem())[0]:
+                if not placement_success(scene.oracle.placement[None], scene.problem())[0]:
                     metric_failures.append(scene.id)
-                if arena is not None and not physical_check(arena, scene, placement).success:
-                    physical_failures.append(scene.id)
             report[split] = {
                 "scenes": len(dirs),
                 "metric_success": len(dirs) - len(metric_failures),
                 "metric_failures": metric_failures,
             }
-            if arena is not None:
-                report[split] |= {
-                    "physical_success": len(dirs) - len(physical_failures),
-                    "physical_failures": physical_failures,
-                }
-    finally:
-        if arena is not None:
-            arena.close()
+            if physical:
+                failed = _physical_report(dirs, executor, cache, progress, f"physical {split}")
+                report[split] |= {"physical_success": len(dirs) - len(failed), "physical_failures": failed}
     return report

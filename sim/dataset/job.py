@@ -13,13 +13,13 @@ and every entry is checked to name a scene file inside DIR before anything is re
 
 from __future__ import annotations
 
-import concurrent.futures
+import contextlib
 import hashlib
 import json
-import multiprocessing
 import os
 import shutil
 import signal
+import socket
 import subprocess
 from pathlib import Path
 
@@ -28,6 +28,7 @@ from tqdm import tqdm
 import ocplace
 from ocplace.errors import DatasetError
 from ocplace.paths import inside, write_text_atomic
+from ocplace.runtime import Executor, ExecutorConfig, Task, map_tasks, open_executor
 from ocplace.sim.dataset.config import DatasetConfig
 from ocplace.sim.dataset.generate import SceneGenerator, describe, level_schedule, scene_id
 from ocplace.sim.dataset.records import IMAGE_FILES, SCENE_FILE, SceneInfo, read_meta
@@ -39,6 +40,9 @@ SCENE_FILES = (SCENE_FILE, *IMAGE_FILES)
 # Set to N, the process writing scenes SIGKILLs itself right after committing its Nth scene, so the
 # resume tests crash a run at a known point instead of racing a kill against the generator. Unset: off.
 DIE_AFTER_SCENES_ENV = "OCPLACE_TEST_DIE_AFTER_SCENES"
+# With it set to a file path as well, only the first process to create that file dies: one lost worker
+# in a whole run, which the Ray executor must retry without losing or duplicating a scene.
+DIE_ONCE_MARKER_ENV = "OCPLACE_TEST_DIE_ONCE_MARKER"
 
 
 def code_version() -> str:
@@ -60,7 +64,7 @@ def _sha256(path: Path) -> str:
 def write_scene(scene_dir: Path, files: dict[str, bytes]) -> None:
     """Writes a scene folder atomically: a temporary sibling folder renamed into place."""
     scene_dir.parent.mkdir(parents=True, exist_ok=True)
-    tmp = scene_dir.parent / f"{TMP_PREFIX}{scene_dir.name}-{os.getpid()}"
+    tmp = scene_dir.parent / f"{TMP_PREFIX}{scene_dir.name}-{socket.gethostname()}-{os.getpid()}"
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir()
     for name, data in files.items():
@@ -218,23 +222,46 @@ def _drop_damaged_scenes(out: Path, manifest: dict | None) -> int:
     return len(bad)
 
 
+# Per process: the scene generator of the dataset being made (building one loads the library and
+# compiles the MuJoCo arena, so a worker keeps it across its tasks), and the scenes it wrote.
 _WORKER: dict = {}
 
 
-def _init_worker(config: DatasetConfig, cache: str | None) -> None:
-    import ocplace  # noqa: F401  (sets the OpenGL default in the fresh process)
-    from ocplace.sim.library import load_library
+def _generator(config: DatasetConfig, cache: str | None) -> SceneGenerator:
+    key = (json.dumps(describe(config), sort_keys=True), cache)
+    if _WORKER.get("key") != key:
+        import ocplace  # noqa: F401  (sets the OpenGL default in a fresh process)
+        from ocplace.sim.library import load_library
 
-    _WORKER["generator"] = SceneGenerator(load_library(cache), config)
-    _WORKER["written"], _WORKER["die_after"] = 0, int(os.environ.get(DIE_AFTER_SCENES_ENV, "0"))
+        _close_generator()
+        _WORKER.update(key=key, generator=SceneGenerator(load_library(cache), config), written=0)
+    return _WORKER["generator"]
 
 
-def _make_scene(out: str, split: str, index: int, level: str) -> str:
-    files = _WORKER["generator"].make(split, index, level)
+def _close_generator() -> None:
+    if "generator" in _WORKER:
+        _WORKER.pop("generator").close()
+        _WORKER.clear()
+
+
+def _die_if_asked() -> None:
+    """The test hook: SIGKILL after this process's Nth committed scene (once in all, given a marker file)."""
+    if _WORKER["written"] != int(os.environ.get(DIE_AFTER_SCENES_ENV, "0")):
+        return
+    marker = os.environ.get(DIE_ONCE_MARKER_ENV)
+    if marker:
+        try:
+            os.close(os.open(marker, os.O_CREAT | os.O_EXCL | os.O_WRONLY))
+        except FileExistsError:
+            return
+    os.kill(os.getpid(), signal.SIGKILL)
+
+
+def _make_scene(out: str, config: DatasetConfig, cache: str | None, split: str, index: int, level: str) -> str:
+    files = _generator(config, cache).make(split, index, level)
     write_scene(Path(out) / split / scene_id(split, index), files)
     _WORKER["written"] += 1
-    if _WORKER["written"] == _WORKER["die_after"]:
-        os.kill(os.getpid(), signal.SIGKILL)
+    _die_if_asked()
     return scene_id(split, index)
 
 
@@ -242,47 +269,35 @@ def generate_dataset(
     out: str | Path,
     config: DatasetConfig,
     splits: list[str] | None = None,
-    workers: int = 1,
+    executor: Executor | None = None,
     cache: str | None = None,
     progress: bool = True,
 ) -> dict:
-    """Generates (or completes) the dataset in `out`; returns the manifest."""
+    """Generates (or completes) the dataset in `out` with `executor`'s workers (default: this process);
+    returns the manifest. Every worker writes its scenes into `out` itself, so they must all see it."""
     out = Path(out)
     config.validate()
     splits = [s.name for s in config.splits] if splits is None else splits
     for name in splits:
         config.split(name)
-    if workers < 1:
-        raise DatasetError(f"--workers must be at least 1, got {workers}")
     out.mkdir(parents=True, exist_ok=True)
     _claim_directory(out, config)
     # Read (and so checked) before anything is removed: a crafted manifest must not steer a deletion.
     manifest = read_manifest(out) if (out / MANIFEST_FILE).exists() else None
     _remove_leftovers(out, config)
     regenerated = _drop_damaged_scenes(out, manifest)
-    jobs = [
-        (name, index, level)
+    tasks = [
+        Task(_make_scene, (str(out), config, cache, name, index, level))
         for name in splits
         for index, level in enumerate(level_schedule(config.split(name), config.seed))
         if not _scene_is_complete(_scene_dir(out, name, index))
     ]
-    bar = tqdm(total=len(jobs), desc="scenes", unit="scene", disable=not progress)
-    if workers == 1:
-        _init_worker(config, cache)
-        for job in jobs:
-            _make_scene(str(out), *job)
-            bar.update()
-        _WORKER.pop("generator").close()
-    else:
-        context = multiprocessing.get_context("spawn")  # forking after JAX or EGL start-up is unsafe
-        with concurrent.futures.ProcessPoolExecutor(
-            workers, mp_context=context, initializer=_init_worker, initargs=(config, cache)
-        ) as pool:
-            futures = [pool.submit(_make_scene, str(out), *job) for job in jobs]
-            for future in concurrent.futures.as_completed(futures):
-                future.result()
-                bar.update()
-    bar.close()
+    with contextlib.ExitStack() as stack:
+        stack.callback(_close_generator)  # the one this process made, when tasks ran here
+        if executor is None:
+            executor = stack.enter_context(open_executor(ExecutorConfig(workers=1)))
+        for _ in tqdm(map_tasks(executor, tasks), total=len(tasks), desc="scenes", unit="scene", disable=not progress):
+            pass
     return write_manifest(out, config, regenerated)
 
 

@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import concurrent.futures
+import contextlib
 import dataclasses
 import difflib
 import hashlib
 import json
 import logging
-import multiprocessing
 import os
 import shutil
 from collections import Counter
@@ -19,6 +18,7 @@ from tqdm import tqdm
 
 from ocplace.errors import AssetBuildError, UnknownObject
 from ocplace.paths import atomic_path, library_cache, write_text_atomic
+from ocplace.runtime import Executor, ExecutorConfig, Task, open_executor
 from ocplace.sim.library.config import LibraryConfig, default_config
 from ocplace.sim.library.library import Library, load_library
 from ocplace.sim.library.metadata import ObjectSpec, packaged_objects, table_textures
@@ -140,34 +140,25 @@ def _remove_abandoned_tmp(tmp_root: Path) -> None:
             shutil.rmtree(path, ignore_errors=True)
 
 
-def _worker_init() -> None:
-    os.environ["OMP_NUM_THREADS"] = "1"  # one object per core; coacd's OpenMP would oversubscribe
-
-
-def _run_jobs(jobs: list[_Job], config: LibraryConfig, root: Path, progress: bool) -> list[ObjectResult]:
+def _run_jobs(jobs: list[_Job], config: LibraryConfig, root: Path, executor: Executor, progress: bool):
+    """The result of every job; a job whose worker died (a native crash in coacd, say) is marked failed."""
     tmp_root = root / TMP_DIRNAME
     bar = tqdm(total=len(jobs), desc="building objects", unit="obj", disable=not progress)
-    results = []
-    workers = max(1, min(config.workers, len(jobs)))
-    if workers == 1:
-        for job in jobs:
+    handles = {
+        executor.submit(Task(build_object, (job.spec, job.files, config, root / job.folder, tmp_root))): job
+        for job in jobs
+    }
+    results, pending = [], list(handles)
+    while pending:
+        done, pending = executor.wait(pending)
+        for handle in done:
+            job = handles[handle]
+            try:
+                results.append(executor.result(handle))
+            except Exception as error:  # build_object reports its own failures; this is a lost worker
+                results.append(ObjectResult(job.spec.name, "failed", f"{type(error).__name__}: {error}", 0.0, None))
             bar.set_postfix_str(job.spec.name)
-            results.append(build_object(job.spec, job.files, config, root / job.folder, tmp_root))
             bar.update()
-    else:
-        context = multiprocessing.get_context("spawn")  # no fork of a possibly threaded parent
-        with concurrent.futures.ProcessPoolExecutor(workers, mp_context=context, initializer=_worker_init) as pool:
-            futures = {
-                pool.submit(build_object, job.spec, job.files, config, root / job.folder, tmp_root): job for job in jobs
-            }
-            for future in concurrent.futures.as_completed(futures):
-                job = futures[future]
-                try:
-                    results.append(future.result())
-                except Exception as error:  # a worker died (e.g. a native crash)
-                    results.append(ObjectResult(job.spec.name, "failed", f"worker died: {error!r}", 0.0, None))
-                bar.set_postfix_str(job.spec.name)
-                bar.update()
     bar.close()
     return results
 
@@ -241,9 +232,13 @@ def _remove_unreferenced(root: Path, manifest: dict) -> None:
 
 
 def build_library(
-    config: LibraryConfig | None = None, cache: str | Path | None = None, progress: bool = True
+    config: LibraryConfig | None = None,
+    cache: str | Path | None = None,
+    progress: bool = True,
+    executor: Executor | None = None,
 ) -> Library:
-    """Builds what is missing into `<cache>/library`, writes the manifest, returns the library.
+    """Builds what is missing into `<cache>/library` with `executor`'s workers (default: this process),
+    writes the manifest, returns the library.
 
     Objects already built with the same key are reused, so a second call is a quick no-op.
     Objects that fail are logged, marked failed in the manifest and left out of the library.
@@ -259,8 +254,10 @@ def build_library(
         elif cached := _cached(root, job):
             results[job.spec.name] = cached
     todo = [job for job in jobs if job.spec.name not in results]
-    for result in _run_jobs(todo, config, root, progress):
-        results[result.name] = result
+    with contextlib.ExitStack() as stack:
+        executor = executor or stack.enter_context(open_executor(ExecutorConfig(workers=1)))
+        for result in _run_jobs(todo, config, root, executor, progress):
+            results[result.name] = result
     for result in results.values():
         if result.status != "ok":
             log.warning("skipped %s: %s", result.name, result.reason)

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import dataclasses
-import os
 
 
 @dataclasses.dataclass(frozen=True)
@@ -33,7 +32,6 @@ class LibraryConfig:
     object found in those Google-Scanned-Objects-layout directories.
     """
 
-    workers: int = dataclasses.field(default_factory=lambda: os.cpu_count() or 1)
     coacd: CoacdSettings = CoacdSettings()
     max_faces: int = 20_000  # visual mesh
     collision_faces: int = 2_000  # mesh handed to coacd, simplified first for speed
@@ -65,7 +63,6 @@ def default_config() -> LibraryConfig:
 def smoke_config() -> LibraryConfig:
     """A handful of objects (both mesh formats, textured and plain) with fast coacd, for tests."""
     return LibraryConfig(
-        workers=1,
         coacd=CoacdSettings(
             threshold=0.3,
             max_convex_hull=8,

@@ -1,0 +1,24 @@
+"""The flags that choose where a command's tasks run: `--workers`, `--ray`, `--ray-address`."""
+
+from __future__ import annotations
+
+import argparse
+
+from ocplace.runtime.executor import ExecutorConfig
+
+
+def add_executor_arguments(parser: argparse.ArgumentParser, tasks: str) -> None:
+    """`tasks` says what runs as tasks, e.g. "each scene is a task"."""
+    group = parser.add_argument_group("where it runs", f"{tasks}; see docs/distributed.md")
+    group.add_argument("--workers", type=int, default=0, help="local processes, or CPUs of --ray (default: all)")
+    group.add_argument("--ray", action="store_true", help="run the tasks on a local Ray instance started here")
+    group.add_argument(
+        "--ray-address",
+        metavar="ADDRESS",
+        help="join a running Ray cluster instead: auto, HOST:PORT or ray://HOST:PORT (implies --ray)",
+    )
+
+
+def executor_config(args: argparse.Namespace) -> ExecutorConfig:
+    kind = "ray" if args.ray or args.ray_address else "local"
+    return ExecutorConfig(kind=kind, workers=args.workers, address=args.ray_address)

@@ -1,0 +1,211 @@
+"""One interface for running independent tasks: a local process pool or a Ray cluster.
+
+    with open_executor(ExecutorConfig(kind="ray")) as executor:
+        for index, result in map_tasks(executor, [Task(fn, (arg,)) for arg in args]):
+            ...
+
+A `Task` is a module-level function and its arguments (both picklable) plus the CPUs it needs.
+`local` runs tasks on this machine: in a spawn process pool, or, with one worker, in the calling
+process (except tasks that ask for a fresh process); a worker that dies fails the tasks it had with
+ClusterError, and rerunning the command resumes. `ray` runs them as
+Ray tasks, each declaring its CPUs as a Ray resource; a worker that dies has its task retried
+(`task_retries`). Tasks write their files themselves, so every worker must see the same paths
+(docs/distributed.md).
+"""
+
+from __future__ import annotations
+
+import abc
+import concurrent.futures
+import contextlib
+import dataclasses
+import multiprocessing
+import os
+from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures.process import BrokenProcessPool
+from typing import Any, Literal
+
+from ocplace.errors import ClusterError, ConfigError
+
+
+@dataclasses.dataclass(frozen=True)
+class ExecutorConfig:
+    """How a command runs its tasks. None of it changes what the tasks compute."""
+
+    kind: Literal["local", "ray"] = "local"
+    workers: int = 0  # local processes, or the CPUs of a Ray instance started here; 0: every CPU
+    address: str | None = None  # join this Ray cluster ("auto", "HOST:PORT", "ray://HOST:PORT") instead
+    connect_timeout_s: float = 30.0  # an unreachable cluster fails with ClusterError after this long
+    task_retries: int = 3  # Ray: times a task whose worker died is run again
+
+    def __post_init__(self):
+        if self.kind not in ("local", "ray"):
+            raise ConfigError(f"unknown executor {self.kind!r}; use 'local' or 'ray'")
+        if self.workers < 0:
+            raise ConfigError(f"--workers must be at least 1 (or 0 for every CPU), got {self.workers}")
+        if self.address is not None and self.kind != "ray":
+            raise ConfigError("a cluster address needs the ray executor (--ray-address implies --ray)")
+
+    def cpus(self) -> int:
+        return self.workers or len(os.sched_getaffinity(0))
+
+    def describe(self) -> str:
+        if self.kind == "local":
+            return f"local pool of {self.cpus()} process(es)"
+        return f"Ray cluster at {self.address}" if self.address else f"local Ray instance with {self.cpus()} CPUs"
+
+
+@dataclasses.dataclass(frozen=True)
+class Task:
+    """`fn(*args)` on a worker. `fresh_process`: run in a new process whose JAX uses exactly `cpus` CPUs,
+    so jitted results are the same bits on any executor (ocplace/runtime/width.py)."""
+
+    fn: Callable[..., Any]
+    args: tuple = ()
+    cpus: int = 1
+    fresh_process: bool = False
+
+
+def run_task(task: Task) -> Any:
+    """What a worker runs: the task, with JAX pinned to its CPUs first when it asked for a fresh process."""
+    if task.fresh_process:
+        from ocplace.runtime.width import pin_jax_width
+
+        pin_jax_width(task.cpus)
+    return task.fn(*task.args)
+
+
+def run_task_in_fresh_process(task: Task) -> Any:
+    """`run_task` under another name: Ray keys a remote function by its name, so one function cannot be
+    registered both with and without a new worker process per call (max_calls=1)."""
+    return run_task(task)
+
+
+class Executor(abc.ABC):
+    """Runs tasks concurrently on up to `capacity` CPUs; handles are opaque."""
+
+    capacity: int
+
+    @abc.abstractmethod
+    def submit(self, task: Task) -> Any:
+        """Starts the task; returns its handle."""
+
+    @abc.abstractmethod
+    def wait(self, handles: list) -> tuple[list, list]:
+        """Blocks until at least one of `handles` has finished; returns (finished, still running)."""
+
+    @abc.abstractmethod
+    def result(self, handle) -> Any:
+        """The finished task's return value; re-raises the task's exception."""
+
+    @abc.abstractmethod
+    def release_workers(self) -> None:
+        """Ends idle workers kept for reuse (and the caches they hold); later tasks start new ones."""
+
+    @abc.abstractmethod
+    def close(self) -> None:
+        """Releases workers; a Ray instance this executor started is shut down."""
+
+
+class _Inline:
+    """A task the calling process runs when it is waited for, so progress shows task by task."""
+
+    def __init__(self, task: Task):
+        self.task, self.value, self.error = task, None, None
+
+    def run(self) -> _Inline:
+        try:
+            self.value = run_task(self.task)
+        except Exception as error:
+            self.error = error
+        return self
+
+
+class LocalExecutor(Executor):
+    """This machine. One worker runs tasks in the calling process unless they need a fresh one."""
+
+    def __init__(self, workers: int):
+        self.capacity = workers
+        self._pools: dict[bool, concurrent.futures.ProcessPoolExecutor] = {}
+
+    def _pool(self, fresh: bool) -> concurrent.futures.ProcessPoolExecutor:
+        if fresh not in self._pools:
+            self._pools[fresh] = concurrent.futures.ProcessPoolExecutor(
+                self.capacity,
+                mp_context=multiprocessing.get_context("spawn"),  # forking after JAX or EGL start-up is unsafe
+                initializer=_init_local_worker,
+                max_tasks_per_child=1 if fresh else None,
+            )
+        return self._pools[fresh]
+
+    def submit(self, task: Task):
+        if self.capacity == 1 and not task.fresh_process:
+            return _Inline(task)
+        return self._pool(task.fresh_process).submit(run_task, task)
+
+    def wait(self, handles):
+        inline = next((h for h in handles if isinstance(h, _Inline)), None)
+        if inline is not None:
+            return [inline.run()], [h for h in handles if h is not inline]
+        done, pending = concurrent.futures.wait(handles, return_when=concurrent.futures.FIRST_COMPLETED)
+        return [h for h in handles if h in done], [h for h in handles if h in pending]
+
+    def result(self, handle):
+        if isinstance(handle, _Inline):
+            if handle.error is not None:
+                raise handle.error
+            return handle.value
+        try:
+            return handle.result()
+        except BrokenProcessPool:
+            self._drop_broken_pools()
+            raise ClusterError(
+                "a worker process died (killed, out of memory or a crash in native code); what it was doing "
+                "is lost, finished work is kept: rerun the command to resume"
+            ) from None
+
+    def _drop_broken_pools(self) -> None:
+        """A pool whose worker died refuses every later task: later tasks get a new one."""
+        for fresh, pool in list(self._pools.items()):
+            if pool._broken:  # set by concurrent.futures when a worker dies; there is no public flag
+                pool.shutdown(wait=False, cancel_futures=True)
+                del self._pools[fresh]
+
+    def release_workers(self):
+        if False in self._pools:
+            self._pools.pop(False).shutdown()
+
+    def close(self):
+        for pool in self._pools.values():
+            pool.shutdown(cancel_futures=True)
+        self._pools.clear()
+
+
+def _init_local_worker() -> None:
+    os.environ["OMP_NUM_THREADS"] = "1"  # one task per CPU; OpenMP (coacd) would oversubscribe
+
+
+@contextlib.contextmanager
+def open_executor(config: ExecutorConfig | None = None) -> Iterator[Executor]:
+    """The executor `config` describes, closed (and a Ray instance it started shut down) on exit."""
+    config = config or ExecutorConfig()
+    if config.kind == "ray":
+        from ocplace.runtime.ray_executor import RayExecutor
+
+        executor = RayExecutor(config)  # shuts down what it started if it fails half-way
+    else:
+        executor = LocalExecutor(config.cpus())
+    try:
+        yield executor
+    finally:
+        executor.close()
+
+
+def map_tasks(executor: Executor, tasks: Iterable[Task]) -> Iterator[tuple[int, Any]]:
+    """(index, result) of every task, in the order they finish; the first task error is raised."""
+    indices = {executor.submit(task): index for index, task in enumerate(tasks)}
+    pending = list(indices)
+    while pending:
+        done, pending = executor.wait(pending)
+        for handle in done:
+            yield indices[handle], executor.result(handle)

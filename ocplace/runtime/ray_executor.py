@@ -1,0 +1,155 @@
+"""The Ray executor: starts a local Ray instance, or joins a running cluster, and runs tasks on it.
+
+A Ray instance this executor starts lives in a short temporary folder (Ray's socket paths must stay
+under 107 characters) and is shut down, with every process it started, when the executor closes.
+Joining a cluster first probes the head's port, so an unreachable head fails within
+`connect_timeout_s` instead of hanging (ray.init itself has no timeout).
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import socket
+import subprocess
+import sys
+import tempfile
+
+from ocplace.errors import ClusterError, ConfigError
+from ocplace.paths import cache_dir
+from ocplace.runtime.executor import Executor, ExecutorConfig, Task, run_task, run_task_in_fresh_process
+
+# Forwarded to every worker, so the tasks of a cluster read and write what the driver means.
+FORWARDED_ENV = ("OCPLACE_CACHE", "MUJOCO_GL", "PYOPENGL_PLATFORM")
+TEST_HOOK_PREFIX = "OCPLACE_TEST_"  # test hooks (e.g. a worker that kills itself) reach the workers too
+
+
+def worker_env() -> dict[str, str]:
+    env = {name: os.environ[name] for name in FORWARDED_ENV if name in os.environ}
+    env |= {name: value for name, value in os.environ.items() if name.startswith(TEST_HOOK_PREFIX)}
+    return env | {"OCPLACE_CACHE": str(cache_dir())}
+
+
+def head_endpoint(address: str) -> tuple[str, int] | None:
+    """(host, port) to probe for `address`; None for "auto" (Ray finds the cluster on this machine)."""
+    if address == "auto":
+        return None
+    hostport = address.removeprefix("ray://")
+    host, sep, port = hostport.rpartition(":")
+    if not sep or not host or not port.isdigit():
+        raise ConfigError(f"--ray-address {address!r} is not auto, HOST:PORT or ray://HOST:PORT")
+    return host, int(port)
+
+
+def probe_head(address: str, timeout_s: float) -> None:
+    """ClusterError unless something listens at the head's address (or, for auto, a cluster runs here)."""
+    endpoint = head_endpoint(address)
+    if endpoint is None:  # auto: Ray looks in its own places; the preflight join tells
+        return
+    try:
+        socket.create_connection(endpoint, timeout=timeout_s).close()
+    except OSError as error:
+        raise ClusterError(
+            f"cannot reach the Ray head at {address} ({error}); check the address and that `ray start --head` "
+            "runs there and its port is open to this machine"
+        ) from None
+
+
+def preflight(address: str, timeout_s: float) -> None:
+    """Joins the cluster once in a child process, so a head that accepts connections but never answers
+    as Ray (ray.init has no timeout, and Ray ends a process that waits too long) fails in bounded time."""
+    code = f"import ray; ray.init(address={address!r}, include_dashboard=False); ray.shutdown()"
+    env = os.environ | {"RAY_USAGE_STATS_ENABLED": "0"}
+    try:
+        joined = subprocess.run(
+            [sys.executable, "-c", code], capture_output=True, text=True, timeout=timeout_s, env=env
+        )
+    except subprocess.TimeoutExpired:
+        raise ClusterError(
+            f"the Ray head at {address} did not answer within {timeout_s:.0f} s; check that it is a Ray head "
+            "of the same Ray version (ray==2.60.0) and that its node ports are open to this machine"
+        ) from None
+    if joined.returncode != 0:
+        last = (joined.stderr.strip().splitlines() or ["(no output)"])[-1]
+        hint = "; start one with `ray start --head` or use --ray for a local instance" if address == "auto" else ""
+        raise ClusterError(f"could not join the Ray cluster at {address}: {last}{hint}")
+
+
+class RayExecutor(Executor):
+    def __init__(self, config: ExecutorConfig):
+        import ray
+
+        os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")  # no usage report from an offline machine
+        self._ray, self._config, self._tasks = ray, config, {}
+        self._temp_dir, self._env = None, worker_env()
+        options = dict(
+            include_dashboard=False,
+            configure_logging=False,
+            log_to_driver=False,
+            runtime_env={"env_vars": self._env},
+        )
+        if config.address is None:
+            self._temp_dir = tempfile.mkdtemp(prefix="ocray-", dir="/tmp")
+            # "local": a new instance even where RAY_ADDRESS names a cluster (--ray-address joins one).
+            options |= dict(address="local", num_cpus=config.cpus(), _temp_dir=self._temp_dir)
+        else:
+            probe_head(config.address, min(5.0, config.connect_timeout_s))
+            options |= dict(address=config.address)
+        self._init(options)
+        try:
+            self.capacity = max(1, int(ray.cluster_resources().get("CPU", 1)))
+            self._run = {False: ray.remote(run_task), True: ray.remote(max_calls=1)(run_task_in_fresh_process)}
+        except BaseException:
+            self.close()
+            raise
+
+    def _init(self, options: dict) -> None:
+        where = self._config.address or "this machine"
+        if self._config.address is not None:
+            preflight(self._config.address, self._config.connect_timeout_s)
+        try:
+            self._ray.init(**options)
+        except Exception as error:
+            self.close()
+            raise ClusterError(f"could not start or join Ray at {where}: {error}") from error
+
+    def submit(self, task: Task):
+        options = dict(num_cpus=task.cpus, max_retries=self._config.task_retries)
+        env = worker_env()
+        if env != self._env:  # e.g. a test hook set after Ray started: workers with this environment run it
+            options["runtime_env"] = {"env_vars": env}
+        handle = self._run[task.fresh_process].options(**options).remote(task)
+        self._tasks[handle] = task
+        return handle
+
+    def wait(self, handles):
+        done, pending = self._ray.wait(handles, num_returns=1)
+        if pending:  # collect whatever else has finished too: one wait per task would be quadratic
+            more, pending = self._ray.wait(pending, num_returns=len(pending), timeout=0)
+            done += more
+        return done, pending
+
+    def result(self, handle):
+        exceptions = self._ray.exceptions
+        task = self._tasks.pop(handle)
+        try:
+            return self._ray.get(handle)
+        except exceptions.RayTaskError as error:
+            if isinstance(error.cause, Exception):
+                raise error.cause from None
+            raise
+        except exceptions.RayError as error:
+            raise ClusterError(
+                f"Ray lost task {task.fn.__module__}.{task.fn.__qualname__} after "
+                f"{self._config.task_retries} retries: {type(error).__name__}: {error}"
+            ) from None
+
+    def release_workers(self):
+        """Ray ends idle workers itself."""
+
+    def close(self):
+        if self._ray.is_initialized():
+            self._ray.shutdown()
+        if self._temp_dir is not None:
+            shutil.rmtree(self._temp_dir, ignore_errors=True)
+            self._temp_dir = None

@@ -1,0 +1,226 @@
+"""The executors: a local process pool, a local Ray instance and a two-node Ray cluster on this machine.
+
+Each gives the same bytes: datasets, jitted JAX results and a reproduce's results.json. A Ray worker
+killed mid-task has its task retried; an unreachable head fails with ClusterError; a command that
+started Ray leaves no Ray process behind.
+"""
+
+import dataclasses
+import hashlib
+import json
+import os
+import shutil
+import socket
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ocplace.errors import ClusterError, ConfigError, DatasetError
+from ocplace.runtime import ExecutorConfig, Task, map_tasks, open_executor
+from ocplace.runtime.graph import Node, run_graph
+from ocplace.sim.dataset.config import make_config
+from ocplace.sim.dataset.job import (
+    DIE_AFTER_SCENES_ENV,
+    DIE_ONCE_MARKER_ENV,
+    generate_dataset,
+    verify_dataset,
+)
+
+TINY = dataclasses.replace(make_config(train=6, test=1), splits=make_config(train=6, test=1).splits[:1])
+LOCAL = ExecutorConfig(workers=2)
+RAY = ExecutorConfig(kind="ray", workers=2)
+TESTS = str(Path(__file__).resolve().parent)
+
+
+def jitted_sum_digest(seed: int) -> str:
+    """A jitted reduction, whose bits depend on the CPUs XLA's client was sized for."""
+    import jax
+
+    values = jax.random.normal(jax.random.key(seed), (512, 4096))
+    return hashlib.sha256(np.asarray(jax.jit(lambda x: x.sum())(values)).tobytes()).hexdigest()
+
+
+def fail_with_dataset_error(message: str):
+    raise DatasetError(message)
+
+
+def add(*values):
+    return sum(values)
+
+
+@pytest.fixture(scope="module", autouse=True)
+def workers_import_this_module():
+    """Ray workers unpickle this module's task functions by name: put tests/ on their path."""
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("PYTHONPATH", os.pathsep.join(filter(None, [TESTS, os.environ.get("PYTHONPATH")])))
+        yield
+
+
+@pytest.fixture(scope="module")
+def two_nodes(workers_import_this_module):
+    """A Ray cluster of two nodes on this machine, one CPU each (short temp dir: socket paths < 107 chars)."""
+    from ray.cluster_utils import Cluster
+
+    os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
+    temp_dir = tempfile.mkdtemp(prefix="ocray-", dir="/tmp")
+    address_file = Path(tempfile.gettempdir()) / "ray" / "ray_current_cluster"  # Cluster writes it there
+    address_file.parent.mkdir(exist_ok=True)
+    had_address_file = address_file.exists()
+    cluster = Cluster(
+        initialize_head=True, head_node_args={"num_cpus": 1, "include_dashboard": False, "temp_dir": temp_dir}
+    )
+    cluster.add_node(num_cpus=1)
+    cluster.wait_for_nodes()
+    yield ExecutorConfig(kind="ray", address=cluster.address)
+    cluster.shutdown()
+    shutil.rmtree(temp_dir, ignore_errors=True)
+    if not had_address_file:
+        address_file.unlink(missing_ok=True)
+
+
+@pytest.fixture(scope="module")
+def reference(library, tmp_path_factory):
+    """TINY's train split made by this process alone: the bytes every executor must reproduce."""
+    return generate_dataset(tmp_path_factory.mktemp("reference"), TINY, progress=False)["files"]
+
+
+def ray_processes() -> set[int]:
+    """Live (not zombie) processes of a Ray instance: its GCS, raylet, agents and workers."""
+    found = set()
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            command = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+            state = (entry / "stat").read_text().rsplit(")", 1)[1].split()[0]
+        except OSError:
+            continue
+        if state != "Z" and ("ray::" in command or "raylet" in command or "gcs_server" in command):
+            found.add(int(entry.name))
+    return found
+
+
+def test_graph_runs_a_node_after_its_inputs_and_skips_what_follows_a_failure():
+    nodes = [
+        Node("a", lambda done: Task(add, (1, 2))),
+        Node("b", lambda done: Task(add, (done["a"], 10)), ("a",)),
+        Node("bad", lambda done: Task(fail_with_dataset_error, ("broken on purpose",))),
+        Node("after bad", lambda done: Task(add, (1,)), ("bad", "a")),
+        Node("c", lambda done: Task(add, (done["a"], done["b"])), ("a", "b")),
+    ]
+    with open_executor(LOCAL) as executor:
+        outcomes = run_graph(executor, nodes)
+    assert {key: o.value for key, o in outcomes.items() if o.ok} == {"a": 3, "b": 13, "c": 16}
+    assert isinstance(outcomes["bad"].error, DatasetError)
+    assert outcomes["after bad"].skipped_because == "bad"
+    with pytest.raises(ValueError, match="not listed before it"):
+        run_graph(None, [Node("x", lambda done: Task(add), ("y",)), Node("y", lambda done: Task(add))])
+
+
+def test_every_executor_gives_the_same_bits(reference, two_nodes, tmp_path):
+    """Dataset bytes and jitted JAX results: a local pool, a local Ray instance, a two-node cluster."""
+    digests = [Task(jitted_sum_digest, (seed,), fresh_process=True) for seed in range(2)]
+    with open_executor(ExecutorConfig(workers=1)) as one:
+        expected = dict(map_tasks(one, digests))
+    with open_executor(LOCAL) as pool:  # the control: a reused process is not pinned and sees every CPU
+        unpinned = dict(map_tasks(pool, [dataclasses.replace(task, fresh_process=False) for task in digests]))
+        assert dict(map_tasks(pool, digests)) == expected  # the pool's dataset bytes: test_dataset.py
+    if len(os.sched_getaffinity(0)) > 1:
+        assert unpinned != expected, "JAX gives the same bits on 1 and 2 CPUs here: the pin is not tested"
+    for name, config in {"ray": RAY, "cluster": two_nodes}.items():
+        with open_executor(config) as executor:
+            assert dict(map_tasks(executor, digests)) == expected, name
+            files = generate_dataset(tmp_path / name, TINY, executor=executor, progress=False)["files"]
+        assert files == reference, name
+        assert verify_dataset(tmp_path / name) == []
+
+
+def test_a_killed_ray_worker_has_its_scene_retried(reference, tmp_path, monkeypatch):
+    marker = tmp_path / "a-worker-died"
+    with open_executor(RAY) as executor:
+        with pytest.raises(DatasetError, match="broken on purpose"):  # a task's own error comes back as itself
+            list(map_tasks(executor, [Task(fail_with_dataset_error, ("broken on purpose",))]))
+        monkeypatch.setenv(DIE_AFTER_SCENES_ENV, "2")  # SIGKILL after a worker's 2nd scene, before its task returns
+        monkeypatch.setenv(DIE_ONCE_MARKER_ENV, str(marker))  # ... in the first worker that gets there only
+        files = generate_dataset(tmp_path / "data", TINY, executor=executor, progress=False)["files"]
+    assert marker.exists(), "no worker was killed: the test proved nothing"
+    assert files == reference
+    assert verify_dataset(tmp_path / "data") == []
+    assert not list((tmp_path / "data" / "train").glob(".tmp-*"))
+
+
+def _free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+def test_an_unreachable_head_fails_with_a_typed_error(tmp_path):
+    command = [sys.executable, "-m", "ocplace.cli", "generate", "--out", str(tmp_path / "d"), "--smoke"]
+    closed = subprocess.run(
+        [*command, "--ray-address", f"127.0.0.1:{_free_port()}"], capture_output=True, text=True, timeout=120
+    )
+    assert closed.returncode == 2 and "cannot reach the Ray head" in closed.stderr, closed.stderr
+    with socket.socket() as silent:  # accepts connections, never speaks Ray
+        silent.bind(("127.0.0.1", 0))
+        silent.listen()
+        address = f"127.0.0.1:{silent.getsockname()[1]}"
+        silent_head = ExecutorConfig(kind="ray", address=address, connect_timeout_s=5)
+        with pytest.raises(ClusterError, match=f"the Ray head at {address} did not answer"), open_executor(silent_head):
+            pass
+    with (
+        pytest.raises(ConfigError, match="is not auto, HOST:PORT"),
+        open_executor(ExecutorConfig("ray", 0, "nowhere")),
+    ):
+        pass
+
+
+def test_a_ray_command_checks_physically_and_leaves_no_ray_process(smoke_dataset):
+    from ocplace.sim.dataset.check import check_oracle
+
+    before = ray_processes()
+    command = [sys.executable, "-m", "ocplace.cli", "dataset", "check", str(smoke_dataset), "--split", "seen"]
+    on_ray = subprocess.run(
+        [*command, "--physical", "--ray", "--workers", "2"], capture_output=True, text=True, timeout=600
+    )
+    here = check_oracle(smoke_dataset, ["seen"], physical=True, progress=False)["seen"]
+    assert on_ray.returncode == 0, on_ray.stderr
+    assert f"seen: metric {here['metric_success']}/8, physical {here['physical_success']}/8" in on_ray.stdout
+    assert ray_processes() <= before
+
+
+def test_reproduce_on_ray_writes_the_same_results(smoke_dataset, tiny_backbone_spec, library, tmp_path):
+    import eval_methods
+
+    from ocplace import configs
+    from ocplace.eval import pipeline, results
+
+    smoke = configs.get("smoke")
+    experiment = dataclasses.replace(
+        smoke,
+        dataset=dataclasses.replace(smoke.dataset, physical_scenes=0),
+        evaluation=dataclasses.replace(smoke.evaluation, seeds=2, subsets=("seen",)),
+    )
+    specs = {name: eval_methods.SPECS[name] for name in ("oracle", "random")}  # oracle trains; random: seeds differ
+    written = {}
+    for name, executor in {"local": LOCAL, "ray": RAY}.items():
+        config = pipeline.PipelineConfig(
+            experiment, backbone=tiny_backbone_spec, dataset=smoke_dataset, executor=executor, progress=False
+        )
+        out = tmp_path / name
+        summary = pipeline.run_pipeline(config, out, specs=specs, library=library, command=["pytest"])
+        assert summary.errors == []
+        written[name] = json.loads(summary.results_path.read_text())
+    local, ray = written["local"], written["ray"]
+    assert results.compare(local, ray) == []
+    assert [e["key"] for e in ray["evaluations"]] == ["oracle", "oracle~seed1", "random", "random~seed1"]
+    assert [s["name"] for s in local["pipeline"]["steps"]] == [s["name"] for s in ray["pipeline"]["steps"]]
+    assert local["pipeline"]["config"] == ray["pipeline"]["config"]
+    table = (tmp_path / "ray" / "results.md").read_text()
+    assert "(mean ± standard deviation over 2 seeds)" in table and "| Uniform random |" in table
+    random_rows = [line for line in table.splitlines() if line.startswith("| Uniform random |")]
+    assert " ± " in random_rows[0], random_rows[0]
