@@ -1,18 +1,21 @@
 """`ocplace reproduce`: one experiment (`ocplace.configs`: smoke, demo, default) end to end.
 
     library -> dataset -> offline backbone -> training of every registered method (and data
-    fractions) -> evaluation on the test subsets -> results.json, results.md, the paper's figures
+    fractions, and seeds) -> evaluation on the test subsets -> results.json, results.md, the paper's figures
+
+From the backbone on, the steps are nodes of a task graph (`task_graph`) that the executor runs
+side by side where they do not depend on each other (docs/distributed.md).
 
 Every step skips what is already done: the library, dataset, backbone and training runs cache
 themselves, and each evaluation is stored under OUT/evaluations/ keyed by everything that decides
 its outcome (settings, dataset, the method's describe()). Outputs are written atomically.
 
-    OUT/dataset/                     unless `dataset` points elsewhere
-    OUT/runs/<method>/fraction-<f>/  TrainContext.out_dir of each training run
+    OUT/dataset/                               unless `dataset` points elsewhere
+    OUT/runs/<method>/fraction-<f>[-seed-<s>]/ TrainContext.out_dir of each training run (and repeat)
     OUT/evaluations/<key>-<hash>.json
     OUT/results.json, OUT/results.md, OUT/results.summary.json (no per-scene outcomes)
-    OUT/figures/                     Fig. 5, Fig. 6 (with Ours and CLIPort-Place), Fig. 7 (with fractions)
-    OUT/placement.png                Ours on the first `seen` test scene (when Ours was trained)
+    OUT/figures/                               Fig. 5, Fig. 6 (with Ours and CLIPort-Place), Fig. 7 (with fractions)
+    OUT/placement.png                          Ours on the first `seen` test scene (when Ours was trained)
 """
 
 from __future__ import annotations

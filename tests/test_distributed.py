@@ -2,7 +2,8 @@
 
 Each gives the same bytes: datasets, jitted JAX results and a reproduce's results.json. A Ray worker
 killed mid-task has its task retried; an unreachable head fails with ClusterError; a command that
-started Ray leaves no Ray process behind.
+started Ray leaves no Ray process behind. The two-node cluster and the reproduce runs are slow tests
+(`make test-all`), to keep the default suite under 15 minutes on 2 cores.
 """
 
 import dataclasses
@@ -121,27 +122,23 @@ def test_graph_runs_a_node_after_its_inputs_and_skips_what_follows_a_failure():
         run_graph(None, [Node("x", lambda done: Task(add), ("y",)), Node("y", lambda done: Task(add))])
 
 
-def test_every_executor_gives_the_same_bits(reference, two_nodes, tmp_path):
-    """Dataset bytes and jitted JAX results: a local pool, a local Ray instance, a two-node cluster."""
+def pinned_digests() -> tuple[list[Task], dict]:
+    """Tasks of jitted reductions, and their results in a fresh process of a pool of one."""
     digests = [Task(jitted_sum_digest, (seed,), fresh_process=True) for seed in range(2)]
     with open_executor(ExecutorConfig(workers=1)) as one:
-        expected = dict(map_tasks(one, digests))
+        return digests, dict(map_tasks(one, digests))
+
+
+def test_a_local_ray_instance_gives_the_same_bits_and_retries_a_killed_worker(reference, tmp_path, monkeypatch):
+    digests, expected = pinned_digests()
     with open_executor(LOCAL) as pool:  # the control: a reused process is not pinned and sees every CPU
         unpinned = dict(map_tasks(pool, [dataclasses.replace(task, fresh_process=False) for task in digests]))
         assert dict(map_tasks(pool, digests)) == expected  # the pool's dataset bytes: test_dataset.py
     if len(os.sched_getaffinity(0)) > 1:
         assert unpinned != expected, "JAX gives the same bits on 1 and 2 CPUs here: the pin is not tested"
-    for name, config in {"ray": RAY, "cluster": two_nodes}.items():
-        with open_executor(config) as executor:
-            assert dict(map_tasks(executor, digests)) == expected, name
-            files = generate_dataset(tmp_path / name, TINY, executor=executor, progress=False)["files"]
-        assert files == reference, name
-        assert verify_dataset(tmp_path / name) == []
-
-
-def test_a_killed_ray_worker_has_its_scene_retried(reference, tmp_path, monkeypatch):
     marker = tmp_path / "a-worker-died"
     with open_executor(RAY) as executor:
+        assert dict(map_tasks(executor, digests)) == expected
         with pytest.raises(DatasetError, match="broken on purpose"):  # a task's own error comes back as itself
             list(map_tasks(executor, [Task(fail_with_dataset_error, ("broken on purpose",))]))
         monkeypatch.setenv(DIE_AFTER_SCENES_ENV, "2")  # SIGKILL after a worker's 2nd scene, before its task returns
@@ -151,6 +148,16 @@ def test_a_killed_ray_worker_has_its_scene_retried(reference, tmp_path, monkeypa
     assert files == reference
     assert verify_dataset(tmp_path / "data") == []
     assert not list((tmp_path / "data" / "train").glob(".tmp-*"))
+
+
+@pytest.mark.slow
+def test_a_two_node_cluster_gives_the_same_bits(reference, two_nodes, tmp_path):
+    digests, expected = pinned_digests()
+    with open_executor(two_nodes) as executor:
+        assert dict(map_tasks(executor, digests)) == expected
+        files = generate_dataset(tmp_path / "data", TINY, executor=executor, progress=False)["files"]
+    assert files == reference
+    assert verify_dataset(tmp_path / "data") == []
 
 
 def _free_port() -> int:
@@ -193,7 +200,12 @@ def test_a_ray_command_checks_physically_and_leaves_no_ray_process(smoke_dataset
     assert ray_processes() <= before
 
 
-def test_reproduce_on_ray_writes_the_same_results(smoke_dataset, tiny_backbone_spec, library, tmp_path):
+# Slow (`make test-all`): each run starts a process per training and evaluation, a minute per executor.
+@pytest.mark.slow
+@pytest.mark.parametrize("seeds, where", [(1, "ray"), (2, "two_nodes")])
+def test_reproduce_on_ray_writes_the_same_results(
+    seeds, where, request, smoke_dataset, tiny_backbone_spec, library, tmp_path
+):
     import eval_methods
 
     from ocplace import configs
@@ -203,11 +215,12 @@ def test_reproduce_on_ray_writes_the_same_results(smoke_dataset, tiny_backbone_s
     experiment = dataclasses.replace(
         smoke,
         dataset=dataclasses.replace(smoke.dataset, physical_scenes=0),
-        evaluation=dataclasses.replace(smoke.evaluation, seeds=2, subsets=("seen",)),
+        evaluation=dataclasses.replace(smoke.evaluation, seeds=seeds, subsets=("seen",)),
     )
     specs = {name: eval_methods.SPECS[name] for name in ("oracle", "random")}  # oracle trains; random: seeds differ
     written = {}
-    for name, executor in {"local": LOCAL, "ray": RAY}.items():
+    elsewhere = RAY if where == "ray" else request.getfixturevalue(where)
+    for name, executor in {"local": LOCAL, "ray": elsewhere}.items():
         config = pipeline.PipelineConfig(
             experiment, backbone=tiny_backbone_spec, dataset=smoke_dataset, executor=executor, progress=False
         )
@@ -217,10 +230,11 @@ def test_reproduce_on_ray_writes_the_same_results(smoke_dataset, tiny_backbone_s
         written[name] = json.loads(summary.results_path.read_text())
     local, ray = written["local"], written["ray"]
     assert results.compare(local, ray) == []
-    assert [e["key"] for e in ray["evaluations"]] == ["oracle", "oracle~seed1", "random", "random~seed1"]
+    repeats = [f"~seed{seed}" for seed in range(1, seeds)]
+    assert [e["key"] for e in ray["evaluations"]] == [f"{name}{r}" for name in specs for r in ["", *repeats]]
     assert [s["name"] for s in local["pipeline"]["steps"]] == [s["name"] for s in ray["pipeline"]["steps"]]
     assert local["pipeline"]["config"] == ray["pipeline"]["config"]
-    table = (tmp_path / "ray" / "results.md").read_text()
-    assert "(mean ± standard deviation over 2 seeds)" in table and "| Uniform random |" in table
-    random_rows = [line for line in table.splitlines() if line.startswith("| Uniform random |")]
-    assert " ± " in random_rows[0], random_rows[0]
+    if seeds > 1:
+        table = (tmp_path / "ray" / "results.md").read_text()
+        random_rows = [line for line in table.splitlines() if line.startswith("| Uniform random |")]
+        assert f"(mean ± standard deviation over {seeds} seeds)" in table and " ± " in random_rows[0]

@@ -103,6 +103,26 @@ def test_summary_keeps_every_table_and_counts_the_scenes(first_run):
         results.rerun(summary)
 
 
+def test_table_one_shows_mean_and_spread_over_seeds(first_run):
+    from ocplace.eval import table
+
+    saved = results.read_results(first_run.results_path)
+    centre = next(e for e in saved["evaluations"] if e["key"] == "centre")
+    repeat = json.loads(json.dumps(centre)) | {"key": "centre~seed1", "seed": 1}
+    for subset in repeat["subsets"].values():
+        for level in subset["aggregate"].values():
+            level["success"] = 0.5
+    saved["evaluations"].append(repeat)
+    overall = centre["subsets"]["seen"]["aggregate"]["overall"]["success"]
+    mean, spread = (overall + 0.5) / 2, abs(overall - 0.5) / 2**0.5  # sample standard deviation of two values
+    lines = table.table_one(saved).splitlines()
+    assert lines[0].endswith("(mean ± standard deviation over 2 seeds)")
+    row = next(line for line in lines if line.startswith("| Table centre |")).split("|")[2:-1]
+    assert row[3].strip() == f"{100 * mean:.2f} ± {100 * spread:.2f}"
+    assert next(line for line in lines if line.startswith("| Oracle |")).count("100.00") == 4 * len(TEST_SUBSETS)
+    assert [e["key"] for e in table.full_runs(saved)] == ["oracle", "centre", "failing"]  # repeats are not rows
+
+
 def test_fig6_cases_prefer_scenes_where_the_methods_disagree(first_run, tmp_path):
     saved = results.read_results(first_run.results_path)
     cases = figures.choose_cases(saved, methods=("oracle", "centre"))
