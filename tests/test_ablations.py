@@ -38,15 +38,32 @@ def specs():
     return {spec.name: spec for spec in METHODS}
 
 
+class Lazy(dict):
+    """A dict that makes each value on first use, so a test trains only the methods it asks for."""
+
+    def __init__(self, make):
+        super().__init__()
+        self.make = make
+
+    def __missing__(self, name):
+        self[name] = self.make(name)
+        return self[name]
+
+
+# no_pretrain's smoke training takes about 90 s (its random EfficientNet trunk runs eagerly at init and
+# calibration, one compile per operation): its tests are slow ones, `make test-all`.
+METHOD_NAMES = ["no_llm", pytest.param("no_pretrain", marks=pytest.mark.slow)]
+
+
 @pytest.fixture(scope="module")
 def runs(isolated_cache, specs, smoke_dataset, tiny_backbone_spec, tmp_path_factory):
-    """Both methods trained at smoke scale: {name: run directory}."""
-    return {
-        name: spec.train(
-            TrainContext(smoke_dataset, tiny_backbone_spec, tmp_path_factory.mktemp(name), RECIPES.of(name))
-        )
-        for name, spec in specs.items()
-    }
+    """Each method trained at smoke scale when first asked for: {name: run directory}."""
+
+    def train(name):
+        context = TrainContext(smoke_dataset, tiny_backbone_spec, tmp_path_factory.mktemp(name), RECIPES.of(name))
+        return specs[name].train(context)
+
+    return Lazy(train)
 
 
 @pytest.fixture(scope="module")
@@ -56,7 +73,7 @@ def scenes(smoke_dataset):
 
 @pytest.fixture(scope="module")
 def methods(runs, specs, tiny_backbone_spec):
-    return {name: specs[name].load(LoadContext(runs[name], tiny_backbone_spec, num_samples=32)) for name in specs}
+    return Lazy(lambda name: specs[name].load(LoadContext(runs[name], tiny_backbone_spec, num_samples=32)))
 
 
 # ----------------------------------------------------------------------------- no_llm pieces
@@ -168,7 +185,7 @@ def test_no_llm_learns_references_and_relations_when_the_sentence_holds_them(tmp
 # ----------------------------------------------------------------------------- training
 
 
-@pytest.mark.parametrize("name", ["no_llm", "no_pretrain"])
+@pytest.mark.parametrize("name", METHOD_NAMES)
 def test_training_at_smoke_scale_lowers_the_loss(runs, name):
     records = MetricsLog(runs[name] / "metrics.jsonl").records()
     assert len(records) >= 3 and records[-1]["loss"] < records[0]["loss"]
@@ -190,6 +207,7 @@ def test_training_is_deterministic_and_idempotent(runs, specs, smoke_dataset, ti
     assert model_file.stat().st_mtime_ns == before
 
 
+@pytest.mark.slow
 def test_from_scratch_tower_is_deterministic(runs, specs, smoke_dataset, tiny_backbone_spec, tmp_path):
     again = specs["no_pretrain"].train(
         TrainContext(smoke_dataset, tiny_backbone_spec, tmp_path / "again", RECIPES.no_pretrain)
@@ -210,7 +228,7 @@ def test_fraction_trains_on_a_nested_subset(specs, isolated_cache, smoke_dataset
 # ----------------------------------------------------------------------------- the methods
 
 
-@pytest.mark.parametrize("name", ["no_llm", "no_pretrain"])
+@pytest.mark.parametrize("name", METHOD_NAMES)
 def test_method_places_every_scene_on_the_table(methods, scenes, name):
     outputs = methods[name].run(scenes, jax.random.key(0))
     assert len(outputs) == len(scenes)
@@ -233,7 +251,7 @@ def test_method_places_every_scene_on_the_table(methods, scenes, name):
             assert len(output.parsed) == len(output.grounded)
 
 
-@pytest.mark.parametrize("name", ["no_llm", "no_pretrain"])
+@pytest.mark.parametrize("name", METHOD_NAMES)
 def test_method_is_deterministic_for_a_key(methods, scenes, name):
     first, second = (methods[name].run(scenes, jax.random.key(7)) for _ in range(2))
     for a, b in zip(first, second):
@@ -243,7 +261,7 @@ def test_method_is_deterministic_for_a_key(methods, scenes, name):
             np.testing.assert_array_equal(a.samples, b.samples)
 
 
-@pytest.mark.parametrize("name", ["no_llm", "no_pretrain"])
+@pytest.mark.parametrize("name", METHOD_NAMES)
 def test_describe_is_json_with_weights_and_backbone(methods, name):
     described = json.loads(json.dumps(methods[name].describe()))
     assert len(described["backbone"]["fingerprint"]) == 64
@@ -258,6 +276,7 @@ def test_methods_are_registered():
     assert specs["no_llm"].label == "Ours w/o LLM" and specs["no_pretrain"].label == "Ours w/o CLIP pre-train"
 
 
+@pytest.mark.slow  # no_pretrain's eager trunk: see METHOD_NAMES
 def test_no_pretrain_is_ours_architecture_from_random_weights():
     import dataclasses
 
@@ -276,6 +295,7 @@ def test_no_pretrain_is_ours_architecture_from_random_weights():
     assert not any(np.array_equal(random_trunk[k], imagenet[k]) for k in random_trunk if k.endswith("kernel"))
 
 
+@pytest.mark.slow  # no_pretrain's eager trunk: see METHOD_NAMES
 def test_calibration_keeps_a_random_trunk_alive(smoke_dataset):
     """A random EfficientNet with identity batch-norm statistics gives near-constant features;
     statistics measured on training images restore their spread across images."""

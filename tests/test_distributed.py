@@ -2,8 +2,9 @@
 
 Each gives the same bytes: datasets, jitted JAX results and a reproduce's results.json. A Ray worker
 killed mid-task has its task retried; an unreachable head fails with ClusterError; a command that
-started Ray leaves no Ray process behind. The two-node cluster and the reproduce runs are slow tests
-(`make test-all`), to keep the default suite under 15 minutes on 2 cores.
+started Ray leaves no Ray process behind. JAX and dataset bits on every executor (with the two-node
+cluster) and the reproduce runs are slow tests (`make test-all`), to keep the default suite under
+15 minutes on 2 cores.
 """
 
 import dataclasses
@@ -122,42 +123,37 @@ def test_graph_runs_a_node_after_its_inputs_and_skips_what_follows_a_failure():
         run_graph(None, [Node("x", lambda done: Task(add), ("y",)), Node("y", lambda done: Task(add))])
 
 
-def pinned_digests() -> tuple[list[Task], dict]:
-    """Tasks of jitted reductions, and their results in a fresh process of a pool of one."""
-    digests = [Task(jitted_sum_digest, (seed,), fresh_process=True) for seed in range(2)]
-    with open_executor(ExecutorConfig(workers=1)) as one:
-        return digests, dict(map_tasks(one, digests))
-
-
-def test_a_local_ray_instance_gives_the_same_bits_and_retries_a_killed_worker(reference, tmp_path, monkeypatch):
-    digests, expected = pinned_digests()
-    with open_executor(LOCAL) as pool:  # the control: a reused process is not pinned and sees every CPU
-        unpinned = dict(map_tasks(pool, [dataclasses.replace(task, fresh_process=False) for task in digests]))
-        assert dict(map_tasks(pool, digests)) == expected  # the pool's dataset bytes: test_dataset.py
-    if len(os.sched_getaffinity(0)) > 1:
-        assert unpinned != expected, "JAX gives the same bits on 1 and 2 CPUs here: the pin is not tested"
+def test_a_local_ray_instance_retries_a_killed_worker_and_reraises_task_errors(reference, tmp_path, monkeypatch):
     marker = tmp_path / "a-worker-died"
     with open_executor(RAY) as executor:
-        assert dict(map_tasks(executor, digests)) == expected
         with pytest.raises(DatasetError, match="broken on purpose"):  # a task's own error comes back as itself
             list(map_tasks(executor, [Task(fail_with_dataset_error, ("broken on purpose",))]))
         monkeypatch.setenv(DIE_AFTER_SCENES_ENV, "2")  # SIGKILL after a worker's 2nd scene, before its task returns
         monkeypatch.setenv(DIE_ONCE_MARKER_ENV, str(marker))  # ... in the first worker that gets there only
         files = generate_dataset(tmp_path / "data", TINY, executor=executor, progress=False)["files"]
     assert marker.exists(), "no worker was killed: the test proved nothing"
-    assert files == reference
+    assert files == reference  # the same bytes as this process alone made
     assert verify_dataset(tmp_path / "data") == []
     assert not list((tmp_path / "data" / "train").glob(".tmp-*"))
 
 
+# Slow (`make test-all`): a cluster start and four fresh processes per executor, over a minute.
 @pytest.mark.slow
-def test_a_two_node_cluster_gives_the_same_bits(reference, two_nodes, tmp_path):
-    digests, expected = pinned_digests()
-    with open_executor(two_nodes) as executor:
-        assert dict(map_tasks(executor, digests)) == expected
-        files = generate_dataset(tmp_path / "data", TINY, executor=executor, progress=False)["files"]
-    assert files == reference
-    assert verify_dataset(tmp_path / "data") == []
+def test_jax_and_datasets_give_the_same_bits_on_every_executor(reference, two_nodes, tmp_path):
+    digests = [Task(jitted_sum_digest, (seed,), fresh_process=True) for seed in range(2)]
+    with open_executor(ExecutorConfig(workers=1)) as one:
+        expected = dict(map_tasks(one, digests))
+    with open_executor(LOCAL) as pool:  # the control: a reused process is not pinned and sees every CPU
+        unpinned = dict(map_tasks(pool, [dataclasses.replace(task, fresh_process=False) for task in digests]))
+        assert dict(map_tasks(pool, digests)) == expected  # the pool's dataset bytes: test_dataset.py
+    if len(os.sched_getaffinity(0)) > 1:
+        assert unpinned != expected, "JAX gives the same bits on 1 and 2 CPUs here: the pin is not tested"
+    for name, config in {"ray": RAY, "cluster": two_nodes}.items():
+        with open_executor(config) as executor:
+            assert dict(map_tasks(executor, digests)) == expected, name
+            files = generate_dataset(tmp_path / name, TINY, executor=executor, progress=False)["files"]
+        assert files == reference, name
+        assert verify_dataset(tmp_path / name) == []
 
 
 def _free_port() -> int:
