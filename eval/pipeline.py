@@ -36,6 +36,9 @@ from ocplace.runtime import Executor, ExecutorConfig, Task, open_executor
 from ocplace.runtime.graph import Node, run_graph
 
 SUMMARY_FILE = "results.summary.json"  # aggregates, no per-scene outcomes: small enough to commit
+# Pretraining comes first and alone in the graph, so it may use two CPUs (JAX two wide, as on any machine
+# with two or more; a Ray cluster needs a node with two).
+PRETRAIN_CPUS = 2
 
 
 @dataclasses.dataclass(frozen=True)
@@ -222,7 +225,7 @@ def train_context(run: MethodRun, config: PipelineConfig, dataset_dir: Path, bac
 
 def prepare_task(spec: MethodSpec, context: TrainContext) -> str:
     spec.prepare(context)
-    return f"inputs of {spec.name} ready"
+    return "shared inputs ready"
 
 
 def train_task(spec: MethodSpec, context: TrainContext) -> tuple[Path, bool]:
@@ -271,13 +274,15 @@ def task_graph(
 ) -> list[Node]:
     """backbone -> each method's shared inputs -> (train method x fraction x seed) -> evaluate each run.
 
-    Every task declares one CPU and runs in a fresh process, so JAX compiles for one CPU wherever it
-    runs and the results are the same bits on any executor (ocplace/runtime/width.py).
+    Every task runs in a fresh process and declares its CPUs (one; the pretraining `PRETRAIN_CPUS`), so
+    JAX compiles for that many wherever it runs and the results are the same bits on any executor
+    (ocplace/runtime/width.py).
     """
     nodes = []
     if config.backbone is None:
         recipe = config.experiment.backbone
-        nodes.append(Node("backbone", lambda done: Task(pretrain_task, (recipe, False), fresh_process=True)))
+        task = Task(pretrain_task, (recipe, False), cpus=PRETRAIN_CPUS, fresh_process=True)
+        nodes.append(Node("backbone", lambda done: task))
         backbone_after, backbone_of = ("backbone",), (lambda done: done["backbone"])
     else:
         backbone_after, backbone_of = (), (lambda done, spec=config.backbone: spec)
@@ -291,14 +296,19 @@ def task_graph(
 
         return Node(key, make, after)
 
-    prepared = {}  # method name -> its first run, whose context (dataset, backbone) the shared inputs need
+    sharing: dict = {}  # each prepare function -> the runs of the methods whose trainings need it
     for run in runs:
-        if run.spec.prepare is not None:
-            prepared.setdefault(run.spec.name, run)
-    nodes += [method_node(f"prepare {name}", prepare_task, run, backbone_after) for name, run in prepared.items()]
+        if run.spec.prepare is not None and run.spec.train is not None:
+            sharing.setdefault(run.spec.prepare, []).append(run)
+    prepare_key = {}  # method name -> the key of the node making its shared inputs, once for all who share them
+    for shared in sharing.values():
+        names = list(dict.fromkeys(run.spec.name for run in shared))
+        key = f"prepare {'+'.join(names)}"
+        prepare_key |= dict.fromkeys(names, key)
+        nodes.append(method_node(key, prepare_task, shared[0], backbone_after))
     for run in runs:
         if run.spec.train is not None:
-            after = backbone_after + ((f"prepare {run.spec.name}",) if run.spec.name in prepared else ())
+            after = backbone_after + ((prepare_key[run.spec.name],) if run.spec.name in prepare_key else ())
             nodes.append(method_node(f"train {run.key}", train_task, run, after))
     for run in runs:
         after = backbone_after + ((f"train {run.key}",) if run.spec.train is not None else ())

@@ -203,6 +203,24 @@ def test_scale_configs():
     ]
 
 
+def test_task_graph_of_the_demo(tmp_path):
+    demo = pipeline.PipelineConfig(with_seeds(configs.get("demo"), 2))
+    runs = pipeline.planned_runs(demo, pipeline.selected_specs(demo, registry.method_specs()))
+    nodes = {node.key: node for node in pipeline.task_graph(demo, runs, tmp_path / "data", tmp_path, "hash")}
+    assert list(nodes)[:2] == ["backbone", "prepare ours+no_llm"]  # the shared features: made once, for both
+    assert nodes["backbone"].make({}).cpus == pipeline.PRETRAIN_CPUS
+    assert nodes["train no_llm~seed1"].after == ("backbone", "prepare ours+no_llm")
+    assert nodes["train no_pretrain"].after == ("backbone",)
+    assert nodes["evaluate no_adapter~seed1"].after == ("backbone",)  # learns nothing: scored once it exists
+    assert nodes["evaluate ours~seed1"].after == ("backbone", "train ours~seed1")
+    task = nodes["train ours~seed1"].make({"backbone": "offline:/b", "prepare ours+no_llm": "ready"})
+    spec, context = task.args
+    assert spec.name == "ours" and context.backbone == "offline:/b"
+    assert (
+        task.fresh_process and task.cpus == 1 and context.seed == 1 and context.out_dir.name == "fraction-1.00-seed-1"
+    )
+
+
 def with_seeds(experiment, seeds: int, **plan):
     return dataclasses.replace(experiment, evaluation=dataclasses.replace(experiment.evaluation, seeds=seeds, **plan))
 

@@ -98,6 +98,10 @@ class RayExecutor(Executor):
         self._init(options)
         try:
             self.capacity = max(1, int(ray.cluster_resources().get("CPU", 1)))
+            # A task asking for more CPUs than any node has would wait forever: it gets the largest node.
+            self._largest_node = max(
+                (node["Resources"].get("CPU", 0) for node in ray.nodes() if node["Alive"]), default=1
+            )
             self._run = {False: ray.remote(run_task), True: ray.remote(max_calls=1)(run_task_in_fresh_process)}
         except BaseException:
             self.close()
@@ -114,7 +118,7 @@ class RayExecutor(Executor):
             raise ClusterError(f"could not start or join Ray at {where}: {error}") from error
 
     def submit(self, task: Task):
-        options = dict(num_cpus=task.cpus, max_retries=self._config.task_retries)
+        options = dict(num_cpus=min(task.cpus, self._largest_node), max_retries=self._config.task_retries)
         env = worker_env()
         if env != self._env:  # e.g. a test hook set after Ray started: workers with this environment run it
             options["runtime_env"] = {"env_vars": env}
