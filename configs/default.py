@@ -2,7 +2,7 @@
 
 from pathlib import Path
 
-from ocplace.eval.experiment import DatasetSizes, EvalPlan, Experiment, MethodRecipes
+from ocplace.eval.experiment import DatasetSizes, EvalPlan, Experiment, MethodRecipes, TaskCpus
 from ocplace.models import no_pretrain, offline_recipes
 from ocplace.models.baselines.cliport import CliportConfig
 from ocplace.models.baselines.grids import GridConfig
@@ -55,4 +55,5 @@ def get_config() -> Experiment:
             subsets=TEST_SUBSETS,
             seeds=1,
         ),
+        cpus=TaskCpus(pretrain=2, train=2),
     )

@@ -6,7 +6,7 @@ them, or `--methods all`.
 
 from pathlib import Path
 
-from ocplace.eval.experiment import DatasetSizes, EvalPlan, Experiment, MethodRecipes
+from ocplace.eval.experiment import DatasetSizes, EvalPlan, Experiment, MethodRecipes, TaskCpus
 from ocplace.models import no_pretrain, offline_recipes
 from ocplace.models.baselines.cliport import CliportConfig
 from ocplace.models.baselines.grids import GridConfig
@@ -63,4 +63,5 @@ def get_config() -> Experiment:
             subsets=TEST_SUBSETS,
             seeds=1,
         ),
+        cpus=TaskCpus(pretrain=2, train=2),  # JAX two wide: as fast alone as two one-wide side by side
     )

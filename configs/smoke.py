@@ -2,7 +2,7 @@
 
 from pathlib import Path
 
-from ocplace.eval.experiment import DatasetSizes, EvalPlan, Experiment, MethodRecipes
+from ocplace.eval.experiment import DatasetSizes, EvalPlan, Experiment, MethodRecipes, TaskCpus
 from ocplace.models import no_pretrain, offline_recipes
 from ocplace.models.baselines import cliport, grids
 from ocplace.train import config as ours
@@ -61,4 +61,5 @@ def get_config() -> Experiment:
             subsets=TEST_SUBSETS,
             seeds=1,
         ),
+        cpus=TaskCpus(pretrain=2, train=1),  # tiny trainings: side by side, each one CPU wide
     )

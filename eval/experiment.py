@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
+from ocplace.errors import ConfigError
 from ocplace.models.offline_recipes import PretrainConfig
 from ocplace.train.cliport import CliportRecipe
 from ocplace.train.config import TrainConfig
@@ -57,6 +58,19 @@ class EvalPlan:
 
 
 @dataclasses.dataclass(frozen=True)
+class TaskCpus:
+    """The CPUs `reproduce`'s pretraining and training tasks declare, and so the width of their JAX, which
+    decides the last bits of what they learn (docs/distributed.md). Evaluations declare one CPU."""
+
+    pretrain: int = 2
+    train: int = 2  # each training, and the inputs trainings share (features)
+
+    def __post_init__(self):
+        if min(self.pretrain, self.train) < 1:
+            raise ConfigError(f"task CPUs must be at least 1, got {self}")
+
+
+@dataclasses.dataclass(frozen=True)
 class Experiment:
     name: str  # recorded in results.json (EvalSettings.scale) and in baseline run metadata
     out: Path  # `ocplace reproduce`'s output folder unless --out is given
@@ -65,3 +79,4 @@ class Experiment:
     backbone: PretrainConfig  # the offline backbone's pretraining recipe; its hash names its cache folder
     recipes: MethodRecipes
     evaluation: EvalPlan
+    cpus: TaskCpus = TaskCpus()

@@ -36,9 +36,6 @@ from ocplace.runtime import Executor, ExecutorConfig, Task, open_executor
 from ocplace.runtime.graph import Node, run_graph
 
 SUMMARY_FILE = "results.summary.json"  # aggregates, no per-scene outcomes: small enough to commit
-# Pretraining comes first and alone in the graph, so it may use two CPUs (JAX two wide, as on any machine
-# with two or more; a Ray cluster needs a node with two).
-PRETRAIN_CPUS = 2
 
 
 @dataclasses.dataclass(frozen=True)
@@ -274,14 +271,15 @@ def task_graph(
 ) -> list[Node]:
     """backbone -> each method's shared inputs -> (train method x fraction x seed) -> evaluate each run.
 
-    Every task runs in a fresh process and declares its CPUs (one; the pretraining `PRETRAIN_CPUS`), so
-    JAX compiles for that many wherever it runs and the results are the same bits on any executor
+    Every task runs in a fresh process and declares its CPUs (the experiment's `cpus`; an evaluation one),
+    so JAX compiles for that many wherever it runs and the results are the same bits on any executor
     (ocplace/runtime/width.py).
     """
     nodes = []
+    cpus = config.experiment.cpus
     if config.backbone is None:
         recipe = config.experiment.backbone
-        task = Task(pretrain_task, (recipe, False), cpus=PRETRAIN_CPUS, fresh_process=True)
+        task = Task(pretrain_task, (recipe, False), cpus=cpus.pretrain, fresh_process=True)
         nodes.append(Node("backbone", lambda done: task))
         backbone_after, backbone_of = ("backbone",), (lambda done: done["backbone"])
     else:
@@ -292,7 +290,7 @@ def task_graph(
 
         def make(done):
             context = train_context(run, config, dataset_dir, backbone_of(done), out)
-            return Task(function, (run.spec, context), fresh_process=True)
+            return Task(function, (run.spec, context), cpus=cpus.train, fresh_process=True)
 
         return Node(key, make, after)
 

@@ -62,6 +62,10 @@ def primitives_cache() -> Path:
     return cache_dir() / "primitives"  # generated primitive meshes of the pretraining arenas
 
 
+def compiled_cache() -> Path:
+    return cache_dir() / "compiled"  # JAX's persistent compilation cache, one folder per CPU type and width
+
+
 def llm_cache(subdir: str) -> Path:
     return cache_dir() / subdir  # the LLM parser's answers; `subdir` is `LLMConfig.cache_subdir` ("parser")
 

@@ -245,7 +245,7 @@ class MujocoScenes:
         self.data = mujoco.MjData(self.model)
         self._body = {name: self.model.body(name).id for name in self._order}
         self._tree = {name: self.model.body_treeid[body] for name, body in self._body.items()}
-        self._hull_vertices = {obj.name: object_hull_points(obj) for obj in objects}
+        self._hull_vertices: dict[str, np.ndarray] = {}  # made on first use: most scenes use few objects
         self._table_geom = self.model.geom("table").id
         self._visual_geoms = {name: self.model.geom(f"{name}_visual").id for name in self._order}
         self._collision_geoms = {
@@ -341,6 +341,8 @@ class MujocoScenes:
         for name in names:
             body = self._body[name]
             rotation = self.data.xmat[body].reshape(3, 3)
+            if name not in self._hull_vertices:
+                self._hull_vertices[name] = object_hull_points(self.objects[name])
             points = self._hull_vertices[name] @ rotation.T + self.data.xpos[body]
             boxes.append(np.stack([points.min(axis=0), points.max(axis=0)]))
         return np.array(boxes)
@@ -402,5 +404,5 @@ class MujocoScenes:
 
 def object_hull_points(obj: ObjectAsset) -> np.ndarray:
     """`(P, 3)` vertices of the convex hull of the visual mesh, in the object frame."""
-    mesh = trimesh.load(obj.visual_mesh, force="mesh", process=False)
+    mesh = trimesh.load(obj.visual_mesh, force="mesh", process=False, skip_materials=True)
     return np.asarray(mesh.convex_hull.vertices)

@@ -24,6 +24,7 @@ import pytest
 from ocplace.errors import ClusterError, ConfigError, DatasetError
 from ocplace.runtime import ExecutorConfig, Task, map_tasks, open_executor
 from ocplace.runtime.graph import Node, run_graph
+from ocplace.runtime.width import compiled_folder
 from ocplace.sim.dataset.config import make_config
 from ocplace.sim.dataset.job import (
     DIE_AFTER_SCENES_ENV,
@@ -135,6 +136,20 @@ def test_a_local_ray_instance_retries_a_killed_worker_and_reraises_task_errors(r
     assert files == reference  # the same bytes as this process alone made
     assert verify_dataset(tmp_path / "data") == []
     assert not list((tmp_path / "data" / "train").glob(".tmp-*"))
+
+
+def test_fresh_tasks_reuse_what_an_earlier_one_compiled_at_the_same_width(tmp_path, monkeypatch):
+    monkeypatch.setenv("OCPLACE_CACHE", str(tmp_path))  # the pool's processes start after this
+    task = Task(jitted_sum_digest, (0,), fresh_process=True)
+    with open_executor(LOCAL) as pool:
+        first = dict(map_tasks(pool, [task]))[0]
+        compiled = {path: path.read_bytes() for path in compiled_folder(1).glob("*-atime")}
+        assert compiled, "nothing was written to the compilation cache"
+        again, wider = dict(map_tasks(pool, [task, dataclasses.replace(task, cpus=2)])).values()
+    assert again == first
+    assert all(path.read_bytes() != used for path, used in compiled.items()), "the second task compiled again"
+    if len(os.sched_getaffinity(0)) > 1:
+        assert list(compiled_folder(2).glob("*-cache")) and wider != first  # each width compiles its own
 
 
 # Slow (`make test-all`): a cluster start and four fresh processes per executor, over a minute.

@@ -208,7 +208,7 @@ def test_task_graph_of_the_demo(tmp_path):
     runs = pipeline.planned_runs(demo, pipeline.selected_specs(demo, registry.method_specs()))
     nodes = {node.key: node for node in pipeline.task_graph(demo, runs, tmp_path / "data", tmp_path, "hash")}
     assert list(nodes)[:2] == ["backbone", "prepare ours+no_llm"]  # the shared features: made once, for both
-    assert nodes["backbone"].make({}).cpus == pipeline.PRETRAIN_CPUS
+    assert nodes["backbone"].make({}).cpus == demo.experiment.cpus.pretrain == 2
     assert nodes["train no_llm~seed1"].after == ("backbone", "prepare ours+no_llm")
     assert nodes["train no_pretrain"].after == ("backbone",)
     assert nodes["evaluate no_adapter~seed1"].after == ("backbone",)  # learns nothing: scored once it exists
@@ -217,7 +217,11 @@ def test_task_graph_of_the_demo(tmp_path):
     spec, context = task.args
     assert spec.name == "ours" and context.backbone == "offline:/b"
     assert (
-        task.fresh_process and task.cpus == 1 and context.seed == 1 and context.out_dir.name == "fraction-1.00-seed-1"
+        task.fresh_process and task.cpus == 2 and context.seed == 1 and context.out_dir.name == "fraction-1.00-seed-1"
+    )
+    assert nodes["prepare ours+no_llm"].make({"backbone": "offline:/b"}).cpus == 2
+    assert (
+        nodes["evaluate ours~seed1"].make({"backbone": "offline:/b", "train ours~seed1": (tmp_path, False)}).cpus == 1
     )
 
 

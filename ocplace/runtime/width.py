@@ -5,14 +5,24 @@ splits jitted reductions by that size: the same training gives other bits on a m
 CPU affinity) with another CPU count. A task therefore starts JAX while the process is pinned to
 exactly the CPUs it declared, then lifts the pin from every thread (the client's threads inherit
 the pin, and Linux sets affinity per thread), so the OS may run them on any CPU.
+
+Such a task also keeps what XLA compiles in JAX's persistent compilation cache, so a fresh process
+does not compile again what an earlier one did. An executable holds the width and the CPU features it
+was compiled for, so the cache has one folder per CPU type and width.
 """
 
 from __future__ import annotations
 
+import hashlib
 import os
 from pathlib import Path
 
 from ocplace.errors import ClusterError
+from ocplace.paths import compiled_cache
+
+# Above this size JAX evicts the least recently used executables; with eviction on it also locks the
+# folder, which tasks on several processes and nodes write at once.
+COMPILED_CACHE_BYTES = 2 << 30
 
 
 def _started() -> bool:
@@ -34,6 +44,9 @@ def pin_jax_width(cpus: int) -> None:
     try:
         import jax
 
+        jax.config.update("jax_compilation_cache_dir", str(compiled_folder(min(cpus, len(allowed)))))
+        jax.config.update("jax_compilation_cache_max_size", COMPILED_CACHE_BYTES)
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
         jax.devices("cpu")
     finally:
         for thread in Path("/proc/self/task").iterdir():
@@ -41,3 +54,15 @@ def pin_jax_width(cpus: int) -> None:
                 os.sched_setaffinity(int(thread.name), allowed)
             except ProcessLookupError:  # a thread that ended meanwhile
                 pass
+
+
+def compiled_folder(width: int) -> Path:
+    """The compilation cache of JAX `width` CPUs wide on this machine's CPU type."""
+    return compiled_cache() / f"{_cpu_type()}-{width}cpu"
+
+
+def _cpu_type() -> str:
+    """A short hash of the CPU's model and feature flags, which XLA compiles for."""
+    lines = Path("/proc/cpuinfo").read_text().splitlines()
+    described = [line for line in lines if line.startswith(("model name", "flags"))][:2]
+    return hashlib.sha256("\n".join(described).encode()).hexdigest()[:12]
