@@ -4,7 +4,7 @@ VENV ?= .venv
 GL = $$(cat $(VENV)/mujoco-gl 2>/dev/null || echo egl)
 RUN = MUJOCO_GL=$(GL) PYOPENGL_PLATFORM=$(GL) $(VENV)/bin/
 
-.PHONY: setup library demo reproduce lint test test-all perf clean
+.PHONY: setup library demo reproduce lint test test-all perf llm-server clean
 
 setup: $(VENV)/.setup-done
 
@@ -29,10 +29,15 @@ test: library lint
 	$(RUN)python -m pytest
 
 test-all: library
+	bash scripts/llm_server.sh setup
 	$(RUN)python -m pytest -m "slow or not slow"
 
 perf: library
 	$(RUN)python perf/scenes.py
+
+# A local OpenAI-compatible LLM for `--parser llm`: SmolLM2-135M on llama.cpp (the first run builds it, ~20 min).
+llm-server:
+	bash scripts/llm_server.sh serve $(or $(PORT),8080)
 
 clean:
 	rm -rf out .pytest_cache

@@ -156,6 +156,24 @@ def test_the_parse_command_ends_at_its_deadline(serve, capsys):
     assert "must all be positive" in capsys.readouterr().err
 
 
+def test_the_parse_command_sets_timeout_attempts_cache_and_cross_check(serve, capsys):
+    failing = serve("busy", status=500, retry_after="0")
+    command = ["parse", "--parser", "llm", "--base-url", url(failing), "--json", "--llm-attempts", "2"]
+    assert main([*command, "--llm-timeout", "0.5", INSTRUCTION]) == 0
+    (item,) = json.loads(capsys.readouterr().out)
+    assert len(failing.requests) == 2 and "2 attempts failed" in item["fallback_reason"]
+    right = json.dumps({"tuples": [{"reference": "red bowl", "relation": "right"}]})
+    answering = serve("answer", answer=right)
+    command = ["parse", "--parser", "llm", "--base-url", url(answering), "--json", "--llm-cross-check"]
+    for policy, relation in [("llm", "right"), ("offline", "left")]:
+        assert main([*command, policy, "--no-llm-cache", INSTRUCTION]) == 0
+        (item,) = json.loads(capsys.readouterr().out)
+        assert item["relation"] == relation and "the LLM says right" in item["disagreement"]
+    assert len(answering.requests) == 2, "--no-llm-cache asks again"
+    assert main([*command, "cover", "--llm-attempts", "0", INSTRUCTION]) == 2
+    assert "must all be positive" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize("fault", ["oversized", "oversized, no length"])
 def test_a_body_over_the_cap_is_refused_and_not_retried(serve, llm, fault):
     server = serve(fault)
@@ -251,7 +269,7 @@ def test_a_pronoun_is_not_a_reference(serve, llm, instruction, reference):
 def test_a_reference_is_a_phrase_of_the_instruction(serve, llm, instruction, reference, accepted):
     answer = json.dumps({"tuples": [{"reference": reference, "relation": "left"}]})
     tuples = llm(serve("answer", answer=answer)).parse(instruction)
-    assert (tuples[0].parser == "llm") == accepted
+    assert (tuples[0].fallback_reason is None) == accepted  # accepted, then maybe outvoted by the cross-check
 
 
 # --- base URLs ----------------------------------------------------------------------------------

@@ -18,12 +18,15 @@ from ocplace.errors import ParseError
 from ocplace.models.parsing import (
     LLMConfig,
     OfflineConfig,
+    ParsedTuple,
     SnapConfig,
     as_pairs,
+    crosscheck,
     evaluation,
     make_parser,
     make_snapper,
 )
+from ocplace.models.parsing.config import CROSS_CHECK_POLICIES
 from ocplace.models.parsing.llm import LLMParser, cache_key, prompt_messages
 from ocplace.models.parsing.offline import OfflineParser
 from ocplace.sim import language, relations
@@ -231,6 +234,8 @@ class _ScriptedHandler(http.server.BaseHTTPRequestHandler):
         length = int(self.headers["Content-Length"])
         self.server.requests.append((dict(self.headers), json.loads(self.rfile.read(length))))
         kind, value = self.server.script.pop(0) if self.server.script else self.server.default
+        if kind == "content unless json mode":  # as a server that knows no `response_format` may answer
+            kind, value = ("status", 400) if "response_format" in self.server.requests[-1][1] else ("content", value)
         if kind == "slow":
             time.sleep(value)
             kind, value = "content", self.server.default[1]
@@ -364,13 +369,96 @@ def test_llm_invalid_answers_fall_back_retried_only_above_temperature_0(llm, ser
     assert len(server.requests) == requests
 
 
-def test_llm_off_list_relation_is_snapped(llm, server):
+@pytest.mark.parametrize(
+    "phrase, provenance",
+    # Alone, the snapper refuses "on the left".
+    [("to the left of", "direct"), ("on the left", "direct"), ("leftish of", "snapped")],
+)
+def test_llm_relation_phrases_go_to_the_lexicon_then_the_snapper(llm, server, phrase, provenance):
     server.default = (
         "content",
-        "```json\n" + json.dumps({"tuples": [{"reference": "the red bowl", "relation": "to the left of"}]}) + "\n```",
+        "```json\n" + json.dumps({"tuples": [{"reference": "the red bowl", "relation": phrase}]}) + "\n```",
     )
     (item,) = llm.parse(INSTRUCTION)
-    assert (item.reference, item.relation, item.provenance) == ("red bowl", "left", "snapped")
+    assert (item.reference, item.relation, item.provenance, item.parser) == ("red bowl", "left", provenance, "llm")
+
+
+@pytest.mark.parametrize(
+    "phrase, relation",
+    [
+        ("top right", "back right"),  # MiniLM alone: front right
+        ("upper right corner", "back right"),  # MiniLM alone: back left
+        ("bottom left corner", "front left"),
+        ("centre", "middle"),
+        ("near side", "front"),
+    ],
+)
+def test_llm_relation_words_the_encoder_confuses_are_read_by_the_lexicon(llm, server, phrase, relation):
+    server.default = ("content", json.dumps({"tuples": [{"reference": "table", "relation": phrase}]}))
+    (item,) = llm.parse(f"put it {phrase} of the table")
+    assert (item.relation, item.provenance, item.parser) == (relation, "direct", "llm")
+
+
+TWO_REFERENCES = "put it to the back right of the tennis ball and to the front left of the red bowl"
+ONE_DROPPED = json.dumps({"tuples": [{"reference": "red bowl", "relation": "back left"}]})
+
+
+@pytest.mark.parametrize(
+    "policy, answer, parser",
+    [
+        ("cover", [("red bowl", "front left"), ("tennis ball", "back right")], "offline"),
+        ("offline", [("red bowl", "front left"), ("tennis ball", "back right")], "offline"),
+        ("llm", [("red bowl", "back left")], "llm"),
+    ],
+)
+def test_a_dropped_reference_is_never_silent(llm, server, caplog, policy, answer, parser):
+    llm.config = dataclasses.replace(llm.config, cross_check=policy)
+    server.default = ("content", ONE_DROPPED)
+    with caplog.at_level(logging.WARNING):
+        tuples = llm.parse(TWO_REFERENCES)
+    assert sorted(as_pairs(tuples)) == answer and {t.parser for t in tuples} == {parser}
+    assert all("left out 'tennis ball'" in t.disagreement and "front left" in t.disagreement for t in tuples)
+    assert "the LLM's answer and the offline parse differ" in caplog.text
+
+
+@pytest.mark.parametrize("policy, relation", [("cover", "right"), ("llm", "right"), ("offline", "left")])
+def test_a_relation_disagreement_is_reported_and_decided_by_the_policy(llm, server, policy, relation):
+    llm.config = dataclasses.replace(llm.config, cross_check=policy)
+    server.default = ("content", json.dumps({"tuples": [{"reference": "red bowl", "relation": "right"}]}))
+    (item,) = llm.parse(INSTRUCTION)
+    assert item.relation == relation
+    assert item.disagreement == "'red bowl': the LLM says right, the offline parser left"
+
+
+def test_an_agreeing_answer_carries_no_disagreement_and_an_unparsable_one_says_so(llm, server):
+    (item,) = llm.parse(INSTRUCTION)
+    assert (item.parser, item.disagreement) == ("llm", None)
+    server.default = ("content", json.dumps({"tuples": [{"reference": "mug", "relation": "back left"}]}))
+    (item,) = llm.parse("put it kitty-corner from the mug")
+    assert (item.relation, item.parser) == ("back left", "llm")
+    assert item.disagreement.startswith("the offline parser could not parse it (unknown relation")
+
+
+def test_an_empty_llm_answer_gives_way_to_the_offline_parse(llm, server):
+    server.default = ("content", json.dumps({"tuples": []}))
+    (item,) = llm.parse(INSTRUCTION)
+    assert (item.reference, item.relation, item.parser) == ("red bowl", "left", "offline")
+    assert "left out 'red bowl'" in item.disagreement
+
+
+def test_requests_are_bounded_and_ask_for_json(llm, server):
+    llm.parse(INSTRUCTION)
+    _, body = server.requests[0]
+    assert body["max_tokens"] == llm.config.max_tokens == 200
+    assert body["response_format"] == {"type": "json_object"}
+
+
+def test_a_server_without_json_mode_is_asked_again_without_it(llm, server):
+    server.default = ("content unless json mode", GOOD_ANSWER)
+    assert as_pairs(llm.parse(INSTRUCTION)) == [("red bowl", "left")]
+    assert ["response_format" in body for _, body in server.requests] == [True, False]
+    llm.parse("put it to the left of the blue cup")
+    assert "response_format" not in server.requests[-1][1]
 
 
 def test_llm_empty_answer_is_a_parse_error(llm, server):
@@ -449,3 +537,62 @@ def test_parse_eval_command_reports_every_set(capsys, tmp_path):
     for set_name in ("seen", "unseen", "free-dev", "free-test", "free-blind", "free-all"):
         assert f"\n{set_name} " in out
     assert "100.00% (20/20)" in out and "3 object names" in out
+
+
+# --- cross-check ------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "first, second, same",
+    [
+        ("bowl", "red bowl", True),
+        ("red bowl", "red bowl", True),
+        ("red bowl", "blue bowl", False),
+        ("cup", "cupboard", False),
+    ],
+)
+def test_references_are_the_same_when_one_names_the_other(first, second, same):
+    assert crosscheck.same_reference(first, second) == crosscheck.same_reference(second, first) == same
+
+
+_TUPLES = st.lists(
+    st.builds(
+        ParsedTuple,
+        st.sampled_from(["table", "red bowl", "mug", "rubber duck"]),
+        st.sampled_from(relations.OBJECT_RELATION_NAMES),
+        st.just("phrase"),
+    ),
+    max_size=4,
+)
+
+
+@given(_TUPLES, _TUPLES)
+def test_the_cross_check_picks_one_of_the_two_answers_and_flags_every_difference(llm_answer, offline_answer):
+    comparison = crosscheck.compare(llm_answer, offline_answer)
+    agree = sorted(as_pairs(llm_answer)) == sorted(as_pairs(offline_answer))
+    if agree:
+        assert comparison.describe() is None
+    for policy in CROSS_CHECK_POLICIES:
+        chosen = crosscheck.choose(policy, llm_answer, offline_answer, comparison)
+        assert as_pairs(chosen) in (as_pairs(llm_answer), as_pairs(offline_answer))
+        assert all(item.disagreement == comparison.describe() for item in chosen)
+    if len({t.reference for t in llm_answer}) < len({t.reference for t in offline_answer}):
+        assert comparison.dropped and comparison.describe() is not None  # fewer references: never silent
+
+
+def test_the_llm_evaluation_scores_its_own_answers_the_offline_parse_and_every_policy(llm, server):
+    server.default = ("content", ONE_DROPPED)
+    expected = frozenset({("red bowl", "front left"), ("tennis ball", "back right")})
+    cases = [evaluation.Case(TWO_REFERENCES, expected), evaluation.Case("put it somewhere", frozenset(), True)]
+    report = evaluation.evaluate_llm(llm, cases, "two")
+    scores = {key: (report.correct[key], report.silent_drops[key]) for key in report.correct}
+    # The LLM's answer to "somewhere" names no object: refused, so every policy answers offline (an error: right).
+    assert report.fallbacks == 1
+    assert scores == {
+        "llm alone": (1, 1),
+        "offline alone": (2, 0),
+        "cross-check cover": (2, 0),
+        "cross-check offline": (2, 0),
+        "cross-check llm": (1, 0),  # the drop kept, but said
+    }
+    assert "cross-check cover 100.0% (0 silent drops)" in report.summary()

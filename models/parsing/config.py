@@ -9,6 +9,8 @@ from ocplace.errors import LLMConfigError
 from ocplace.models.parsing import text
 
 PARSER_NAMES = ("offline", "offline-snap", "llm")
+# What the LLM parser answers when its answer and the offline parse disagree (docs/parsing.md, "Cross-check").
+CROSS_CHECK_POLICIES = ("cover", "offline", "llm")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -42,15 +44,22 @@ class LLMConfig:
     max_attempts: int = 3
     backoff_s: float = 0.5  # doubled after each failed attempt
     temperature: float = 0.0  # at 0 an invalid answer is final: the same request gets it again
+    # Four tuples of JSON are under 100 tokens; a model that rambles is cut here, not at its context limit.
+    max_tokens: int = 200
+    json_mode: bool = True  # ask for `response_format` JSON; dropped for a server that refuses it
+    cross_check: str = "cover"  # one of CROSS_CHECK_POLICIES
     use_cache: bool = True
     cache_subdir: str = "parser"  # the cache folder of answers (`ocplace.paths.llm_cache`)
 
     def __post_init__(self):
         check_base_url(self.base_url, self.api_key_env)
-        if min(self.timeout_s, self.deadline_s, self.max_body_bytes, self.max_attempts) <= 0:
+        if min(self.timeout_s, self.deadline_s, self.max_body_bytes, self.max_attempts, self.max_tokens) <= 0:
             raise LLMConfigError(
-                "the LLM parser's timeout_s, deadline_s, max_body_bytes and max_attempts must all be positive"
+                "the LLM parser's timeout_s, deadline_s, max_body_bytes, max_attempts and max_tokens must all be "
+                "positive"
             )
+        if self.cross_check not in CROSS_CHECK_POLICIES:
+            raise LLMConfigError(f"cross_check must be one of {CROSS_CHECK_POLICIES}, got {self.cross_check!r}")
 
 
 def check_base_url(url: str, api_key_env: str) -> None:

@@ -15,8 +15,9 @@ from pathlib import Path
 import numpy as np
 
 from ocplace.errors import ParseError
-from ocplace.models.parsing import text
-from ocplace.models.parsing.types import Parser, as_pairs
+from ocplace.models.parsing import crosscheck, text
+from ocplace.models.parsing.config import CROSS_CHECK_POLICIES
+from ocplace.models.parsing.types import ParsedTuple, Parser, as_pairs
 from ocplace.sim import language, relations
 
 # Stand-in tabletop object names until the library's own names are passed in: plain nouns,
@@ -173,6 +174,89 @@ def evaluate(parser: Parser, cases: Iterable[Case], name: str) -> Report:
         (float(values.mean()), float(np.median(values)), float(np.percentile(values, 95))),
         tuple(failures),
     )
+
+
+@dataclasses.dataclass(frozen=True)
+class LLMReport:
+    """The LLM parser on one set: the LLM's own answers, the offline parse, and what each cross-check policy
+    answers. Keys: "llm alone" (its own valid answers; none is wrong), "offline alone", and "cross-check P"
+    for each policy P (a fall-back to the offline parser included)."""
+
+    name: str
+    num_cases: int
+    correct: dict[str, int]
+    silent_drops: dict[str, int]  # answers naming fewer of the expected references, with no disagreement said
+    fallbacks: int  # no valid answer from the LLM: every policy answers with the offline parse
+    request_ms: tuple[float, float]  # median and 95th percentile of the LLM's answer time
+
+    def summary(self) -> str:
+        scores = ", ".join(
+            f"{key} {self.correct[key] / max(self.num_cases, 1):.1%} ({self.silent_drops[key]} silent drops)"
+            for key in self.correct
+        )
+        median, p95 = self.request_ms
+        return (
+            f"{self.name:12s} n={self.num_cases}: {scores}; no valid LLM answer {self.fallbacks}; "
+            f"LLM answer ms: median {median:.0f}, p95 {p95:.0f}"
+        )
+
+
+def evaluate_llm(parser, cases: Iterable[Case], name: str) -> LLMReport:
+    """`parser` (an LLMParser) asked once per case; every policy is scored on the same answers."""
+    from ocplace.models.parsing.llm import NoAnswer
+
+    keys = ("llm alone", "offline alone", *(f"cross-check {policy}" for policy in CROSS_CHECK_POLICIES))
+    correct, drops = dict.fromkeys(keys, 0), dict.fromkeys(keys, 0)
+    fallbacks, request_ms, num_cases = 0, [], 0
+    for case in cases:
+        num_cases += 1
+        answers: dict[str, list[ParsedTuple] | None] = dict.fromkeys(keys)  # None: a ParseError
+        try:
+            cleaned = text.validate(case.instruction)
+        except ParseError:
+            cleaned = None
+        if cleaned is not None:
+            start = time.perf_counter()
+            try:
+                own = parser.answer(cleaned)
+            except NoAnswer:
+                own = None
+            request_ms.append((time.perf_counter() - start) * 1e3)
+            fallbacks += own is None
+            answers = _answers_by_policy(parser, cleaned, own)
+        for key, answer in answers.items():
+            correct[key] += _right(case, answer)
+            drops[key] += _silent_drop(case, answer)
+    values = np.array(request_ms or [0.0])
+    return LLMReport(
+        name, num_cases, correct, drops, fallbacks, (float(np.median(values)), float(np.percentile(values, 95)))
+    )
+
+
+def _answers_by_policy(parser, instruction: str, own) -> dict:
+    try:
+        offline, offline_error = parser.offline.parse(instruction), None
+    except ParseError as error:
+        offline, offline_error = None, str(error)
+    answers = {"llm alone": own or None, "offline alone": offline}
+    comparison = crosscheck.compare(own, offline, offline_error) if own is not None else None
+    for policy in CROSS_CHECK_POLICIES:
+        chosen = offline if own is None else crosscheck.choose(policy, own, offline, comparison)
+        answers[f"cross-check {policy}"] = chosen or None
+    return answers
+
+
+def _right(case: Case, answer) -> bool:
+    if case.expects_error:
+        return answer is None
+    return answer is not None and frozenset(as_pairs(answer)) == case.expected
+
+
+def _silent_drop(case: Case, answer) -> bool:
+    if case.expects_error or answer is None or answer[0].disagreement is not None:
+        return False
+    named = [item.reference for item in answer]
+    return any(not any(crosscheck.same_reference(want, got) for got in named) for want, _ in case.expected)
 
 
 @dataclasses.dataclass(frozen=True)

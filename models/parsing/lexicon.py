@@ -193,7 +193,7 @@ def _tag_at(words: list[str], i: int) -> Tag:
     if word == "right" and following in _INTENSIFIED_BY_RIGHT:
         return Tag("function")
     if word in ("far", "farther", "further", "furthest", "farthest", "near", "nearer", "nearest"):
-        return _tag_distance_word(word, preceding, following)
+        return _tag_distance_word(word, preceding, following, words[i + 2 : i + 4])
     if word in ("side", "edge") and preceding in ("the", "a") and following == "of":
         return Tag("prox")  # "at the side of the mug": beside it, side still unsaid
     if word == "close":
@@ -204,6 +204,8 @@ def _tag_at(words: list[str], i: int) -> Tag:
         return Tag("unsupported", reason=UNSUPPORTED_WORDS["atop"])
     if word == "over" and following in ("to", "there", "here", "towards", "toward"):
         return Tag("function")  # "move it over to the left"
+    if word == "over" and following in ("on", "at", "in") and any(w in _DIRECTION_WORDS for w in words[i + 2 : i + 5]):
+        return Tag("function")  # "over on the right side of the mug": where, not above
     if word in UNSUPPORTED_WORDS:
         return Tag("unsupported", reason=UNSUPPORTED_WORDS[word])
     if word in _DIRECTION_WORDS:
@@ -217,13 +219,16 @@ def _tag_at(words: list[str], i: int) -> Tag:
     return Tag("other")
 
 
-def _tag_distance_word(word: str, preceding: str | None, following: str | None) -> Tag:
-    """ "far left" (intensifier), "far from" (distance), "near the cup" (proximity), "near side"."""
+def _tag_distance_word(word: str, preceding: str | None, following: str | None, later: list[str]) -> Tag:
+    """ "far left" (intensifier), "far from" (distance), "near the cup" (proximity), "near side",
+    "the far right corner" (a corner has two directions: far is the back one)."""
+    is_near = word.startswith("near")
     if following in _DIRECTION_WORDS and following not in ("far", "near", "before", "behind"):
+        if set(_DIRECTION_WORDS[following]) <= {LEFT, RIGHT} and {"corner", "corners"} & set(later):
+            return Tag("dir", (FRONT,) if is_near else (BACK,))
         return Tag("function")
     if following in ("from", "away"):
         return Tag("unsupported", reason="distance ('far from')")
-    is_near = word.startswith("near")
     if is_near and following not in FILLERS and following is not None and preceding not in ("the", "its"):
         return Tag("prox")
     return Tag("dir", (FRONT,) if is_near else (BACK,))

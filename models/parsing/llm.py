@@ -1,15 +1,18 @@
 """The LLM parser: an OpenAI-compatible chat-completions endpoint with strict JSON answers.
 
 The prompt's examples come from the seen templates only (as in the paper), so unseen
-instructions stay unseen. Answers are validated: a JSON object with 1-4 tuples, every reference
+instructions stay unseen. Requests ask for JSON (`response_format`, where the server takes it) and
+at most `max_tokens`. Answers are validated: a JSON object with at most 4 tuples, every reference
 a phrase of the instruction that names an object (never "it" or "the thing"), every relation
-canonical or snapped. Whatever the endpoint does, a parse ends within `LLMConfig.deadline_s`:
-each request has a wall-clock budget and a body-size cap, and only transport failures (no
-connection, timeouts, HTTP 429 and 5xx) are retried, with exponential back-off or the server's
-Retry-After when it fits. When no valid answer comes, the offline parser answers instead and each
-tuple says why (`fallback_reason`), as does the log; neither ever holds the API key. Valid
-answers are cached on disk, keyed by (base URL, model, prompt version, instruction).
-See docs/reliability.md.
+canonical, read by the offline lexicon, or snapped. Whatever the endpoint does, a parse ends
+within `LLMConfig.deadline_s`: each request has a wall-clock budget and a body-size cap, and only
+transport failures (no connection, timeouts, HTTP 429 and 5xx) are retried, with exponential
+back-off or the server's Retry-After when it fits. When no valid answer comes, the offline parser
+answers instead and each tuple says why (`fallback_reason`), as does the log; neither ever holds
+the API key. A valid answer is checked against the offline parse (`crosscheck`): a difference is
+logged and carried by every tuple (`disagreement`), and `LLMConfig.cross_check` picks the answer.
+Valid answers are cached on disk, keyed by (base URL, model, prompt version, instruction).
+See docs/reliability.md and docs/parsing.md.
 """
 
 from __future__ import annotations
@@ -32,8 +35,9 @@ from pathlib import Path
 
 from ocplace import paths
 from ocplace.errors import ParseError
-from ocplace.models.parsing import lexicon, text
+from ocplace.models.parsing import crosscheck, lexicon, text
 from ocplace.models.parsing.config import LLMConfig
+from ocplace.models.parsing.offline import relation_of_phrase
 from ocplace.models.parsing.snapping import Snapper
 from ocplace.models.parsing.types import ParsedTuple, Parser
 from ocplace.sim import language, relations
@@ -78,8 +82,12 @@ class _Transient(Exception):
         self.retry_after = retry_after
 
 
-class _Failed(Exception):
+class NoAnswer(Exception):
     """Retrying cannot help or time is up; the message says why (it becomes `fallback_reason`)."""
+
+    def __init__(self, reason: str, status: int | None = None):
+        super().__init__(reason)
+        self.status = status  # the HTTP status that ended it, if one did
 
 
 def prompt_messages(instruction: str) -> list[dict[str, str]]:
@@ -115,6 +123,7 @@ class LLMParser:
         self.offline = offline
         self._snapper_factory = snapper_factory
         self._sleep = sleep
+        self._json_mode = config.json_mode  # off once the server refuses `response_format`
 
     @property
     def cache_dir(self) -> Path:
@@ -122,31 +131,59 @@ class LLMParser:
 
     def parse(self, instruction: str) -> list[ParsedTuple]:
         cleaned = text.validate(instruction)
-        key = cache_key(self.config.base_url, self.config.model, cleaned)
+        try:
+            answer = self.answer(cleaned)
+        except NoAnswer as error:
+            return self._fall_back(cleaned, str(error))
+        return self.cross_checked(cleaned, answer)
+
+    def cross_checked(self, instruction: str, answer: list[ParsedTuple]) -> list[ParsedTuple]:
+        """The answer the `cross_check` policy picks between the LLM's `answer` and the offline parse."""
+        try:
+            offline, offline_error = self.offline.parse(instruction), None
+        except ParseError as error:
+            offline, offline_error = None, str(error)
+        comparison = crosscheck.compare(answer, offline, offline_error)
+        chosen = crosscheck.choose(self.config.cross_check, answer, offline, comparison)
+        if comparison.describe() is not None:
+            log.warning(
+                "the LLM's answer and the offline parse differ; answering with the %s parse (cross_check=%s): %s",
+                chosen[0].parser if chosen else "LLM's",
+                self.config.cross_check,
+                comparison.describe(),
+            )
+        if not chosen:
+            raise ParseError(
+                f"the LLM found no placement in {instruction[:80]!r}"
+                + (f", nor did the offline parser: {offline_error}" if offline_error else "")
+            )
+        return chosen
+
+    def answer(self, instruction: str) -> list[ParsedTuple]:
+        """The LLM's own valid answer to a validated instruction (empty: it saw no placement), from the cache
+        or the endpoint; NoAnswer when none came."""
+        key = cache_key(self.config.base_url, self.config.model, instruction)
         cache_file = self.cache_dir / f"{key}.json"
         if self.config.use_cache and cache_file.exists():
             try:
                 content = json.loads(cache_file.read_text(encoding="utf-8"))["content"]
-                return self._tuples_from_answer(content, cleaned)
+                return self._tuples_from_answer(content, instruction)
             except (OSError, ValueError, KeyError, _InvalidAnswer):
                 log.warning("ignoring unreadable parser cache entry %s", cache_file)
-        try:
-            content, tuples = self._ask_with_retries(cleaned)
-        except _Failed as error:
-            return self._fall_back(cleaned, str(error))
+        content, tuples = self._ask_with_retries(instruction)
         if self.config.use_cache:
             record = {
                 "base_url": self.config.base_url,
                 "model": self.config.model,
                 "prompt_version": PROMPT_VERSION,
-                "instruction": cleaned,
+                "instruction": instruction,
                 "content": content,
             }
             paths.write_text_atomic(cache_file, json.dumps(record))
         return tuples
 
     def _ask_with_retries(self, instruction: str) -> tuple[str, list[ParsedTuple]]:
-        """The first valid answer; _Failed when a failure is final, attempts run out or the
+        """The first valid answer; NoAnswer when a failure is final, attempts run out or the
         deadline would pass before the next attempt starts."""
         config = self.config
         deadline = time.monotonic() + config.deadline_s
@@ -158,7 +195,7 @@ class LLMParser:
                 return content, self._tuples_from_answer(content, instruction)
             except _InvalidAnswer as error:
                 if config.temperature == 0:
-                    raise _Failed(
+                    raise NoAnswer(
                         f"invalid answer, not retried at temperature 0 (the same request gets the same answer): {error}"
                     ) from error
                 reason, wait = f"invalid answer: {error}", backoff
@@ -170,21 +207,23 @@ class LLMParser:
             if attempt == config.max_attempts:
                 break
             if time.monotonic() + wait >= deadline:
-                raise _Failed(f"gave up at the {config.deadline_s:g} s deadline: {'; '.join(reasons)}")
+                raise NoAnswer(f"gave up at the {config.deadline_s:g} s deadline: {'; '.join(reasons)}")
             self._sleep(wait)
             backoff *= 2
-        raise _Failed(f"{config.max_attempts} attempts failed: {'; '.join(reasons)}")
+        raise NoAnswer(f"{config.max_attempts} attempts failed: {'; '.join(reasons)}")
 
     def _complete(self, instruction: str, deadline: float) -> str:
-        """The assistant message's content for `instruction`; raises _Transient or _Failed on a
+        """The assistant message's content for `instruction`; raises _Transient or NoAnswer on a
         transport failure and _InvalidAnswer on a body that is not a chat completion."""
-        body = json.dumps(
-            {
-                "model": self.config.model,
-                "temperature": self.config.temperature,
-                "messages": prompt_messages(instruction),
-            }
-        ).encode()
+        request_fields = {
+            "model": self.config.model,
+            "temperature": self.config.temperature,
+            "max_tokens": self.config.max_tokens,
+            "messages": prompt_messages(instruction),
+        }
+        if self._json_mode:
+            request_fields["response_format"] = {"type": "json_object"}
+        body = json.dumps(request_fields).encode()
         headers = {"Content-Type": "application/json"}
         key = os.environ.get(self.config.api_key_env)
         if key:
@@ -195,7 +234,13 @@ class LLMParser:
             headers=headers,
             method="POST",
         )
-        payload = self._post(request, deadline)
+        try:
+            payload = self._post(request, deadline)
+        except NoAnswer as error:
+            if not (self._json_mode and error.status in (400, 422)):
+                raise
+            self._json_mode = False  # a server without JSON mode may refuse the field: ask again without it
+            raise _Transient(f"HTTP {error.status} with response_format; asking without JSON mode") from error
         if key:  # a server that echoes the request must not put the key into reasons or logs
             payload = payload.replace(key.encode(), b"<api key>")
         try:
@@ -223,10 +268,10 @@ class LLMParser:
         return payload
 
     def _read_capped(self, response: http.client.HTTPResponse) -> bytes:
-        """The body; _Failed past `max_body_bytes` (unread when Content-Length announces it)."""
+        """The body; NoAnswer past `max_body_bytes` (unread when Content-Length announces it)."""
         cap = self.config.max_body_bytes
         if (response.length or 0) > cap or len(payload := response.read(cap + 1)) > cap:
-            raise _Failed(
+            raise NoAnswer(
                 f"the response is larger than the {cap:,}-byte cap (max_body_bytes); "
                 "is the base URL a chat-completions endpoint?"
             )
@@ -234,16 +279,16 @@ class LLMParser:
 
     def _tuples_from_answer(self, content: object, instruction: str) -> list[ParsedTuple]:
         items = _answer_items(content)
-        if not items:
-            raise ParseError(f"the LLM found no placement in {instruction[:80]!r}")
         return [
             self._tuple(_checked_reference(reference, instruction), relation.strip().lower())
             for reference, relation in items
         ]
 
     def _tuple(self, reference: str, relation_text: str) -> ParsedTuple:
-        if relation_text in relations.RELATION_NAMES:
-            relation, provenance, similarity = relation_text, "direct", None
+        # The offline lexicon reads what the encoder confuses ("upper right corner", "near side").
+        relation = relation_text if relation_text in relations.RELATION_NAMES else relation_of_phrase(relation_text)
+        if relation is not None:
+            provenance, similarity = "direct", None
         else:
             try:
                 snap = self._snapper_factory().snap(relation_text)
@@ -344,17 +389,17 @@ def _opener(watchdog: _Watchdog) -> urllib.request.OpenerDirector:
 
 
 def _http_failure(error: urllib.error.HTTPError) -> Exception:
-    """_Transient for 429 and 5xx (with Retry-After for 429 and 503), else _Failed."""
+    """_Transient for 429 and 5xx (with Retry-After for 429 and 503), else NoAnswer."""
     if error.code == 429 or error.code >= 500:
         retry_after = _retry_after(error.headers) if error.code in (429, 503) else None
         note = "" if retry_after is None else f" (Retry-After {retry_after:g} s)"
         return _Transient(f"HTTP {error.code}{note}", retry_after)
     if 300 <= error.code < 400:
-        return _Failed(
+        return NoAnswer(
             f"the endpoint redirected the request (HTTP {error.code}); redirects are "
             "not followed: give the final URL as the base URL"
         )
-    return _Failed(f"endpoint refused the request: HTTP {error.code}")
+    return NoAnswer(f"endpoint refused the request: HTTP {error.code}", error.code)
 
 
 def _retry_after(headers) -> float | None:

@@ -83,6 +83,19 @@ class OfflineParser:
         return reference, relation, phrase, similarity
 
 
+def relation_of_phrase(phrase: str) -> str | None:
+    """The canonical relation a bare relation phrase names by the lexicon ("upper right corner": back
+    right, "near side": front), or None when a word of it is not a direction, filler or function word."""
+    words = lexicon.rewrite_viewer_phrases([lexicon.correct_typo(t.text) for t in text.tokenize(phrase) if t.is_word])
+    tags = lexicon.tag_words(words)
+    if not words or any(tag.kind not in ("dir", "filler", "function") for tag in tags):
+        return None
+    try:
+        return _relation_from_directions({d for tag in tags for d in tag.directions}, phrase)
+    except ParseError:
+        return None
+
+
 def _relation_from_directions(directions: set[str], phrase: str) -> str:
     horizontal = [d for d in _HORIZONTAL if d in directions]
     depth = [d for d in _DEPTH if d in directions]

@@ -22,6 +22,7 @@ class ParsedTuple:
     similarity: float | None = None  # cosine similarity of the snap; None when direct
     parser: str = "offline"  # which parser produced the tuple
     fallback_reason: str | None = None  # why a parser fell back to the offline one, if it did
+    disagreement: str | None = None  # how the LLM's answer and the offline parse differed, if they did
 
     def __post_init__(self):
         relations.relation(self.relation)

@@ -6,7 +6,7 @@ import argparse
 import dataclasses
 import json
 
-PARSER_CHOICES = ("offline", "offline-snap", "llm")
+from ocplace.models.parsing.config import CROSS_CHECK_POLICIES, PARSER_NAMES
 
 
 def register(subparsers) -> None:
@@ -33,7 +33,7 @@ def register(subparsers) -> None:
 
 
 def _add_parser_options(command: argparse.ArgumentParser) -> None:
-    command.add_argument("--parser", choices=PARSER_CHOICES, default="offline")
+    command.add_argument("--parser", choices=PARSER_NAMES, default="offline")
     command.add_argument("--base-url", help="LLM endpoint, an http(s) URL such as http://127.0.0.1:8080/v1")
     command.add_argument("--model", help="LLM model name")
     command.add_argument(
@@ -42,12 +42,33 @@ def _add_parser_options(command: argparse.ArgumentParser) -> None:
         metavar="SECONDS",
         help="longest an LLM parse may wait, retries included, before the offline parser answers (default 30)",
     )
+    command.add_argument("--llm-timeout", type=float, metavar="SECONDS", help="one LLM request (default 20)")
+    command.add_argument(
+        "--llm-attempts", type=int, metavar="N", help="LLM requests per parse, when they fail transiently (default 3)"
+    )
+    command.add_argument(
+        "--llm-cross-check",
+        choices=CROSS_CHECK_POLICIES,
+        help="when the LLM's answer and the offline parse differ: 'cover' (default) answers with the offline parse "
+        "if the LLM left out a reference, 'offline' whenever they differ, 'llm' never (docs/parsing.md)",
+    )
+    command.add_argument(
+        "--no-llm-cache", action="store_true", help="ask the LLM again instead of reusing stored answers"
+    )
 
 
 def _config(args):
     from ocplace.models.parsing import config
 
-    given = {"base_url": args.base_url, "model": args.model, "deadline_s": args.llm_deadline}
+    given = {
+        "base_url": args.base_url,
+        "model": args.model,
+        "deadline_s": args.llm_deadline,
+        "timeout_s": args.llm_timeout,
+        "max_attempts": args.llm_attempts,
+        "cross_check": args.llm_cross_check,
+        "use_cache": False if args.no_llm_cache else None,
+    }
     # LLMConfig checks the values (an ftp:// URL is an LLMConfigError, exit status 2).
     llm = config.LLMConfig(**{name: value for name, value in given.items() if value is not None})
     return dataclasses.replace(config.default_config(), parser=args.parser, llm=llm)
@@ -65,6 +86,8 @@ def _parse(args) -> int:
         print(f"{item.reference!r:40s} {item.relation:12s} <- {item.relation_phrase!r} ({how})")
         if item.fallback_reason:
             print(f"  (offline fallback: {item.fallback_reason})")
+    if tuples[0].disagreement:
+        print(f"  (the LLM and the offline parser differ: {tuples[0].disagreement}; answered by {tuples[0].parser})")
     return 0
 
 
@@ -100,6 +123,9 @@ def _parse_eval(args) -> int:
     )
     print(f"parser {parser.name}, {len(names)} object names")
     for set_name, cases in sets.items():
+        if parser.name == "llm":  # the LLM's own answers, the offline parse and every cross-check policy
+            print(evaluation.evaluate_llm(parser, cases, set_name).summary(), flush=True)
+            continue
         report = evaluation.evaluate(parser, cases, set_name)
         print(report.summary())
         for instruction, expected, got in report.failures[: args.show_failures]:
