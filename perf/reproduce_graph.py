@@ -6,7 +6,7 @@ The runs use a cache of their own (OUT/cache) whose library, weights and backbon
 user's cache. First a warm-up run (`--methods no_adapter`) builds what every measured run shares:
 the library, the dataset (DATA) and the offline backbone. Then each measured run starts from an
 empty output folder on that dataset and an empty feature and baseline cache, so each one does the
-same work (featurisation included), back to back: one local worker, the local pool on every CPU,
+same work (featurisation and JAX compilation included), back to back: one local worker, the local pool on every CPU,
 and a local Ray instance on every CPU (`--ray`). It prints each wall time, the speed-ups, and
 whether the results.json files agree (perf/compare_results.py: all but dates, timings and paths).
 """
@@ -23,7 +23,7 @@ from pathlib import Path
 
 RUNS = {"one worker": ["--workers", "1"], "graph, local pool": [], "graph, local Ray": ["--ray"]}
 SHARED = ("library", "sources", "weights", "primitives", "backbones")  # built once, linked from the user's cache
-DERIVED = ("features", "baselines", "scratch")  # what a run makes from the dataset: emptied before each run
+DERIVED = ("features", "baselines", "scratch", "compiled")  # what a run makes: emptied before each run
 
 
 def private_cache(root: Path) -> Path:
