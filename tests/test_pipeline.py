@@ -13,8 +13,9 @@ import eval_methods
 import pytest
 
 from ocplace import configs
-from ocplace.errors import OcplaceError
+from ocplace.errors import ConfigError, OcplaceError
 from ocplace.eval import figures, pipeline, registry, results
+from ocplace.eval.experiment import TaskCpus
 from ocplace.runtime import ExecutorConfig
 from ocplace.vocabulary import TEST_SUBSETS
 
@@ -223,6 +224,13 @@ def test_task_graph_of_the_demo(tmp_path):
     assert (
         nodes["evaluate ours~seed1"].make({"backbone": "offline:/b", "train ours~seed1": (tmp_path, False)}).cpus == 1
     )
+
+
+def test_task_widths_are_part_of_the_experiment():
+    assert configs.get("smoke").cpus == TaskCpus(pretrain=2, train=1)
+    assert configs.get("demo").cpus == configs.get("default").cpus == TaskCpus(pretrain=2, train=2)
+    with pytest.raises(ConfigError, match="at least 1"):
+        TaskCpus(train=0)
 
 
 def with_seeds(experiment, seeds: int, **plan):
