@@ -63,6 +63,9 @@ def server():
         except OSError:
             assert process.poll() is None, "the llama.cpp server exited while starting"
             time.sleep(0.2)
+    else:
+        os.killpg(process.pid, signal.SIGKILL)
+        pytest.fail("the llama.cpp server did not answer within 2 minutes")
     process.url = url
     yield process
     if process.poll() is None:
@@ -87,10 +90,18 @@ def test_the_server_answers_json_within_max_tokens(server):
 
 
 def test_the_parser_gets_an_answer_and_cross_checks_it(parser):
-    tuples = parser.parse(INSTRUCTION)
-    reason = tuples[0].fallback_reason or ""
-    assert "attempts failed" not in reason and "deadline" not in reason  # the server answered in time
-    assert as_pairs(tuples) == [("red bowl", "left")] or tuples[0].disagreement or tuples[0].fallback_reason
+    # SmolLM2-135M at temperature 0 answers this one right (measured); a drop elsewhere is reported.
+    (item,) = parser.parse(INSTRUCTION)
+    assert (item.reference, item.relation, item.parser, item.fallback_reason, item.disagreement) == (
+        "red bowl",
+        "left",
+        "llm",
+        None,
+        None,
+    )
+    tuples = parser.parse("put it to the back right of the tennis ball and to the front left of the red bowl")
+    assert sorted(as_pairs(tuples)) == [("red bowl", "front left"), ("tennis ball", "back right")]
+    assert tuples[0].fallback_reason or tuples[0].parser == "llm" or "left out" in tuples[0].disagreement
 
 
 def test_a_stopped_server_times_out_and_a_killed_one_refuses(server, parser):

@@ -235,7 +235,10 @@ class _ScriptedHandler(http.server.BaseHTTPRequestHandler):
         self.server.requests.append((dict(self.headers), json.loads(self.rfile.read(length))))
         kind, value = self.server.script.pop(0) if self.server.script else self.server.default
         if kind == "content unless json mode":  # as a server that knows no `response_format` may answer
-            kind, value = ("status", 400) if "response_format" in self.server.requests[-1][1] else ("content", value)
+            if "response_format" in self.server.requests[-1][1]:
+                self.send_error(400, explain="unknown field: response_format")
+                return
+            kind = "content"
         if kind == "slow":
             time.sleep(value)
             kind, value = "content", self.server.default[1]
@@ -461,6 +464,13 @@ def test_a_server_without_json_mode_is_asked_again_without_it(llm, server):
     assert "response_format" not in server.requests[-1][1]
 
 
+def test_a_bad_request_that_is_not_about_json_mode_is_final(llm, server):
+    server.default = ("status", 400)
+    (item,) = llm.parse(INSTRUCTION)
+    assert item.parser == "offline" and "HTTP 400" in item.fallback_reason
+    assert len(server.requests) == 1 and "response_format" in server.requests[0][1]
+
+
 def test_llm_empty_answer_is_a_parse_error(llm, server):
     server.default = ("content", json.dumps({"tuples": []}))
     with pytest.raises(ParseError, match="no placement"):
@@ -586,13 +596,20 @@ def test_the_llm_evaluation_scores_its_own_answers_the_offline_parse_and_every_p
     cases = [evaluation.Case(TWO_REFERENCES, expected), evaluation.Case("put it somewhere", frozenset(), True)]
     report = evaluation.evaluate_llm(llm, cases, "two")
     scores = {key: (report.correct[key], report.silent_drops[key]) for key in report.correct}
-    # The LLM's answer to "somewhere" names no object: refused, so every policy answers offline (an error: right).
+    # The LLM's answer to "somewhere" names no object: refused (wrong for the LLM alone, whose answer failed),
+    # so every policy answers with the offline parse: a ParseError, which is right there.
     assert report.fallbacks == 1
     assert scores == {
-        "llm alone": (1, 1),
+        "llm alone": (0, 1),
         "offline alone": (2, 0),
         "cross-check cover": (2, 0),
         "cross-check offline": (2, 0),
         "cross-check llm": (1, 0),  # the drop kept, but said
     }
     assert "cross-check cover 100.0% (0 silent drops)" in report.summary()
+
+
+def test_one_reference_never_stands_for_two():
+    offline_answer = [ParsedTuple("red bowl", "left", "x"), ParsedTuple("blue bowl", "front", "x")]
+    comparison = crosscheck.compare([ParsedTuple("bowl", "front", "x")], offline_answer)
+    assert comparison.dropped == ("red bowl",) and comparison.relations == ()

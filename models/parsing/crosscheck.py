@@ -54,17 +54,51 @@ def same_reference(first: str, second: str) -> bool:
 def compare(
     llm: Sequence[ParsedTuple], offline: Sequence[ParsedTuple] | None, offline_error: str | None = None
 ) -> Comparison:
-    """Which references each answer names and where their relations differ (`offline` None: it raised)."""
+    """Which references each answer names and where their relations differ (`offline` None: it raised).
+
+    References are paired one to one, so "bowl" stands for one of "red bowl" and "blue bowl", never
+    for both."""
     if offline is None:
         return Comparison(offline_error=offline_error or "no answer")
-    dropped = tuple(o.reference for o in offline if not any(same_reference(o.reference, m.reference) for m in llm))
-    added = tuple(m.reference for m in llm if not any(same_reference(m.reference, o.reference) for o in offline))
-    differing = []
-    for mine in llm:
-        theirs = [o.relation for o in offline if same_reference(mine.reference, o.reference)]
-        if theirs and mine.relation not in theirs:
-            differing.append((mine.reference, mine.relation, theirs[0]))
-    return Comparison(dropped, added, tuple(differing))
+    pairs = _pairs(llm, offline)
+    dropped = tuple(o.reference for j, o in enumerate(offline) if j not in pairs.values())
+    added = tuple(m.reference for i, m in enumerate(llm) if i not in pairs)
+    differing = tuple(
+        (llm[i].reference, llm[i].relation, offline[j].relation)
+        for i, j in pairs.items()
+        if llm[i].relation != offline[j].relation
+    )
+    return Comparison(dropped, added, differing)
+
+
+def _same_pair(first: ParsedTuple, second: ParsedTuple) -> bool:
+    return (first.reference, first.relation) == (second.reference, second.relation)
+
+
+def _same_name(first: ParsedTuple, second: ParsedTuple) -> bool:
+    return first.reference == second.reference
+
+
+def _named_alike(first: ParsedTuple, second: ParsedTuple) -> bool:
+    return same_reference(first.reference, second.reference)
+
+
+def _alike_pair(first: ParsedTuple, second: ParsedTuple) -> bool:
+    return _named_alike(first, second) and first.relation == second.relation
+
+
+def _pairs(ours: Sequence[ParsedTuple], theirs: Sequence[ParsedTuple]) -> dict[int, int]:
+    """Index pairs (ours, theirs) naming the same object, each index used once: identical tuples first,
+    then equal names, then names one of which is a run of the other (with the same relation first)."""
+    pairs: dict[int, int] = {}
+    for matches in (_same_pair, _same_name, _alike_pair, _named_alike):
+        for i, mine in enumerate(ours):
+            if i not in pairs:
+                free = (j for j, other in enumerate(theirs) if j not in pairs.values() and matches(mine, other))
+                j = next(free, None)
+                if j is not None:
+                    pairs[i] = j
+    return pairs
 
 
 def choose(

@@ -176,6 +176,9 @@ def evaluate(parser: Parser, cases: Iterable[Case], name: str) -> Report:
     )
 
 
+_NO_ANSWER: list[ParsedTuple] = []  # the LLM gave no valid answer (a fall-back)
+
+
 @dataclasses.dataclass(frozen=True)
 class LLMReport:
     """The LLM parser on one set: the LLM's own answers, the offline parse, and what each cross-check policy
@@ -238,7 +241,8 @@ def _answers_by_policy(parser, instruction: str, own) -> dict:
         offline, offline_error = parser.offline.parse(instruction), None
     except ParseError as error:
         offline, offline_error = None, str(error)
-    answers = {"llm alone": own or None, "offline alone": offline}
+    # No valid answer is wrong even where a ParseError is right: the LLM did not refuse, it failed.
+    answers = {"llm alone": _NO_ANSWER if own is None else own or None, "offline alone": offline}
     comparison = crosscheck.compare(own, offline, offline_error) if own is not None else None
     for policy in CROSS_CHECK_POLICIES:
         chosen = offline if own is None else crosscheck.choose(policy, own, offline, comparison)
@@ -247,16 +251,19 @@ def _answers_by_policy(parser, instruction: str, own) -> dict:
 
 
 def _right(case: Case, answer) -> bool:
+    if answer is _NO_ANSWER:
+        return False
     if case.expects_error:
         return answer is None
     return answer is not None and frozenset(as_pairs(answer)) == case.expected
 
 
 def _silent_drop(case: Case, answer) -> bool:
-    if case.expects_error or answer is None or answer[0].disagreement is not None:
+    """The answer leaves out a reference the instruction names, and says nothing about it."""
+    if case.expects_error or answer is None or answer is _NO_ANSWER or answer[0].disagreement is not None:
         return False
-    named = [item.reference for item in answer]
-    return any(not any(crosscheck.same_reference(want, got) for got in named) for want, _ in case.expected)
+    expected = [ParsedTuple(name, relation, "expected") for name, relation in sorted(case.expected)]
+    return bool(crosscheck.compare(answer, expected).dropped)
 
 
 @dataclasses.dataclass(frozen=True)

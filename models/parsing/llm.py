@@ -34,7 +34,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from ocplace import paths
-from ocplace.errors import ParseError
+from ocplace.errors import OcplaceError, ParseError
 from ocplace.models.parsing import crosscheck, lexicon, text
 from ocplace.models.parsing.config import LLMConfig
 from ocplace.models.parsing.offline import relation_of_phrase
@@ -45,7 +45,7 @@ from ocplace.vocabulary import MAX_PARSED_TUPLES
 
 log = logging.getLogger(__name__)
 
-PROMPT_VERSION = "v1"
+PROMPT_VERSION = "v2"  # v2: max_tokens and JSON mode
 _SYSTEM_PROMPT = (
     "You turn a robot's placement instruction into JSON. The robot holds an object ('it') and "
     "must put it on a table relative to the table or to objects on it. Answer with one JSON "
@@ -85,9 +85,9 @@ class _Transient(Exception):
 class NoAnswer(Exception):
     """Retrying cannot help or time is up; the message says why (it becomes `fallback_reason`)."""
 
-    def __init__(self, reason: str, status: int | None = None):
+    def __init__(self, reason: str, json_mode_refused: bool = False):
         super().__init__(reason)
-        self.status = status  # the HTTP status that ended it, if one did
+        self.json_mode_refused = json_mode_refused  # an HTTP 400/422 whose body names JSON mode
 
 
 def prompt_messages(instruction: str) -> list[dict[str, str]]:
@@ -141,7 +141,7 @@ class LLMParser:
         """The answer the `cross_check` policy picks between the LLM's `answer` and the offline parse."""
         try:
             offline, offline_error = self.offline.parse(instruction), None
-        except ParseError as error:
+        except (OcplaceError, OSError) as error:  # a ParseError, or a snapping encoder that failed to load
             offline, offline_error = None, str(error)
         comparison = crosscheck.compare(answer, offline, offline_error)
         chosen = crosscheck.choose(self.config.cross_check, answer, offline, comparison)
@@ -171,7 +171,7 @@ class LLMParser:
             except (OSError, ValueError, KeyError, _InvalidAnswer):
                 log.warning("ignoring unreadable parser cache entry %s", cache_file)
         content, tuples = self._ask_with_retries(instruction)
-        if self.config.use_cache:
+        if self.config.use_cache and (tuples or self.config.temperature == 0):  # "no placement" may vary above 0
             record = {
                 "base_url": self.config.base_url,
                 "model": self.config.model,
@@ -237,10 +237,11 @@ class LLMParser:
         try:
             payload = self._post(request, deadline)
         except NoAnswer as error:
-            if not (self._json_mode and error.status in (400, 422)):
+            if not (self._json_mode and error.json_mode_refused):
                 raise
-            self._json_mode = False  # a server without JSON mode may refuse the field: ask again without it
-            raise _Transient(f"HTTP {error.status} with response_format; asking without JSON mode") from error
+            log.info("the endpoint refused JSON mode (%s); asking without it from now on", error)
+            self._json_mode = False
+            return self._complete(instruction, deadline)
         if key:  # a server that echoes the request must not put the key into reasons or logs
             payload = payload.replace(key.encode(), b"<api key>")
         try:
@@ -259,8 +260,9 @@ class LLMParser:
                 with _opener(watchdog).open(request, timeout=budget) as response:
                     payload = self._read_capped(response)
             except urllib.error.HTTPError as error:
+                refused = error.code in (400, 422) and _names_json_mode(error)
                 error.close()
-                raise _http_failure(error) from error
+                raise _http_failure(error, refused) from error
             except (OSError, http.client.HTTPException) as error:
                 raise _Transient(timed_out if watchdog.fired else _describe(error)) from error
             if watchdog.fired:  # the shut socket ended the body early: it is not the whole answer
@@ -388,7 +390,15 @@ def _opener(watchdog: _Watchdog) -> urllib.request.OpenerDirector:
     return urllib.request.build_opener(_WatchedHandler(watchdog), _NoRedirects())
 
 
-def _http_failure(error: urllib.error.HTTPError) -> Exception:
+def _names_json_mode(error: urllib.error.HTTPError) -> bool:
+    """Whether an error body (its first 4 KB, read within the request's budget) is about JSON mode."""
+    with contextlib.suppress(OSError, http.client.HTTPException):
+        body = error.read(4096).lower()
+        return any(word in body for word in (b"response_format", b"json_object", b"json mode"))
+    return False
+
+
+def _http_failure(error: urllib.error.HTTPError, json_mode_refused: bool = False) -> Exception:
     """_Transient for 429 and 5xx (with Retry-After for 429 and 503), else NoAnswer."""
     if error.code == 429 or error.code >= 500:
         retry_after = _retry_after(error.headers) if error.code in (429, 503) else None
@@ -399,7 +409,7 @@ def _http_failure(error: urllib.error.HTTPError) -> Exception:
             f"the endpoint redirected the request (HTTP {error.code}); redirects are "
             "not followed: give the final URL as the base URL"
         )
-    return NoAnswer(f"endpoint refused the request: HTTP {error.code}", error.code)
+    return NoAnswer(f"endpoint refused the request: HTTP {error.code}", json_mode_refused)
 
 
 def _retry_after(headers) -> float | None:

@@ -83,6 +83,12 @@ class OfflineParser:
         return reference, relation, phrase, similarity
 
 
+# Direction words that, as a whole relation from an LLM, may mean proximity or height rather than a side.
+_LONE_AMBIGUOUS = frozenset(
+    "near nearer nearest far farther further furthest farthest top upper bottom lower beyond past".split()
+)
+
+
 def relation_of_phrase(phrase: str) -> str | None:
     """The canonical relation a bare relation phrase names by the lexicon ("upper right corner": back
     right, "near side": front), or None when a word of it is not a direction, filler or function word."""
@@ -90,6 +96,9 @@ def relation_of_phrase(phrase: str) -> str | None:
     tags = lexicon.tag_words(words)
     if not words or any(tag.kind not in ("dir", "filler", "function") for tag in tags):
         return None
+    sides = [word for word, tag in zip(words, tags) if tag.kind == "dir" and word not in _LONE_AMBIGUOUS]
+    if not sides and not any(tag.kind == "filler" for tag in tags):
+        return None  # an LLM's "near" means beside, its "top" may mean on top ("near side" is a side): snap it
     try:
         return _relation_from_directions({d for tag in tags for d in tag.directions}, phrase)
     except ParseError:

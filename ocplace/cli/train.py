@@ -73,12 +73,15 @@ def run_featurize(args, read_examples: Callable[[Path, str], Iterable]) -> int:
 
 
 def _featurize_on_ray(args, executor) -> Path:
-    """The split encoded by one Ray task (a fresh worker process, JAX one CPU wide, as in `reproduce`)."""
+    """The split encoded by one Ray task: a fresh worker process whose JAX is as wide as the trainings of
+    `reproduce` at demo and default scale, so the features are the same bits."""
+    from ocplace.eval.experiment import TaskCpus
     from ocplace.models.features import FeaturizeConfig, featurize_split_task
     from ocplace.runtime import Task, map_tasks, open_executor
 
     config = config_from_arguments(args, FeaturizeConfig(), fields=("chunk_scenes",))
-    task = Task(featurize_split_task, (args.dataset, args.split, args.backbone, args.out, config), fresh_process=True)
+    arguments = (args.dataset, args.split, args.backbone, args.out, config)
+    task = Task(featurize_split_task, arguments, cpus=TaskCpus().train, fresh_process=True)
     with open_executor(executor) as running:
         return next(map_tasks(running, [task]))[1]
 

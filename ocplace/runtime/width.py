@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import platform
 from pathlib import Path
 
 from ocplace.errors import ClusterError
@@ -62,7 +63,13 @@ def compiled_folder(width: int) -> Path:
 
 
 def _cpu_type() -> str:
-    """A short hash of the CPU's model and feature flags, which XLA compiles for."""
+    """A short hash of the architecture and the first CPU's model and features, which XLA compiles for
+    (x86 names them "model name" and "flags", ARM "CPU implementer", "CPU part" and "Features")."""
     lines = Path("/proc/cpuinfo").read_text().splitlines()
-    described = [line for line in lines if line.startswith(("model name", "flags"))][:2]
-    return hashlib.sha256("\n".join(described).encode()).hexdigest()[:12]
+    keys = ("model name", "flags", "cpu implementer", "cpu part", "features")
+    described: dict[str, str] = {}
+    for line in lines:
+        if line.lower().startswith(keys):
+            described.setdefault(line.split(":")[0].strip().lower(), line)
+    record = [platform.machine(), *(described.get(key, "") for key in keys)]
+    return hashlib.sha256("\n".join(record).encode()).hexdigest()[:12]
