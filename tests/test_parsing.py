@@ -97,6 +97,11 @@ def test_freeform_set_is_large_varied_and_parsed(offline):
         ("put it right behind the black shoe", [("black shoe", "back")]),
         ("put it closer to me than the bowl", [("bowl", "front")]),
         ("slide it over to the right of the rubik's cube", [("rubik's cube", "right")]),
+        ("put it over on the right side of the mug", [("mug", "right")]),  # "over" as where, not above
+        ("set it over at the left of the bowl", [("bowl", "left")]),
+        ("put it in the far right corner of the table", [("table", "back right")]),  # a corner has two sides
+        ("drop it in the near left corner", [("table", "front left")]),
+        ("place it on the far left of the table", [("table", "left")]),  # no corner: far only intensifies
         (
             "put it to the left of the plum, to the right of the peach, behind the orange, and in front of the lemon",
             [("lemon", "front"), ("orange", "back"), ("peach", "right"), ("plum", "left")],
@@ -155,6 +160,7 @@ BAD_INPUTS = {
     "pronoun to nothing": "put it to the right of it",
     "no side": "put it next to the cup",
     "vertical": "put it on top of the red bowl",
+    "over an object": "put it over the mug",
     "between": "put it between the mug and the bowl",
     "middle of an object": "put it in the middle of the mug",
     "contradiction": "put it on the left side of the mug and on its right side",

@@ -5,9 +5,9 @@ two-constraint placement silently becomes a one-constraint one. The LLM parser t
 every instruction offline too, compares the two here, and answers by a policy
 (`LLMConfig.cross_check`, docs/parsing.md "Cross-check"):
 
+    "offline"  the offline parse whenever the two differ and it parsed (the default: best measured)
     "cover"    the offline parse when the LLM left out a reference the offline parse names (and
                named none of its own); otherwise the LLM's answer
-    "offline"  the offline parse whenever the two differ and it parsed
     "llm"      the LLM's answer always
 
 Whatever the policy, a difference is never silent: every tuple of the answer carries it in

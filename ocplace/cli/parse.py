@@ -49,8 +49,8 @@ def _add_parser_options(command: argparse.ArgumentParser) -> None:
     command.add_argument(
         "--llm-cross-check",
         choices=CROSS_CHECK_POLICIES,
-        help="when the LLM's answer and the offline parse differ: 'cover' (default) answers with the offline parse "
-        "if the LLM left out a reference, 'offline' whenever they differ, 'llm' never (docs/parsing.md)",
+        help="when the LLM's answer and the offline parse differ: 'offline' (default) answers with the offline parse, "
+        "'cover' only if the LLM left out a reference, 'llm' never (docs/parsing.md)",
     )
     command.add_argument(
         "--no-llm-cache", action="store_true", help="ask the LLM again instead of reusing stored answers"
