@@ -13,7 +13,14 @@ import pytest
 from ocplace.errors import DatasetConfigError, DatasetError
 from ocplace.runtime import ExecutorConfig, open_executor
 from ocplace.sim.dataset.config import SPLIT_NAMES, SplitConfig, make_config, smoke_config
-from ocplace.sim.dataset.job import DIE_AFTER_SCENES_ENV, MANIFEST_FILE, generate_dataset, verify_dataset
+from ocplace.sim.dataset.job import (
+    DIE_AFTER_SCENES_ENV,
+    MANIFEST_FILE,
+    SCENES_PER_TASK,
+    generate_dataset,
+    scenes_per_task,
+    verify_dataset,
+)
 from ocplace.sim.dataset.loader import batches, iter_examples
 from ocplace.sim.dataset.records import SceneInfo, read_scene
 from ocplace.sim.language import TABLE_NAME
@@ -203,3 +210,8 @@ def test_a_scene_whose_objects_keep_falling_off_is_resampled(library, monkeypatc
         generator.close()
     assert scene.resamples.scenes >= 1
     assert scene.spec.objects != tuple(calls[0].objects) or scene.spec.seed != calls[0].seed
+
+
+@pytest.mark.parametrize("scenes, workers, size", [(12, 2, 1), (100, 2, 12), (20_000, 2, SCENES_PER_TASK), (3, 8, 1)])
+def test_scenes_are_batched_into_tasks_with_four_per_worker_at_least(scenes, workers, size):
+    assert scenes_per_task(scenes, workers) == size

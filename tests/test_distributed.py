@@ -145,7 +145,8 @@ def test_fresh_tasks_reuse_what_an_earlier_one_compiled_at_the_same_width(tmp_pa
         first = dict(map_tasks(pool, [task]))[0]
         compiled = {path: path.read_bytes() for path in compiled_folder(1).glob("*-atime")}
         assert compiled, "nothing was written to the compilation cache"
-        again, wider = dict(map_tasks(pool, [task, dataclasses.replace(task, cpus=2)])).values()
+        finished = dict(map_tasks(pool, [task, dataclasses.replace(task, cpus=2)]))  # in the order they ended
+        again, wider = finished[0], finished[1]
     assert again == first
     assert all(path.read_bytes() != used for path, used in compiled.items()), "the second task compiled again"
     if len(os.sched_getaffinity(0)) > 1:

@@ -37,6 +37,7 @@ CONFIG_FILE = "dataset.json"
 MANIFEST_FILE = "manifest.json"
 TMP_PREFIX = ".tmp-"
 SCENE_FILES = (SCENE_FILE, *IMAGE_FILES)
+SCENES_PER_TASK = 16  # about 2 s of work per task on this project's CPUs (a scene takes about 0.12 s)
 # Set to N, the process writing scenes SIGKILLs itself right after committing its Nth scene, so the
 # resume tests crash a run at a known point instead of racing a kill against the generator. Unset: off.
 DIE_AFTER_SCENES_ENV = "OCPLACE_TEST_DIE_AFTER_SCENES"
@@ -257,12 +258,21 @@ def _die_if_asked() -> None:
     os.kill(os.getpid(), signal.SIGKILL)
 
 
-def _make_scene(out: str, config: DatasetConfig, cache: str | None, split: str, index: int, level: str) -> str:
-    files = _generator(config, cache).make(split, index, level)
-    write_scene(Path(out) / split / scene_id(split, index), files)
-    _WORKER["written"] += 1
-    _die_if_asked()
-    return scene_id(split, index)
+def _make_scenes(out: str, config: DatasetConfig, cache: str | None, scenes: tuple[tuple[str, int, str], ...]) -> int:
+    """Makes and writes `(split, index, level)` scenes one after another; returns how many."""
+    for split, index, level in scenes:
+        files = _generator(config, cache).make(split, index, level)
+        write_scene(Path(out) / split / scene_id(split, index), files)
+        _WORKER["written"] += 1
+        _die_if_asked()
+    return len(scenes)
+
+
+def scenes_per_task(num_scenes: int, workers: int) -> int:
+    """Scenes a task makes: up to SCENES_PER_TASK, so that a scheduler's cost per task (a round trip to a
+    Ray raylet on another node) is paid per second of work, not per scene; but at least four tasks per
+    worker, so that workers finish together and a retried task redoes little."""
+    return max(1, min(SCENES_PER_TASK, num_scenes // (4 * workers)))
 
 
 def generate_dataset(
@@ -286,8 +296,8 @@ def generate_dataset(
     manifest = read_manifest(out) if (out / MANIFEST_FILE).exists() else None
     _remove_leftovers(out, config)
     regenerated = _drop_damaged_scenes(out, manifest)
-    tasks = [
-        Task(_make_scene, (str(out), config, cache, name, index, level))
+    wanted = [
+        (name, index, level)
         for name in splits
         for index, level in enumerate(level_schedule(config.split(name), config.seed))
         if not _scene_is_complete(_scene_dir(out, name, index))
@@ -296,8 +306,14 @@ def generate_dataset(
         stack.callback(_close_generator)  # the one this process made, when tasks ran here
         if executor is None:
             executor = stack.enter_context(open_executor(ExecutorConfig(workers=1)))
-        for _ in tqdm(map_tasks(executor, tasks), total=len(tasks), desc="scenes", unit="scene", disable=not progress):
-            pass
+        size = scenes_per_task(len(wanted), executor.capacity)
+        tasks = [
+            Task(_make_scenes, (str(out), config, cache, tuple(wanted[i : i + size])))
+            for i in range(0, len(wanted), size)
+        ]
+        with tqdm(total=len(wanted), desc="scenes", unit="scene", disable=not progress) as bar:
+            for _, made in map_tasks(executor, tasks):
+                bar.update(made)
     return write_manifest(out, config, regenerated)
 
 
