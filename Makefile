@@ -35,7 +35,7 @@ test-all: library
 perf: library
 	$(RUN)python perf/scenes.py
 
-# A local OpenAI-compatible LLM for `--parser llm`: SmolLM2-135M on llama.cpp (the first run builds it, ~20 min).
+# A local OpenAI-compatible LLM for `--parser llm`: SmolLM2-135M on llama.cpp (the first run builds it, 6-20 min).
 llm-server:
 	bash scripts/llm_server.sh serve $(or $(PORT),8080)
 

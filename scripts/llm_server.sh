@@ -3,7 +3,7 @@
 # served by llama-cpp-python's OpenAI-compatible server on 127.0.0.1 (docs/parsing.md).
 #
 #   scripts/llm_server.sh setup          build the server into $LLM_VENV (default .venv-llm); first run
-#                                        compiles llama.cpp, about 20 minutes on 2 cores
+#                                        compiles llama.cpp, 6-20 minutes on 2 cores
 #   scripts/llm_server.sh serve [PORT]   setup, then serve on http://127.0.0.1:PORT/v1 (default 8080)
 #   scripts/llm_server.sh model          print the GGUF file's path
 set -euo pipefail
@@ -18,7 +18,7 @@ setup() {
   if [ -f "$LLM_VENV/.llm-setup-done" ]; then return 0; fi
   [ -x "$LLM_VENV/bin/python" ] || python3 -m venv "$LLM_VENV"
   "$LLM_VENV/bin/python" -m pip install -q --upgrade pip
-  say "building llama-cpp-python $LLAMA_CPP_VERSION from source (about 20 minutes on 2 cores)"
+  say "building llama-cpp-python $LLAMA_CPP_VERSION from source (6-20 minutes on 2 cores)"
   # Some CPUs report AMX but trap it: a native build then dies with 'invalid opcode' in libggml-cpu on the
   # first completion. AMX speeds up nothing this small, so it is off everywhere.
   CMAKE_ARGS="-DGGML_AMX_TILE=OFF -DGGML_AMX_INT8=OFF -DGGML_AMX_BF16=OFF" \
