@@ -25,6 +25,7 @@ from ocplace.errors import ClusterError, ConfigError, DatasetError
 from ocplace.runtime import ExecutorConfig, Task, map_tasks, open_executor
 from ocplace.runtime.graph import Node, run_graph
 from ocplace.runtime.width import compiled_folder
+from ocplace.sim.dataset import job
 from ocplace.sim.dataset.config import make_config
 from ocplace.sim.dataset.job import (
     DIE_AFTER_SCENES_ENV,
@@ -129,7 +130,8 @@ def test_a_local_ray_instance_retries_a_killed_worker_and_reraises_task_errors(r
     with open_executor(RAY) as executor:
         with pytest.raises(DatasetError, match="broken on purpose"):  # a task's own error comes back as itself
             list(map_tasks(executor, [Task(fail_with_dataset_error, ("broken on purpose",))]))
-        monkeypatch.setenv(DIE_AFTER_SCENES_ENV, "2")  # SIGKILL after a worker's 2nd scene, before its task returns
+        monkeypatch.setattr(job, "scenes_per_task", lambda scenes, workers: 3)  # tasks of 3 scenes
+        monkeypatch.setenv(DIE_AFTER_SCENES_ENV, "2")  # SIGKILL after a worker's 2nd scene: mid-task
         monkeypatch.setenv(DIE_ONCE_MARKER_ENV, str(marker))  # ... in the first worker that gets there only
         files = generate_dataset(tmp_path / "data", TINY, executor=executor, progress=False)["files"]
     assert marker.exists(), "no worker was killed: the test proved nothing"

@@ -35,7 +35,7 @@ class LLMConfig:
     """The endpoint and its limits; a parse waits at most `deadline_s` (then the offline parser
     answers), whatever the endpoint does. See docs/reliability.md."""
 
-    base_url: str = "http://127.0.0.1:8000/v1"  # any OpenAI-compatible server; http or https only
+    base_url: str = "http://127.0.0.1:8080/v1"  # any OpenAI-compatible server (8080: `make llm-server`)
     model: str = "gpt-4o-mini"
     api_key_env: str = "OCPLACE_LLM_API_KEY"  # unset: no Authorization header (local servers)
     timeout_s: float = 20.0  # one request, connect to last body byte (wall clock)

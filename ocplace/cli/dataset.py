@@ -27,7 +27,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     generate.add_argument("--train", type=int, default=2000, help="training scenes")
     generate.add_argument("--test", type=int, default=400, help="scenes per test subset")
     generate.add_argument("--smoke", action="store_true", help="a tiny dataset (12 train, 8 per test subset)")
-    add_executor_arguments(generate, "each scene is a task")
+    add_executor_arguments(generate, "batches of up to 16 scenes are tasks")
     generate.set_defaults(func=_generate)
 
     dataset = subparsers.add_parser("dataset", help="check or draw a generated dataset")

@@ -261,6 +261,8 @@ def _die_if_asked() -> None:
 def _make_scenes(out: str, config: DatasetConfig, cache: str | None, scenes: tuple[tuple[str, int, str], ...]) -> int:
     """Makes and writes `(split, index, level)` scenes one after another; returns how many."""
     for split, index, level in scenes:
+        if _scene_is_complete(Path(out) / split / scene_id(split, index)):
+            continue  # written before this task was retried
         files = _generator(config, cache).make(split, index, level)
         write_scene(Path(out) / split / scene_id(split, index), files)
         _WORKER["written"] += 1
