@@ -7,7 +7,7 @@ of one process and of two, a Ray cluster of one node with one CPU, and a Ray clu
 with one CPU each (two raylets on this machine, `ray.cluster_utils.Cluster`). Wall times include
 starting the workers (and the cluster's join). Prints scenes/s, the scaling efficiency of two nodes
 over one, Ray's overhead over the local pool on the same CPUs, and whether every run wrote the same
-bytes. `--two-cpus-only` makes the two two-CPU runs only: Ray's overhead, not its scaling.
+bytes. `--runs` picks some of the four (Ray's runs include the cluster's start).
 """
 
 from __future__ import annotations
@@ -47,15 +47,45 @@ def cluster(nodes: int, temp_dir: str):
     return started, ExecutorConfig(kind="ray", address=started.address)
 
 
+RUNS = {  # name: (executor kind, CPUs)
+    "local pool, 1 process": ("local", 1),
+    "local pool, 2 processes": ("local", 2),
+    "Ray, 1 node x 1 CPU": ("ray", 1),
+    "Ray, 2 nodes x 1 CPU": ("ray", 2),
+}
+
+
+def run(name: str, out: Path, config) -> tuple[float, dict]:
+    kind, cpus = RUNS[name]
+    if kind == "local":
+        return timed(out, config, ExecutorConfig(workers=cpus))
+    temp_dir = tempfile.mkdtemp(prefix="ocray-", dir="/tmp")
+    began = time.perf_counter()
+    started, executor = cluster(cpus, temp_dir)
+    try:
+        _, files = timed(out, config, executor)
+        return time.perf_counter() - began, files  # the cluster's start counts: a command pays it too
+    finally:
+        started.shutdown()
+        shutil.rmtree(temp_dir, ignore_errors=True)
+
+
+def report(walls: dict[str, float], outputs: dict[str, dict]) -> None:
+    if {"Ray, 1 node x 1 CPU", "Ray, 2 nodes x 1 CPU"} <= walls.keys():
+        one, two = walls["Ray, 1 node x 1 CPU"], walls["Ray, 2 nodes x 1 CPU"]
+        print(f"two nodes over one: {one / two:.2f}x, scaling efficiency {100 * one / (2 * two):.0f}%")
+    if {"local pool, 2 processes", "Ray, 2 nodes x 1 CPU"} <= walls.keys():
+        local, two = walls["local pool, 2 processes"], walls["Ray, 2 nodes x 1 CPU"]
+        print(f"Ray (2 nodes) over the local pool (2 processes), same CPUs: {100 * (two / local - 1):+.1f}% wall")
+    reference = next(iter(outputs.values()))
+    print("same bytes in every run:", all(files == reference for files in outputs.values()))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scenes", type=int, default=2000, help="training scenes per run")
     parser.add_argument("--keep", type=Path, help="keep the datasets here (default: a temporary folder)")
-    parser.add_argument(
-        "--two-cpus-only",
-        action="store_true",
-        help="only the two-CPU runs (Ray's overhead over the local pool), about a third of the time: no scaling",
-    )
+    parser.add_argument("--runs", nargs="+", choices=list(RUNS), default=list(RUNS), help="which runs, in order")
     args = parser.parse_args()
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
 
@@ -63,30 +93,10 @@ def main() -> None:
     config = dataclasses.replace(config, splits=config.splits[:1])
     root = Path(args.keep or tempfile.mkdtemp(prefix="ocplace-gen-"))
     walls, outputs = {}, {}
-    counts = (2,) if args.two_cpus_only else (1, 2)
-    for name, workers in [(f"local pool, {n} process{'es' if n > 1 else ''}", n) for n in counts]:
-        walls[name], outputs[name] = timed(root / f"local-{workers}", config, ExecutorConfig(workers=workers))
+    for index, name in enumerate(args.runs):
+        walls[name], outputs[name] = run(name, root / f"run-{index}", config)
         print(f"{name}: {walls[name]:.1f} s = {args.scenes / walls[name]:.2f} scenes/s", flush=True)
-    for nodes in counts:
-        name = f"Ray, {nodes} node(s) x 1 CPU"
-        temp_dir = tempfile.mkdtemp(prefix="ocray-", dir="/tmp")
-        began = time.perf_counter()
-        started, executor = cluster(nodes, temp_dir)
-        try:
-            _, outputs[name] = timed(root / f"ray-{nodes}", config, executor)
-            walls[name] = time.perf_counter() - began  # the cluster's start counts: a command pays it too
-        finally:
-            started.shutdown()
-            shutil.rmtree(temp_dir, ignore_errors=True)
-        print(f"{name}: {walls[name]:.1f} s = {args.scenes / walls[name]:.2f} scenes/s (cluster start included)")
-    two = walls["Ray, 2 node(s) x 1 CPU"]
-    if not args.two_cpus_only:
-        one = walls["Ray, 1 node(s) x 1 CPU"]
-        print(f"two nodes over one: {one / two:.2f}x, scaling efficiency {100 * one / (2 * two):.0f}%")
-    local = walls["local pool, 2 processes"]
-    print(f"Ray (2 nodes) over the local pool (2 processes), same CPUs: {100 * (two / local - 1):+.1f}% wall")
-    reference = outputs["local pool, 2 processes"]
-    print("same bytes in every run:", all(files == reference for files in outputs.values()))
+    report(walls, outputs)
     if args.keep is None:
         shutil.rmtree(root)
 
