@@ -8,7 +8,8 @@ the library, the dataset (DATA) and the offline backbone. Then each measured run
 empty output folder on that dataset and an empty feature and baseline cache, so each one does the
 same work (featurisation and JAX compilation included), back to back: one local worker, the local pool on every CPU,
 and a local Ray instance on every CPU (`--ray`). It prints each wall time, the speed-ups, and
-whether the results.json files agree (perf/compare_results.py: all but dates, timings and paths).
+whether the results.json files agree (perf/compare_results.py: all but dates, timings and paths),
+and the shortest wall any schedule of the one-worker run's tasks could reach (perf/work_bound.py).
 """
 
 from __future__ import annotations
@@ -79,6 +80,11 @@ def main() -> None:
     if {"graph, local pool", "graph, local Ray"} <= walls.keys():
         local, ray = walls["graph, local pool"][0], walls["graph, local Ray"][0]
         print(f"Ray over the local pool: {100 * (ray / local - 1):+.1f}% wall")
+    if "one worker" in walls:
+        graph = [wall for name, (wall, _) in walls.items() if name != "one worker"]
+        bound = [sys.executable, str(Path(__file__).with_name("work_bound.py")), str(walls["one worker"][1])]
+        bound += ["--scale", args.scale, "--cpus", str(len(os.sched_getaffinity(0)))]
+        subprocess.run(bound + (["--graph-min", f"{min(graph) / 60:.1f}"] if graph else []), check=True)
 
 
 if __name__ == "__main__":
