@@ -1,0 +1,43 @@
+"""perf/work_bound.py: the shortest wall a schedule of a one-worker run's tasks allows."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+SCRIPT = Path(__file__).parents[1] / "perf" / "work_bound.py"
+
+# seconds; "train" and "prepare" are two CPUs wide in the default experiment, evaluations one
+STEPS = {
+    "backbone": 60,
+    "prepare ours": 120,
+    "train ours": 600,
+    "train grids": 1200,
+    "evaluate ours": 300,
+    "evaluate grids": 900,
+    "evaluate no_adapter": 300,
+}
+
+
+def bound(tmp_path: Path, cpus: int) -> list[str]:
+    results = tmp_path / "results.json"
+    steps = [{"name": name, "wall_s": wall, "detail": ""} for name, wall in STEPS.items()]
+    results.write_text(json.dumps({"pipeline": {"steps": steps}}))
+    command = [sys.executable, str(SCRIPT), str(results), "--scale", "default", "--cpus", str(cpus)]
+    done = subprocess.run([*command, "--graph-min", "70"], capture_output=True, text=True, check=True)
+    return done.stdout.splitlines()
+
+
+def test_work_counts_each_task_at_its_width_and_bounds_two_cpus(tmp_path):
+    # work = 2 * (60 + 120 + 600 + 1200) + 300 + 900 + 300 = 5460 s = 91.0 CPU-min; on 2 CPUs 45.5 min
+    lines = bound(tmp_path, cpus=2)
+    assert lines[0] == "7 tasks one after another: 58.0 min; work 91.0 CPU-min"
+    assert "no schedule on 2 CPUs beats 45.5 min: at most 1.27x over one worker" in lines
+    assert lines[-1] == "the graph's 70.0 min is +53.8% over that bound"
+
+
+def test_many_cpus_are_bounded_by_the_longest_chain(tmp_path):
+    # backbone -> train grids -> evaluate grids = 2160 s; Ours' chain with its prepare is only 1080 s
+    lines = bound(tmp_path, cpus=64)
+    assert "the longest chain of tasks waiting on each other: 36.0 min (the bound on any number of CPUs)" in lines
+    assert "no schedule on 64 CPUs beats 36.0 min: at most 1.61x over one worker" in lines
