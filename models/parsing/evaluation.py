@@ -7,6 +7,7 @@ expected set (order-insensitive), or, for bad input, when the parser raises Pars
 from __future__ import annotations
 
 import dataclasses
+import enum
 import json
 import time
 from collections.abc import Iterable, Sequence
@@ -176,7 +177,13 @@ def evaluate(parser: Parser, cases: Iterable[Case], name: str) -> Report:
     )
 
 
-_NO_ANSWER: list[ParsedTuple] = []  # the LLM gave no valid answer (a fall-back)
+class _Missing(enum.Enum):
+    """An answer slot the LLM left empty: it gave no valid answer, and the parser fell back."""
+
+    NO_ANSWER = enum.auto()
+
+
+_NO_ANSWER = _Missing.NO_ANSWER
 
 
 @dataclasses.dataclass(frozen=True)
@@ -213,7 +220,7 @@ def evaluate_llm(parser, cases: Iterable[Case], name: str) -> LLMReport:
     fallbacks, request_ms, num_cases = 0, [], 0
     for case in cases:
         num_cases += 1
-        answers: dict[str, list[ParsedTuple] | None] = dict.fromkeys(keys)  # None: a ParseError
+        answers: dict[str, list[ParsedTuple] | _Missing | None] = dict.fromkeys(keys)  # None: a ParseError
         try:
             cleaned = text.validate(case.instruction)
         except ParseError:
