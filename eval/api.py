@@ -28,6 +28,7 @@ class MethodOutput:
     parsed: tuple[tuple[str, str], ...] | None = None  # (reference phrase, canonical relation) per tuple
     grounded: tuple[int, ...] | None = None  # visual-token index per parsed tuple (N = the table)
     failure: str | None = None  # why there is no placement (typed error message or flag), else None
+    parse_note: str | None = None  # the LLM parser's fall-back reason or its disagreement with the offline parse
 
 
 class Method(Protocol):

@@ -109,6 +109,7 @@ class SceneOutcome:
     program_ok: bool | None  # the grounded problem equals the ground truth's
     stage: str | None  # where an unsuccessful scene went wrong (STAGES); None on success
     physical: PhysicalOutcome | None = None
+    parse_note: str | None = None  # the LLM parser's fall-back reason or disagreement (MethodOutput.parse_note)
 
     def to_json(self) -> dict:
         return jsonable(self)
@@ -325,6 +326,7 @@ def score_scene(record: SceneRecord, output: MethodOutput) -> SceneOutcome:
         grounding_ok=grounding_ok,
         program_ok=program_ok,
         stage=None if success else _stage(failure, parse_ok, grounding_ok, program_ok),
+        parse_note=output.parse_note if isinstance(output.parse_note, str) else None,
     )
 
 

@@ -67,7 +67,14 @@ def output_of(placement) -> MethodOutput:
         parsed=placement.pairs or None,
         grounded=placement.tokens or None,
         failure=placement.failure,
+        parse_note=parse_note(placement.parsed),
     )
+
+
+def parse_note(parsed) -> str | None:
+    """Why the parse may not be the LLM's own answer: its fall-back reasons and disagreements, once each."""
+    notes = [note for item in parsed for note in (item.fallback_reason, item.disagreement) if note]
+    return "; ".join(dict.fromkeys(notes)) or None
 
 
 @dataclasses.dataclass

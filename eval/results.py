@@ -57,6 +57,7 @@ COMPARED_FIELDS = (
     "program_ok",
     "stage",
     "physical",
+    "parse_note",
 )
 
 

@@ -1,7 +1,9 @@
 """Table I's "Ours" and "Ours w/o Adapter" as evaluation methods (eval/ours.py)."""
 
 import dataclasses
+import http.server
 import json
+import threading
 
 import jax
 import numpy as np
@@ -11,7 +13,10 @@ from ocplace.configs import smoke
 from ocplace.errors import TrainingError
 from ocplace.eval import ours
 from ocplace.eval.api import LoadContext, MethodOutput, TrainContext
+from ocplace.eval.harness import SceneOutcome, score_scene
 from ocplace.eval.registry import method_specs
+from ocplace.models.parsing.config import LLMConfig
+from ocplace.models.parsing.llm import LLMParser
 from ocplace.paths import RUN_FILE
 from ocplace.sim.dataset.job import scene_dirs
 from ocplace.sim.dataset.records import SceneRecord, read_scene
@@ -113,3 +118,59 @@ def test_pipeline_draws_ours_on_the_first_seen_scene(trained_run, smoke_dataset,
     detail = pipeline.placement_figure_step(trained_run[0], config, smoke_dataset, tiny_backbone_spec, path)
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert detail.startswith(f"{path} (seen-00000, ")
+
+
+class _FixedAnswer(http.server.BaseHTTPRequestHandler):
+    """An OpenAI-compatible endpoint that answers every request with `server.answer` (a status or a text)."""
+
+    def do_POST(self):
+        self.rfile.read(int(self.headers["Content-Length"]))
+        if isinstance(self.server.answer, int):
+            self.send_error(self.server.answer)
+            return
+        message = {"role": "assistant", "content": self.server.answer}
+        body = json.dumps({"choices": [{"message": message}]}).encode()
+        self.send_response(200)
+        self.send_header("Content-Type", "application/json")
+        self.send_header("Content-Length", str(len(body)))
+        self.end_headers()
+        self.wfile.write(body)
+
+    def log_message(self, *args):
+        pass
+
+
+@pytest.fixture
+def endpoint():
+    httpd = http.server.ThreadingHTTPServer(("127.0.0.1", 0), _FixedAnswer)
+    threading.Thread(target=httpd.serve_forever, daemon=True).start()
+    yield httpd
+    httpd.shutdown()
+    httpd.server_close()
+
+
+def test_results_say_when_the_llm_parser_fell_back_or_disagreed(
+    tiny_backbone_spec, smoke_dataset, seen_records, endpoint
+):
+    method = method_specs()["no_adapter"].load(LoadContext(None, tiny_backbone_spec, num_samples=64))
+    offline = method.policy.parser
+    config = LLMConfig(f"http://127.0.0.1:{endpoint.server_port}/v1", "canned", max_attempts=1, use_cache=False)
+    truths = [read_scene(d) for d in scene_dirs(smoke_dataset, "seen")[:2]]
+
+    def outcomes():
+        outputs = method.run(seen_records[:2], jax.random.key(0))
+        return [score_scene(truth, output) for truth, output in zip(truths, outputs)]
+
+    plain = outcomes()
+    assert all(outcome.parse_note is None for outcome in plain)
+    method.policy = dataclasses.replace(method.policy, parser=LLMParser(config, offline, lambda: offline.snapper))
+    endpoint.answer = 500
+    fell_back = outcomes()
+    endpoint.answer = json.dumps({"tuples": [{"reference": "unicorn", "relation": "left"}]})
+    disagreed = outcomes()
+
+    for before, after in zip(plain, fell_back):
+        assert after.parsed == before.parsed and "HTTP 500" in after.parse_note
+    for outcome in disagreed:  # the cross-check keeps the offline parse and says why
+        assert "unicorn" in outcome.parse_note and ("unicorn", "left") not in outcome.parsed
+    assert SceneOutcome.from_json(json.loads(json.dumps(disagreed[0].to_json()))) == disagreed[0]
