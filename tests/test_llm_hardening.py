@@ -10,6 +10,7 @@ import threading
 import time
 
 import pytest
+from llm_endpoint import completion, send
 
 from ocplace.cli import main
 from ocplace.errors import LLMConfigError
@@ -22,20 +23,6 @@ INSTRUCTION = "could you put it on the left of the red bowl"
 GOOD_ANSWER = json.dumps({"tuples": [{"reference": "red bowl", "relation": "left"}]})
 DEADLINE_S = 2.0
 DRIP_S = 0.2  # one byte per DRIP_S: every read succeeds, so only a total deadline stops it
-
-
-def _completion(content: str) -> bytes:
-    return json.dumps({"choices": [{"message": {"role": "assistant", "content": content}}]}).encode()
-
-
-def _send(handler, status, body: bytes, headers=(), announce_length=True, message=None):
-    handler.send_response(status, message)
-    for name, value in headers:
-        handler.send_header(name, value)
-    if announce_length:
-        handler.send_header("Content-Length", str(len(body)))
-    handler.end_headers()
-    handler.wfile.write(body)
 
 
 def _drip(handler, start: bytes):
@@ -51,16 +38,16 @@ def _echo(handler) -> str:
 
 ONE_MB = 1_000_000  # LLMConfig's default body cap
 FAULTS = {
-    "answer": lambda h: _send(h, 200, _completion(h.server.options.get("answer", GOOD_ANSWER))),
+    "answer": lambda h: send(h, 200, completion(h.server.options.get("answer", GOOD_ANSWER))),
     "drip body": lambda h: _drip(h, b"HTTP/1.0 200 OK\r\nContent-Length: 100000\r\n\r\n{"),
     "drip headers": lambda h: _drip(h, b"HTTP/1.0 200 OK\r\nX-Slow: "),
-    "oversized": lambda h: _send(h, 200, _completion("x" * ONE_MB)),
-    "oversized, no length": lambda h: _send(h, 200, _completion("x" * ONE_MB), announce_length=False),
-    "busy": lambda h: _send(h, h.server.options["status"], b"busy", [("Retry-After", h.server.options["retry_after"])]),
-    "redirect": lambda h: _send(h, 302, b"", [("Location", h.server.options["location"])]),
-    "echo in error": lambda h: _send(h, 500, _echo(h).encode(), message=h.headers["Authorization"]),
-    "echo as body": lambda h: _send(h, 200, _echo(h).encode()),
-    "echo as answer": lambda h: _send(h, 200, _completion(_echo(h))),
+    "oversized": lambda h: send(h, 200, completion("x" * ONE_MB)),
+    "oversized, no length": lambda h: send(h, 200, completion("x" * ONE_MB), announce_length=False),
+    "busy": lambda h: send(h, h.server.options["status"], b"busy", [("Retry-After", h.server.options["retry_after"])]),
+    "redirect": lambda h: send(h, 302, b"", [("Location", h.server.options["location"])]),
+    "echo in error": lambda h: send(h, 500, _echo(h).encode(), message=h.headers["Authorization"]),
+    "echo as body": lambda h: send(h, 200, _echo(h).encode()),
+    "echo as answer": lambda h: send(h, 200, completion(_echo(h))),
     "echo as status line": lambda h: h.wfile.write(f"HTTP/1.1 {_echo(h)}\r\n\r\n".encode()),
 }
 

@@ -8,6 +8,7 @@ import threading
 import jax
 import numpy as np
 import pytest
+from llm_endpoint import completion, send
 
 from ocplace.configs import smoke
 from ocplace.errors import TrainingError
@@ -128,13 +129,7 @@ class _FixedAnswer(http.server.BaseHTTPRequestHandler):
         if isinstance(self.server.answer, int):
             self.send_error(self.server.answer)
             return
-        message = {"role": "assistant", "content": self.server.answer}
-        body = json.dumps({"choices": [{"message": message}]}).encode()
-        self.send_response(200)
-        self.send_header("Content-Type", "application/json")
-        self.send_header("Content-Length", str(len(body)))
-        self.end_headers()
-        self.wfile.write(body)
+        send(self, 200, completion(self.server.answer), [("Content-Type", "application/json")])
 
     def log_message(self, *args):
         pass

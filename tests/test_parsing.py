@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from llm_endpoint import completion, send
 
 from ocplace.errors import ParseError
 from ocplace.models.parsing import (
@@ -231,10 +232,6 @@ def test_make_parser_names(offline):
 # --- LLM parser against a real local HTTP server ----------------------------------------------
 
 
-def _completion(content: str) -> bytes:
-    return json.dumps({"choices": [{"message": {"role": "assistant", "content": content}}]}).encode()
-
-
 class _ScriptedHandler(http.server.BaseHTTPRequestHandler):
     def do_POST(self):
         length = int(self.headers["Content-Length"])
@@ -251,12 +248,7 @@ class _ScriptedHandler(http.server.BaseHTTPRequestHandler):
         if kind == "status":
             self.send_error(value)
             return
-        body = _completion(value) if kind == "content" else value
-        self.send_response(200)
-        self.send_header("Content-Type", "application/json")
-        self.send_header("Content-Length", str(len(body)))
-        self.end_headers()
-        self.wfile.write(body)
+        send(self, 200, completion(value) if kind == "content" else value, [("Content-Type", "application/json")])
 
     def log_message(self, *args):
         pass
