@@ -19,6 +19,7 @@ from ocplace.errors import OcplaceError, TrainingError
 from ocplace.eval.api import LoadContext, MethodOutput, MethodSpec, TrainContext
 from ocplace.models.baselines import cliport, grids
 from ocplace.models.baselines.common import free_grid, top_down_camera
+from ocplace.models.parsing.types import as_pairs, parse_note
 from ocplace.paths import atomic_path, baselines_cache
 from ocplace.sim.dataset.records import SceneRecord
 
@@ -112,12 +113,13 @@ class GridsMethod:
 
     def _place(self, scene: SceneRecord, key) -> MethodOutput:
         try:
-            parsed = tuple((t.reference, t.relation) for t in self.parser.parse(scene.instruction))
+            tuples = self.parser.parse(scene.instruction)
+            parsed = tuple(as_pairs(tuples))
             cell, _ = self.chosen_cell(scene, parsed)
             samples, mode, _ = grids.sample_in_cell(key, free_grid(scene), cell, self.num_samples, self.config)
         except OcplaceError as error:
             return _failure(error)
-        return MethodOutput(mode=mode, samples=samples, parsed=parsed, grounded=None)
+        return MethodOutput(mode=mode, samples=samples, parsed=parsed, grounded=None, parse_note=parse_note(tuples))
 
 
 def train_grids(context: TrainContext):

@@ -61,6 +61,8 @@ def scene_input(record: SceneRecord):
 
 
 def output_of(placement) -> MethodOutput:
+    from ocplace.models.parsing.types import parse_note
+
     return MethodOutput(
         mode=None if placement.mode is None else np.asarray(placement.mode, np.float64),
         samples=None if placement.samples is None else np.asarray(placement.samples, np.float64),
@@ -69,12 +71,6 @@ def output_of(placement) -> MethodOutput:
         failure=placement.failure,
         parse_note=parse_note(placement.parsed),
     )
-
-
-def parse_note(parsed) -> str | None:
-    """Why the parse may not be the LLM's own answer: its fall-back reasons and disagreements, once each."""
-    notes = [note for item in parsed for note in (item.fallback_reason, item.disagreement) if note]
-    return "; ".join(dict.fromkeys(notes)) or None
 
 
 @dataclasses.dataclass

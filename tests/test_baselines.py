@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from llm_endpoint import fixed_answer, llm_parser
 
 from ocplace.configs import smoke
 from ocplace.eval.api import LoadContext, TrainContext
@@ -193,6 +194,12 @@ def test_grids_trains_resumes_and_places_in_the_chosen_cell(specs, smoke_dataset
         assert np.array_equal(first.mode, second.mode) and np.array_equal(first.samples, second.samples)
     uncached = dataclasses.replace(again, cells_cache=None)
     assert np.array_equal(uncached.encoded_cells(scenes[0]), again.encoded_cells(scenes[0]))
+
+    assert all(output.parse_note is None for output in outputs)
+    with fixed_answer(500) as endpoint:  # Grids parses too: its outputs say when the LLM parser fell back
+        asking = dataclasses.replace(method, parser=llm_parser(endpoint, method.parser))
+        fell_back = asking.run(scenes[:1], jax.random.key(0))[0]
+    assert fell_back.parsed == outputs[0].parsed and "HTTP 500" in fell_back.parse_note
 
 
 def test_cliport_trains_and_places_from_its_pixel_distribution(specs, smoke_dataset, tiny_backbone_spec, tmp_path):

@@ -1,14 +1,12 @@
 """Table I's "Ours" and "Ours w/o Adapter" as evaluation methods (eval/ours.py)."""
 
 import dataclasses
-import http.server
 import json
-import threading
 
 import jax
 import numpy as np
 import pytest
-from llm_endpoint import completion, send
+from llm_endpoint import fixed_answer, llm_parser
 
 from ocplace.configs import smoke
 from ocplace.errors import TrainingError
@@ -16,8 +14,6 @@ from ocplace.eval import ours
 from ocplace.eval.api import LoadContext, MethodOutput, TrainContext
 from ocplace.eval.harness import SceneOutcome, score_scene
 from ocplace.eval.registry import method_specs
-from ocplace.models.parsing.config import LLMConfig
-from ocplace.models.parsing.llm import LLMParser
 from ocplace.paths import RUN_FILE
 from ocplace.sim.dataset.job import scene_dirs
 from ocplace.sim.dataset.records import SceneRecord, read_scene
@@ -121,35 +117,8 @@ def test_pipeline_draws_ours_on_the_first_seen_scene(trained_run, smoke_dataset,
     assert detail.startswith(f"{path} (seen-00000, ")
 
 
-class _FixedAnswer(http.server.BaseHTTPRequestHandler):
-    """An OpenAI-compatible endpoint that answers every request with `server.answer` (a status or a text)."""
-
-    def do_POST(self):
-        self.rfile.read(int(self.headers["Content-Length"]))
-        if isinstance(self.server.answer, int):
-            self.send_error(self.server.answer)
-            return
-        send(self, 200, completion(self.server.answer), [("Content-Type", "application/json")])
-
-    def log_message(self, *args):
-        pass
-
-
-@pytest.fixture
-def endpoint():
-    httpd = http.server.ThreadingHTTPServer(("127.0.0.1", 0), _FixedAnswer)
-    threading.Thread(target=httpd.serve_forever, daemon=True).start()
-    yield httpd
-    httpd.shutdown()
-    httpd.server_close()
-
-
-def test_results_say_when_the_llm_parser_fell_back_or_disagreed(
-    tiny_backbone_spec, smoke_dataset, seen_records, endpoint
-):
+def test_results_say_when_the_llm_parser_fell_back_or_disagreed(tiny_backbone_spec, smoke_dataset, seen_records):
     method = method_specs()["no_adapter"].load(LoadContext(None, tiny_backbone_spec, num_samples=64))
-    offline = method.policy.parser
-    config = LLMConfig(f"http://127.0.0.1:{endpoint.server_port}/v1", "canned", max_attempts=1, use_cache=False)
     truths = [read_scene(d) for d in scene_dirs(smoke_dataset, "seen")[:2]]
 
     def outcomes():
@@ -158,11 +127,11 @@ def test_results_say_when_the_llm_parser_fell_back_or_disagreed(
 
     plain = outcomes()
     assert all(outcome.parse_note is None for outcome in plain)
-    method.policy = dataclasses.replace(method.policy, parser=LLMParser(config, offline, lambda: offline.snapper))
-    endpoint.answer = 500
-    fell_back = outcomes()
-    endpoint.answer = json.dumps({"tuples": [{"reference": "unicorn", "relation": "left"}]})
-    disagreed = outcomes()
+    with fixed_answer(500) as endpoint:
+        method.policy = dataclasses.replace(method.policy, parser=llm_parser(endpoint, method.policy.parser))
+        fell_back = outcomes()
+        endpoint.answer = json.dumps({"tuples": [{"reference": "unicorn", "relation": "left"}]})
+        disagreed = outcomes()
 
     for before, after in zip(plain, fell_back):
         assert after.parsed == before.parsed and "HTTP 500" in after.parse_note

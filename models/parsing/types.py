@@ -47,3 +47,9 @@ class Parser(Protocol):
 def as_pairs(tuples: Sequence[ParsedTuple]) -> list[tuple[str, str]]:
     """`(reference, relation)` pairs, the part that accuracy is scored on."""
     return [(item.reference, item.relation) for item in tuples]
+
+
+def parse_note(tuples: Sequence[ParsedTuple]) -> str | None:
+    """Why a parse may not be the LLM's own answer: its fall-back reasons and disagreements, once each."""
+    notes = [note for item in tuples for note in (item.fallback_reason, item.disagreement) if note]
+    return "; ".join(dict.fromkeys(notes)) or None
