@@ -15,11 +15,11 @@ import argparse
 import json
 from pathlib import Path
 
+from ocplace.configs import EXPERIMENTS, get
 
-def task_cpus(name: str, scale: str) -> int:
-    from ocplace.configs import get
 
-    cpus = get(scale).cpus
+def task_cpus(name: str, cpus) -> int:
+    """The CPUs eval/pipeline.py's task_graph declares for the task `name`, given the experiment's `cpus`."""
     if name == "backbone":
         return cpus.pretrain
     return cpus.train if name.startswith(("train ", "prepare ")) else 1
@@ -38,17 +38,32 @@ def longest_chain(walls: dict[str, float]) -> float:
     return max(chains, default=0.0)
 
 
+def pipeline_steps(results: Path) -> list[dict]:
+    """The `reproduce` steps of a results.json (name and wall_s each); [] for a file without them."""
+    try:
+        steps = json.loads(results.read_text()).get("pipeline", {}).get("steps", [])
+    except (OSError, ValueError, AttributeError) as error:
+        raise SystemExit(f"cannot read {results}: {error}") from None
+    return [step for step in steps if isinstance(step, dict) and {"name", "wall_s"} <= step.keys()]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("results", type=Path, help="results.json of a one-worker run (tasks one after another)")
-    parser.add_argument("--scale", default="default", help="the experiment whose task widths the run used")
+    parser.add_argument(
+        "--scale", default="default", choices=list(EXPERIMENTS), help="the experiment whose task widths the run used"
+    )
     parser.add_argument("--cpus", type=int, default=2, help="the machine the bound is for")
     parser.add_argument("--graph-min", type=float, help="the graph's measured wall on those CPUs, in minutes")
     args = parser.parse_args()
-
-    steps = json.loads(args.results.read_text())["pipeline"]["steps"]
+    if args.cpus < 1:
+        parser.error(f"--cpus must be at least 1, got {args.cpus}")
+    steps = pipeline_steps(args.results)
+    if not steps:
+        parser.error(f"{args.results} holds no reproduce steps: give the results.json of an `ocplace reproduce` run")
     one_worker = sum(step["wall_s"] for step in steps) / 60
-    work = sum(step["wall_s"] * task_cpus(step["name"], args.scale) for step in steps) / 60
+    cpus = get(args.scale).cpus
+    work = sum(step["wall_s"] * task_cpus(step["name"], cpus) for step in steps) / 60
     chain = longest_chain({step["name"]: step["wall_s"] for step in steps}) / 60
     bound = max(work / args.cpus, chain)
     print(f"{len(steps)} tasks one after another: {one_worker:.1f} min; work {work:.1f} CPU-min")

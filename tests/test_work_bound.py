@@ -41,3 +41,18 @@ def test_many_cpus_are_bounded_by_the_longest_chain(tmp_path):
     lines = bound(tmp_path, cpus=64)
     assert "the longest chain of tasks waiting on each other: 36.0 min (the bound on any number of CPUs)" in lines
     assert "no schedule on 64 CPUs beats 36.0 min: at most 1.61x over one worker" in lines
+
+
+def test_bad_input_is_refused_with_a_message(tmp_path):
+    not_reproduce = tmp_path / "other.json"
+    not_reproduce.write_text(json.dumps({"evaluations": []}))
+    broken = tmp_path / "broken.json"
+    broken.write_text("{")
+    for arguments, message in [
+        ([str(not_reproduce)], "holds no reproduce steps"),
+        ([str(broken)], "cannot read"),
+        ([str(tmp_path / "missing.json")], "cannot read"),
+        ([str(not_reproduce), "--cpus", "0"], "--cpus must be at least 1"),
+    ]:
+        done = subprocess.run([sys.executable, str(SCRIPT), *arguments], capture_output=True, text=True)
+        assert done.returncode != 0 and message in done.stderr and "Traceback" not in done.stderr
