@@ -121,3 +121,7 @@ class UnknownExperiment(OcplaceError, ValueError):
 
 class ClusterError(OcplaceError):
     """A Ray cluster that cannot be started or reached, or that lost a task for good."""
+
+
+class CorpusError(OcplaceError):
+    """The pretraining corpus (furniture catalogues) is missing, unreadable or left nothing usable."""

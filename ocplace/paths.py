@@ -6,6 +6,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import os
+import shutil
 import tempfile
 from pathlib import Path
 
@@ -60,6 +61,10 @@ def weights_cache() -> Path:
 
 def primitives_cache() -> Path:
     return cache_dir() / "primitives"  # generated primitive meshes of the pretraining arenas
+
+
+def corpus_cache() -> Path:
+    return cache_dir() / "corpus"  # the pretraining corpus: catalogue models converted for the arena
 
 
 def compiled_cache() -> Path:
@@ -181,3 +186,24 @@ def write_bytes_atomic(target: str | os.PathLike, data: bytes) -> None:
 
 def write_text_atomic(target: str | os.PathLike, text: str) -> None:
     write_bytes_atomic(target, text.encode("utf-8"))
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def remove_abandoned_tmp(tmp_root: Path) -> None:
+    """Removes the temp folders (`<name>.<pid>.<random>`) of builds that died; live builds keep theirs."""
+    if not tmp_root.is_dir():
+        return
+    for path in tmp_root.iterdir():
+        parts = path.name.split(".")
+        pid = int(parts[-2]) if len(parts) >= 3 and parts[-2].isdigit() else None
+        if pid is None or not _pid_alive(pid):
+            shutil.rmtree(path, ignore_errors=True)

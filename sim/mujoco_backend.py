@@ -19,7 +19,7 @@ import trimesh
 
 from ocplace.errors import SceneError
 from ocplace.sim.camera import DEFAULT_CAMERA, Camera
-from ocplace.sim.library.types import ObjectAsset
+from ocplace.sim.library.types import CORPUS_SPLIT, ObjectAsset
 from ocplace.sim.render import OffscreenCamera
 from ocplace.sim.scene import RenderedScene, SceneObject, SceneSpec, retry_seed, sample_drop_poses, settle_until_still
 from ocplace.sim.workspace import DEFAULT_TABLE, Table
@@ -179,32 +179,51 @@ def _parking_position(index: int) -> tuple[float, float, float]:
     return (20.0 + (index % 10), 20.0 + (index // 10), 1.0)
 
 
+def visual_geom_name(obj_name: str, part: int) -> str:
+    """The visual geom of part `part` of an object (part 0 keeps the name single-part objects always had)."""
+    return f"{obj_name}_visual" if part == 0 else f"{obj_name}_visual{part}"
+
+
 def _add_object(asset: ET.Element, world: ET.Element, index: int, obj: ObjectAsset, damping: float) -> None:
     prefix = f"o{index}"
-    material = f"{prefix}_mat"
-    if obj.texture is not None:
-        ET.SubElement(asset, "texture", name=f"{prefix}_tex", type="2d", file=str(obj.texture))
-        ET.SubElement(asset, "material", name=material, texture=f"{prefix}_tex", specular="0.1", shininess="0.1")
-    else:
-        ET.SubElement(asset, "material", name=material, rgba=" ".join(map(str, obj.rgba)), specular="0.1")
-    ET.SubElement(asset, "mesh", name=f"{prefix}_visual", file=str(obj.visual_mesh))
     volumes = [_hull_volume(path) for path in obj.hulls]
     density = obj.mass / max(sum(volumes), 1e-9)
     x, y, z = _parking_position(index)
     body = ET.SubElement(world, "body", name=obj.name, pos=f"{x} {y} {z}", gravcomp="1")
     ET.SubElement(body, "joint", name=f"{obj.name}_joint", type="free", damping=str(damping))
-    ET.SubElement(
-        body,
-        "geom",
-        name=f"{obj.name}_visual",
-        type="mesh",
-        mesh=f"{prefix}_visual",
-        material=material,
-        contype="0",
-        conaffinity="0",
-        density="0",
-        group=str(HIDDEN_GROUP),
-    )
+    # A visual mesh carries no mass; "shell" lets MuJoCo accept open ones (a corpus model's label or
+    # screen is a single sheet, of zero volume). Library objects keep the default their datasets were
+    # rendered with: it places the mesh frame differently, which changes the last bits of a render.
+    open_mesh = {"inertia": "shell"} if obj.split == CORPUS_SPLIT else {}
+    for part_index, part in enumerate(obj.visual_parts):
+        part_prefix = prefix if part_index == 0 else f"{prefix}p{part_index}"
+        material = f"{part_prefix}_mat"
+        if part.texture is not None:
+            ET.SubElement(asset, "texture", name=f"{part_prefix}_tex", type="2d", file=str(part.texture))
+            ET.SubElement(
+                asset,
+                "material",
+                name=material,
+                texture=f"{part_prefix}_tex",
+                rgba=" ".join(map(str, part.rgba)),
+                specular="0.1",
+                shininess="0.1",
+            )
+        else:
+            ET.SubElement(asset, "material", name=material, rgba=" ".join(map(str, part.rgba)), specular="0.1")
+        ET.SubElement(asset, "mesh", name=f"{part_prefix}_visual", file=str(part.mesh), **open_mesh)
+        ET.SubElement(
+            body,
+            "geom",
+            name=visual_geom_name(obj.name, part_index),
+            type="mesh",
+            mesh=f"{part_prefix}_visual",
+            material=material,
+            contype="0",
+            conaffinity="0",
+            density="0",
+            group=str(HIDDEN_GROUP),
+        )
     for hull_index, path in enumerate(obj.hulls):
         mesh_name = f"{prefix}_hull{hull_index}"
         ET.SubElement(asset, "mesh", name=mesh_name, file=str(path))
@@ -247,7 +266,10 @@ class MujocoScenes:
         self._tree = {name: self.model.body_treeid[body] for name, body in self._body.items()}
         self._hull_vertices: dict[str, np.ndarray] = {}  # made on first use: most scenes use few objects
         self._table_geom = self.model.geom("table").id
-        self._visual_geoms = {name: self.model.geom(f"{name}_visual").id for name in self._order}
+        self._visual_geoms = {
+            obj.name: [self.model.geom(visual_geom_name(obj.name, k)).id for k in range(len(obj.visual_parts))]
+            for obj in objects
+        }
         self._collision_geoms = {
             obj.name: [self.model.geom(f"{obj.name}_hull{i}").id for i in range(len(obj.hulls))] for obj in objects
         }
@@ -403,6 +425,8 @@ class MujocoScenes:
 
 
 def object_hull_points(obj: ObjectAsset) -> np.ndarray:
-    """`(P, 3)` vertices of the convex hull of the visual mesh, in the object frame."""
-    mesh = trimesh.load(obj.visual_mesh, force="mesh", process=False, skip_materials=True)
-    return np.asarray(mesh.convex_hull.vertices)
+    """`(P, 3)` vertices of the convex hull of the visual meshes, in the object frame."""
+    points = [
+        trimesh.load(part.mesh, force="mesh", process=False, skip_materials=True).vertices for part in obj.visual_parts
+    ]
+    return np.asarray(trimesh.convex.convex_hull(np.concatenate(points)).vertices)

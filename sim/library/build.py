@@ -8,7 +8,6 @@ import difflib
 import hashlib
 import json
 import logging
-import os
 import shutil
 from collections import Counter
 from pathlib import Path
@@ -17,7 +16,7 @@ from PIL import Image
 from tqdm import tqdm
 
 from ocplace.errors import AssetBuildError, UnknownObject
-from ocplace.paths import atomic_path, library_cache, write_text_atomic
+from ocplace.paths import atomic_path, library_cache, remove_abandoned_tmp, write_text_atomic
 from ocplace.runtime import Executor, ExecutorConfig, Task, open_executor
 from ocplace.sim.library.config import LibraryConfig, default_config
 from ocplace.sim.library.library import Library, load_library
@@ -117,27 +116,6 @@ def _cached(root: Path, job: _Job) -> ObjectResult | None:
     except (OSError, ValueError, KeyError, TypeError):  # unreadable, or names files outside its folder: not reused
         return None
     return ObjectResult(job.spec.name, "ok", "", record.get("build_seconds", 0.0), asset)
-
-
-def _pid_alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
-
-
-def _remove_abandoned_tmp(tmp_root: Path) -> None:
-    """Temp folders of builds that died (their pid is gone); live builds keep theirs."""
-    if not tmp_root.is_dir():
-        return
-    for path in tmp_root.iterdir():
-        parts = path.name.split(".")
-        pid = int(parts[-2]) if len(parts) >= 3 and parts[-2].isdigit() else None
-        if pid is None or not _pid_alive(pid):
-            shutil.rmtree(path, ignore_errors=True)
 
 
 def _run_jobs(jobs: list[_Job], config: LibraryConfig, root: Path, executor: Executor, progress: bool):
@@ -246,7 +224,7 @@ def build_library(
     config = config or default_config()
     root = library_cache(cache)
     jobs = [_job(spec, config) for spec in resolve_specs(config)]
-    _remove_abandoned_tmp(root / TMP_DIRNAME)
+    remove_abandoned_tmp(root / TMP_DIRNAME)
     results = {}
     for job in jobs:
         if job.files is None:

@@ -6,7 +6,7 @@ import dataclasses
 from pathlib import Path
 
 from ocplace.paths import inside
-from ocplace.sim.library.types import ObjectAsset
+from ocplace.sim.library.types import ObjectAsset, VisualPart
 
 OBJECTS_DIRNAME = "objects"
 TEXTURES_DIRNAME = "textures"
@@ -23,10 +23,12 @@ def asset_to_json(asset: ObjectAsset) -> dict:
         value = getattr(asset, field.name)
         if field.name == "directory":
             continue
-        if isinstance(value, Path):
-            value = value.relative_to(asset.directory).as_posix()
+        if isinstance(value, Path):  # Path(): none (an arena-only object has no PyBullet model)
+            value = None if value == Path() else value.relative_to(asset.directory).as_posix()
         elif field.name == "hulls":
             value = [p.relative_to(asset.directory).as_posix() for p in value]
+        elif field.name == "parts":
+            value = [_part_to_json(part, asset.directory) for part in value]
         elif isinstance(value, tuple):
             value = list(value)
         record[field.name] = value
@@ -52,8 +54,17 @@ def asset_from_json(record: dict, directory: Path) -> ObjectAsset:
         texture=path(record["texture"]),
         rgba=tuple(record["rgba"]),
         hulls=tuple(inside(directory, p) for p in record["hulls"]),
-        mjcf=path(record["mjcf"]),
-        urdf=path(record["urdf"]),
+        mjcf=path(record["mjcf"]) or Path(),
+        urdf=path(record["urdf"]) or Path(),
         extents=tuple(record["extents"]),
         mass=float(record["mass"]),
+        parts=tuple(
+            VisualPart(inside(directory, part["mesh"]), path(part["texture"]), tuple(part["rgba"]))
+            for part in record.get("parts", ())
+        ),
     )
+
+
+def _part_to_json(part: VisualPart, directory: Path) -> dict:
+    texture = None if part.texture is None else part.texture.relative_to(directory).as_posix()
+    return {"mesh": part.mesh.relative_to(directory).as_posix(), "texture": texture, "rgba": list(part.rgba)}

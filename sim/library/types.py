@@ -5,6 +5,17 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
+CORPUS_SPLIT = "corpus"  # arena-only objects of the pretraining corpus (`sim/corpus/`), never in the library
+
+
+@dataclasses.dataclass(frozen=True)
+class VisualPart:
+    """A further visual mesh of a multi-material object, with its own texture or colour."""
+
+    mesh: Path  # OBJ, with UVs when textured
+    texture: Path | None  # PNG; None: `rgba` alone
+    rgba: tuple[float, float, float, float]  # the colour, or the tint of the texture
+
 
 @dataclasses.dataclass(frozen=True)
 class ObjectAsset:
@@ -30,3 +41,11 @@ class ObjectAsset:
     urdf: Path  # PyBullet model of the same meshes
     extents: tuple[float, float, float]  # AABB size (x, y, z) in metres
     mass: float  # kg
+    # Further visual meshes, one per further material (the pretraining corpus' models); library
+    # objects have one material and none.
+    parts: tuple[VisualPart, ...] = ()
+
+    @property
+    def visual_parts(self) -> tuple[VisualPart, ...]:
+        """Every visual mesh with its material: the main one, then `parts`."""
+        return (VisualPart(self.visual_mesh, self.texture, self.rgba), *self.parts)

@@ -1,0 +1,257 @@
+"""The pretraining corpus in the cache: converting the selected catalogue models once, the manifest,
+the attribution file, and reading it back.
+
+Layout (`ocplace.paths.corpus_cache()`):
+    manifest.json          every catalogue model: kept (its folder) or skipped (why), the rule, the catalogues
+    ATTRIBUTION.md         who made each converted model and under which licence (CC-BY asks for it)
+    models/<key>-<hash>/   one converted model: part_*.obj/png, hull_000.obj, object.xml, asset.json (last)
+    tmp/                   conversions in progress; a killed one leaves a folder here that the next build removes
+
+A rerun converts only what is missing, so a build killed at any point resumes where it stopped.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import logging
+import os
+import shutil
+import types
+from collections.abc import Mapping
+from pathlib import Path
+
+from tqdm import tqdm
+
+from ocplace.errors import CorpusError
+from ocplace.paths import corpus_cache, inside, remove_abandoned_tmp, write_text_atomic
+from ocplace.sim.corpus.catalogue import CatalogueEntry, read_entries
+from ocplace.sim.corpus.convert import ConversionConfig, ConversionResult, convert_model, read_converted
+from ocplace.sim.library.types import ObjectAsset
+
+DEFAULT_SOURCE = Path("/usr/share/sweethome3d/furniture")
+SOURCE_ENV = "OCPLACE_CORPUS_SOURCE"  # a folder of .sh3f catalogues instead of Debian's
+INSTALL_HINT = "sudo apt-get install sweethome3d-furniture (Debian/Ubuntu; `make setup` does it)"
+CONVERSION_VERSION = 1  # bump when conversion writes something else: every model converts again
+MANIFEST_FILE = "manifest.json"
+ATTRIBUTION_FILE = "ATTRIBUTION.md"
+MODELS_DIRNAME = "models"
+TMP_DIRNAME = "tmp"
+# /usr/share/doc/sweethome3d-furniture/copyright, per catalogue.
+LICENCES = {
+    "BlendSwap-CC-0": "CC0-1.0",
+    "BlendSwap-CC-BY": "CC-BY-3.0",
+    "KatorLegaz": "CC-BY-3.0-US (Andrew Kator & Jennifer Legaz)",
+    "Reallusion": "CC-BY-3.0-US (Reallusion)",
+    "Scopia": "CC-BY-3.0 (Scopia Visual Interfaces Systems, s.l.)",
+}
+
+log = logging.getLogger(__name__)
+
+
+@dataclasses.dataclass(frozen=True)
+class CorpusModel:
+    """A catalogue model and what became of it."""
+
+    entry: CatalogueEntry
+    status: str  # "ok", "rejected" (by the size rule) or "skipped" (could not be used, or too many faces)
+    reason: str  # why it is not "ok"
+    folder: str = ""  # of an "ok" model, relative to the corpus root
+    asset: ObjectAsset | None = None
+
+
+@dataclasses.dataclass(frozen=True)
+class Corpus:
+    """The converted corpus: `assets` by key, in key order; `models` every catalogue model with its fate."""
+
+    root: Path
+    models: tuple[CorpusModel, ...]
+    assets: Mapping[str, ObjectAsset]
+
+    def summary(self) -> str:
+        counts = {status: sum(m.status == status for m in self.models) for status in ("ok", "rejected", "skipped")}
+        return (
+            f"{counts['ok']} models converted ({len({a.human_name for a in self.assets.values()})} names), "
+            f"{counts['rejected']} outside the size rule, {counts['skipped']} skipped"
+        )
+
+
+def source_dir(source: str | os.PathLike | None = None) -> Path:
+    """Where the catalogues are: `source`, else `$OCPLACE_CORPUS_SOURCE`, else Debian's package folder."""
+    return Path(source or os.environ.get(SOURCE_ENV) or DEFAULT_SOURCE)
+
+
+def _catalogues(source: Path) -> list[Path]:
+    found = sorted(source.glob("*.sh3f")) if source.is_dir() else []
+    if not found:
+        raise CorpusError(f"no furniture catalogues (*.sh3f) in {source}; install them: {INSTALL_HINT}")
+    return found
+
+
+def _sha256(path: Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def _model_folder(entry: CatalogueEntry, catalogue_hash: str, config: ConversionConfig) -> str:
+    key = json.dumps(
+        [CONVERSION_VERSION, catalogue_hash, dataclasses.asdict(entry), dataclasses.asdict(config)], sort_keys=True
+    )
+    return f"{MODELS_DIRNAME}/{entry.key}-{hashlib.sha256(key.encode()).hexdigest()[:12]}"
+
+
+def _reuse(root: Path, folder: str) -> ObjectAsset | None:
+    try:
+        return read_converted(inside(root, folder))
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
+def build_corpus(
+    source: str | os.PathLike | None = None, config: ConversionConfig = ConversionConfig(), progress: bool = True
+) -> Corpus:
+    """Converts the selected models of every catalogue in `source_dir(source)` that are not converted yet
+    into `corpus_cache()`, writes the manifest and the attribution file, and returns the corpus.
+
+    Models that cannot be used (a member outside its folder, a missing texture, a failed load, no
+    volume, a truncated archive) are skipped with one warning listing them all; CorpusError when
+    nothing usable is left or no catalogue is found.
+    """
+    source = source_dir(source)
+    root = corpus_cache()
+    remove_abandoned_tmp(root / TMP_DIRNAME)
+    models, catalogues, todo = [], [], []
+    for path in _catalogues(source):
+        licence = LICENCES.get(path.stem, "see the catalogue's LICENSE.TXT")
+        try:
+            entries, problems = read_entries(path)
+        except CorpusError as error:
+            catalogues.append({"file": path.name, "error": str(error)})
+            models.append(CorpusModel(_unread(path), "skipped", str(error)))
+            continue
+        catalogue_hash = _sha256(path)
+        catalogues.append({"file": path.name, "sha256": catalogue_hash, "licence": licence, "models": len(entries)})
+        models += [CorpusModel(_unread(path, what), "skipped", why) for what, why in problems]
+        for entry in entries:
+            reason = config.rule.size_problem(entry)
+            if reason:
+                models.append(CorpusModel(entry, "rejected", reason))
+                continue
+            folder = _model_folder(entry, catalogue_hash, config)
+            asset = _reuse(root, folder)
+            models.append(CorpusModel(entry, "ok" if asset else "todo", "", folder, asset))
+            if asset is None:
+                todo.append((len(models) - 1, entry, path, licence, folder))
+    for index, entry, path, licence, folder in tqdm(todo, desc="corpus", unit="model", disable=not progress):
+        result = convert_model(entry, path, licence, config, root / folder, root / TMP_DIRNAME)
+        models[index] = _outcome(entry, result, folder)
+    corpus = _finish(root, source, catalogues, models, config)
+    skipped = [m for m in corpus.models if m.status == "skipped"]
+    if skipped:
+        log.warning(
+            "corpus: %d models skipped: %s",
+            len(skipped),
+            "; ".join(f"{m.entry.catalogue}#{m.entry.index} {m.entry.name} ({m.reason})" for m in skipped),
+        )
+    if not corpus.assets:
+        raise CorpusError(f"no usable model in the catalogues of {source}: {corpus.summary()}")
+    return corpus
+
+
+def _unread(path: Path, what: str = "") -> CatalogueEntry:
+    """A placeholder entry for something of `path` that could not be read."""
+    return CatalogueEntry(path.stem, 0, what or path.name, "", (0.0, 0.0, 0.0), "", None, "")
+
+
+def _outcome(entry: CatalogueEntry, result: ConversionResult, folder: str) -> CorpusModel:
+    if result.status == "ok":
+        return CorpusModel(entry, "ok", "", folder, result.asset)
+    return CorpusModel(entry, "skipped", result.reason)
+
+
+def _finish(root: Path, source: Path, catalogues: list, models: list[CorpusModel], config) -> Corpus:
+    records = [
+        {"key": m.entry.key, "status": m.status, "reason": m.reason, "folder": m.folder, **dataclasses.asdict(m.entry)}
+        for m in models
+    ]
+    manifest = {
+        "version": CONVERSION_VERSION,
+        "source": str(source),
+        "catalogues": catalogues,
+        "conversion": dataclasses.asdict(config),
+        "models": records,
+    }
+    write_text_atomic(root / MANIFEST_FILE, json.dumps(manifest, indent=1) + "\n")
+    write_text_atomic(root / ATTRIBUTION_FILE, attribution(models, catalogues))
+    _remove_unreferenced(root, {m.folder for m in models if m.status == "ok"})
+    return _corpus(root, models)
+
+
+def _corpus(root: Path, models: list[CorpusModel]) -> Corpus:
+    kept = sorted((m for m in models if m.status == "ok"), key=lambda m: m.entry.key)
+    assets = types.MappingProxyType({m.asset.name: m.asset for m in kept})
+    return Corpus(root, tuple(models), assets)
+
+
+def _remove_unreferenced(root: Path, folders: set[str]) -> None:
+    """Model folders of earlier conversions (another catalogue version or setting)."""
+    models_dir = root / MODELS_DIRNAME
+    if models_dir.is_dir():
+        for path in models_dir.iterdir():
+            if f"{MODELS_DIRNAME}/{path.name}" not in folders:
+                shutil.rmtree(path, ignore_errors=True)
+
+
+def attribution(models: list[CorpusModel], catalogues: list[dict]) -> str:
+    """The attribution file: every converted model, its creator, catalogue and licence."""
+    lines = [
+        "# Attribution of the ocplace pretraining corpus",
+        "",
+        "Converted (rescaled, re-oriented, textures resized) from Debian's `sweethome3d-furniture`",
+        "catalogues, http://www.sweethome3d.com/importModels.jsp; licences as in",
+        "/usr/share/doc/sweethome3d-furniture/copyright.",
+        "",
+        "| catalogue | licence |",
+        "| --- | --- |",
+        *(f"| {c['file']} | {c.get('licence', c.get('error', ''))} |" for c in catalogues),
+        "",
+        "| model | name | creator | licence |",
+        "| --- | --- | --- | --- |",
+    ]
+    for m in models:
+        if m.status == "ok":
+            lines.append(
+                f"| {m.entry.key} | {m.entry.name} | {m.entry.creator or m.entry.catalogue} | {m.asset.licence} |"
+            )
+    return "\n".join(lines) + "\n"
+
+
+def _model_of(root: Path, record: dict) -> CorpusModel:
+    fields = {field.name: record[field.name] for field in dataclasses.fields(CatalogueEntry)}
+    rotation = fields["rotation"]
+    entry = CatalogueEntry(
+        **fields | {"size_cm": tuple(fields["size_cm"]), "rotation": None if rotation is None else tuple(rotation)}
+    )
+    asset = _reuse(root, record["folder"]) if record["status"] == "ok" else None
+    if record["status"] == "ok" and asset is None:
+        raise ValueError(f"model {record['key']} is incomplete")
+    return CorpusModel(entry, record["status"], record["reason"], record["folder"], asset)
+
+
+def load_corpus() -> Corpus:
+    """The corpus as last built, without touching the catalogues; CorpusError when it is not built."""
+    root = corpus_cache()
+    try:
+        manifest = json.loads((root / MANIFEST_FILE).read_text())
+        if manifest.get("version") != CONVERSION_VERSION:
+            raise ValueError("built by another ocplace version")
+        models = [_model_of(root, record) for record in manifest["models"]]
+    except (OSError, ValueError, KeyError, TypeError) as error:
+        raise CorpusError(
+            f"the corpus in {root} is missing or incomplete ({error}); run `ocplace corpus build`"
+        ) from error
+    return _corpus(root, models)
