@@ -2,7 +2,10 @@
 where the result goes.
 
 `default` is the recipe `load_backbone("offline")` loads (<= 30 min on 2 CPU cores, rendering
-included), `demo` a few-minute version for `make demo`, `smoke` a seconds-long one for tests.
+included): the foundation backbone, pretrained on the furniture corpus under the `open` protocol;
+`strict` the same under the `strict` protocol; `task` the earlier backbone, pretrained on the
+benchmark's training objects; `demo` a few-minute version of `default` for `make demo`, `smoke` a
+seconds-long one for tests.
 A recipe's result lives in `<cache>/backbones/offline-<hash of its config>/`: the hash covers every
 setting, so the loader finds a recipe's backbone by its name alone, and `train.pretrain` builds it.
 """
@@ -19,18 +22,30 @@ from ocplace.models import offline_backbone
 from ocplace.models.offline_backbone import OfflineConfig
 from ocplace.paths import backbones_cache
 from ocplace.sim.colour_terms import BASIC_COLOURS, COLOUR_TERMS
+from ocplace.sim.corpus.selection import PROTOCOLS
 from ocplace.sim.primitives import SHAPES, SIZES
+
+POOLS = ("corpus", "task")
 
 
 @dataclasses.dataclass(frozen=True)
 class RenderConfig:
-    """Scenes of training-split objects and named primitives on seen table textures, how crops are
-    cut from them, and how objects are recoloured."""
+    """Scenes of the pool's objects and named primitives on seen table textures, how crops are cut from
+    them, and how objects are recoloured.
 
+    `pool`: `corpus` renders the furniture corpus (`sim/corpus/`), never a benchmark object: the
+    foundation backbone. `task` renders the benchmark's training objects: the backbone of earlier
+    results, kept to compare with.
+    """
+
+    pool: str = "corpus"
+    protocol: str = "open"  # corpus: "open" keeps every model of the rule, "strict" drops test-noun names
+    validation_share: float = 0.2  # corpus names held out of pretraining to choose settings on
+    validation_seed: int = 0
     scenes: int = 800
     objects_per_scene: int = 5  # as in the benchmark: occlusions come with the drops
     renders_per_scene: int = 2  # extra renders of a settled scene under new lighting and table colours
-    max_objects: int = 0  # > 0: only the first `max_objects` training objects (smoke tests)
+    max_objects: int = 0  # > 0: only the first `max_objects` objects of the pool (smoke tests)
     crop_size: int = 224  # the benchmark loader's crop size, before the backbone's own resize
     padding: float = 0.1  # the pipeline's crop padding (`sim.boxes.square_crop`)
     canonical_share: float = 0.5  # share of crops cut exactly as the pipeline cuts them
@@ -51,6 +66,12 @@ class RenderConfig:
 
     def validate(self) -> list[str]:
         problems = []
+        if self.pool not in POOLS:
+            problems.append(f"pool must be one of {', '.join(POOLS)}")
+        if self.protocol not in PROTOCOLS:
+            problems.append(f"protocol must be one of {', '.join(PROTOCOLS)}")
+        if not 0.0 <= self.validation_share < 1.0:
+            problems.append("validation_share must be in [0, 1)")
         if self.scenes < 1 or self.renders_per_scene < 1 or self.chunk_scenes < 1:
             problems.append("scenes, renders_per_scene and chunk_scenes must be positive")
         if self.objects_per_scene < 1:
@@ -136,23 +157,34 @@ class PretrainConfig:
 
 
 def default_config() -> PretrainConfig:
+    """The foundation backbone: the furniture corpus under the `open` protocol, never a benchmark object."""
     return PretrainConfig("default")
 
 
+def strict_config() -> PretrainConfig:
+    """The default without the corpus models whose names hold a test object's noun (`strict`)."""
+    return PretrainConfig("strict", render=RenderConfig(protocol="strict"))
+
+
+def task_config() -> PretrainConfig:
+    """The backbone of the results before the corpus: renders of the benchmark's training objects."""
+    return PretrainConfig("task", render=RenderConfig(pool="task"))
+
+
 def demo_config() -> PretrainConfig:
-    """About two and a half minutes on 2 cores: fewer scenes and steps, same architecture."""
+    """A few minutes on 2 cores: fewer scenes and steps, same architecture and corpus."""
     return PretrainConfig(
         "demo", render=RenderConfig(scenes=100), optim=OptimConfig(steps=75, warmup_steps=8, checkpoint_every=25)
     )
 
 
 def smoke_config() -> PretrainConfig:
-    """Seconds: a tiny tower, four objects, two scenes, a few steps."""
+    """Seconds: a tiny tower, four corpus models, two scenes, a few steps."""
     return PretrainConfig(
         "smoke",
         model=offline_backbone.smoke_config(),
-        # No primitives: the smoke run's scenes hold library objects only (a test checks every
-        # scene it builds against the pool); `tests/test_pretrain_data.py` turns them on.
+        # No primitives: the smoke run's scenes hold pool objects only (a test checks every scene it
+        # builds against the pool); `tests/test_pretrain_data.py` turns them on.
         render=RenderConfig(
             scenes=2,
             objects_per_scene=3,
@@ -170,7 +202,13 @@ def smoke_config() -> PretrainConfig:
     )
 
 
-RECIPES = {"default": default_config, "demo": demo_config, "smoke": smoke_config}
+RECIPES = {
+    "default": default_config,
+    "strict": strict_config,
+    "task": task_config,
+    "demo": demo_config,
+    "smoke": smoke_config,
+}
 
 
 def recipe_config(name: str) -> PretrainConfig:

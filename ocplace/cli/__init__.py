@@ -21,6 +21,7 @@ COMMAND_MODULES = (
     "ocplace.cli.dataset",
     "ocplace.cli.parse",
     "ocplace.cli.train",
+    "ocplace.cli.corpus",
     "ocplace.cli.backbone",
     "ocplace.cli.densities",
     "ocplace.cli.evaluate",

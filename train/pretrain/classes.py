@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+from collections.abc import Sequence
 
 from ocplace.models.backbone import PromptConfig
 from ocplace.models.offline_recipes import RenderConfig
@@ -87,11 +88,11 @@ def leaks(description: ObjectDescription, forbidden: tuple[str, ...], prompt: Pr
     return any(name in caption for name in names for caption in captions)
 
 
-def pretraining_classes(library, objects: tuple[str, ...], config: RenderConfig) -> PretrainClasses:
-    """The classes of the pool's `objects` under `config`: recolourings to each of `config.colours`
+def pretraining_classes(library, assets: Sequence, config: RenderConfig) -> PretrainClasses:
+    """The classes of the pool's `assets` under `config`: recolourings to each of `config.colours`
     other than the object's own, then each primitive in each colour, minus any that `leaks`."""
     forbidden = unseen_names(library)
-    descriptions = tuple(ObjectDescription.of(library.get(name)) for name in objects)
+    descriptions = tuple(ObjectDescription.of(asset) for asset in assets)
     extras = [
         ExtraClass(recoloured(obj, colour), obj.name, colour)
         for obj in descriptions

@@ -48,7 +48,8 @@ from ocplace.train import checkpoints, runner
 from ocplace.train.pretrain.captions import CaptionBank
 from ocplace.train.pretrain.classes import caption_bank, pretraining_classes
 from ocplace.train.pretrain.loss import contrastive_loss
-from ocplace.train.pretrain.render import RenderedImages, TrainingPool, render_all, training_pool
+from ocplace.train.pretrain.pool import TrainingPool, training_pool
+from ocplace.train.pretrain.render import RenderedImages, render_all
 
 log = logging.getLogger(__name__)
 
@@ -228,8 +229,8 @@ def pretrain(
     began = time.perf_counter()
     out_dir = Path(out_dir) if out_dir is not None else output_dir(config)
     run_dir = out_dir / RUN_DIR
-    pool = training_pool(library, config.render.max_objects)
-    bank = caption_bank(pretraining_classes(library, pool.objects, config.render))
+    pool = training_pool(library, corpus_of(config), config.render)
+    bank = caption_bank(pretraining_classes(library, pool.assets, config.render))
     run_meta = _run_metadata(config, pool, bank)
     if (out_dir / FINGERPRINT_FILE).exists() and _finished_meta(out_dir) == run_meta:
         log.info("the offline backbone of recipe %r is already built in %s", config.recipe, out_dir)
@@ -326,6 +327,15 @@ def pretrain(
         shutil.rmtree(run_dir / "renders", ignore_errors=True)
         shutil.rmtree(run_dir / checkpoints.CHECKPOINT_DIR, ignore_errors=True)
     return outcome.saved
+
+
+def corpus_of(config: PretrainConfig):
+    """The corpus a recipe's pool is drawn from (built into the cache on first use), None for `task`."""
+    if config.render.pool == "task":
+        return None
+    from ocplace.sim.corpus.build import build_corpus
+
+    return build_corpus(progress=False)
 
 
 def _run_metadata(config: PretrainConfig, pool: TrainingPool, bank: CaptionBank) -> dict:

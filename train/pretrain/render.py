@@ -1,9 +1,9 @@
-"""Rendering the pretraining images: crops of training-split objects in settled MuJoCo scenes.
+"""Rendering the pretraining images: crops of the pool's objects in settled MuJoCo scenes.
 
-Scenes are drawn from the training split's objects, named primitives (`sim.primitives`) and the
-seen table textures only; the arena is compiled with nothing else, so unseen objects and textures
-cannot appear. Crops are cut the way the pipeline cuts them (`square_crop` at the benchmark
-loader's size), half of them with the pipeline's padding and the rest with jittered padding and
+Scenes are drawn from the pool (`train.pretrain.pool`: the furniture corpus, or the training split's
+objects), named primitives (`sim.primitives`) and the seen table textures only; the arena is compiled
+with nothing else, so no other object or texture can appear. Crops are cut the way the pipeline
+cuts them (`square_crop` at the benchmark loader's size), half of them with the pipeline's padding and the rest with jittered padding and
 box position, then put through the backbone's own preprocessing. Each settled scene is rendered
 again under new lighting, and renders may recolour the table, so the towers do not learn the three
 seen tables by heart. Primitives are painted a colour term per scene; some objects of each render
@@ -33,40 +33,16 @@ from ocplace.sim.boxes import boxes_from_segmentation, square_crop
 from ocplace.sim.colour_terms import COLOUR_TERMS
 from ocplace.sim.dataset.loader import letterbox
 from ocplace.sim.primitives import Primitive, primitive_asset, primitive_set
-from ocplace.sim.scene import SceneSpec, sample_scene_spec, split_pools
+from ocplace.sim.scene import SceneSpec, sample_scene_spec
 from ocplace.train.pretrain.captions import PRIMITIVE, RECOLOURED
 from ocplace.train.pretrain.classes import PretrainClasses, pretraining_classes
 from ocplace.train.pretrain.colours import hsv_to_rgb, recolour_objects, sample_hsv
+from ocplace.train.pretrain.pool import TrainingPool
 
 RENDERS_DIR = "renders"
 MAX_SCENE_DRAWS = 20
 
 log = logging.getLogger(__name__)
-
-
-@dataclasses.dataclass(frozen=True)
-class TrainingPool:
-    """What pretraining may render: training-split objects and seen table textures."""
-
-    objects: tuple[str, ...]
-    textures: tuple[str, ...]
-
-
-def training_pool(library, max_objects: int = 0) -> TrainingPool:
-    """The training split's objects (the first `max_objects` if > 0) and the seen textures.
-
-    Raises `TrainingError` if the library marks any of them unseen, so that a change to the pool
-    logic can never leak the unseen test objects into pretraining.
-    """
-    objects, textures = split_pools(library, "seen")
-    if max_objects > 0:
-        objects = objects[:max_objects]
-    leaked = [n for n in objects if library.get(n).split != "seen"] + [
-        t for t in textures if library.textures[t].split != "seen"
-    ]
-    if leaked:
-        raise TrainingError(f"unseen objects or textures in the pretraining pool: {leaked}")
-    return TrainingPool(tuple(objects), tuple(textures))
 
 
 def scene_primitives(config: RenderConfig) -> tuple[Primitive, ...]:
@@ -80,7 +56,7 @@ def training_arena(library, pool: TrainingPool, primitives: Sequence[Primitive] 
     """A MuJoCo arena compiled with the pool's objects and textures, `primitives` and nothing else."""
     from ocplace.sim.mujoco_backend import MujocoScenes
 
-    objects = [library.get(name) for name in pool.objects]
+    objects = list(pool.assets)
     # The primitives' meshes are rewritten whenever an arena is built.
     objects += [primitive_asset(primitive, primitives_cache()) for primitive in primitives]
     return MujocoScenes(objects, {name: library.textures[name].path for name in pool.textures})
@@ -292,7 +268,7 @@ def render_all(
     missing = [c for c in range(num_chunks) if not chunk_path(run_dir, c).exists()]
     done_scenes = config.scenes - sum(_chunk_scenes(c, config) for c in missing)
     if missing:
-        classes = pretraining_classes(library, pool.objects, config)
+        classes = pretraining_classes(library, pool.assets, config)
         arena = training_arena(library, pool, scene_primitives(config))
         try:
             with tqdm(

@@ -1,0 +1,90 @@
+"""What pretraining may render: the objects of its pool, and the held-out corpus names it is validated on.
+
+Two pools (`RenderConfig.pool`):
+- `corpus` (the default, the foundation backbone): the furniture corpus (`sim/corpus/`) under the
+  recipe's protocol, minus the names held out for validation. No object of the benchmark library
+  (seen, unseen or unseen_cat) can be in it: the benchmark's training objects reach the model only
+  through the adapters, as in the paper.
+- `task` (today's backbone of earlier results): the library's training split.
+
+Tables are the library's seen textures in both.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+from ocplace.errors import TrainingError
+from ocplace.models.offline_recipes import RenderConfig
+from ocplace.sim.corpus.build import Corpus
+from ocplace.sim.corpus.selection import is_validation, names_test_noun, test_nouns
+from ocplace.sim.library.types import CORPUS_SPLIT, ObjectAsset
+from ocplace.sim.scene import split_pools
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainingPool:
+    """The objects pretraining renders (`assets`, in pool order) and the seen table textures."""
+
+    assets: tuple[ObjectAsset, ...]
+    textures: tuple[str, ...]
+
+    @property
+    def objects(self) -> tuple[str, ...]:
+        return tuple(asset.name for asset in self.assets)
+
+
+def strict_drops(corpus: Corpus, library) -> dict[str, str]:
+    """The corpus models `strict` leaves out, by key, with the test noun their name holds."""
+    nouns = test_nouns(asset for asset in library.objects.values() if asset.split != "seen")
+    drops = {key: names_test_noun(asset.human_name, nouns) for key, asset in corpus.assets.items()}
+    return {key: noun for key, noun in drops.items() if noun}
+
+
+def protocol_assets(corpus: Corpus, library, protocol: str) -> tuple[ObjectAsset, ...]:
+    """The corpus under `protocol`: everything (`open`), or without the models `strict_drops` names."""
+    dropped = strict_drops(corpus, library) if protocol == "strict" else {}
+    return tuple(asset for key, asset in corpus.assets.items() if key not in dropped)
+
+
+def validation_assets(corpus: Corpus, library, config: RenderConfig) -> tuple[ObjectAsset, ...]:
+    """The corpus models whose names are held out for validation (never rendered in pretraining)."""
+    return tuple(
+        asset
+        for asset in protocol_assets(corpus, library, config.protocol)
+        if is_validation(asset.human_name, config.validation_share, config.validation_seed)
+    )
+
+
+def training_pool(library, corpus: Corpus | None, config: RenderConfig) -> TrainingPool:
+    """The pool `config` renders (the first `max_objects` if > 0) and the seen table textures.
+
+    Raises `TrainingError` if a benchmark library object, or a held-out validation name, is in a corpus
+    pool, or if the `task` pool holds anything outside the training split, so that a change to this logic
+    can never leak test objects into pretraining.
+    """
+    objects, textures = split_pools(library, "seen")
+    if config.pool == "task":
+        assets = tuple(library.get(name) for name in objects)
+    else:
+        if corpus is None:
+            raise TrainingError("a corpus pool needs the corpus; build it with `ocplace corpus build`")
+        held_out = {asset.name for asset in validation_assets(corpus, library, config)}
+        assets = tuple(a for a in protocol_assets(corpus, library, config.protocol) if a.name not in held_out)
+    if config.max_objects > 0:
+        assets = assets[: config.max_objects]
+    _check_pool(library, corpus, assets, textures, config)
+    return TrainingPool(assets, tuple(textures))
+
+
+def _check_pool(library, corpus, assets, textures, config: RenderConfig) -> None:
+    allowed_split = "seen" if config.pool == "task" else CORPUS_SPLIT
+    leaked = [a.name for a in assets if a.split != allowed_split]
+    if config.pool != "task":
+        library_sources = {a.source for a in library.objects.values()}
+        leaked += [a.name for a in assets if a.name in library.objects or a.source in library_sources]
+        held_out = {a.name for a in validation_assets(corpus, library, config)}
+        leaked += [a.name for a in assets if a.name in held_out]
+    leaked += [t for t in textures if library.textures[t].split != "seen"]
+    if leaked:
+        raise TrainingError(f"objects or textures pretraining may not render are in its pool: {sorted(set(leaked))}")
