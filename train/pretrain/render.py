@@ -1,17 +1,17 @@
 """Rendering the pretraining images: crops of the pool's objects in settled MuJoCo scenes.
 
 Scenes are drawn from the pool (`train.pretrain.pool`: the furniture corpus, or the training split's
-objects), named primitives (`sim.primitives`) and the seen table textures only; the arena is compiled
-with nothing else, so no other object or texture can appear. Crops are cut the way the pipeline
-cuts them (`square_crop` at the benchmark loader's size), half of them with the pipeline's padding and the rest with jittered padding and
-box position, then put through the backbone's own preprocessing. Each settled scene is rendered
-again under new lighting, and renders may recolour the table, so the towers do not learn the three
-seen tables by heart. Primitives are painted a colour term per scene; some objects of each render
-also give a second crop with the object recoloured to a colour term (`train.pretrain.colours`),
-labelled with its own class (`train.pretrain.classes`).
+objects), named primitives (`sim.primitives`) and the seen table textures only; the arena is
+compiled with nothing else, so no other object or texture can appear. Crops are cut the way the
+pipeline cuts them (`square_crop` at the benchmark loader's size), half of them with the pipeline's
+padding and the rest with jittered padding and box position, then put through the backbone's own
+preprocessing. Each settled scene is rendered again under new lighting, and renders may recolour the
+table, so the towers do not learn the three seen tables by heart. Primitives are painted a colour
+term per scene; some objects of each render also give a second crop with the object recoloured to a
+colour term (`train.pretrain.colours`), labelled with its own class (`train.pretrain.classes`).
 
-Chunks of scenes are written to `<run>/renders/chunk_*.npz` as they finish: a rerun renders only
-the missing chunks. Scene `i` is a pure function of `(seed, i)`.
+Chunks of scenes are written to `<run>/renders/chunk_*.npz` as they finish: a rerun renders only the
+missing chunks. Scene `i` is a pure function of `(seed, i)`.
 """
 
 from __future__ import annotations
