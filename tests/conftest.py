@@ -18,6 +18,14 @@ def library():
 
 
 @pytest.fixture(scope="session")
+def corpus():
+    """The pretraining corpus, converted into the cache on first use (`make test` builds it first)."""
+    from ocplace.sim.corpus.build import build_corpus
+
+    return build_corpus(progress=False)
+
+
+@pytest.fixture(scope="session")
 def arena(library):
     from ocplace.sim.mujoco_backend import MujocoScenes
 

@@ -25,11 +25,19 @@ from ocplace.models.offline_backbone import (
 from ocplace.models.offline_backbone import (
     smoke_config as smoke_model,
 )
-from ocplace.models.offline_recipes import PretrainConfig, default_config, recipe_config, smoke_config
+from ocplace.models.offline_recipes import (
+    RECIPES,
+    PretrainConfig,
+    default_config,
+    recipe_config,
+    smoke_config,
+    task_config,
+)
 from ocplace.paths import RUN_FILE, WEIGHTS_FILE
+from ocplace.sim.library.types import CORPUS_SPLIT
 from ocplace.train.pretrain.captions import ObjectDescription, build_caption_bank
 from ocplace.train.pretrain.loss import contrastive_loss
-from ocplace.train.pretrain.render import training_pool
+from ocplace.train.pretrain.pool import training_pool
 
 
 def _bowl(name, colour):
@@ -79,12 +87,22 @@ def test_contrastive_loss_treats_repeated_objects_as_positives():
 
 
 def test_recipes_validate_and_hash_apart():
+    from ocplace.cli.backbone import RECIPE_NAMES
+
+    assert tuple(RECIPES) == RECIPE_NAMES
     keys = set()
-    for config in (default_config(), smoke_config()):
+    for name in RECIPES:
+        config = recipe_config(name)
         config.validate()
         assert PretrainConfig.from_dict(json.loads(json.dumps(config.to_dict()))) == config
         keys.add(config.key())
-    assert len(keys) == 2
+    assert len(keys) == len(RECIPES)
+    for field, value in (("pool", "library"), ("protocol", "lenient"), ("validation_share", 1.0)):
+        bad = dataclasses.replace(
+            default_config(), render=dataclasses.replace(default_config().render, **{field: value})
+        )
+        with pytest.raises(TrainingError, match=field):
+            bad.validate()
     bad = dataclasses.replace(smoke_config(), optim=dataclasses.replace(smoke_config().optim, batch_size=1))
     with pytest.raises(TrainingError, match="batch_size"):
         bad.validate()
@@ -93,16 +111,29 @@ def test_recipes_validate_and_hash_apart():
 # ----------------------------------------------------------------------------- what may be rendered
 
 
-def test_training_pool_holds_only_seen_objects_and_textures(library):
-    pool = training_pool(library)
+def test_the_task_pool_holds_only_seen_objects_and_textures(library):
+    config = task_config().render
+    pool = training_pool(library, None, config)
     unseen_objects = set(library.names("unseen"))
     unseen_textures = {name for name, texture in library.textures.items() if texture.split == "unseen"}
     assert unseen_objects and unseen_textures
     assert set(pool.objects) == set(library.names("seen"))
-    assert not set(pool.objects) & unseen_objects
     assert not set(pool.textures) & unseen_textures
     assert all(library.textures[name].split == "seen" for name in pool.textures)
-    assert len(training_pool(library, max_objects=4).objects) == 4
+    assert len(training_pool(library, None, dataclasses.replace(config, max_objects=4)).objects) == 4
+
+
+def test_the_corpus_pool_holds_no_benchmark_object(library, corpus):
+    pool = training_pool(library, corpus, default_config().render)
+    assert len(pool.assets) >= 100
+    assert not set(pool.objects) & set(library.objects)
+    assert all(asset.split == CORPUS_SPLIT for asset in pool.assets)
+    assert all(library.textures[name].split == "seen" for name in pool.textures)
+    # A library object slipped into the corpus is refused, not rendered.
+    intruder = library.get(library.names("seen")[0])
+    leaky = dataclasses.replace(corpus, assets={**corpus.assets, intruder.name: intruder})
+    with pytest.raises(TrainingError, match=intruder.name):
+        training_pool(library, leaky, default_config().render)
 
 
 # ----------------------------------------------------------------------------- smoke pretraining
@@ -143,14 +174,14 @@ def test_smoke_pretraining_lowers_the_contrastive_loss(smoke_run):
     assert records[-1]["step"] == smoke_config().optim.steps
 
 
-def test_pretraining_renders_no_unseen_object_or_texture(smoke_run, library):
+def test_pretraining_renders_no_benchmark_object_or_unseen_texture(smoke_run, library, corpus):
     result, built, _ = smoke_run
-    pool = training_pool(library, smoke_config().render.max_objects)
+    pool = training_pool(library, corpus, smoke_config().render)
     assert len(built) == smoke_config().render.scenes
     for spec in built:
         assert set(spec.objects) <= set(pool.objects)
         assert library.textures[spec.table_texture].split == "seen"
-        assert all(library.get(name).split == "seen" for name in spec.objects)
+        assert not set(spec.objects) & set(library.objects)
     saved = json.loads((result.directory / "config.json").read_text())["pretraining"]["run"]
     assert saved["objects"] == list(pool.objects)
 

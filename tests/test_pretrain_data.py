@@ -11,9 +11,10 @@ import cv2
 import numpy as np
 import pytest
 
-from ocplace.models.offline_recipes import default_config, smoke_config
+from ocplace.models.offline_recipes import default_config, smoke_config, task_config
 from ocplace.sim.boxes import boxes_from_segmentation
 from ocplace.sim.colour_terms import COLOUR_TERMS
+from ocplace.sim.library.types import CORPUS_SPLIT
 from ocplace.sim.primitives import PRIMITIVE_SPLIT, SHAPES, primitive_set, shape_mesh
 from ocplace.train.pretrain.captions import (
     OBJECT,
@@ -27,12 +28,12 @@ from ocplace.train.pretrain.captions import (
 )
 from ocplace.train.pretrain.classes import caption_bank, mentions, pretraining_classes, unseen_names
 from ocplace.train.pretrain.colours import recolour_objects
+from ocplace.train.pretrain.pool import training_pool
 from ocplace.train.pretrain.render import (
     paint,
     render_scene,
     scene_primitives,
     training_arena,
-    training_pool,
     with_primitives,
 )
 
@@ -42,10 +43,10 @@ MODEL = smoke_config().model
 
 
 @pytest.fixture(scope="module")
-def setup(library):
-    """`(pool, classes, arena)` of the smoke pool with primitives."""
-    pool = training_pool(library, RENDER.max_objects)
-    classes = pretraining_classes(library, pool.objects, RENDER)
+def setup(library, corpus):
+    """`(pool, classes, arena)` of the smoke pool (four corpus models) with primitives."""
+    pool = training_pool(library, corpus, RENDER)
+    classes = pretraining_classes(library, pool.assets, RENDER)
     with training_arena(library, pool, scene_primitives(RENDER)) as arena:
         yield pool, classes, arena
 
@@ -160,8 +161,8 @@ def test_scenes_hold_primitives_with_their_classes(setup):
 
 
 def test_every_class_has_captions_that_describe_it(library):
-    config = default_config().render
-    classes = pretraining_classes(library, training_pool(library).objects, config)
+    config = task_config().render  # the training objects: names, synonyms and colours to check
+    classes = pretraining_classes(library, training_pool(library, None, config).assets, config)
     bank = caption_bank(classes)
     assert bank.kinds.count(OBJECT) == len(classes.objects) and bank.table_class == len(classes.objects)
     assert len(bank.class_names) == len(classes.objects) + 1 + len(classes.extras)
@@ -229,9 +230,9 @@ def _phrases_of_unseen_textures(library):
 
 
 def test_no_class_or_caption_names_an_unseen_object_or_texture(library):
-    config = default_config().render
-    pool = training_pool(library)
-    classes = pretraining_classes(library, pool.objects, config)
+    config = task_config().render
+    pool = training_pool(library, None, config)
+    classes = pretraining_classes(library, pool.assets, config)
     bank = caption_bank(classes)
     forbidden = unseen_names(library) + tuple(_phrases_of_unseen_textures(library))
     assert "yellow bowl" in forbidden and "red basket" in forbidden
@@ -249,28 +250,31 @@ def test_any_non_seen_split_blocks_its_names(library):
     asset = library.get(library.names("seen")[0])
     intruder = dataclasses.replace(asset, name="intruder", human_name="blue cylinder", synonyms=(), split="unseen_cat")
     patched = dataclasses.replace(library, objects={**library.objects, "intruder": intruder})
-    classes = pretraining_classes(patched, training_pool(library, 2).objects, RENDER)
+    two = dataclasses.replace(task_config().render, max_objects=2, primitives_per_scene=2)
+    classes = pretraining_classes(patched, training_pool(library, None, two).assets, two)
     names = {extra.description.name for extra in classes.extras}
     assert "primitive_cylinder_small:red" in names
     assert not [name for name in names if name.startswith("primitive_cylinder") and name.endswith(":blue")]
 
 
-def test_the_pretraining_arena_holds_seen_objects_and_primitives_only(library, setup):
+def test_the_pretraining_arena_holds_corpus_models_and_primitives_only(library, setup):
     pool, _, arena = setup
     seen_textures = {name for name, texture in library.textures.items() if texture.split == "seen"}
     primitives = {p.name for p in primitive_set(RENDER.primitive_shapes, RENDER.primitive_widths)}
+    library_sources = {asset.source for asset in library.objects.values()}
     for name, asset in arena.objects.items():
         if asset.split == PRIMITIVE_SPLIT:
             assert name in primitives
         else:
-            assert name in pool.objects and library.get(name).split == "seen"
+            assert name in pool.objects and asset.split == CORPUS_SPLIT
+            assert name not in library.objects and asset.source not in library_sources
     assert primitives <= set(arena.objects)
     materials = [arena.model.material(i).name for i in range(arena.model.nmat)]
     assert {m.removeprefix("table_") for m in materials if m.startswith("table_")} == set(pool.textures)
     assert set(pool.textures) <= seen_textures
 
 
-def test_rendering_builds_only_seen_objects_and_primitives(library, tmp_path):
+def test_rendering_builds_only_pool_objects_and_primitives(library, corpus, tmp_path):
     from ocplace.sim.mujoco_backend import MujocoScenes
     from ocplace.train.pretrain.render import render_all
 
@@ -281,7 +285,7 @@ def test_rendering_builds_only_seen_objects_and_primitives(library, tmp_path):
         built.append(spec)
         return original(self, spec, *args, **kwargs)
 
-    pool = training_pool(library, RENDER.max_objects)
+    pool = training_pool(library, corpus, RENDER)
     allowed = set(pool.objects) | {p.name for p in scene_primitives(RENDER)}
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(MujocoScenes, "build", recording_build)

@@ -9,14 +9,16 @@ import pytest
 
 from ocplace.errors import MissingAssetPackage, SceneError
 from ocplace.eval import table
+from ocplace.models.offline_recipes import default_config, strict_config, task_config
 from ocplace.sim.dataset.config import smoke_config
 from ocplace.sim.dataset.job import scene_dirs
 from ocplace.sim.dataset.records import read_scene
 from ocplace.sim.library import robosuite_assets
 from ocplace.sim.library.metadata import packaged_objects
+from ocplace.sim.library.types import CORPUS_SPLIT
 from ocplace.sim.primitives import SHAPES
 from ocplace.sim.scene import sample_scene_spec
-from ocplace.train.pretrain.render import training_pool
+from ocplace.train.pretrain.pool import training_pool
 from ocplace.vocabulary import TEST_SUBSETS
 
 
@@ -77,11 +79,12 @@ def test_a_small_pool_is_used_whole_and_a_too_small_one_refused():
         sample_scene_spec(np.random.default_rng(0), pool[:5], ["table"])
 
 
-def test_pretraining_pool_never_holds_unseen_cat_objects(library):
-    pool = training_pool(library)
+def test_pretraining_pools_never_hold_unseen_cat_objects(library, corpus):
     assert library.names("unseen_cat")
-    assert not set(pool.objects) & set(library.names("unseen_cat"))
-    assert all(library.get(name).split == "seen" for name in pool.objects)
+    for config in (default_config().render, strict_config().render, task_config().render):
+        pool = training_pool(library, corpus, config)
+        assert not set(pool.objects) & set(library.names("unseen_cat"))
+        assert all(asset.split in ("seen", CORPUS_SPLIT) for asset in pool.assets)
 
 
 def test_table_one_keeps_the_papers_unseen_mean():

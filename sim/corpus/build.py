@@ -18,6 +18,7 @@ import json
 import logging
 import os
 import shutil
+import signal
 import types
 from collections.abc import Mapping
 from pathlib import Path
@@ -38,6 +39,9 @@ MANIFEST_FILE = "manifest.json"
 ATTRIBUTION_FILE = "ATTRIBUTION.md"
 MODELS_DIRNAME = "models"
 TMP_DIRNAME = "tmp"
+# Set to N, `build_corpus` SIGKILLs its process right after committing its Nth converted model, so the
+# resume test crashes a build at a known point instead of racing a kill against it. Unset: off.
+DIE_AFTER_MODELS_ENV = "OCPLACE_TEST_DIE_AFTER_MODELS"
 # /usr/share/doc/sweethome3d-furniture/copyright, per catalogue.
 LICENCES = {
     "BlendSwap-CC-0": "CC0-1.0",
@@ -135,7 +139,7 @@ def build_corpus(
             continue
         catalogue_hash = _sha256(path)
         catalogues.append({"file": path.name, "sha256": catalogue_hash, "licence": licence, "models": len(entries)})
-        models += [CorpusModel(_unread(path, what), "skipped", why) for what, why in problems]
+        models += [CorpusModel(_unread(path, index, name), "skipped", why) for index, name, why in problems]
         for entry in entries:
             reason = config.rule.size_problem(entry)
             if reason:
@@ -146,9 +150,14 @@ def build_corpus(
             models.append(CorpusModel(entry, "ok" if asset else "todo", "", folder, asset))
             if asset is None:
                 todo.append((len(models) - 1, entry, path, licence, folder))
-    for index, entry, path, licence, folder in tqdm(todo, desc="corpus", unit="model", disable=not progress):
+    die_after = int(os.environ.get(DIE_AFTER_MODELS_ENV, "0"))
+    for count, (index, entry, path, licence, folder) in enumerate(
+        tqdm(todo, desc="corpus", unit="model", disable=not progress), start=1
+    ):
         result = convert_model(entry, path, licence, config, root / folder, root / TMP_DIRNAME)
         models[index] = _outcome(entry, result, folder)
+        if count == die_after:
+            os.kill(os.getpid(), signal.SIGKILL)
     corpus = _finish(root, source, catalogues, models, config)
     skipped = [m for m in corpus.models if m.status == "skipped"]
     if skipped:
@@ -162,9 +171,9 @@ def build_corpus(
     return corpus
 
 
-def _unread(path: Path, what: str = "") -> CatalogueEntry:
-    """A placeholder entry for something of `path` that could not be read."""
-    return CatalogueEntry(path.stem, 0, what or path.name, "", (0.0, 0.0, 0.0), "", None, "")
+def _unread(path: Path, index: int = 0, name: str = "") -> CatalogueEntry:
+    """A placeholder entry for a model of `path` (or the whole catalogue: index 0) that could not be read."""
+    return CatalogueEntry(path.stem, index, name or path.name, "", (0.0, 0.0, 0.0), "", None, "")
 
 
 def _outcome(entry: CatalogueEntry, result: ConversionResult, folder: str) -> CorpusModel:

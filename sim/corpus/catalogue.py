@@ -106,8 +106,8 @@ def _rotation(text: str | None) -> tuple[float, ...] | None:
     return values
 
 
-def read_entries(path: Path) -> tuple[list[CatalogueEntry], list[tuple[str, str]]]:
-    """Every model of the catalogue at `path`, and `(what, why)` for each entry that cannot be read.
+def read_entries(path: Path) -> tuple[list[CatalogueEntry], list[tuple[int, str, str]]]:
+    """Every model of the catalogue at `path`, and `(index, name, why)` for each entry that cannot be read.
 
     CorpusError when the archive itself cannot be read (truncated, not a zip, no properties file).
     """
@@ -125,7 +125,6 @@ def read_entries(path: Path) -> tuple[list[CatalogueEntry], list[tuple[str, str]
         def get(field: str, index: int = index) -> str:
             return properties.get(f"{field}#{index}", "")
 
-        what = f"{path.stem}#{index} ({get('name')})"
         try:
             entries.append(
                 CatalogueEntry(
@@ -140,7 +139,7 @@ def read_entries(path: Path) -> tuple[list[CatalogueEntry], list[tuple[str, str]
                 )
             )
         except (CorpusError, ValueError) as error:
-            problems.append((what, str(error)))
+            problems.append((index, get("name"), str(error)))
     return entries, problems
 
 

@@ -16,7 +16,6 @@ import os
 import posixpath
 import shutil
 import tempfile
-import time
 import zipfile
 from pathlib import Path
 
@@ -249,13 +248,11 @@ def convert_model(
 ) -> ConversionResult:
     """Converts into a private temp folder, then renames it onto `target` in one step (a kill leaves at
     most a temp folder, which no reader uses; `asset.json` is written last)."""
-    start = time.perf_counter()
     tmp_root.mkdir(parents=True, exist_ok=True)
     work = Path(tempfile.mkdtemp(prefix=f"{target.name}.{os.getpid()}.", dir=tmp_root))
     try:
         asset = _write_object(work, entry, archive, licence, config)
-        record = asset_to_json(asset) | {"seconds": round(time.perf_counter() - start, 3)}
-        (work / ASSET_FILE).write_text(json.dumps(record, indent=1) + "\n")
+        (work / ASSET_FILE).write_text(json.dumps(asset_to_json(asset), indent=1) + "\n")
         if target.exists():  # a folder without its asset.json is partial: never used
             shutil.rmtree(target)
         target.parent.mkdir(parents=True, exist_ok=True)

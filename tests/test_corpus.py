@@ -1,0 +1,297 @@
+"""The pretraining corpus: reading catalogues, the selection rule, conversion, bad input, resuming, the
+protocols and the validation split. Real catalogues (Debian's package) and hand-made bad ones."""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import signal
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ocplace.errors import CorpusError
+from ocplace.models.offline_recipes import default_config, strict_config
+from ocplace.sim.corpus.build import (
+    ATTRIBUTION_FILE,
+    DIE_AFTER_MODELS_ENV,
+    INSTALL_HINT,
+    MANIFEST_FILE,
+    build_corpus,
+    load_corpus,
+)
+from ocplace.sim.corpus.catalogue import member_name, parse_properties
+from ocplace.sim.corpus.selection import SelectionRule, head_noun, is_validation, names_test_noun
+from ocplace.sim.library.types import CORPUS_SPLIT
+from ocplace.train.pretrain.pool import strict_drops, training_pool, validation_assets
+
+CUBE_OBJ = """mtllib cube.mtl
+v 0 0 0
+v 1 0 0
+v 1 1 0
+v 0 1 0
+v 0 0 1
+v 1 0 1
+v 1 1 1
+v 0 1 1
+vt 0 0
+vt 1 0
+vt 1 1
+vt 0 1
+usemtl red
+f 1/1 3/3 2/2
+f 1/1 4/4 3/3
+f 5/1 6/2 7/3
+f 5/1 7/3 8/4
+usemtl {second}
+f 1/1 2/2 6/3
+f 1/1 6/3 5/4
+f 2/1 3/2 7/3
+f 2/1 7/3 6/4
+f 3/1 4/2 8/3
+f 3/1 8/3 7/4
+f 4/1 1/2 5/3
+f 4/1 5/3 8/4
+"""
+CUBE_MTL = "newmtl red\nKd 0.8 0.1 0.1\nnewmtl blue\nKd 0.1 0.1 0.8\nnewmtl painted\nKd 1 1 1\nmap_Kd {texture}\n"
+
+
+def _png_bytes() -> bytes:
+    import io
+
+    from PIL import Image
+
+    buffer = io.BytesIO()
+    Image.fromarray(np.full((8, 8, 3), 200, np.uint8)).save(buffer, format="PNG")
+    return buffer.getvalue()
+
+
+def _write_catalogue(path: Path, models: dict[str, dict], extra_members: dict[str, bytes] | None = None) -> None:
+    """A `.sh3f` of `models` (name -> {"size": (w, d, h), "files": {member: bytes}, "model": member})."""
+    lines = ["id=test", "name=test catalogue"]
+    with zipfile.ZipFile(path, "w") as archive:
+        for index, (name, model) in enumerate(models.items(), start=1):
+            width, depth, height = model["size"]
+            lines += [
+                f"name#{index}={name}",
+                f"category#{index}=Kitchen",
+                f"model#{index}={model['model']}",
+                f"width#{index}={width}",
+                f"depth#{index}={depth}",
+                f"height#{index}={height}",
+                f"creator#{index}=tester",
+            ]
+            for member, data in model["files"].items():
+                archive.writestr(member, data)
+        for member, data in (extra_members or {}).items():
+            archive.writestr(member, data)
+        archive.writestr("PluginFurnitureCatalog.properties", "\n".join(lines) + "\n")
+
+
+def _cube(folder: str, second: str = "blue", texture: str = "paint.png", with_texture: bool = True) -> dict:
+    files = {
+        f"{folder}/cube.obj": CUBE_OBJ.format(second=second),
+        f"{folder}/cube.mtl": CUBE_MTL.format(texture=texture),
+    }
+    if with_texture:
+        files[f"{folder}/paint.png"] = _png_bytes()
+    return {"size": (10, 8, 6), "model": f"/{folder}/cube.obj", "files": files}
+
+
+def _listing(directory: Path) -> dict[str, int]:
+    return {str(p.relative_to(directory)): p.stat().st_mtime_ns for p in directory.rglob("*")}
+
+
+@pytest.fixture
+def own_cache(tmp_path, monkeypatch):
+    cache = tmp_path / "cache"
+    monkeypatch.setenv("OCPLACE_CACHE", str(cache))
+    return cache
+
+
+# ----------------------------------------------------------------------------- reading
+
+
+def test_properties_are_read_as_java_writes_them():
+    text = "# comment\n! also\nname#1=Bill 10\\u20ac\nname#2 = Long \\\n    name\nkey\\=x:value\n"
+    assert parse_properties(text) == {"name#1": "Bill 10€", "name#2": "Long name", "key=x": "value"}
+
+
+@pytest.mark.parametrize("bad", ["../x.obj", "/../../etc/passwd", "a/../../b.obj", "..", ""])
+def test_a_member_outside_the_archive_is_refused(bad):
+    with pytest.raises(CorpusError):
+        member_name(bad)
+
+
+@pytest.mark.parametrize("bad", ["../other/t.png", "/etc/passwd", "x/../../t.png"])
+def test_a_texture_outside_its_model_folder_is_refused(bad):
+    with pytest.raises(CorpusError):
+        member_name(bad, "scopia/cup")
+    assert member_name("sub/t.png", "scopia/cup") == "scopia/cup/sub/t.png"
+
+
+def test_the_rule_reads_sizes_and_faces_never_names():
+    from ocplace.sim.corpus.catalogue import CatalogueEntry
+
+    rule = SelectionRule()
+
+    def entry(name, size):
+        return CatalogueEntry("c", 1, name, "", size, "m.obj", None, "")
+
+    assert rule.size_problem(entry("anything", (10, 5, 20))) == ""
+    assert "longest" in rule.size_problem(entry("teddy bear", (41, 5, 20)))
+    assert "thin" in rule.size_problem(entry("bill", (12, 6, 0.1)))
+    assert "absurd" in rule.size_problem(entry("x", (0, 5, 5)))
+    assert "absurd" in rule.size_problem(entry("x", (float("nan"), 5, 5)))
+    assert rule.faces_problem(rule.max_faces + 1) and not rule.faces_problem(rule.max_faces)
+
+
+def test_nouns_and_the_validation_hash():
+    assert head_noun("Bowl with fruits") == "bowl" and head_noun("Plate, glass and cutlery") == "plate"
+    assert head_noun("Salt shaker") == "shaker"
+    assert names_test_noun("Sushi tray", ("tray",)) == "tray" and names_test_noun("Apples", ("apple",)) == "apple"
+    assert names_test_noun("Apple iBook", ("book",)) == ""
+    names = [f"thing {i}" for i in range(2000)]
+    held = [n for n in names if is_validation(n, 0.2)]
+    assert 0.17 < len(held) / len(names) < 0.23
+    assert held == [n for n in names if is_validation(n, 0.2)]  # a pure function of the name
+    assert held != [n for n in names if is_validation(n, 0.2, seed=1)]
+
+
+# ----------------------------------------------------------------------------- the real corpus
+
+
+def test_the_debian_corpus_converts_into_multi_material_objects(corpus, library):
+    assert len(corpus.assets) >= 150, corpus.summary()
+    assert any(asset.parts for asset in corpus.assets.values())
+    assert any(part.texture for asset in corpus.assets.values() for part in asset.visual_parts)
+    rule = SelectionRule()
+    for asset in corpus.assets.values():
+        assert asset.split == CORPUS_SPLIT and asset.name not in library.objects
+        assert max(asset.extents) <= 0.22 + 1e-6 and min(asset.extents) > 0
+        assert all(part.mesh.is_file() for part in asset.visual_parts) and asset.hulls[0].is_file()
+    for model in corpus.models:
+        if model.status == "ok":
+            assert not rule.size_problem(model.entry)
+    attribution = (corpus.root / ATTRIBUTION_FILE).read_text()
+    assert "CC-BY-3.0" in attribution and all(key in attribution for key in corpus.assets)
+    assert load_corpus().assets.keys() == corpus.assets.keys()
+
+
+def test_corpus_models_render_with_their_own_colours(corpus, library):
+    from ocplace.sim.mujoco_backend import MujocoScenes
+    from ocplace.sim.scene import sample_scene_spec, split_pools
+
+    multi = [a for a in corpus.assets.values() if len(a.visual_parts) >= 3][:6]
+    _, textures = split_pools(library, "seen")
+    with MujocoScenes(multi, {t: library.textures[t].path for t in textures}) as arena:
+        spec = sample_scene_spec(np.random.default_rng(0), [a.name for a in multi], textures, num_objects=5)
+        scene = arena.build(spec)
+    ids = set(np.unique(scene.segmentation)) - {0}
+    assert len(ids) >= 4  # every part of a model carries its object's id
+    for object_id in ids:
+        pixels = scene.rgb[scene.segmentation == object_id]
+        assert len(pixels) > 50
+
+
+def test_strict_drops_every_model_named_by_a_test_noun(corpus, library):
+    drops = strict_drops(corpus, library)
+    dropped_names = {corpus.assets[key].human_name for key in drops}
+    assert {"teddy bear", "bread", "tray", "book"} <= dropped_names
+    strict = training_pool(library, corpus, strict_config().render)
+    strict_names = {a.human_name for a in strict.assets} | {
+        a.human_name for a in validation_assets(corpus, library, strict_config().render)
+    }
+    assert not strict_names & dropped_names
+    open_pool = training_pool(library, corpus, default_config().render)
+    assert {"teddy bear", "bread"} & {a.human_name for a in open_pool.assets}
+
+
+def test_validation_names_never_reach_pretraining(corpus, library):
+    for config in (default_config().render, strict_config().render):
+        held = validation_assets(corpus, library, config)
+        pool = training_pool(library, corpus, config)
+        assert len(held) >= 10
+        assert not {a.human_name for a in held} & {a.human_name for a in pool.assets}
+        assert not set(pool.objects) & set(library.objects)
+
+
+# ----------------------------------------------------------------------------- bad input
+
+
+def test_bad_models_are_skipped_with_one_warning_and_nothing_written_outside(tmp_path, own_cache, caplog):
+    source = tmp_path / "catalogues"
+    source.mkdir()
+    outside = tmp_path / "outside.png"
+    _write_catalogue(
+        source / "Mixed.sh3f",
+        {
+            "Good box": _cube("good"),
+            "Escaping model": {"size": (10, 8, 6), "model": "/../evil.obj", "files": {}},
+            "Escaping texture": _cube("esc", second="painted", texture="../../outside.png", with_texture=False),
+            "Missing texture": _cube("miss", second="painted", texture="gone.png", with_texture=False),
+            "Garbage": {"size": (10, 8, 6), "model": "/junk/junk.obj", "files": {"junk/junk.obj": "not an obj\x00"}},
+            "Flat zero": {**_cube("zero"), "size": (10, 0, 6)},
+            "Absurd": {**_cube("absurd"), "size": (10, 8, 1e9)},
+        },
+        extra_members={"outside.png": _png_bytes()},
+    )
+    (source / "Truncated.sh3f").write_bytes((source / "Mixed.sh3f").read_bytes()[:500])
+    before = _listing(tmp_path / "catalogues")
+    with caplog.at_level(logging.WARNING):
+        corpus = build_corpus(source, progress=False)
+    assert list(corpus.assets) == ["mixed-001"]
+    assert len(corpus.assets["mixed-001"].visual_parts) == 2  # red and blue
+    status = {m.entry.name: m.status for m in corpus.models}
+    for name in ("Escaping model", "Escaping texture", "Missing texture", "Garbage"):
+        assert status[name] == "skipped", name
+    assert status["Flat zero"] == status["Absurd"] == "rejected"
+    warnings = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
+    assert len(warnings) == 1 and "5 models skipped" in warnings[0] and "Truncated" in warnings[0]
+    assert _listing(tmp_path / "catalogues") == before and not outside.exists()
+    assert {p.name for p in tmp_path.iterdir()} == {"catalogues", "cache"}
+
+
+def test_no_usable_model_or_no_catalogue_is_a_typed_error(tmp_path, own_cache):
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    with pytest.raises(CorpusError, match="apt-get install sweethome3d-furniture"):
+        build_corpus(empty, progress=False)
+    assert "sweethome3d-furniture" in INSTALL_HINT
+    _write_catalogue(empty / "Bad.sh3f", {"Missing": _cube("m", second="painted", with_texture=False)})
+    with pytest.raises(CorpusError, match="no usable model"):
+        build_corpus(empty, progress=False)
+
+
+def test_a_killed_build_resumes_to_the_same_corpus(tmp_path, own_cache):
+    source = tmp_path / "catalogues"
+    source.mkdir()
+    _write_catalogue(source / "Boxes.sh3f", {f"Box {i}": _cube(f"b{i}") for i in range(4)})
+    command = [sys.executable, "-m", "ocplace.cli", "corpus", "build", "--source", str(source)]
+    killed = subprocess.run(
+        command, capture_output=True, text=True, timeout=300, env=os.environ | {DIE_AFTER_MODELS_ENV: "2"}
+    )
+    assert killed.returncode == -signal.SIGKILL, killed.stderr
+    assert not (own_cache / "corpus" / MANIFEST_FILE).exists()
+    assert len(list((own_cache / "corpus" / "models").iterdir())) == 2
+    resumed = subprocess.run(command, capture_output=True, text=True, timeout=300)
+    assert resumed.returncode == 0, resumed.stderr
+    manifest = json.loads((own_cache / "corpus" / MANIFEST_FILE).read_text())
+    assert [m["status"] for m in manifest["models"]] == ["ok"] * 4
+    assert not list((own_cache / "corpus" / "tmp").iterdir())
+    resumed_files = _files(own_cache / "corpus")
+    fresh_cache = tmp_path / "fresh"
+    fresh = subprocess.run(
+        command, capture_output=True, text=True, timeout=300, env=os.environ | {"OCPLACE_CACHE": str(fresh_cache)}
+    )
+    assert fresh.returncode == 0, fresh.stderr
+    assert _files(fresh_cache / "corpus") == resumed_files
+
+
+def _files(root: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(root)): p.read_bytes() for p in (root / "models").rglob("*") if p.is_file()}
