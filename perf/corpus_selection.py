@@ -1,0 +1,88 @@
+"""Choosing the foundation backbone's settings on the corpus' validation split, never on a test subset.
+
+Each candidate is the default recipe with one change, pretrained at a selection size (fewer scenes
+and steps than the default, the same for every candidate) and scored by zero-shot grounding of the
+held-out corpus names (`ocplace backbone validate`; `train/pretrain/validation.py`). The random
+initialisation of the same architecture is the floor.
+
+Usage: `python perf/corpus_selection.py --out selection.json [--candidates base frozen16 ...]
+[--scenes 200 --steps 200]`. Candidates:
+    base          the default recipe
+    frozen16      only the trunk's last block and head fine-tuned (16 frozen entries; default 13)
+    frozen10      the last seven blocks and head fine-tuned (10 frozen entries)
+    objects70     70% of each batch corpus models as rendered (default 50%), 15% recoloured, 15% primitives
+    no-extras     corpus models only: no recoloured objects, no primitives
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import time
+from pathlib import Path
+
+import jax
+
+import ocplace  # noqa: F401  (sets the headless OpenGL default before MuJoCo loads)
+from ocplace.models.offline_backbone import OfflineBackbone, init_params
+from ocplace.models.offline_recipes import PretrainConfig, default_config
+from ocplace.sim.corpus.build import build_corpus
+from ocplace.sim.library import load_library
+from ocplace.train.pretrain.loop import pretrain
+from ocplace.train.pretrain.validation import validation_grounding, validation_scenes
+
+
+def candidate_config(base: PretrainConfig, name: str) -> PretrainConfig:
+    model, render, optim = base.model, base.render, base.optim
+    if name == "frozen16":
+        model = dataclasses.replace(model, frozen_blocks=16)
+    elif name == "frozen10":
+        model = dataclasses.replace(model, frozen_blocks=10)
+    elif name == "objects70":
+        optim = dataclasses.replace(optim, kind_shares=(("object", 0.7), ("recoloured", 0.15), ("primitive", 0.15)))
+    elif name == "no-extras":
+        render = dataclasses.replace(render, recolour_share=0.0, primitives_per_scene=0)
+    elif name != "base":
+        raise SystemExit(f"unknown candidate {name!r}; see the module docstring")
+    return dataclasses.replace(base, recipe=f"selection-{name}", model=model, render=render, optim=optim)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--candidates", nargs="+", default=["base", "frozen16", "frozen10", "objects70"])
+    parser.add_argument("--scenes", type=int, default=200)
+    parser.add_argument("--steps", type=int, default=200)
+    parser.add_argument("--work", type=Path, default=Path("out/corpus_selection"))
+    parser.add_argument("--out", type=Path, default=Path("corpus_selection.json"))
+    args = parser.parse_args()
+
+    library, corpus = load_library(), build_corpus(progress=False)
+    default = default_config()
+    base = dataclasses.replace(
+        default,
+        render=dataclasses.replace(default.render, scenes=args.scenes),
+        optim=dataclasses.replace(
+            default.optim, steps=args.steps, warmup_steps=max(args.steps // 14, 1), checkpoint_every=args.steps
+        ),
+    )
+    scenes = validation_scenes(library, corpus, default.render)
+    report = {"scenes": args.scenes, "steps": args.steps, "cpu_count": os.cpu_count(), "candidates": {}}
+    for name in args.candidates:
+        config = candidate_config(base, name)
+        began = time.perf_counter()
+        result = pretrain(config, library, args.work / name, progress=True)
+        row = {"pretrain_s": round(time.perf_counter() - began, 1), **validation_grounding(result.backbone, scenes)}
+        if "random_init" not in report:
+            params = init_params(base.model, jax.random.key(0))
+            floor = OfflineBackbone(base.model, params, result.backbone.text_tower, source="random init")
+            report["random_init"] = validation_grounding(floor, scenes)
+            print("random init", json.dumps(report["random_init"]), flush=True)
+        report["candidates"][name] = row
+        print(name, json.dumps(row), flush=True)
+        args.out.write_text(json.dumps(report, indent=2) + "\n")
+
+
+if __name__ == "__main__":
+    main()
