@@ -1,15 +1,18 @@
 """Offline backbone: pretraining time of a recipe, then zero-shot grounding and retrieval.
 
 Runs (or resumes) `ocplace backbone pretrain --recipe R`, then measures, in the same run, the
-pretrained backbone and the same architecture at random initialisation on benchmark test splits
-(`ocplace backbone eval`). Writes a JSON report with the timings and the machine's load average,
-which matters: the 30-minute budget is for 2 otherwise idle cores.
+pretrained backbone and the same architecture at random initialisation on the corpus' validation
+split (`ocplace backbone validate`, under the default recipe's held-out names, so that every recipe
+is scored on the same scenes) and on benchmark test splits (`ocplace backbone eval`). Writes a JSON
+report with the timings and the machine's load average, which matters: the 30-minute budget is for 2
+otherwise idle cores.
 
-Usage: `python perf/offline_backbone.py --data DIR [--recipe default] [--variant chosen] [--splits
-seen unseen_obj unseen_cat] [--out report.json]`. `--variant` changes the recipe for comparisons:
-`vit` is the first offline backbone (a ViT from scratch, no attribute data), `no-attributes` the
-chosen trunk without recoloured objects and primitives, `chosen` the recipe as it is. The dataset
-comes from `ocplace generate --out DIR --split seen` (and `--split unseen_obj`, `--split unseen_cat`).
+Usage: `python perf/offline_backbone.py --data DIR [--recipe default|strict|task|demo] [--variant
+chosen] [--splits seen unseen_obj unseen_cat] [--out report.json]`. `--variant` changes the recipe
+for comparisons: `vit` is the first offline backbone (a ViT from scratch, no attribute data), `no-
+attributes` the chosen trunk without recoloured objects and primitives, `chosen` the recipe as it
+is. The dataset comes from `ocplace generate --out DIR --split seen` (and `--split unseen_obj`,
+`--split unseen_cat`).
 """
 
 from __future__ import annotations
@@ -26,10 +29,12 @@ import jax
 
 import ocplace  # noqa: F401  (sets the headless OpenGL default before MuJoCo loads)
 from ocplace.models.offline_backbone import OfflineBackbone, init_params, vit_config
-from ocplace.models.offline_recipes import recipe_config
+from ocplace.models.offline_recipes import RECIPES, default_config, recipe_config
+from ocplace.sim.corpus.build import build_corpus
 from ocplace.sim.library import load_library
 from ocplace.train.pretrain.evaluate import evaluate_split, format_report
 from ocplace.train.pretrain.loop import pretrain
+from ocplace.train.pretrain.validation import validation_grounding, validation_scenes
 
 
 def variant_config(config, variant: str):
@@ -45,7 +50,7 @@ def variant_config(config, variant: str):
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", type=Path, required=True)
-    parser.add_argument("--recipe", default="default", choices=("default", "demo", "smoke"))
+    parser.add_argument("--recipe", default="default", choices=tuple(RECIPES))
     parser.add_argument("--variant", default="chosen", choices=("chosen", "no-attributes", "vit"))
     parser.add_argument("--backbone-dir", type=Path, help="pretrain into this directory (default: the cache)")
     parser.add_argument("--splits", nargs="+", default=["seen", "unseen_obj", "unseen_cat"])
@@ -78,6 +83,11 @@ def main() -> None:
         backbone.config, init_params(backbone.config, jax.random.key(0)), backbone.text_tower, source="random init"
     )
     report["results"] = {}
+    scenes = validation_scenes(library, build_corpus(progress=False), default_config().render)
+    report["validation"] = {
+        name: validation_grounding(candidate, scenes)
+        for name, candidate in (("pretrained", backbone), ("random_init", random_init))
+    }
     for name, candidate in (("pretrained", backbone), ("random_init", random_init)):
         report["results"][name] = {
             split: evaluate_split(candidate, args.data, split, library, limit=args.limit, progress=True)
@@ -86,6 +96,11 @@ def main() -> None:
     report["load_average_end"] = os.getloadavg()
     args.out.write_text(json.dumps(report, indent=2) + "\n")
     print(format_report(report))
+    for name, score in report["validation"].items():
+        print(
+            f"validation ({name}): grounding top-1 {score['grounding_top1']:.1%}, "
+            f"retrieval {score['retrieval_top1']:.1%}"
+        )
     print(
         f"pretraining ({args.recipe}): {report['pretrain_timings_s']} (load average before "
         f"{report['load_average_before'][0]:.1f}); wrote {args.out}"
