@@ -55,6 +55,7 @@ class EvalPlan:
     parser: str  # models.parsing.make_parser name, for methods that parse
     subsets: tuple[str, ...]  # test subsets scored
     seeds: int  # each run trained and scored with this many seeds (the experiment's, then the next ones)
+    seed_methods: tuple[str, ...] | None = None  # the methods repeated over `seeds`; None: every method
 
 
 @dataclasses.dataclass(frozen=True)

@@ -71,9 +71,12 @@ def level_table(results: Mapping, metric: str, title: str) -> str:
     with repeats over seeds, their mean ± sample standard deviation."""
     subsets = _subsets(results)
     columns = [*LEVELS, "overall"]
-    seeds = max((len(repeats(results, entry)) for entry in full_runs(results)), default=1)
+    counts = {len(repeats(results, entry)) for entry in full_runs(results)} or {1}
+    note = f" (mean ± standard deviation over {max(counts)} seeds" + (
+        ", where a row has them)" if len(counts) > 1 else ")"
+    )
     lines = [
-        f"**{title}**" + (f" (mean ± standard deviation over {seeds} seeds)" if seeds > 1 else ""),
+        f"**{title}**" + (note if max(counts) > 1 else ""),
         "",
         _row(["", *[SUBSET_TITLES[s] if i == 0 else "" for s in subsets for i in range(len(columns))]]),
         _row(["---", *["---:"] * (len(subsets) * len(columns))]),

@@ -202,6 +202,14 @@ def test_scale_configs():
         *("ours@0.5", "ours@0.5~seed1", "ours@0.5~seed2", "ours", "ours~seed1", "ours~seed2"),
         *("centre", "centre~seed1", "centre~seed2"),
     ]
+    only_ours = dataclasses.replace(
+        default,
+        experiment=with_seeds(default.experiment, 3, fractions=(0.5, 1.0), methods=("ours",), seed_methods=("ours",)),
+    )
+    assert [run.key for run in pipeline.planned_runs(only_ours, [ours_like, eval_methods.SPECS["centre"]])] == [
+        *("ours@0.5", "ours@0.5~seed1", "ours@0.5~seed2", "ours", "ours~seed1", "ours~seed2"),
+        "centre",
+    ]
 
 
 def test_task_graph_of_the_demo(tmp_path):
