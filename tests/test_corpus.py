@@ -295,3 +295,23 @@ def test_a_killed_build_resumes_to_the_same_corpus(tmp_path, own_cache):
 
 def _files(root: Path) -> dict[str, bytes]:
     return {str(p.relative_to(root)): p.read_bytes() for p in (root / "models").rglob("*") if p.is_file()}
+
+
+# ----------------------------------------------------------------------------- the validation split
+
+
+def test_validation_scenes_show_held_out_models_only_and_are_cached(corpus, library, tiny_backbone_spec):
+    from ocplace.models.backbone import load_backbone
+    from ocplace.train.pretrain.validation import validation_grounding, validation_scenes
+
+    config = default_config().render
+    scenes = validation_scenes(library, corpus, config, count=4)
+    held = {a.human_name for a in validation_assets(corpus, library, config)}
+    pool = {a.human_name for a in training_pool(library, corpus, config).assets}
+    assert len(scenes.crops) >= 12 and scenes.crops.shape[1:] == (config.crop_size, config.crop_size, 3)
+    assert set(scenes.names.tolist()) <= held and not set(scenes.names.tolist()) & pool
+    again = validation_scenes(library, corpus, config, count=4)
+    assert np.array_equal(again.crops, scenes.crops) and np.array_equal(again.names, scenes.names)
+    score = validation_grounding(load_backbone(tiny_backbone_spec), scenes)
+    assert score["references"] == len(scenes.crops) and score["scenes"] == len(set(scenes.scenes.tolist()))
+    assert 0.0 <= score["grounding_top1"] <= 1.0 and 0.15 < score["chance"] < 0.5
