@@ -56,6 +56,7 @@ class EvalPlan:
     subsets: tuple[str, ...]  # test subsets scored
     seeds: int  # each run trained and scored with this many seeds (the experiment's, then the next ones)
     seed_methods: tuple[str, ...] | None = None  # the methods repeated over `seeds`; None: every method
+    seed_fractions: tuple[float, ...] | None = None  # the fractions repeated over `seeds`; None: every one
 
 
 @dataclasses.dataclass(frozen=True)

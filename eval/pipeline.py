@@ -132,7 +132,7 @@ def selected_specs(config: PipelineConfig, specs: Mapping[str, MethodSpec]) -> l
 def planned_runs(config: PipelineConfig, specs: Sequence[MethodSpec]) -> list[MethodRun]:
     """Every run to train and evaluate: each method on the whole training set, the sample-efficiency
     methods on every fraction, and each of those again per extra seed (`EvalPlan.seeds`; only the
-    `EvalPlan.seed_methods` when it names some)."""
+    `EvalPlan.seed_methods` and `seed_fractions` when they name some)."""
     plan, base = config.experiment.evaluation, config.experiment.seed
     if plan.seeds < 1:
         raise ConfigError(f"evaluation.seeds must be at least 1, got {plan.seeds}")
@@ -142,7 +142,8 @@ def planned_runs(config: PipelineConfig, specs: Sequence[MethodSpec]) -> list[Me
         fractions = plan.fractions if spec.name in plan.fraction_methods and learns else (1.0,)
         repeated = plan.seed_methods is None or spec.name in plan.seed_methods
         for fraction in sorted(set(fractions) | {1.0}):
-            seeds = [None, *range(base + 1, base + plan.seeds)] if repeated else [None]
+            again = repeated and (plan.seed_fractions is None or fraction in plan.seed_fractions)
+            seeds = [None, *range(base + 1, base + plan.seeds)] if again else [None]
             runs += [MethodRun(spec, None, fraction, seed) for seed in seeds]
     return runs
 

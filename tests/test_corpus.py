@@ -255,6 +255,12 @@ def test_bad_models_are_skipped_with_one_warning_and_nothing_written_outside(tmp
     assert len(warnings) == 1 and "5 models skipped" in warnings[0] and "Truncated" in warnings[0]
     assert _listing(tmp_path / "catalogues") == before and not outside.exists()
     assert {p.name for p in tmp_path.iterdir()} == {"catalogues", "cache"}
+    caplog.clear()
+    (source / "Truncated.sh3f").unlink()  # an unreadable catalogue is warned about at every build
+    with caplog.at_level(logging.WARNING):
+        again = build_corpus(source, progress=False)  # nothing new to look at: nothing converted, no warning
+    assert [m.status for m in again.models] == [m.status for m in corpus.models][:-1]
+    assert not [r for r in caplog.records if r.levelno >= logging.WARNING]
 
 
 def test_no_usable_model_or_no_catalogue_is_a_typed_error(tmp_path, own_cache):

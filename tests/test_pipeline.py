@@ -117,7 +117,7 @@ def test_table_one_shows_mean_and_spread_over_seeds(first_run):
     overall = centre["subsets"]["seen"]["aggregate"]["overall"]["success"]
     mean, spread = (overall + 0.5) / 2, abs(overall - 0.5) / 2**0.5  # sample standard deviation of two values
     lines = table.table_one(saved).splitlines()
-    assert lines[0].endswith("(mean ± standard deviation over 2 seeds)")
+    assert lines[0].endswith("(mean ± standard deviation over 2 seeds, where a row has them)")  # centre only
     row = next(line for line in lines if line.startswith("| Table centre |")).split("|")[2:-1]
     assert row[3].strip() == f"{100 * mean:.2f} ± {100 * spread:.2f}"
     assert next(line for line in lines if line.startswith("| Oracle |")).count("100.00") == 4 * len(TEST_SUBSETS)
@@ -209,6 +209,16 @@ def test_scale_configs():
     assert [run.key for run in pipeline.planned_runs(only_ours, [ours_like, eval_methods.SPECS["centre"]])] == [
         *("ours@0.5", "ours@0.5~seed1", "ours@0.5~seed2", "ours", "ours~seed1", "ours~seed2"),
         "centre",
+    ]
+    whole_set_only = dataclasses.replace(
+        only_ours,
+        experiment=dataclasses.replace(
+            only_ours.experiment,
+            evaluation=dataclasses.replace(only_ours.experiment.evaluation, seed_fractions=(1.0,)),
+        ),
+    )
+    assert [run.key for run in pipeline.planned_runs(whole_set_only, [ours_like])] == [
+        *("ours@0.5", "ours", "ours~seed1", "ours~seed2")
     ]
 
 

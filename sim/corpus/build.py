@@ -128,6 +128,7 @@ def build_corpus(
     source = source_dir(source)
     root = corpus_cache()
     remove_abandoned_tmp(root / TMP_DIRNAME)
+    known_skips = _previous_skips(root)
     models, catalogues, todo = [], [], []
     for path in _catalogues(source):
         licence = LICENCES.get(path.stem, "see the catalogue's LICENSE.TXT")
@@ -147,6 +148,9 @@ def build_corpus(
                 continue
             folder = _model_folder(entry, catalogue_hash, config)
             asset = _reuse(root, folder)
+            if asset is None and folder in known_skips:  # the same bytes and settings fail the same way
+                models.append(CorpusModel(entry, "skipped", known_skips[folder], folder))
+                continue
             models.append(CorpusModel(entry, "ok" if asset else "todo", "", folder, asset))
             if asset is None:
                 todo.append((len(models) - 1, entry, path, licence, folder))
@@ -161,7 +165,9 @@ def build_corpus(
     corpus = _finish(root, source, catalogues, models, config)
     skipped = [m for m in corpus.models if m.status == "skipped"]
     if skipped:
-        log.warning(
+        # Said once, when the build looked at them; a cached corpus only recalls it at debug level.
+        log.log(
+            logging.WARNING if todo or any("error" in c for c in catalogues) else logging.DEBUG,
             "corpus: %d models skipped: %s",
             len(skipped),
             "; ".join(f"{m.entry.catalogue}#{m.entry.index} {m.entry.name} ({m.reason})" for m in skipped),
@@ -169,6 +175,15 @@ def build_corpus(
     if not corpus.assets:
         raise CorpusError(f"no usable model in the catalogues of {source}: {corpus.summary()}")
     return corpus
+
+
+def _previous_skips(root: Path) -> dict[str, str]:
+    """Why each model the last build skipped was skipped, by its folder key (not converted again)."""
+    try:
+        records = json.loads((root / MANIFEST_FILE).read_text())["models"]
+        return {r["folder"]: r["reason"] for r in records if r["status"] == "skipped" and r["folder"]}
+    except (OSError, ValueError, KeyError, TypeError):
+        return {}
 
 
 def _unread(path: Path, index: int = 0, name: str = "") -> CatalogueEntry:
@@ -179,7 +194,7 @@ def _unread(path: Path, index: int = 0, name: str = "") -> CatalogueEntry:
 def _outcome(entry: CatalogueEntry, result: ConversionResult, folder: str) -> CorpusModel:
     if result.status == "ok":
         return CorpusModel(entry, "ok", "", folder, result.asset)
-    return CorpusModel(entry, "skipped", result.reason)
+    return CorpusModel(entry, "skipped", result.reason, folder)
 
 
 def _finish(root: Path, source: Path, catalogues: list, models: list[CorpusModel], config) -> Corpus:
