@@ -14,7 +14,6 @@ and every entry is checked to name a scene file inside DIR before anything is re
 from __future__ import annotations
 
 import contextlib
-import hashlib
 import json
 import os
 import shutil
@@ -27,7 +26,7 @@ from tqdm import tqdm
 
 import ocplace
 from ocplace.errors import DatasetError
-from ocplace.paths import inside, write_text_atomic
+from ocplace.paths import file_sha256, inside, write_text_atomic
 from ocplace.runtime import Executor, ExecutorConfig, Task, map_tasks, open_executor
 from ocplace.sim.dataset.config import DatasetConfig
 from ocplace.sim.dataset.generate import SceneGenerator, describe, level_schedule, scene_id
@@ -56,10 +55,6 @@ def code_version() -> str:
     except (OSError, subprocess.SubprocessError):
         commit = ""
     return f"{ocplace.__version__}+{commit}" if commit else ocplace.__version__
-
-
-def _sha256(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
 def write_scene(scene_dir: Path, files: dict[str, bytes]) -> None:
@@ -170,7 +165,7 @@ def _damaged_files(out: Path, manifest: dict) -> list[tuple[str, str]]:
         path = _listed_path(out, relative)
         if not path.is_file():
             problems.append((relative, f"{relative} is missing"))
-        elif _sha256(path) != digest:
+        elif file_sha256(path) != digest:
             problems.append((relative, f"{relative} does not match its sha256"))
         elif path.name == SCENE_FILE:
             try:
@@ -333,7 +328,7 @@ def write_manifest(out: Path, config: DatasetConfig, regenerated: int = 0) -> di
             resamples["scenes"] += scene.resamples.scenes
             resamples["relations"] += scene.resamples.relations
             for name in SCENE_FILES:
-                files[f"{split.name}/{scene_dir.name}/{name}"] = _sha256(scene_dir / name)
+                files[f"{split.name}/{scene_dir.name}/{name}"] = file_sha256(scene_dir / name)
     manifest = {
         "config": describe(config),
         "code_version": code_version(),
