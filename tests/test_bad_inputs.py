@@ -5,14 +5,10 @@ it would stop at loading that backbone with another message, so each expected me
 that the check came before the model.
 """
 
-import contextlib
 import errno
 import json
 import math
-import os
 import re
-import shutil
-import subprocess
 from pathlib import Path
 
 import cv2
@@ -308,35 +304,6 @@ def test_train_refuses_a_flag_value_its_field_cannot_take(capsys):
 # --- outputs ---------------------------------------------------------------------------------
 
 
-@contextlib.contextmanager
-def _tmpfs(folder: Path, options: str):
-    """A small file system mounted on `folder`. Needs the right to mount (root in a container); else skips."""
-    folder.mkdir()
-    if (
-        shutil.which("mount") is None
-        or subprocess.run(["mount", "-t", "tmpfs", "-o", options, "tmpfs", str(folder)], capture_output=True).returncode
-        != 0
-    ):
-        pytest.skip("cannot mount a file system here")
-    try:
-        yield folder
-    finally:
-        subprocess.run(["umount", str(folder)], check=True)
-
-
-@pytest.fixture
-def read_only_dir(tmp_path):
-    """A folder that cannot be written: mode 555, or for root (whom modes do not stop) a read-only mount."""
-    folder = tmp_path / "read-only"
-    if os.geteuid() != 0:
-        folder.mkdir(mode=0o555)
-        yield folder
-        folder.chmod(0o755)
-        return
-    with _tmpfs(folder, "ro,size=64k"):
-        yield folder
-
-
 def test_out_under_a_file_or_in_a_read_only_folder_fails_first(images, tmp_path, capsys, read_only_dir):
     a_file = tmp_path / "a-file.txt"
     a_file.write_text("not a folder")
@@ -360,15 +327,6 @@ def test_a_full_disk_is_a_typed_error_naming_the_file(tmp_path):
         tmp.write_text("{")
         raise OSError(errno.ENOSPC, "No space left on device")  # what a write to a full disk raises
     assert list(target.parent.iterdir()) == []  # neither the target nor the temporary file
-
-
-@pytest.fixture
-def full_disk(tmp_path):
-    """A 64 KiB file system, filled."""
-    with _tmpfs(tmp_path / "small-disk", "size=64k") as mount:
-        with contextlib.suppress(OSError), open(mount / "filler", "wb") as filler:
-            filler.write(b"\0" * (1 << 20))
-        yield mount
 
 
 # --- the backbone the adapters were trained with ---------------------------------------------

@@ -36,6 +36,18 @@ def _echo(handler) -> str:
     return f"Authorization: {handler.headers['Authorization']}; {dict(handler.headers)}"
 
 
+def _escaped(handler) -> str:
+    """The request's API key as JSON text with its first character escaped (`\\u0073k-...`): not the key's
+    bytes, but what a JSON decoder turns into the key."""
+    key = handler.headers["Authorization"].removeprefix("Bearer ")
+    return f"\\u{ord(key[0]):04x}{key[1:]}"
+
+
+def _answer_beside(echo: str) -> str:
+    """A valid answer's JSON text with an extra field holding `echo`."""
+    return '{"tuples": [{"reference": "red bowl", "relation": "left"}], "echo": "' + echo + '"}'
+
+
 ONE_MB = 1_000_000  # LLMConfig's default body cap
 FAULTS = {
     "answer": lambda h: send(h, 200, completion(h.server.options.get("answer", GOOD_ANSWER))),
@@ -49,7 +61,30 @@ FAULTS = {
     "echo as body": lambda h: send(h, 200, _echo(h).encode()),
     "echo as answer": lambda h: send(h, 200, completion(_echo(h))),
     "echo as status line": lambda h: h.wfile.write(f"HTTP/1.1 {_echo(h)}\r\n\r\n".encode()),
+    "escaped echo as body": lambda h: send(h, 200, f'{{"echo": "{_escaped(h)}"}}'.encode()),
+    "escaped echo, cut short": lambda h: send(h, 200, f'{{"echo": "{_escaped(h)}'.encode()),
+    "echo in UTF-16": lambda h: send(h, 200, json.dumps({"echo": _echo(h)}).encode("utf-16")),
+    "escaped echo as content": lambda h: send(
+        h, 200, f'{{"choices": [{{"message": {{"content": "{_escaped(h)}"}}}}]}}'.encode()
+    ),
+    "escaped echo as reference": lambda h: send(
+        h, 200, completion(f'{{"tuples": [{{"reference": "{_escaped(h)}", "relation": "left"}}]}}')
+    ),
+    "escaped echo as relation": lambda h: send(
+        h, 200, completion(f'{{"tuples": [{{"reference": "red bowl", "relation": "{_escaped(h)}"}}]}}')
+    ),
+    "escaped echo beside an answer": lambda h: send(h, 200, completion(_answer_beside(_escaped(h)))),
+    "echo beside an answer": lambda h: send(h, 200, completion(_answer_beside(_echo(h).replace('"', "'")))),
 }
+# Echoes of the key that only decoding reveals; each makes the answer invalid.
+DECODED_ECHOES = [
+    "escaped echo as body",
+    "escaped echo, cut short",
+    "echo in UTF-16",
+    "escaped echo as content",
+    "escaped echo as reference",
+    "escaped echo as relation",
+]
 
 
 class _FaultHandler(http.server.BaseHTTPRequestHandler):
@@ -211,6 +246,61 @@ def test_an_echoing_endpoint_never_puts_the_api_key_in_reasons_or_logs(serve, ll
     assert item.parser == "offline" and item.fallback_reason
     assert SECRET not in item.fallback_reason
     assert "fell back" in caplog.text and SECRET not in caplog.text
+
+
+def _files_holding(root, secret: str) -> list:
+    return [path for path in root.rglob("*") if path.is_file() and secret.encode() in path.read_bytes()]
+
+
+@pytest.mark.parametrize("fault", DECODED_ECHOES)
+def test_an_echo_that_decodes_to_the_api_key_is_scrubbed(serve, llm, caplog, tmp_path, fault):
+    server = serve(fault)
+    with caplog.at_level(logging.DEBUG):
+        (item,) = llm(server).parse(INSTRUCTION)
+    assert item.parser == "offline" and item.fallback_reason
+    # Every spelling of the key ends in its last characters as written: none may be left.
+    assert SECRET[1:] not in item.fallback_reason and SECRET[1:] not in caplog.text
+    assert "<api key>" in item.fallback_reason
+    assert _files_holding(tmp_path, SECRET[1:]) == []
+
+
+@pytest.mark.parametrize("fault", ["escaped echo beside an answer", "echo beside an answer"])
+def test_a_valid_answer_is_cached_without_what_the_endpoint_added(serve, llm, caplog, tmp_path, fault):
+    server = serve(fault)
+    with caplog.at_level(logging.DEBUG):
+        (item,) = llm(server).parse(INSTRUCTION)
+        (again,) = llm(server).parse(INSTRUCTION)
+    assert item.parser == again.parser == "llm" and as_pairs([item]) == as_pairs([again]) == [("red bowl", "left")]
+    assert len(server.requests) == 1, "the second parse is served from the cache"
+    (cached,) = (tmp_path / "parser").iterdir()
+    assert json.loads(json.loads(cached.read_text())["content"]) == json.loads(GOOD_ANSWER)
+    assert _files_holding(tmp_path, SECRET[1:]) == [] and SECRET[1:] not in caplog.text
+
+
+def test_the_parse_command_never_prints_the_api_key(serve, caplog, capsys, tmp_path):
+    for fault in ["escaped echo as reference", "escaped echo beside an answer"]:
+        command = ["parse", "--parser", "llm", "--base-url", url(serve(fault)), "--json", INSTRUCTION]
+        with caplog.at_level(logging.DEBUG):
+            assert main(command) == 0
+        captured = capsys.readouterr()
+        assert json.loads(captured.out)[0]["reference"] == "red bowl"
+        assert SECRET[1:] not in captured.out + captured.err + caplog.text
+    assert _files_holding(tmp_path, SECRET[1:]) == []
+
+
+# --- the answer cache -------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("cache", ["read_only_dir", "full_disk"])
+def test_an_unwritable_answer_cache_keeps_the_answer(serve, llm, caplog, monkeypatch, request, cache):
+    folder = request.getfixturevalue(cache)
+    monkeypatch.setenv("OCPLACE_CACHE", str(folder))
+    server = serve("answer")
+    with caplog.at_level(logging.WARNING):
+        (item,) = llm(server).parse(INSTRUCTION)
+    assert item.parser == "llm" and item.fallback_reason is None
+    assert "cannot store the LLM's answer" in caplog.text and "--no-llm-cache" in caplog.text
+    assert not (folder / "parser").exists() or list((folder / "parser").iterdir()) == []
 
 
 # --- answers ----------------------------------------------------------------------------------
