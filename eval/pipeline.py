@@ -173,15 +173,14 @@ def placement_figure_step(run_dir: Path, config: PipelineConfig, dataset_dir: Pa
     from ocplace.eval.ours import scene_input
     from ocplace.models.policy import PlacementPolicy, load_backbone_spec
     from ocplace.models.policy_figure import save_placement
-    from ocplace.sim.dataset.job import scene_dirs
-    from ocplace.sim.dataset.records import read_scene
+    from ocplace.sim.dataset.job import listed_scenes
 
-    scene_dir = scene_dirs(dataset_dir, "seen")[0]
+    scene = listed_scenes(dataset_dir, "seen")[0]
     experiment = config.experiment
     policy = PlacementPolicy.from_run(load_backbone_spec(backbone), run_dir, parser=experiment.evaluation.parser)
-    placement = save_placement(policy, scene_input(read_scene(scene_dir)), jax.random.key(experiment.seed), path)
+    placement = save_placement(policy, scene_input(scene.read()), jax.random.key(experiment.seed), path)
     print(placement.summary(), flush=True)
-    return f"{path} ({scene_dir.name}, {'placed' if placement.error is None else placement.failure})"
+    return f"{path} ({scene.name}, {'placed' if placement.error is None else placement.failure})"
 
 
 def evaluation_key(run: MethodRun, description: dict, settings: EvalSettings, dataset_hash: str) -> str:

@@ -136,22 +136,21 @@ def _dataset_scene(args):
 
     from ocplace.errors import DatasetError
     from ocplace.eval.ours import scene_input
-    from ocplace.sim.dataset.job import scene_dirs
-    from ocplace.sim.dataset.records import read_scene
+    from ocplace.sim.dataset.job import listed_scenes
 
     if args.id is None:
         raise DatasetError("--dataset needs --id (a scene id such as seen-00003, or an index within --split)")
-    dirs = scene_dirs(args.dataset, args.split)
+    scenes = listed_scenes(args.dataset, args.split)
     if args.id.isdigit():
-        if int(args.id) >= len(dirs):
-            raise DatasetError(f"split {args.split!r} has {len(dirs)} scenes; --id {args.id} is out of range")
-        scene_dir = dirs[int(args.id)]
+        if int(args.id) >= len(scenes):
+            raise DatasetError(f"split {args.split!r} has {len(scenes)} scenes; --id {args.id} is out of range")
+        listed = scenes[int(args.id)]
     else:
-        matches = [d for d in dirs if d.name == args.id]
+        matches = [scene for scene in scenes if scene.name == args.id]
         if not matches:
             raise DatasetError(f"no scene {args.id!r} in split {args.split!r} of {args.dataset}")
-        scene_dir = matches[0]
-    record = read_scene(scene_dir)
+        listed = matches[0]
+    record = listed.read()
     scene = scene_input(record)
     if args.detect:
         scene = dataclasses.replace(scene, boxes_or_segmentation=None, object_aabbs=None)
