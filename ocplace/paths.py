@@ -158,17 +158,27 @@ def atomic_path(target: str | os.PathLike):
                 os.unlink(tmp)
 
 
-def check_writable(target: str | os.PathLike) -> None:
-    """Raises OutputError unless `target` (a file or folder to create or replace) can be written.
+def check_writable(target: str | os.PathLike, as_folder: bool = False) -> None:
+    """Raises OutputError unless `target` (a file or folder to create or replace; with `as_folder`, a
+    folder to create or write into) can be written.
 
     Commands call it before any expensive work, so that a bad `--out` fails at once and not after
-    minutes of computing: every existing ancestor must be a folder and the nearest one writable.
-    Nothing is written to find out (a probe file would change the folder's mtime).
+    minutes of computing: every existing ancestor must be a folder and the nearest one writable, and
+    no symlink on the way may point at nothing (creating the folder would fail on it). Nothing is
+    written to find out (a probe file would change the folder's mtime).
     """
     target = Path(target)
-    folder = target if target.is_dir() else target.parent
-    while not folder.exists() and folder != folder.parent:
-        folder = folder.parent
+    if as_folder and target.exists() and not target.is_dir():
+        raise OutputError(f"cannot write into {target}: it is a file, not a folder; choose a folder")
+    nearest = target
+    while not nearest.exists() and nearest != nearest.parent:
+        if nearest.is_symlink():
+            raise OutputError(
+                f"cannot write {target}: {nearest} is a symlink to {os.readlink(nearest)}, which does not exist; "
+                "create what it points to, remove the symlink, or choose another output path"
+            )
+        nearest = nearest.parent
+    folder = target.parent if nearest == target and not target.is_dir() else nearest  # an existing file is replaced
     if not folder.is_dir():
         raise OutputError(f"cannot write {target}: {folder} is a file, not a folder; choose an output path in a folder")
     # os.access knows permissions (and that root passes them) but not read-only mounts: ask statvfs too.

@@ -277,6 +277,8 @@ def test_truncated_results_are_refused(tmp_path, capsys):
 
 # --- configuration overrides -----------------------------------------------------------------
 
+CANNOT_RUN = "experiment 'smoke' cannot run: "
+
 
 @pytest.mark.parametrize(
     "override, message",
@@ -284,6 +286,34 @@ def test_truncated_results_are_refused(tmp_path, capsys):
         ("recipes.ours.stepz=1", "unknown key 'recipes.ours.stepz': valid keys under 'recipes.ours' are steps, "),
         ("dataset.train_scenes=many", "--set dataset.train_scenes=many: expected an integer, got 'many'"),
         ("evaluation", "--set takes KEY=VALUE, got 'evaluation'"),
+        ("evaluation.num_samples=-1", CANNOT_RUN + "evaluation.num_samples must be at least 1, got -1"),
+        ("recipes.ours.learning_rate=-1", CANNOT_RUN + "recipes.ours.learning_rate must be positive, got -1.0"),
+        ("recipes.ours.learning_rate=nan", CANNOT_RUN + "recipes.ours.learning_rate is nan; numbers must be finite"),
+        ("recipes.cliport.schedule.learning_rate=inf", CANNOT_RUN + "recipes.cliport.schedule.learning_rate is inf"),
+        ("backbone.optim.learning_rate=0", CANNOT_RUN + "backbone.optim.learning_rate must be positive, got 0.0"),
+        ("recipes.no_llm.warmup_steps=-5", CANNOT_RUN + "recipes.no_llm.warmup_steps must be at least 0, got -5"),
+        (
+            "recipes.ours.steps=-1",
+            CANNOT_RUN + "recipes.ours: invalid training configuration: steps, batch_size and chunk_steps",
+        ),
+        (
+            "evaluation.fractions=0.5,2.0",
+            CANNOT_RUN + "evaluation.fractions holds 2.0; a training-set fraction lies in (0, 1]",
+        ),
+        (
+            "evaluation.subsets=seen,bogus",
+            CANNOT_RUN + "evaluation.subsets must name each test subset at most once, some of seen",
+        ),
+        ("evaluation.subsets=", CANNOT_RUN + "evaluation.subsets must name each test subset"),
+        (
+            "evaluation.parser=bogus",
+            CANNOT_RUN + "evaluation.parser 'bogus' is not a parser; choose one of offline, offline-snap",
+        ),
+        ("evaluation.seeds=0", CANNOT_RUN + "evaluation.seeds must be at least 1, got 0"),
+        ("evaluation.seed_fractions=0.5", CANNOT_RUN + "evaluation.seed_fractions holds 0.5, which is not trained"),
+        ("evaluation.methods=", CANNOT_RUN + "evaluation.methods names no method"),
+        ("dataset.test_scenes=0", CANNOT_RUN + "dataset.test_scenes must be at least 1, got 0"),
+        ("dataset.physical_scenes=-2", CANNOT_RUN + "dataset.physical_scenes must be none (all) or at least 0, got -2"),
     ],
 )
 def test_reproduce_refuses_a_bad_override_before_any_work(tmp_path, capsys, monkeypatch, override, message):
@@ -291,7 +321,31 @@ def test_reproduce_refuses_a_bad_override_before_any_work(tmp_path, capsys, monk
 
     monkeypatch.setattr(pipeline, "run_pipeline", lambda *args, **kwargs: pytest.fail("the pipeline started"))
     code, _, err = _cli(capsys, "reproduce", "--scale", "smoke", "--set", override, "--out", tmp_path / "out")
-    assert code == 2 and err.startswith(f"ocplace reproduce: error: {message}")
+    assert code == 2 and err.startswith(f"ocplace reproduce: error: {message}"), err
+    assert not (tmp_path / "out").exists()
+
+
+def test_reproduce_checks_its_methods_and_output_before_any_work(tmp_path, capsys, monkeypatch):
+    from ocplace.eval import pipeline
+
+    monkeypatch.setattr(pipeline, "open_executor", lambda *args: pytest.fail("the pipeline started"))
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "afile").write_text("not a folder")
+    (tmp_path / "dangling").symlink_to(tmp_path / "nowhere")
+    for options, message in [
+        (("--set", "out=afile/x"), "cannot write afile/x: afile is a file, not a folder"),
+        (("--set", "out="), "--set out=: expected a path, got ''"),
+        (("--out", "afile"), "cannot write into afile: it is a file, not a folder"),
+        (("--set", "evaluation.seed_methods=ours,bogus"), "evaluation.seed_methods names bogus, not registered"),
+        (("--set", "evaluation.fraction_methods=nope"), "evaluation.fraction_methods names nope, not registered"),
+    ]:
+        code, _, err = _cli(capsys, "reproduce", "--scale", "smoke", *options)
+        assert code == 2 and err.startswith("ocplace reproduce: error: ") and message in err, err
+    for out in ("dangling", "dangling/deeper"):
+        for command in (["reproduce", "--scale", "smoke"], ["figures", tmp_path / "missing.json"]):
+            code, _, err = _cli(capsys, *command, "--out", out)
+            assert code == 2 and f"dangling is a symlink to {tmp_path / 'nowhere'}, which does not exist" in err, err
+    assert sorted(path.name for path in tmp_path.iterdir()) == ["afile", "dangling"]
 
 
 def test_train_refuses_a_flag_value_its_field_cannot_take(capsys):
