@@ -175,7 +175,26 @@ def test_the_parse_command_ends_at_its_deadline(serve, capsys):
     (item,) = json.loads(capsys.readouterr().out)
     assert item["parser"] == "offline" and "1 s deadline" in item["fallback_reason"]
     assert main([*command, "--llm-deadline", "0", INSTRUCTION]) == 2
-    assert "must all be positive" in capsys.readouterr().err
+    assert "deadline_s must be a number of seconds above 0" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("flag", ["--llm-deadline", "--llm-timeout"])
+@pytest.mark.parametrize("value", ["nan", "inf", "-inf", "-1", "1e300"])
+def test_limits_that_are_not_finite_seconds_are_refused(serve, capsys, flag, value):
+    server = serve("drip body")
+    command = ["parse", "--parser", "llm", "--base-url", url(server), f"{flag}={value}", INSTRUCTION]
+    assert main(command) == 2
+    field = "deadline_s" if flag == "--llm-deadline" else "timeout_s"
+    assert capsys.readouterr().err.startswith(
+        f"ocplace parse: error: the LLM parser's {field} must be a number of seconds above 0 and at most 86,400"
+    )
+    assert server.requests == []
+
+
+@pytest.mark.parametrize("changes", [{"backoff_s": float("nan")}, {"backoff_s": -1.0}, {"temperature": float("inf")}])
+def test_backoff_and_temperature_must_be_finite(changes):
+    with pytest.raises(LLMConfigError, match="backoff_s must be 0 to 86,400 seconds and its temperature 0 to 2"):
+        LLMConfig(**changes)
 
 
 def test_the_parse_command_sets_timeout_attempts_cache_and_cross_check(serve, capsys):
