@@ -17,6 +17,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import datetime
 import hashlib
 import json
@@ -158,6 +159,8 @@ def evaluation_from_json(entry: dict) -> Evaluation:
 def build_results(
     evaluations: Sequence[Evaluation], dataset_dir: str | Path, settings: EvalSettings, command=None
 ) -> dict:
+    """The results file's content. Its paths (the dataset, each run directory) are absolute, so that
+    `ocplace evaluate --rerun` finds them from any folder."""
     return {
         "schema": SCHEMA,
         "created": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
@@ -165,8 +168,14 @@ def build_results(
         "environment": environment(),
         "dataset": dataset_identity(dataset_dir),
         "settings": settings.to_json(),
-        "evaluations": [evaluation_to_json(e) for e in evaluations],
+        "evaluations": [evaluation_to_json(_with_absolute_run_dir(e)) for e in evaluations],
     }
+
+
+def _with_absolute_run_dir(evaluation: Evaluation) -> Evaluation:
+    if evaluation.run_dir is None:
+        return evaluation
+    return dataclasses.replace(evaluation, run_dir=str(Path(evaluation.run_dir).resolve()))
 
 
 def summarise(results: Mapping) -> dict:
@@ -265,6 +274,12 @@ def runs_of(results: Mapping, specs: Mapping[str, MethodSpec] | None = None) -> 
             raise ResultsError(
                 f"run directory {run_dir} of {entry['key']!r} is gone; train it again with the "
                 "same settings (runs are deterministic) or restore it"
+                + (
+                    ""
+                    if run_dir.is_absolute()
+                    else " (results written before run directories were stored absolute name them from the "
+                    "folder `ocplace reproduce` or `evaluate` ran in: rerun from that folder)"
+                )
             )
         runs.append(MethodRun(specs[entry["method"]], run_dir, entry["fraction"], entry.get("seed")))
     return runs
