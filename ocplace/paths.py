@@ -131,6 +131,20 @@ def file_lock(target: str | os.PathLike):
 
 
 @contextlib.contextmanager
+def disk_full_is_typed(target: str | os.PathLike):
+    """Turns a full disk (ENOSPC, EDQUOT) while writing `target` into an OutputError naming it."""
+    try:
+        yield
+    except OSError as error:
+        if error.errno in _DISK_FULL:
+            raise OutputError(
+                f"cannot write {target}: the disk is full ({error.strerror}); free some space "
+                "there or write the output elsewhere"
+            ) from error
+        raise
+
+
+@contextlib.contextmanager
 def atomic_path(target: str | os.PathLike):
     """Yields a temporary path beside `target`; renames it onto `target` only on success.
 
@@ -141,17 +155,11 @@ def atomic_path(target: str | os.PathLike):
     target.parent.mkdir(parents=True, exist_ok=True)
     tmp = None
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
-        os.close(fd)
-        yield Path(tmp)
-        os.replace(tmp, target)
-    except OSError as error:
-        if error.errno in _DISK_FULL:
-            raise OutputError(
-                f"cannot write {target}: the disk is full ({error.strerror}); free some space "
-                "there or write the output elsewhere"
-            ) from error
-        raise
+        with disk_full_is_typed(target):
+            fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+            os.close(fd)
+            yield Path(tmp)
+            os.replace(tmp, target)
     finally:
         if tmp is not None:
             with contextlib.suppress(FileNotFoundError):

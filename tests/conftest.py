@@ -82,6 +82,12 @@ def _tmpfs(folder: Path, options: str):
 
 
 @pytest.fixture
+def tmpfs():
+    """`tmpfs(folder, options)`: a context manager mounting a small file system on `folder`."""
+    return _tmpfs
+
+
+@pytest.fixture
 def read_only_dir(tmp_path):
     """A folder that cannot be written: mode 555, or for root (whom modes do not stop) a read-only mount."""
     folder = tmp_path / "read-only"

@@ -29,7 +29,7 @@ from tqdm import tqdm
 
 import ocplace
 from ocplace.errors import DatasetError
-from ocplace.paths import inside, write_text_atomic
+from ocplace.paths import disk_full_is_typed, inside, write_text_atomic
 from ocplace.runtime import Executor, ExecutorConfig, Task, map_tasks, open_executor
 from ocplace.sim.dataset.config import DatasetConfig
 from ocplace.sim.dataset.generate import SceneGenerator, describe, level_schedule, scene_id
@@ -65,19 +65,21 @@ def _sha256(path: Path) -> str:
 
 
 def write_scene(scene_dir: Path, files: dict[str, bytes]) -> None:
-    """Writes a scene folder atomically: a temporary sibling folder renamed into place."""
-    scene_dir.parent.mkdir(parents=True, exist_ok=True)
+    """Writes a scene folder atomically: a temporary sibling folder renamed into place. A full disk is an
+    OutputError naming the scene, and its temporary folder is removed."""
     tmp = scene_dir.parent / f"{TMP_PREFIX}{scene_dir.name}-{socket.gethostname()}-{os.getpid()}"
-    shutil.rmtree(tmp, ignore_errors=True)
-    tmp.mkdir()
-    for name, data in files.items():
-        (tmp / name).write_bytes(data)
-    try:
-        os.rename(tmp, scene_dir)
-    except OSError:
+    with disk_full_is_typed(scene_dir):
+        scene_dir.parent.mkdir(parents=True, exist_ok=True)
         shutil.rmtree(tmp, ignore_errors=True)
-        if not (scene_dir / SCENE_FILE).exists():
-            raise
+        try:
+            tmp.mkdir()
+            for name, data in files.items():
+                (tmp / name).write_bytes(data)
+            os.rename(tmp, scene_dir)
+        except OSError:
+            shutil.rmtree(tmp, ignore_errors=True)
+            if not (scene_dir / SCENE_FILE).exists():  # else another worker wrote it first
+                raise
 
 
 def _claim_directory(out: Path, config: DatasetConfig) -> None:
