@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import json
 import os
 import shutil
 import tempfile
@@ -102,6 +103,23 @@ def refuse_old_run(run_dir: str | os.PathLike, how_to_train: str) -> None:
             f"{run_dir} is a run written by an older ocplace (it holds {', '.join(old)}; a run now keeps "
             f"{RUN_FILE} and {WEIGHTS_FILE}): delete it, then {how_to_train}"
         )
+
+
+def read_run_file(run_dir: str | os.PathLike) -> dict:
+    """The metadata in `run_dir/RUN_FILE`; TrainingError when it is not a JSON object (cut short by a crash of
+    an older ocplace, edited, damaged). FileNotFoundError when there is none."""
+    path = Path(run_dir) / RUN_FILE
+    text = path.read_text()
+    try:
+        meta = json.loads(text)
+    except ValueError:
+        meta = None
+    if not isinstance(meta, dict):
+        raise TrainingError(
+            f"{path} is truncated or damaged (not a JSON object), so the run cannot be checked or resumed: delete "
+            f"{run_dir} to train it again from the start, or restore that file"
+        )
+    return meta
 
 
 def trained_weights(run_dir: str | os.PathLike, what: str, how_to_train: str) -> Path:

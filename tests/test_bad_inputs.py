@@ -20,7 +20,7 @@ from hypothesis import strategies as st
 
 from ocplace.cli import main
 from ocplace.errors import OutputError, ParseError, PolicyInputError
-from ocplace.eval.results import ResultsError, read_results
+from ocplace.eval.results import ResultsError, read_results, settings_of
 from ocplace.models.parsing import as_pairs, make_parser
 from ocplace.paths import atomic_path, check_writable
 from ocplace.sim.camera import DEFAULT_CAMERA
@@ -242,7 +242,7 @@ def _results(tmp_path, **body) -> Path:
         json.dumps(
             {
                 "schema": "ocplace.evaluation/1",
-                "dataset": {"dir": str(tmp_path)},
+                "dataset": {"dir": str(tmp_path), "dataset_hash": "0" * 16, "manifest_hash": "0" * 64},
                 "settings": {"subsets": ["seen"]},
                 **body,
             }
@@ -251,12 +251,23 @@ def _results(tmp_path, **body) -> Path:
     return path
 
 
+def _entry(**changes) -> dict:
+    """An evaluation entry of a results file, complete but for `changes`."""
+    return {"key": "ours", "method": "ours", "label": "Ours", "fraction": 1.0, "run_dir": None, "subsets": {}} | changes
+
+
 @pytest.mark.parametrize(
     "body, named",
     [
         ({}, "evaluations"),
         ({"evaluations": {"ours": 1}}, "evaluations"),
         ({"evaluations": [{"method": "ours"}]}, "evaluations\\[0\\]"),
+        ({"evaluations": [], "dataset": {}}, "dataset"),
+        ({"evaluations": [], "settings": {"subsets": "seen"}}, "settings"),
+        ({"evaluations": [_entry(subsets=["seen"])]}, "evaluations\\[0\\]"),
+        ({"evaluations": [_entry(subsets={"seen": "all"})]}, "evaluations\\[0\\]"),
+        ({"evaluations": [_entry(subsets={"seen": {"aggregate": {}, "scenes": [1]}})]}, "evaluations\\[0\\]"),
+        ({"evaluations": [_entry(run_dir=3)]}, "evaluations\\[0\\]"),
     ],
 )
 def test_results_without_evaluations_are_refused(tmp_path, capsys, body, named):
@@ -266,6 +277,13 @@ def test_results_without_evaluations_are_refused(tmp_path, capsys, body, named):
     code, _, err = _cli(capsys, "figures", path, "--out", tmp_path / "figures")
     assert code == 2 and err.startswith(f"ocplace figures: error: {path} is not a complete evaluation")
     assert not (tmp_path / "figures").exists()
+    code, _, err = _cli(capsys, "evaluate", "--rerun", path)
+    assert code == 2 and err.startswith(f"ocplace evaluate: error: {path} is not a complete evaluation")
+
+
+def test_results_settings_of_another_version_are_refused():
+    with pytest.raises(ResultsError, match="settings are not those of this ocplace's evaluations"):
+        settings_of({"settings": {"subsets": ["seen"], "sampler": "grid"}})
 
 
 def test_truncated_results_are_refused(tmp_path, capsys):
