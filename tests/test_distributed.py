@@ -10,6 +10,7 @@ cluster) and the reproduce runs are slow tests (`make test-all`), to keep the de
 import dataclasses
 import hashlib
 import json
+import logging
 import os
 import shutil
 import socket
@@ -123,6 +124,15 @@ def test_graph_runs_a_node_after_its_inputs_and_skips_what_follows_a_failure():
     assert outcomes["after bad"].skipped_because == "bad"
     with pytest.raises(ValueError, match="not listed before it"):
         run_graph(None, [Node("x", lambda done: Task(add), ("y",)), Node("y", lambda done: Task(add))])
+
+
+def test_more_workers_than_the_machine_runs_are_clamped_with_a_warning(caplog):
+    cpus = len(os.sched_getaffinity(0))
+    with caplog.at_level(logging.WARNING), open_executor(ExecutorConfig(workers=cpus + 62)) as executor:
+        pids = {pid for _, pid in map_tasks(executor, [Task(os.getpid) for _ in range(4 * cpus)])}
+    assert executor.capacity <= cpus and len(pids) <= cpus
+    assert f"--workers {cpus + 62} is more than this machine runs side by side ({cpus} CPUs; " in caplog.text
+    assert f"using {executor.capacity} workers" in caplog.text
 
 
 def test_a_local_ray_instance_retries_a_killed_worker_and_reraises_task_errors(reference, tmp_path, monkeypatch):
