@@ -6,6 +6,7 @@ import dataclasses
 import http.server
 import json
 import logging
+import socket
 import threading
 import time
 
@@ -13,9 +14,9 @@ import pytest
 from llm_endpoint import completion, send
 
 from ocplace.cli import main
-from ocplace.errors import LLMConfigError
-from ocplace.models.parsing import LLMConfig, OfflineConfig, SnapConfig, as_pairs, make_snapper
-from ocplace.models.parsing.llm import LLMParser
+from ocplace.errors import LLMConfigError, LLMUnreachable
+from ocplace.models.parsing import LLMConfig, OfflineConfig, SnapConfig, as_pairs, evaluation, make_snapper
+from ocplace.models.parsing.llm import LLMParser, NoAnswer
 from ocplace.models.parsing.offline import OfflineParser
 
 SECRET = "sk-test-0123456789-do-not-leak"
@@ -91,7 +92,7 @@ class _FaultHandler(http.server.BaseHTTPRequestHandler):
     """Answers each POST with the next fault of `server.script`, then with `server.fault`."""
 
     def do_POST(self):
-        self.rfile.read(int(self.headers["Content-Length"]))
+        self.server.bodies.append(self.rfile.read(int(self.headers["Content-Length"])))
         self.server.requests.append(dict(self.headers))
         fault = self.server.script.pop(0) if self.server.script else self.server.fault
         try:
@@ -112,7 +113,7 @@ def serve():
         httpd = http.server.ThreadingHTTPServer(("127.0.0.1", 0), _FaultHandler)
         httpd.daemon_threads = True
         httpd.fault, httpd.script, httpd.options = fault, list(script), options
-        httpd.requests, httpd.stop = [], threading.Event()
+        httpd.requests, httpd.bodies, httpd.stop = [], [], threading.Event()
         threading.Thread(target=httpd.serve_forever, args=(0.05,), daemon=True).start()
         servers.append(httpd)
         return httpd
@@ -305,6 +306,44 @@ def test_the_parse_command_never_prints_the_api_key(serve, caplog, capsys, tmp_p
         assert json.loads(captured.out)[0]["reference"] == "red bowl"
         assert SECRET[1:] not in captured.out + captured.err + caplog.text
     assert _files_holding(tmp_path, SECRET[1:]) == []
+
+
+# --- an endpoint that is gone -----------------------------------------------------------------
+
+
+def _closed_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+def test_the_parser_evaluation_stops_at_an_endpoint_that_never_answers(serve, llm):
+    server = serve("drip headers")  # accepts the connection, never finishes its answer
+    parser = llm(server, timeout_s=0.5, deadline_s=0.5)
+    cases = evaluation.generated_cases("seen", 10, 0)
+    with pytest.raises(LLMUnreachable, match=f"the LLM endpoint {url(server)} gave no answer to 3 instructions in a"):
+        evaluation.evaluate_llm(parser, cases, "seen")
+    asked = {json.loads(body)["messages"][-1]["content"] for body in server.bodies}
+    assert asked == {case.instruction for case in cases[:3]}
+
+
+def test_parse_eval_stops_at_a_dead_endpoint_and_says_why(capsys):
+    command = ["parse-eval", "--parser", "llm", "--base-url", f"http://127.0.0.1:{_closed_port()}/v1", "--num", "1"]
+    assert main(command) == 2
+    err = capsys.readouterr().err
+    assert "ocplace parse-eval: error: the LLM endpoint" in err and "3 instructions in a row" in err
+    assert "connection failed" in err and "make llm-server" in err
+
+
+def test_an_answer_resets_the_count_of_failures_in_a_row(serve, llm):
+    server = serve("answer", script=["busy", "busy"], status=503, retry_after="0")
+    parser = llm(server, max_attempts=1)
+    for expected in (1, 2):
+        with pytest.raises(NoAnswer):
+            parser.answer(INSTRUCTION)
+        assert parser.unreachable_in_a_row == expected
+    parser.answer(INSTRUCTION)
+    assert parser.unreachable_in_a_row == 0
 
 
 # --- the answer cache -------------------------------------------------------------------------

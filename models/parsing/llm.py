@@ -156,6 +156,7 @@ class LLMParser:
         self._snapper_factory = snapper_factory
         self._sleep = sleep
         self._json_mode = config.json_mode  # off once the server refuses `response_format`
+        self.unreachable_in_a_row = 0  # instructions that got no answer for transport reasons, since the last answer
 
     @property
     def cache_dir(self) -> Path:
@@ -205,7 +206,9 @@ class LLMParser:
         try:
             content, tuples = self._ask_with_retries(instruction)
         except NoAnswer as error:  # the last place a reason passes before it reaches a log or a tuple
+            self.unreachable_in_a_row = self.unreachable_in_a_row + 1 if error.transport else 0
             raise NoAnswer(self._scrub(str(error)), error.json_mode_refused, error.transport) from None
+        self.unreachable_in_a_row = 0
         if self.config.use_cache and (tuples or self.config.temperature == 0):  # "no placement" may vary above 0
             self._store(cache_file, instruction, content)
         return tuples
