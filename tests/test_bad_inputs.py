@@ -233,6 +233,25 @@ def test_cli_refuses_a_truncated_or_missing_depth(images, tmp_path, capsys):
     assert code == 2 and "error: cannot read the depth" in err and "No such file" in err
 
 
+@pytest.mark.parametrize(
+    "image, size, message",
+    [
+        ("depth", (320, 240), "rgb is 640x480 but depth is 320x240; register the depth image to the colour image"),
+        ("segmentation", (320, 240), "the segmentation (boxes_or_segmentation) has shape (240, 320): pass a "),
+        ("segmentation", (640, 480), None),  # the right size: past the checks, to the missing backbone
+    ],
+)
+def test_cli_refuses_images_of_other_sizes_before_the_model(images, tmp_path, capsys, image, size, message):
+    path = tmp_path / f"{image}.png"
+    cv2.imwrite(str(path), np.zeros(size[::-1], np.uint16 if image == "depth" else np.uint8))
+    code, _, err = _cli(capsys, *_place(images, tmp_path, **{image: path}))
+    assert code == 2
+    if message is None:
+        assert "/nonexistent/ocplace-backbone" in err, err
+    else:
+        assert err.startswith(f"ocplace place: error: {message}"), err
+
+
 # --- results files ---------------------------------------------------------------------------
 
 

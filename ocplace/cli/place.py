@@ -71,12 +71,13 @@ def run_place(args: argparse.Namespace) -> int:
 
     from ocplace.models.parsing import make_parser
     from ocplace.models.placement.sampler import SamplerConfig
-    from ocplace.models.policy import PlacementPolicy, load_backbone_spec
+    from ocplace.models.policy import PlacementPolicy, check_scene, load_backbone_spec
     from ocplace.models.policy_figure import save_placement_figure
     from ocplace.models.trained_adapters import load_adapters
 
     # Everything given is read and checked before the backbone loads, which takes seconds to minutes.
     scene, record = _scene(args)
+    check_scene(scene)  # sizes that disagree, the camera, the footprint
     parser = make_parser(args.parser)
     parser.parse(scene.instruction)  # the policy parses it again: a few milliseconds, or the LLM parser's cache
     adapters = None if args.adapters is None else load_adapters(args.adapters)  # a bad adapters file fails here
