@@ -224,7 +224,8 @@ def write_text_atomic(target: str | os.PathLike, text: str) -> None:
     write_bytes_atomic(target, text.encode("utf-8"))
 
 
-def _pid_alive(pid: int) -> bool:
+def pid_alive(pid: int) -> bool:
+    """Whether a process with this pid runs (on this machine, in this pid namespace)."""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
@@ -241,5 +242,5 @@ def remove_abandoned_tmp(tmp_root: Path) -> None:
     for path in tmp_root.iterdir():
         parts = path.name.split(".")
         pid = int(parts[-2]) if len(parts) >= 3 and parts[-2].isdigit() else None
-        if pid is None or not _pid_alive(pid):
+        if pid is None or not pid_alive(pid):
             shutil.rmtree(path, ignore_errors=True)
