@@ -38,12 +38,12 @@ from ocplace.sim.dataset.records import SceneRecord
 
 def train_no_llm(ctx: TrainContext) -> Path:
     """Featurize the training split (shared cache) and its sentences, then train no_llm (idempotent)."""
-    from ocplace.models.policy import load_backbone_spec
+    from ocplace.models.backbone import load_backbone
     from ocplace.train import no_llm
 
     return no_llm.train_no_llm(
         Path(ctx.dataset_dir),
-        load_backbone_spec(ctx.backbone),
+        load_backbone(ctx.backbone),
         Path(ctx.out_dir),
         dataclasses.replace(ctx.recipe, fraction=ctx.fraction, seed=ctx.seed),
         progress=False,
@@ -156,16 +156,16 @@ class NoLlmMethod:
 
 
 def load_no_llm(ctx: LoadContext) -> NoLlmMethod:
-    from ocplace.models.backbone import PromptConfig
+    from ocplace.models.backbone import PromptConfig, load_backbone
     from ocplace.models.grounding import GroundingModel
     from ocplace.models.no_llm import load_model
     from ocplace.models.placement.sampler import SamplerConfig
-    from ocplace.models.policy import PlacementPolicy, load_backbone_spec
+    from ocplace.models.policy import PlacementPolicy
 
     if ctx.run_dir is None:
         raise TrainingError("no_llm needs a run directory; train it first")
     trained = load_model(ctx.run_dir)
-    backbone = load_backbone_spec(ctx.backbone)
+    backbone = load_backbone(ctx.backbone)
     if trained.backbone_fingerprint != backbone.fingerprint:
         raise TrainingError(
             f"the no_llm model in {ctx.run_dir} was trained on another backbone (fingerprint "

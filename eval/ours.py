@@ -22,19 +22,19 @@ from ocplace.sim.dataset.records import SceneRecord
 
 def prepare_train_features(ctx: TrainContext) -> Path:
     """The training split's features, which Ours and no_llm read (one file per backbone and dataset)."""
+    from ocplace.models.backbone import load_backbone
     from ocplace.models.features import featurize_split
-    from ocplace.models.policy import load_backbone_spec
 
-    return featurize_split(Path(ctx.dataset_dir), "train", load_backbone_spec(ctx.backbone), progress=False)
+    return featurize_split(Path(ctx.dataset_dir), "train", load_backbone(ctx.backbone), progress=False)
 
 
 def train_ours(ctx: TrainContext) -> Path:
     """Featurize the training split, then train the adapters into `ctx.out_dir` (resumable)."""
+    from ocplace.models.backbone import load_backbone
     from ocplace.models.features import featurize_split, load_features
-    from ocplace.models.policy import load_backbone_spec
     from ocplace.train.loop import train
 
-    backbone = load_backbone_spec(ctx.backbone)
+    backbone = load_backbone(ctx.backbone)
     features = load_features(featurize_split(Path(ctx.dataset_dir), "train", backbone), backbone.fingerprint)
     config = dataclasses.replace(ctx.recipe, fraction=ctx.fraction, seed=ctx.seed)
     train(features, ctx.out_dir, config)
@@ -151,11 +151,12 @@ def json_default(value):
 
 
 def _policy(ctx: LoadContext, adapters_file: Path | None):
+    from ocplace.models.backbone import load_backbone
     from ocplace.models.placement.sampler import SamplerConfig
-    from ocplace.models.policy import PlacementPolicy, load_backbone_spec
+    from ocplace.models.policy import PlacementPolicy
 
     return PlacementPolicy.from_run(
-        load_backbone_spec(ctx.backbone),
+        load_backbone(ctx.backbone),
         adapters_file,
         parser=ctx.parser,
         sampler=SamplerConfig(num_samples=ctx.num_samples),

@@ -172,13 +172,14 @@ def placement_figure_step(run_dir: Path, config: PipelineConfig, dataset_dir: Pa
     import jax
 
     from ocplace.eval.ours import scene_input
-    from ocplace.models.policy import PlacementPolicy, load_backbone_spec
+    from ocplace.models.backbone import load_backbone
+    from ocplace.models.policy import PlacementPolicy
     from ocplace.models.policy_figure import save_placement
     from ocplace.sim.dataset.job import listed_scenes
 
     scene = listed_scenes(dataset_dir, "seen")[0]
     experiment = config.experiment
-    policy = PlacementPolicy.from_run(load_backbone_spec(backbone), run_dir, parser=experiment.evaluation.parser)
+    policy = PlacementPolicy.from_run(load_backbone(backbone), run_dir, parser=experiment.evaluation.parser)
     placement = save_placement(policy, scene_input(scene.read()), jax.random.key(experiment.seed), path)
     print(placement.summary(), flush=True)
     return f"{path} ({scene.name}, {'placed' if placement.error is None else placement.failure})"

@@ -5,9 +5,10 @@ Its `fingerprint` changes whenever anything that changes an embedding changes (w
 config, tokenizer, image preprocessing), so feature caches keyed by it never go stale.
 
 Backbone specs (`--backbone SPEC` on the command line, `load_backbone(spec)` in code):
-`clip:NAME_OR_DIR` (or just `NAME_OR_DIR`) loads a CLIP checkpoint, either a Hugging Face hub id
-such as `openai/clip-vit-base-patch32` or a local directory; other kinds register a loader in
-`BACKBONE_LOADERS`.
+`KIND:ARGUMENT` or a bare `KIND` (the same as `KIND:`), for each kind in `BACKBONE_LOADERS`:
+`offline` is the default recipe's offline backbone, `offline:demo` another recipe's,
+`offline:/path/to/dir` a saved one; `clip:NAME_OR_DIR` (or just `NAME_OR_DIR`) loads a CLIP
+checkpoint, either a Hugging Face hub id such as `openai/clip-vit-base-patch32` or a local directory.
 """
 
 from __future__ import annotations
@@ -88,12 +89,12 @@ class PromptConfig:
 
 
 def load_backbone(spec: str, **kwargs) -> Backbone:
-    """A backbone from a spec string (see the module docstring)."""
-    kind, sep, argument = spec.partition(":")
-    if sep and kind in BACKBONE_LOADERS:
+    """A backbone from a spec string (see the module docstring); a bare kind such as "offline" is "offline:"."""
+    kind, _, argument = spec.partition(":")
+    if kind in BACKBONE_LOADERS:
         module_name, _, function_name = BACKBONE_LOADERS[kind].partition(":")
         return getattr(importlib.import_module(module_name), function_name)(argument, **kwargs)
-    if not sep and "/" not in spec and not Path(spec).is_dir():
+    if "/" not in spec and not Path(spec).is_dir():
         raise BackboneError(
             f"unknown backbone {spec!r}: use clip:HUB_ID, clip:/path/to/clip_dir or a local CLIP "
             f"directory; registered kinds: {sorted(BACKBONE_LOADERS)}"
@@ -341,8 +342,9 @@ def load_clip_backbone(name_or_dir: str = DEFAULT_CLIP, max_batch: int = 32) -> 
     Local directories may hold Flax weights (`flax_model.msgpack`, or `model.safetensors` saved by
     Flax) or PyTorch weights in `model.safetensors`; transformers converts the latter without torch.
     Without a network and without a cached copy this raises `BackboneUnavailable` at once instead
-    of retrying.
+    of retrying. An empty name (the spec `clip` or `clip:`) is `DEFAULT_CLIP`.
     """
+    name_or_dir = name_or_dir or DEFAULT_CLIP
     local = Path(name_or_dir).expanduser()
     if local.is_dir():
         try:

@@ -46,13 +46,6 @@ DEFAULT_THRESHOLD = 0.5
 TABLE_LABEL = "the table"
 
 
-def load_backbone_spec(spec: str) -> Backbone:
-    """`models.backbone.load_backbone`, also accepting a bare kind such as "offline" (= "offline:")."""
-    from ocplace.models.backbone import BACKBONE_LOADERS, load_backbone
-
-    return load_backbone(f"{spec}:" if spec in BACKBONE_LOADERS else spec)
-
-
 def backbone_hint(fingerprint: str) -> str:
     """How to get the backbone with `fingerprint`: its saved directory, or how to build or pass it."""
     from ocplace.models.offline_backbone import saved_backbone_with

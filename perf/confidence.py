@@ -38,13 +38,14 @@ def main() -> None:
     args = parser.parse_args()
 
     from ocplace.eval.ours import scene_input
+    from ocplace.models.backbone import load_backbone
     from ocplace.models.placement.sampler import SamplerConfig
-    from ocplace.models.policy import PlacementPolicy, load_backbone_spec
+    from ocplace.models.policy import PlacementPolicy
     from ocplace.sim.dataset.job import listed_scenes
 
     records = [scene.read() for scene in listed_scenes(args.dataset, args.split)]
     policy = PlacementPolicy.from_run(
-        load_backbone_spec(args.backbone), args.adapters, threshold=0.0, sampler=SamplerConfig(num_samples=16)
+        load_backbone(args.backbone), args.adapters, threshold=0.0, sampler=SamplerConfig(num_samples=16)
     )
     scenes = [scene_input(r) for r in records]
     names = sorted({obj.human_name for r in records for obj in r.objects})

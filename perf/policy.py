@@ -26,8 +26,9 @@ import jax
 import numpy as np
 from random_clip import TINY_CLIP, VIT_B32, random_clip_backbone
 
+from ocplace.models.backbone import load_backbone
 from ocplace.models.placement.sampler import SamplerConfig
-from ocplace.models.policy import PlacementPolicy, load_backbone_spec
+from ocplace.models.policy import PlacementPolicy
 
 
 def random_offline_backbone(tiny: bool):
@@ -130,7 +131,7 @@ def main() -> None:
     print(f"scene {scene.name}: {len(scene.boxes_or_segmentation)} boxes, {scene.instruction!r}")
     with tempfile.TemporaryDirectory() as tmp:
         backbones = {
-            "offline" + ("" if args.offline else " (random weights)"): load_backbone_spec(args.offline)
+            "offline" + ("" if args.offline else " (random weights)"): load_backbone(args.offline)
             if args.offline
             else random_offline_backbone(tiny),
             ("tiny CLIP" if tiny else "ViT-B/32 CLIP") + " (random weights)": random_clip_backbone(

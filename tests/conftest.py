@@ -65,6 +65,30 @@ def tiny_backbone_spec(tmp_path_factory):
     return f"offline:{directory}"
 
 
+# The cache folders a test's own cache borrows from the real one: built once, only read by the tests that borrow them.
+_BORROWED_CACHE_FOLDERS = ("library", "sources", "corpus", "weights", "primitives", "compiled")
+
+
+@pytest.fixture
+def default_offline_backbone(tmp_path, tiny_backbone_spec, monkeypatch):
+    """Makes the bare spec `offline` (the default recipe's backbone) load the tiny backbone, in this process
+    and in the processes it starts: a cache of the test's own, holding it where the default recipe's
+    backbone is saved and borrowing the built library and corpus from the real cache."""
+    from ocplace.models.offline_recipes import recipe_dir
+    from ocplace.paths import cache_dir
+
+    real, own = cache_dir(), tmp_path / "cache"
+    own.mkdir()
+    for name in _BORROWED_CACHE_FOLDERS:
+        if (real / name).exists():
+            (own / name).symlink_to(real / name)
+    monkeypatch.setenv("OCPLACE_CACHE", str(own))
+    directory = recipe_dir("default")
+    directory.parent.mkdir(parents=True)
+    directory.symlink_to(tiny_backbone_spec.removeprefix("offline:"))
+    return directory
+
+
 @contextlib.contextmanager
 def _tmpfs(folder: Path, options: str):
     """A small file system mounted on `folder`. Needs the right to mount (root in a container); else skips."""

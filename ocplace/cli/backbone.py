@@ -61,9 +61,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "recipe holds out of pretraining, and grounds each of them among its scene's crops. No test "
         "subset is involved.",
     )
-    validate.add_argument(
-        "--backbone", default="offline:", help="backbone spec (default: offline:, the default recipe)"
-    )
+    validate.add_argument("--backbone", default="offline", help="backbone spec (default: offline, the default recipe)")
     validate.add_argument("--recipe", choices=RECIPE_NAMES, default="default", help="whose held-out names and protocol")
     validate.add_argument("--scenes", type=int, default=100)
     validate.set_defaults(func=_validate)

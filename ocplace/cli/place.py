@@ -69,9 +69,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run_place(args: argparse.Namespace) -> int:
     import jax
 
+    from ocplace.models.backbone import load_backbone
     from ocplace.models.parsing import make_parser
     from ocplace.models.placement.sampler import SamplerConfig
-    from ocplace.models.policy import PlacementPolicy, check_scene, load_backbone_spec
+    from ocplace.models.policy import PlacementPolicy, check_scene
     from ocplace.models.policy_figure import save_placement_figure
     from ocplace.models.trained_adapters import load_adapters
 
@@ -87,7 +88,7 @@ def run_place(args: argparse.Namespace) -> int:
         kwargs["threshold"] = args.threshold
     if args.adapters is None:
         print("no --adapters given: zero-shot grounding (plain backbone similarity, 'Ours w/o Adapter')")
-    policy = PlacementPolicy.from_run(load_backbone_spec(backbone_spec), adapters, parser=parser, **kwargs)
+    policy = PlacementPolicy.from_run(load_backbone(backbone_spec), adapters, parser=parser, **kwargs)
     [placement] = policy.place_many([scene], jax.random.key(args.seed))
     print(placement.summary())
     if record is not None:

@@ -38,7 +38,9 @@ def _register_featurize(subparsers, reader: Callable[[Path, str], Iterable]) -> 
     )
     parser.add_argument("dataset", type=Path, help="dataset directory (written by `ocplace generate`)")
     parser.add_argument(
-        "--backbone", required=True, help="clip:HUB_ID_OR_DIR (e.g. clip:openai/clip-vit-base-patch32) or another kind"
+        "--backbone",
+        default="offline",
+        help="backbone spec: offline (the default recipe's, the default), offline:RECIPE_OR_DIR, clip:HUB_ID_OR_DIR",
     )
     parser.add_argument("--split", default="train")
     parser.add_argument("--out", type=Path, help="feature file (default: in the cache, printed at the end)")
