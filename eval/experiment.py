@@ -47,6 +47,28 @@ class DatasetSizes:
 
 _SCENE_COUNTS = ("train_scenes", "test_scenes")
 
+# Recipe keys that each training run sets from its context, what sets them, and the key to change instead:
+# a value given here would be overwritten, so `--set` and `Experiment.validate` refuse one.
+RUN_KEYS = {
+    f"recipes.{recipe}.{field}": source
+    for recipe in ("ours", "no_llm", "no_pretrain.train")
+    for field, source in (
+        ("seed", "the experiment's `seed` (and `evaluation.seeds` for repeats)"),
+        ("fraction", "`evaluation.fractions`"),
+    )
+}
+
+
+def run_key_refusal(key: str) -> str:
+    return f"{key} is set for each run from {RUN_KEYS[key]}; change that instead"
+
+
+def refuse_run_keys(keys: Collection[str]) -> None:
+    """Raises ConfigError naming each of `keys` that a training run sets from its context (`RUN_KEYS`)."""
+    refused = [run_key_refusal(key) for key in keys if key in RUN_KEYS]
+    if refused:
+        raise ConfigError("; ".join(refused))
+
 
 @dataclasses.dataclass(frozen=True)
 class MethodRecipes:
@@ -165,6 +187,7 @@ class Experiment:
             problems.append(f"seed must be at least 0, got {self.seed}")
         problems += self.dataset.problems() + self.evaluation.problems() + self.recipes.problems()
         problems += [problem for problem in [_refusal("backbone", self.backbone.validate)] if problem]
+        problems += [run_key_refusal(key) for key in RUN_KEYS if not _is_default(self, key.split("."))]
         problems += _number_problems(self, "")
         if problems:
             raise ConfigError(
@@ -202,3 +225,11 @@ def _number_problems(node, key: str) -> list[str]:
     if name == "warmup_steps" and node < 0:
         return [f"{key} must be at least 0, got {node}"]
     return []
+
+
+def _is_default(node, path: list[str]) -> bool:
+    """Whether the field at the dotted `path` under the dataclass `node` holds its class default."""
+    for name in path[:-1]:
+        node = getattr(node, name)
+    field = next(field for field in dataclasses.fields(node) if field.name == path[-1])
+    return getattr(node, field.name) == field.default

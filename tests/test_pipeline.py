@@ -354,3 +354,19 @@ def test_reproduce_set_reaches_the_experiment(tmp_path, monkeypatch):
         ),
         executor=ExecutorConfig(workers=2),
     )
+
+
+@pytest.mark.parametrize("key", ["recipes.ours.seed", "recipes.no_llm.fraction", "recipes.no_pretrain.train.seed"])
+def test_reproduce_refuses_to_set_what_each_run_sets(key, tmp_path, monkeypatch, capsys):
+    from ocplace.cli import main
+
+    monkeypatch.setattr(pipeline, "run_pipeline", lambda *args, **kwargs: pytest.fail("ran with a refused key"))
+    assert main(["reproduce", "--scale", "smoke", "--out", str(tmp_path), "--set", f"{key}=3"]) == 2
+    assert f"{key} is set for each run from" in capsys.readouterr().err
+
+
+def test_an_experiment_whose_recipe_sets_what_each_run_sets_is_refused():
+    smoke = configs.get("smoke")
+    recipes = dataclasses.replace(smoke.recipes, ours=dataclasses.replace(smoke.recipes.ours, fraction=0.5))
+    with pytest.raises(ConfigError, match=r"recipes.ours.fraction is set for each run from `evaluation.fractions`"):
+        dataclasses.replace(smoke, recipes=recipes).validate()

@@ -253,6 +253,7 @@ def _reproduce(args: argparse.Namespace) -> int:
     from ocplace import configs
     from ocplace.cli.options import apply_overrides
     from ocplace.errors import ConfigError
+    from ocplace.eval.experiment import refuse_run_keys
     from ocplace.eval.pipeline import PipelineConfig, run_pipeline
 
     experiment = configs.get(args.scale)
@@ -269,6 +270,7 @@ def _reproduce(args: argparse.Namespace) -> int:
         plan = dataclasses.replace(plan, seeds=args.seeds)
     if args.physical is not None:
         sizes = dataclasses.replace(sizes, physical_scenes=physical_setting(args.physical, sizes.physical_scenes))
+    refuse_run_keys([item.partition("=")[0].strip() for item in args.overrides])
     experiment = apply_overrides(dataclasses.replace(experiment, evaluation=plan, dataset=sizes), args.overrides)
     config = PipelineConfig(
         experiment,
