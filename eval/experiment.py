@@ -15,6 +15,7 @@ from pathlib import Path
 from ocplace.errors import ConfigError, OcplaceError
 from ocplace.models.offline_recipes import PretrainConfig
 from ocplace.models.parsing.config import PARSER_NAMES
+from ocplace.runtime.width import TRAIN_CPUS
 from ocplace.train.cliport import CliportRecipe
 from ocplace.train.config import TrainConfig
 from ocplace.train.grids import GridsRecipe
@@ -160,7 +161,7 @@ class TaskCpus:
     decides the last bits of what they learn (docs/distributed.md). Evaluations declare one CPU."""
 
     pretrain: int = 2
-    train: int = 2  # each training, and the inputs trainings share (features)
+    train: int = TRAIN_CPUS  # each training, and the inputs trainings share (features)
 
     def __post_init__(self):
         if min(self.pretrain, self.train) < 1:

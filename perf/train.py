@@ -3,8 +3,8 @@
 Times the steps fused with `lax.scan` (what `ocplace train` runs) against a plain Python loop that
 calls one jitted step at a time, in the same run on the same synthetic features; compilation is
 excluded from both. The loop is timed on `--loop-steps` steps and extrapolated.
-`--cpus N` pins the process to its first N CPUs before JAX starts, so XLA sizes its thread pool
-to N; on a machine shared with other jobs, `--cpus 1` avoids XLA's intra-op fork-join waiting for
+`--cpus N` starts JAX sized to N CPUs (`pin_jax_width`, as `ocplace train` does); on a machine
+shared with other jobs, `--cpus 1` avoids XLA's intra-op fork-join waiting for
 a busy core inside the fused loop (see docs/performance.md).
 Usage: `python perf/train.py [--steps 200000] [--chunk-steps 2000] [--loop-steps 5000] [--cpus N]`.
 """
@@ -17,6 +17,7 @@ import datetime
 import os
 import time
 
+from ocplace.runtime.width import pin_jax_width
 from ocplace.train.config import default_config
 
 
@@ -31,7 +32,7 @@ def main() -> None:
     parser.add_argument("--cpus", type=int, help="pin to this many CPUs (default: all)")
     args = parser.parse_args()
     if args.cpus:
-        os.sched_setaffinity(0, sorted(os.sched_getaffinity(0))[: args.cpus])
+        pin_jax_width(args.cpus)  # as `ocplace train` and `reproduce`'s tasks: XLA sized to N CPUs
     run(args)
 
 
@@ -59,7 +60,8 @@ def run(args) -> None:
     indices = jnp.asarray(batch_indices(features.num_scenes, config.seed, 0, args.steps, args.batch_size))
     load = " ".join(f"{x:.1f}" for x in os.getloadavg())
     print(
-        f"{datetime.datetime.now():%Y-%m-%d %H:%M}, {len(os.sched_getaffinity(0))} of {os.cpu_count()} CPUs, "
+        f"{datetime.datetime.now():%Y-%m-%d %H:%M}, JAX {args.cpus or len(os.sched_getaffinity(0))} of "
+        f"{os.cpu_count()} CPUs wide, "
         f"load average {load} (other jobs share this machine)"
     )
     print(

@@ -204,6 +204,32 @@ def test_train_command(tmp_path, features):
     assert trained_adapters.load_adapters(run).steps == 100
 
 
+def test_train_command_gives_the_bits_of_a_reproduce_training_task(tmp_path, features, monkeypatch):
+    """`ocplace train` starts JAX through the pin of `reproduce`'s tasks (`runtime.width.pin_jax_width`, seen by
+    the compilation cache it sets for that width) at the width `reproduce` declares for its trainings
+    (`TaskCpus.train`): the same recipe gives the same weights."""
+    import os
+    import subprocess
+    import sys
+
+    from ocplace.eval.experiment import TaskCpus
+    from ocplace.runtime import ExecutorConfig, Task, map_tasks, open_executor
+    from ocplace.runtime.width import compiled_folder
+
+    monkeypatch.setenv("OCPLACE_CACHE", str(tmp_path / "cache"))  # the compilation cache of both
+    path = save_features(features, tmp_path / "features.safetensors")
+    command = ["train", "--features", str(path), "--out", str(tmp_path / "command"), "--smoke", "--steps", "100"]
+    subprocess.run([sys.executable, "-m", "ocplace.cli", *command], check=True, capture_output=True)
+    assert list(compiled_folder(min(TaskCpus().train, len(os.sched_getaffinity(0)))).glob("*-cache"))
+    config = dataclasses.replace(smoke_config(), steps=100)
+    task = Task(train, (features, tmp_path / "task", config), cpus=TaskCpus().train, fresh_process=True)
+    with open_executor(ExecutorConfig(workers=1)) as executor:
+        next(map_tasks(executor, [task]))
+    by_command, by_task = adapter_arrays(tmp_path / "command"), adapter_arrays(tmp_path / "task")
+    assert by_command.keys() == by_task.keys()
+    assert all(np.array_equal(by_command[name], by_task[name]) for name in by_command)
+
+
 @pytest.mark.parametrize("content", ['{"train_config": {"st', "", "[]"])
 def test_a_damaged_run_file_is_typed_when_the_run_resumes_or_loads(tmp_path, features, capsys, content):
     from ocplace.cli import main

@@ -5,12 +5,12 @@ from __future__ import annotations
 import argparse
 import importlib
 import importlib.util
-import os
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
 from ocplace.cli.executor_options import add_executor_arguments, executor_config
 from ocplace.cli.options import add_config_arguments, config_from_arguments
+from ocplace.runtime.width import TRAIN_CPUS, pin_jax_width
 from ocplace.train.config import TrainConfig, default_config, smoke_config  # light: no JAX behind it
 
 # The dataset's reader: `iter_examples(dataset_dir, split) -> Iterable[SceneExample]`.
@@ -102,9 +102,9 @@ def _register_train(subparsers) -> None:
     parser.add_argument(
         "--cpus",
         type=int,
-        default=1,
-        help="CPUs XLA may use (default 1: batch-1 steps are too small to gain from splitting "
-        "them across cores, and waiting for a busy core stalls every step; 0: all)",
+        default=TRAIN_CPUS,
+        help=f"CPUs JAX computes for (default {TRAIN_CPUS}, as `ocplace reproduce` trains: the same recipe gives the "
+        "same bits; 1 may be faster on a busy machine, with other last bits; 0: every CPU this process may use)",
     )
     overrides = parser.add_argument_group(
         "configuration overrides",
@@ -120,8 +120,8 @@ def train_config_from_args(args: argparse.Namespace) -> TrainConfig:
 
 
 def run_train(args) -> int:
-    if args.cpus:  # before JAX starts: XLA sizes its thread pool to the CPUs it may run on
-        os.sched_setaffinity(0, sorted(os.sched_getaffinity(0))[: args.cpus])
+    if args.cpus:  # before JAX starts, as in each task of `reproduce`: the width decides the last bits
+        pin_jax_width(args.cpus)
     from ocplace.models.features import load_features
     from ocplace.train.loop import train
 

@@ -24,6 +24,9 @@ from ocplace.paths import compiled_cache
 # Above this size JAX evicts the least recently used executables; with eviction on it also locks the
 # folder, which tasks on several processes and nodes write at once.
 COMPILED_CACHE_BYTES = 2 << 30
+# How wide a training's JAX is unless its experiment says otherwise (`TaskCpus.train`), `ocplace train` included,
+# so the same recipe gives the same bits from either command.
+TRAIN_CPUS = 2
 
 
 def _started() -> bool:
