@@ -1,30 +1,26 @@
-"""notebooks/01_grounding_logits.ipynb runs end to end on a tiny dataset, backbone and run."""
+"""notebooks/01_grounding_logits.ipynb runs end to end on a tiny dataset, backbone and run, in the default suite:
+the smoke dataset's `seen` split (8 scenes), a tiny CLIP and 100 training steps."""
 
 import dataclasses
 from pathlib import Path
 
-import pytest
 from tiny_clip import build_tiny_clip
 
 NOTEBOOK = Path(__file__).resolve().parents[1] / "notebooks" / "01_grounding_logits.ipynb"
 
 
-@pytest.mark.slow
-def test_grounding_notebook_executes(tmp_path, library, monkeypatch):
+def test_grounding_notebook_executes(tmp_path, smoke_dataset, monkeypatch):
     import nbformat
     from nbclient import NotebookClient
 
     from ocplace.models.backbone import load_clip_backbone
     from ocplace.models.features import featurize, load_features
-    from ocplace.sim.dataset.config import smoke_config as dataset_smoke_config
     from ocplace.sim.dataset.identity import dataset_hash
-    from ocplace.sim.dataset.job import generate_dataset
     from ocplace.sim.dataset.loader import iter_examples
     from ocplace.train.config import smoke_config
     from ocplace.train.loop import train
 
-    dataset, features_path, run = tmp_path / "dataset", tmp_path / "seen.safetensors", tmp_path / "run"
-    generate_dataset(dataset, dataset_smoke_config(), splits=["seen"], progress=False)
+    dataset, features_path, run = smoke_dataset, tmp_path / "seen.safetensors", tmp_path / "run"
     backbone = load_clip_backbone(str(build_tiny_clip(tmp_path / "clip")), max_batch=8)
     featurize(
         iter_examples(dataset, "seen"),
