@@ -231,7 +231,7 @@ def test_featurize_command_keys_by_the_split_files(tmp_path, backbone, monkeypat
     import argparse
     import json
 
-    from ocplace.cli import train as train_cli
+    from ocplace.cli import featurize as featurize_cli
     from ocplace.sim.dataset.identity import dataset_hash
 
     dataset = tmp_path / "dataset"
@@ -245,8 +245,9 @@ def test_featurize_command_keys_by_the_split_files(tmp_path, backbone, monkeypat
         yield from make_examples(2)
 
     monkeypatch.setattr("ocplace.models.backbone.load_backbone", lambda spec: backbone)
+    monkeypatch.setattr("ocplace.sim.dataset.loader.iter_examples", reader)
     parser = argparse.ArgumentParser()
-    train_cli._register_featurize(parser.add_subparsers(), reader)
+    featurize_cli.register(parser.add_subparsers())
     out = tmp_path / "train.safetensors"
     args = parser.parse_args(["featurize", str(dataset), "--backbone", "tiny", "--out", str(out)])
     assert args.func(args) == 0 and args.func(args) == 0

@@ -22,7 +22,6 @@ _INJECTION = re.compile(
     re.IGNORECASE | re.DOTALL,
 )
 _WORD = re.compile(r"[^\W_]+(?:['\-][^\W_]+)*'?")
-_HARD_BREAK = set('.!?;:()"\n')
 _PUNCTUATION = re.compile(r"[,.!?;:()\"\n]")
 
 ARTICLES = frozenset({"a", "an", "the", "teh", "hte"})
@@ -89,10 +88,6 @@ def tokenize(text: str) -> list[Token]:
             tokens.append(Token("," if char == "," else ".", False))
         position += 1
     return tokens
-
-
-def is_hard_break(char: str) -> bool:
-    return char in _HARD_BREAK
 
 
 def normalise_reference(words: list[str]) -> str:

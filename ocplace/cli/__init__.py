@@ -20,6 +20,7 @@ COMMAND_MODULES = (
     "ocplace.cli.scene",
     "ocplace.cli.dataset",
     "ocplace.cli.parse",
+    "ocplace.cli.featurize",
     "ocplace.cli.train",
     "ocplace.cli.corpus",
     "ocplace.cli.backbone",

@@ -11,7 +11,6 @@ import dataclasses
 import posixpath
 import re
 import zipfile
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -145,9 +144,3 @@ def read_entries(path: Path) -> tuple[list[CatalogueEntry], list[tuple[int, str,
 
 def catalogue_files(directory: Path) -> list[Path]:
     return sorted(Path(directory).glob("*.sh3f"))
-
-
-def iter_catalogues(directory: Path) -> Iterator[tuple[Path, list[CatalogueEntry], list[tuple[str, str]]]]:
-    for path in catalogue_files(directory):
-        entries, problems = read_entries(path)
-        yield path, entries, problems
