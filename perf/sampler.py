@@ -15,7 +15,9 @@ import argparse
 import os
 import platform
 import statistics
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -121,7 +123,10 @@ def main() -> None:
 
     import jax
 
-    from ocplace.models.placement import sampler, synthetic
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # the test support: synthetic inputs
+    import synthetic_problems as synthetic
+
+    from ocplace.models.placement import sampler
     from ocplace.sim import metric
 
     config = dataclasses.replace(sampler.default_config(), num_samples=args.samples)

@@ -15,7 +15,9 @@ import argparse
 import dataclasses
 import datetime
 import os
+import sys
 import time
+from pathlib import Path
 
 from ocplace.runtime.width import pin_jax_width
 from ocplace.train.config import default_config
@@ -44,7 +46,9 @@ def run(args) -> None:
 
     from ocplace.models.adapters import AdapterConfig, count_parameters
     from ocplace.train.loop import batch_indices, init_state, jit_train_chunk, jit_train_step, make_optimizer
-    from ocplace.train.synthetic import synthetic_features
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # the test support: synthetic inputs
+    from synthetic_features import synthetic_features
 
     config = dataclasses.replace(
         default_config(), steps=args.steps, batch_size=args.batch_size, chunk_steps=args.chunk_steps

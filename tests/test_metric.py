@@ -5,11 +5,11 @@ import itertools
 import jax.numpy as jnp
 import numpy as np
 import pytest
+import synthetic_problems as synthetic
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from ocplace.errors import InvalidPlacementProblem, NoFeasiblePlacement
-from ocplace.models.placement import synthetic
 from ocplace.sim import metric, relations
 from ocplace.sim.metric import FLOAT, GroundedTuple, encode_problem
 from ocplace.sim.workspace import DEFAULT_TABLE

@@ -5,12 +5,13 @@ import math
 import jax
 import numpy as np
 import pytest
+import synthetic_problems as synthetic
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import integrate, stats
 
 from ocplace.errors import NoFeasiblePlacement
-from ocplace.models.placement import explain_empty, figures, place, sampler, synthetic
+from ocplace.models.placement import explain_empty, figures, place, sampler
 from ocplace.sim import metric, relations
 from ocplace.sim.metric import FLOAT, GroundedTuple
 from ocplace.sim.workspace import DEFAULT_TABLE

@@ -8,6 +8,7 @@ import re
 import numpy as np
 import pytest
 from safetensors.numpy import load_file
+from synthetic_features import synthetic_features
 
 from ocplace.cli import train as train_command
 from ocplace.errors import TrainingError
@@ -19,7 +20,6 @@ from ocplace.train import checkpoints
 from ocplace.train.config import TrainConfig, smoke_config
 from ocplace.train.loop import batch_indices, subset_indices, train
 from ocplace.train.metrics import MetricsLog, evaluate_features
-from ocplace.train.synthetic import synthetic_features
 
 DIM = 32
 

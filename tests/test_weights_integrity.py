@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 from safetensors import safe_open
 from safetensors.numpy import save_file
+from synthetic_features import synthetic_features
 
 from ocplace.errors import BackboneError, GroundingUncertain, TrainingError, WeightsError
 from ocplace.models import offline_backbone as ob
@@ -35,7 +36,6 @@ from ocplace.train import baseline_runs, checkpoints, no_llm
 from ocplace.train.config import smoke_config
 from ocplace.train.loop import init_state, make_optimizer, train
 from ocplace.train.metrics import MetricsLog
-from ocplace.train.synthetic import synthetic_features
 
 DIM = 16
 KEY = jax.random.key(0)

@@ -3,17 +3,19 @@
 The tokenizer is a byte-level BPE in CLIP's format (vocab.json + merges.txt, `</w>` word ends,
 `<|startoftext|>` and `<|endoftext|>` last so the end token has the highest id, as in OpenAI's
 vocabulary), with merges learnt by the `tokenizers` package from a small corpus.
+
+`random_clip_params` and `write_clip_tokenizer` also build the benchmarks' towers of real sizes
+(`perf/random_clip.py`): no checkpoint is downloaded.
 """
 
 from __future__ import annotations
 
 import json
 import shutil
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
-
-from ocplace.models.backbone import random_clip_params, write_clip_tokenizer
 
 CORPUS = (
     "a photo of a red bowl.",
@@ -153,3 +155,57 @@ def save_as_pytorch_safetensors(params, path: Path) -> None:
             leaf = "weight"
         tensors[".".join([*prefix, leaf])] = np.array(value, order="C")  # keeps 0-d shapes
     save_file(tensors, str(path), metadata={"format": "pt"})
+
+
+def random_clip_params(shapes, seed: int) -> dict:
+    """Random CLIP weights for the parameter shapes `shapes` (`model.params_shape_tree`), drawn in numpy.
+
+    transformers' own initialisation runs eagerly (~20 s on CPU even for a tiny model). Kernels are
+    LeCun-normal, layer-norm scales near 1, embeddings and biases N(0, 0.02^2), and the logit scale is
+    CLIP's initial log(1 / 0.07).
+    """
+    import jax
+
+    rng = np.random.default_rng(seed)
+
+    def draw(path, leaf):
+        name = path[-1].key
+        if name == "logit_scale":
+            return np.asarray(np.log(1 / 0.07), np.float32)
+        if name == "scale":
+            return (1.0 + 0.1 * rng.normal(size=leaf.shape)).astype(np.float32)
+        std = 1.0 / np.sqrt(np.prod(leaf.shape[:-1])) if name == "kernel" else 0.02  # 0.02: CLIP's init range
+        return (std * rng.normal(size=leaf.shape)).astype(np.float32)
+
+    return jax.tree_util.tree_map_with_path(draw, shapes)
+
+
+def write_clip_tokenizer(directory: Path, merges: Sequence[tuple[str, str]] = ()):
+    """A CLIP-format byte-level BPE tokenizer (`vocab.json`, `merges.txt`) written to `directory`, no download.
+
+    The vocabulary is CLIP's byte alphabet,
+    the same with `</w>` word ends, the tokens `merges` make, then the start and end tokens last,
+    so the end token (also padding and unknown) has the highest id, as in OpenAI's vocabulary.
+    """
+    from transformers import CLIPTokenizerFast
+    from transformers.models.clip.tokenization_clip import bytes_to_unicode
+
+    bos, eos = "<|startoftext|>", "<|endoftext|>"
+    chars = list(bytes_to_unicode().values())
+    vocab = [*chars, *(c + "</w>" for c in chars)]
+    for left, right in merges:
+        if left + right not in vocab:
+            vocab.append(left + right)
+    vocab += [bos, eos]
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    (directory / "vocab.json").write_text(json.dumps({token: i for i, token in enumerate(vocab)}))
+    (directory / "merges.txt").write_text("#version: 0.2\n" + "".join(f"{a} {b}\n" for a, b in merges))
+    return CLIPTokenizerFast(
+        vocab_file=str(directory / "vocab.json"),
+        merges_file=str(directory / "merges.txt"),
+        bos_token=bos,
+        eos_token=eos,
+        pad_token=eos,
+        unk_token=eos,
+    )

@@ -19,7 +19,6 @@ from ocplace.models.parsing.config import (
     ParsingConfig,
     SnapConfig,
     default_config,
-    smoke_config,
 )
 from ocplace.models.parsing.types import ParsedTuple, Parser, as_pairs
 
@@ -35,7 +34,6 @@ __all__ = [
     "default_config",
     "make_parser",
     "make_snapper",
-    "smoke_config",
 ]
 
 

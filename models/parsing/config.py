@@ -1,4 +1,4 @@
-"""Parser configuration: frozen dataclasses with a default and a tiny variant for tests."""
+"""Parser configuration: frozen dataclasses and their default."""
 
 from __future__ import annotations
 
@@ -106,8 +106,3 @@ class ParsingConfig:
 
 def default_config() -> ParsingConfig:
     return ParsingConfig()
-
-
-def smoke_config() -> ParsingConfig:
-    """Fast retries and short timeouts, for tests against a local server."""
-    return ParsingConfig(llm=LLMConfig(timeout_s=1.0, deadline_s=3.0, max_attempts=3, backoff_s=0.01))

@@ -6,7 +6,6 @@ from ocplace.models.placement.sampler import (
     SamplerConfig,
     default_config,
     sample_placements,
-    smoke_config,
 )
 
 __all__ = [
@@ -16,5 +15,4 @@ __all__ = [
     "explain_empty",
     "place",
     "sample_placements",
-    "smoke_config",
 ]

@@ -45,10 +45,6 @@ def default_config() -> SamplerConfig:
     return SamplerConfig()
 
 
-def smoke_config() -> SamplerConfig:
-    return SamplerConfig(grid=Grid(resolution=0.02), num_samples=64)
-
-
 class PlacementResult(NamedTuple):
     samples: Any  # (num_scenes, num_samples, 2) float32; NaN for an empty scene
     heatmap: Any  # (num_scenes, nx, ny) float32 density per m^2; sums to 1 / cell_area; zeros if empty

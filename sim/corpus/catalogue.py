@@ -140,7 +140,3 @@ def read_entries(path: Path) -> tuple[list[CatalogueEntry], list[tuple[int, str,
         except (CorpusError, ValueError) as error:
             problems.append((index, get("name"), str(error)))
     return entries, problems
-
-
-def catalogue_files(directory: Path) -> list[Path]:
-    return sorted(Path(directory).glob("*.sh3f"))
