@@ -50,9 +50,7 @@ class Schedule:
             raise TrainingError(f"invalid schedule {self}: positive sizes, checkpoint_every a multiple of chunk_steps")
 
     def learning_rate_schedule(self) -> optax.Schedule:
-        return optax.warmup_cosine_decay_schedule(
-            0.0, self.learning_rate, self.warmup_steps, max(self.steps, self.warmup_steps + 1), 0.0
-        )
+        return optim.warmup_cosine(self.learning_rate, self.warmup_steps, self.steps)
 
     def optimizer(self):
         """`train/optim.py`'s Adam on this learning-rate schedule."""

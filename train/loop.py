@@ -44,10 +44,7 @@ class TrainResult:
 
 
 def learning_rate_schedule(config: TrainConfig) -> optax.Schedule:
-    """Linear warm-up from 0 to the peak over `warmup_steps`, then cosine decay to 0 at `steps`."""
-    return optax.warmup_cosine_decay_schedule(
-        0.0, config.learning_rate, config.warmup_steps, max(config.steps, config.warmup_steps + 1), 0.0
-    )
+    return optim.warmup_cosine(config.learning_rate, config.warmup_steps, config.steps)
 
 
 def make_optimizer(config: TrainConfig) -> optax.GradientTransformation:

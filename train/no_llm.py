@@ -35,7 +35,7 @@ from ocplace.models.no_llm import NoLlmConfig, NoLlmModel, encode_sentences, ini
 from ocplace.models.weights_file import save_weights
 from ocplace.paths import WEIGHTS_FILE, atomic_path, features_cache
 from ocplace.sim.relations import relation_index
-from ocplace.train import checkpoints, runner
+from ocplace.train import checkpoints, optim, runner
 from ocplace.train.loop import batch_indices, subset_indices
 
 # The paper's name in the cache key: renaming it would orphan every cached sentence file.
@@ -149,9 +149,7 @@ def training_arrays(features: Features, sentences: Sentences) -> dict[str, np.nd
 
 
 def learning_rate_schedule(config: NoLlmTrainConfig) -> optax.Schedule:
-    return optax.warmup_cosine_decay_schedule(
-        0.0, config.learning_rate, config.warmup_steps, max(config.steps, config.warmup_steps + 1), 0.0
-    )
+    return optim.warmup_cosine(config.learning_rate, config.warmup_steps, config.steps)
 
 
 def train_step(model_config: NoLlmConfig, config: NoLlmTrainConfig, logit_scale: float, state, data, indices):

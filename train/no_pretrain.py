@@ -35,7 +35,7 @@ from ocplace.models import offline_backbone as ob
 from ocplace.models.backbone import PromptConfig
 from ocplace.models.no_pretrain import BACKBONE_DIR
 from ocplace.paths import WEIGHTS_FILE, atomic_path, scratch_cache
-from ocplace.train import checkpoints, runner
+from ocplace.train import checkpoints, optim, runner
 from ocplace.train.loop import batch_indices, subset_indices
 from ocplace.vocabulary import MAX_INSTRUCTION_TUPLES as MAX_TUPLES
 
@@ -156,17 +156,9 @@ def no_pretrain_inputs(
 
 
 def make_optimizer(config: NoPretrainTrainConfig) -> optax.GradientTransformation:
-    schedule = optax.warmup_cosine_decay_schedule(
-        0.0,
-        config.learning_rate,
-        config.warmup_steps,
-        max(config.steps, config.warmup_steps + 1),
-        config.learning_rate * 0.02,
-    )
-    decay_mask = functools.partial(jax.tree_util.tree_map, lambda p: p.ndim >= 2)
-    return optax.chain(
-        optax.clip_by_global_norm(1.0), optax.adamw(schedule, weight_decay=config.weight_decay, mask=decay_mask)
-    )
+    """As the backbone's pretraining (`train.pretrain.loop.make_optimizer`)."""
+    schedule = optim.warmup_cosine(config.learning_rate, config.warmup_steps, config.steps, optim.TOWER_END_SHARE)
+    return optim.clipped_adamw(schedule, config.weight_decay)
 
 
 @functools.partial(jax.jit, static_argnums=(0, 1), donate_argnums=2)

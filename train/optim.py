@@ -1,4 +1,8 @@
-"""Adam as an optax transformation, arranged for fewer passes over memory on CPU.
+"""The optimisers of every training: one learning-rate schedule, Adam, and AdamW for the image towers.
+
+`warmup_cosine` is the schedule of every recipe: a linear warm-up, then cosine decay.
+
+`adam` is Adam as an optax transformation, arranged for fewer passes over memory on CPU.
 
 At batch 1 a step's arithmetic is tiny and Adam's elementwise update of the 262,144 adapter
 weights dominates: it streams weights, gradients and both moments (about 4 MB) through the cache
@@ -16,6 +20,7 @@ the two). `lr_t` is the schedule at the step index before the update, as in opta
 
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
 import jax
@@ -53,3 +58,24 @@ def adam(
         return updates, AdamState(count, moments)
 
     return optax.GradientTransformation(init, update)
+
+
+def warmup_cosine(learning_rate: float, warmup_steps: int, steps: int, end_share: float = 0.0) -> optax.Schedule:
+    """Linear warm-up from 0 to `learning_rate` over `warmup_steps`, then cosine decay to
+    `end_share * learning_rate` at `steps` (a run shorter than its warm-up still decays one step)."""
+    return optax.warmup_cosine_decay_schedule(
+        0.0, learning_rate, warmup_steps, max(steps, warmup_steps + 1), learning_rate * end_share
+    )
+
+
+# Image towers (the backbone's pretraining, no_pretrain's tower) decay to this share of the peak, not to 0.
+TOWER_END_SHARE = 0.02
+
+
+def clipped_adamw(schedule: optax.Schedule, weight_decay: float) -> optax.GradientTransformation:
+    """AdamW after clipping the gradient's global norm to 1; weight decay on matrices only (not on norms,
+    biases or scales): what trains an image tower, pretrained or from scratch."""
+    decay_mask = functools.partial(jax.tree_util.tree_map, lambda p: p.ndim >= 2)
+    return optax.chain(
+        optax.clip_by_global_norm(1.0), optax.adamw(schedule, weight_decay=weight_decay, mask=decay_mask)
+    )

@@ -46,6 +46,7 @@ from ocplace.models.offline_backbone import (
 from ocplace.models.offline_recipes import OptimConfig, PretrainConfig, output_dir
 from ocplace.sim.corpus.build import build_corpus
 from ocplace.train import checkpoints, runner
+from ocplace.train import optim as optimisers  # `optim` names the recipe's OptimConfig here
 from ocplace.train.pretrain.captions import CaptionBank
 from ocplace.train.pretrain.classes import caption_bank, pretraining_classes
 from ocplace.train.pretrain.loss import contrastive_loss
@@ -71,22 +72,11 @@ class PretrainResult:
 
 
 def learning_rate_schedule(optim: OptimConfig) -> optax.Schedule:
-    return optax.warmup_cosine_decay_schedule(
-        0.0,
-        optim.learning_rate,
-        optim.warmup_steps,
-        max(optim.steps, optim.warmup_steps + 1),
-        optim.learning_rate * 0.02,
-    )
+    return optimisers.warmup_cosine(optim.learning_rate, optim.warmup_steps, optim.steps, optimisers.TOWER_END_SHARE)
 
 
 def make_optimizer(optim: OptimConfig) -> optax.GradientTransformation:
-    """AdamW with warm-up and cosine decay; weight decay on matrices only (not on norms, biases, scale)."""
-    decay_mask = functools.partial(jax.tree_util.tree_map, lambda p: p.ndim >= 2)
-    return optax.chain(
-        optax.clip_by_global_norm(1.0),
-        optax.adamw(learning_rate_schedule(optim), weight_decay=optim.weight_decay, mask=decay_mask),
-    )
+    return optimisers.clipped_adamw(learning_rate_schedule(optim), optim.weight_decay)
 
 
 def colour_jitter(pixels, factors):
