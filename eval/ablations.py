@@ -30,7 +30,7 @@ from ocplace.eval.ours import (
     scene_input,
     trained_run_weights,
 )
-from ocplace.paths import RUN_FILE, WEIGHTS_FILE
+from ocplace.paths import WEIGHTS_FILE, read_run_file
 from ocplace.sim.dataset.records import SceneRecord
 
 # ----------------------------------------------------------------------------- Ours w/o LLM
@@ -202,7 +202,7 @@ class NoPretrainMethod(PolicyMethod):
         described = describe_policy(self.policy, self.name, self.backbone_spec, self.adapters_file)
         from ocplace.models.no_llm import params_sha256
 
-        described["from_scratch"] = json.loads((Path(self.run_dir) / RUN_FILE).read_text())
+        described["from_scratch"] = read_run_file(self.run_dir)
         described["backbone"]["weights_sha256"] = params_sha256(self.policy.backbone.params)
         described["adapters"]["weights_sha256"] = params_sha256(self.policy.grounding.params)
         return described

@@ -8,15 +8,19 @@ runs one. Every method that learns finds its training recipe here by its registe
 from __future__ import annotations
 
 import dataclasses
+import math
+from collections.abc import Collection
 from pathlib import Path
 
-from ocplace.errors import ConfigError
+from ocplace.errors import ConfigError, OcplaceError
 from ocplace.models.offline_recipes import PretrainConfig
+from ocplace.models.parsing.config import PARSER_NAMES
 from ocplace.train.cliport import CliportRecipe
 from ocplace.train.config import TrainConfig
 from ocplace.train.grids import GridsRecipe
 from ocplace.train.no_llm import NoLlmTrainConfig
 from ocplace.train.no_pretrain import NoPretrainRecipe
+from ocplace.vocabulary import TEST_SUBSETS
 
 
 @dataclasses.dataclass(frozen=True)
@@ -27,6 +31,21 @@ class DatasetSizes:
     test_scenes: int  # per test subset
     physical_scenes: int | None  # first K scenes per test subset get the drop check; None: all, 0: none
     seed: int  # scene generation
+
+    def problems(self) -> list[str]:
+        problems = [
+            f"dataset.{name} must be at least 1, got {getattr(self, name)}"
+            for name in _SCENE_COUNTS
+            if getattr(self, name) < 1
+        ]
+        if self.physical_scenes is not None and self.physical_scenes < 0:
+            problems.append(f"dataset.physical_scenes must be none (all) or at least 0, got {self.physical_scenes}")
+        if self.seed < 0:
+            problems.append(f"dataset.seed must be at least 0, got {self.seed}")
+        return problems
+
+
+_SCENE_COUNTS = ("train_scenes", "test_scenes")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -43,6 +62,20 @@ class MethodRecipes:
         """The recipe of a registered method; None for a method without one (it learns nothing)."""
         return getattr(self, method) if method in {field.name for field in dataclasses.fields(self)} else None
 
+    def problems(self) -> list[str]:
+        """What each recipe's own `validate` refuses, named by the recipe's key."""
+        checks = {
+            "ours": self.ours.validate,
+            "no_llm": self.no_llm.validate,
+            "no_pretrain.train": self.no_pretrain.train.validate,
+            "grids.schedule": self.grids.schedule.validate,
+            "cliport.schedule": self.cliport.schedule.validate,
+        }
+        problems = [problem for key, check in checks.items() if (problem := _refusal(f"recipes.{key}", check))]
+        if self.cliport.num_targets < 1:
+            problems.append(f"recipes.cliport.num_targets must be at least 1, got {self.cliport.num_targets}")
+        return problems
+
 
 @dataclasses.dataclass(frozen=True)
 class EvalPlan:
@@ -57,6 +90,46 @@ class EvalPlan:
     seeds: int  # each run trained and scored with this many seeds (the experiment's, then the next ones)
     seed_methods: tuple[str, ...] | None = None  # the methods repeated over `seeds`; None: every method
     seed_fractions: tuple[float, ...] | None = None  # the fractions repeated over `seeds`; None: every one
+
+    def problems(self) -> list[str]:
+        problems = []
+        if self.methods is not None and not self.methods:
+            problems.append("evaluation.methods names no method; name some, or none for every registered method")
+        problems += [
+            f"evaluation.fractions holds {f}; a training-set fraction lies in (0, 1]"
+            for f in self.fractions
+            if not 0 < f <= 1
+        ]
+        if self.num_samples < 1:
+            problems.append(f"evaluation.num_samples must be at least 1, got {self.num_samples}")
+        if self.parser not in PARSER_NAMES:
+            problems.append(
+                f"evaluation.parser {self.parser!r} is not a parser; choose one of {', '.join(PARSER_NAMES)}"
+            )
+        unknown = [subset for subset in self.subsets if subset not in TEST_SUBSETS]
+        if unknown or not self.subsets or len(set(self.subsets)) < len(self.subsets):
+            problems.append(
+                f"evaluation.subsets must name each test subset at most once, some of {', '.join(TEST_SUBSETS)}; "
+                f"got {', '.join(self.subsets) or 'none'}"
+            )
+        if self.seeds < 1:
+            problems.append(f"evaluation.seeds must be at least 1, got {self.seeds}")
+        trained = {*self.fractions, 1.0}
+        problems += [
+            f"evaluation.seed_fractions holds {f}, which is not trained: choose among evaluation.fractions and 1.0"
+            for f in self.seed_fractions or ()
+            if f not in trained
+        ]
+        return problems
+
+    def unknown_methods(self, registered: Collection[str]) -> list[str]:
+        """The keys of this plan that name a method not in `registered`, with those names."""
+        named = {"methods": self.methods, "fraction_methods": self.fraction_methods, "seed_methods": self.seed_methods}
+        return [
+            f"evaluation.{key} names {', '.join(unknown)}, not registered (registered: {', '.join(registered)})"
+            for key, names in named.items()
+            if (unknown := [name for name in names or () if name not in registered])
+        ]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -82,3 +155,50 @@ class Experiment:
     recipes: MethodRecipes
     evaluation: EvalPlan
     cpus: TaskCpus = TaskCpus()
+
+    def validate(self) -> None:
+        """Raises ConfigError, naming every key whose value cannot work, before any work starts: counts and
+        ranges, finite numbers, positive learning rates, known subsets and parser, each recipe's own checks.
+        The method names are checked by the pipeline, which knows the registered methods."""
+        problems = [] if self.name else ["name must not be empty"]
+        if self.seed < 0:
+            problems.append(f"seed must be at least 0, got {self.seed}")
+        problems += self.dataset.problems() + self.evaluation.problems() + self.recipes.problems()
+        problems += [problem for problem in [_refusal("backbone", self.backbone.validate)] if problem]
+        problems += _number_problems(self, "")
+        if problems:
+            raise ConfigError(
+                f"experiment {self.name!r} cannot run: {'; '.join(problems)}. Change the value with "
+                "--set KEY=VALUE, or in the scale's file in ocplace/configs"
+            )
+
+
+def _refusal(key: str, validate) -> str | None:
+    """What `validate()` refuses, prefixed by `key`; None when it accepts."""
+    try:
+        validate()
+    except OcplaceError as error:
+        return f"{key}: {error}"
+    return None
+
+
+def _number_problems(node, key: str) -> list[str]:
+    """Rules every recipe shares, by field name, anywhere in the tree under `node`: every number is
+    finite, every `learning_rate` positive (a negative one trains by gradient ascent), every
+    `warmup_steps` at least 0."""
+    if dataclasses.is_dataclass(node):
+        return [
+            problem
+            for field in dataclasses.fields(node)
+            for problem in _number_problems(getattr(node, field.name), f"{key}.{field.name}".lstrip("."))
+        ]
+    if isinstance(node, tuple):
+        return [problem for index, item in enumerate(node) for problem in _number_problems(item, f"{key}[{index}]")]
+    if isinstance(node, float) and not math.isfinite(node):
+        return [f"{key} is {node}; numbers must be finite"]
+    name = key.rsplit(".", 1)[-1]
+    if name == "learning_rate" and not node > 0:
+        return [f"{key} must be positive, got {node}"]
+    if name == "warmup_steps" and node < 0:
+        return [f"{key} must be at least 0, got {node}"]
+    return []

@@ -94,11 +94,11 @@ def _draw_case(axis, record, outcomes: Sequence[tuple[str, dict]]) -> None:
     axis.set_axis_off()
 
 
-def _listed_scene(dataset_dir: Path, subset: str, scene_id: str) -> Path:
-    """The folder of a scene the results name, found among those the manifest lists, never joined from the name."""
-    from ocplace.sim.dataset.job import scene_dirs
+def _listed_scene(dataset_dir: Path, subset: str, scene_id: str):
+    """The `ListedScene` the results name, found among those the manifest lists, never joined from the name."""
+    from ocplace.sim.dataset.job import listed_scenes
 
-    listed = {directory.name: directory for directory in scene_dirs(dataset_dir, subset)}
+    listed = {scene.name: scene for scene in listed_scenes(dataset_dir, subset)}
     if scene_id not in listed:
         raise EvaluationError(
             f"scene {scene_id!r} of the results is not in the manifest of {dataset_dir}: the "
@@ -122,7 +122,6 @@ def plot_cases(
     import matplotlib.pyplot as plt
 
     from ocplace.models.placement.figures import save_figure
-    from ocplace.sim.dataset.records import read_scene
 
     dataset_dir = Path(dataset_dir or results["dataset"]["dir"])
     cases = list(cases or choose_cases(results, methods))
@@ -135,7 +134,7 @@ def plot_cases(
     for axis in axes.flat[len(cases) :]:
         axis.set_axis_off()
     for axis, (subset, scene_id) in zip(axes.flat, cases):
-        record = read_scene(_listed_scene(dataset_dir, subset, scene_id))
+        record = _listed_scene(dataset_dir, subset, scene_id).read()
         outcomes = [(entries[m]["label"], _outcomes_by_scene(entries[m], subset)[scene_id]) for m in methods]
         _draw_case(axis, record, outcomes)
     figure.tight_layout()
@@ -147,10 +146,9 @@ def plot_fig5(dataset_dir: str | Path, path: str | Path, seed: int = 0, subset: 
     import jax
 
     from ocplace.models.placement.figures import fig5, save_figure
-    from ocplace.sim.dataset.job import scene_dirs
-    from ocplace.sim.dataset.records import read_scene
+    from ocplace.sim.dataset.job import listed_scenes
 
-    record = read_scene(scene_dirs(Path(dataset_dir), subset)[0])
+    record = listed_scenes(Path(dataset_dir), subset)[0].read()
     boxes = np.array([obj.aabb for obj in record.objects], dtype=float)[:, :, :2]
     held = record.held_object
     figure = fig5(

@@ -162,11 +162,12 @@ def subset_key(seed: int, method: str, subset: str):
     return jax.random.fold_in(jax.random.fold_in(jax.random.key(seed), stable_id(method)), stable_id(subset))
 
 
-def subset_dirs(dataset_dir: Path, subset: str, limit: int | None) -> list[Path]:
-    from ocplace.sim.dataset.job import scene_dirs
+def subset_scenes(dataset_dir: Path, subset: str, limit: int | None) -> list:
+    """The first `limit` (None: all) scenes the manifest lists for `subset`, as `ListedScene`s."""
+    from ocplace.sim.dataset.job import listed_scenes
 
-    dirs = scene_dirs(dataset_dir, subset)
-    return dirs if limit is None else dirs[:limit]
+    scenes = listed_scenes(dataset_dir, subset)
+    return scenes if limit is None else scenes[:limit]
 
 
 def redacted(record: SceneRecord) -> SceneRecord:
@@ -175,11 +176,10 @@ def redacted(record: SceneRecord) -> SceneRecord:
     return dataclasses.replace(record, meta=meta)
 
 
-def chunks(dirs: Sequence[Path], size: int) -> Iterator[tuple[int, list[SceneRecord]]]:
-    from ocplace.sim.dataset.records import read_scene
-
-    for index, start in enumerate(range(0, len(dirs), size)):
-        yield index, [read_scene(d) for d in dirs[start : start + size]]
+def chunks(scenes: Sequence, size: int) -> Iterator[tuple[int, list[SceneRecord]]]:
+    """`ListedScene`s read `size` at a time, each checked against its manifest hashes."""
+    for index, start in enumerate(range(0, len(scenes), size)):
+        yield index, [scene.read() for scene in scenes[start : start + size]]
 
 
 # ----------------------------------------------------------------------------- running a method
@@ -378,12 +378,12 @@ def evaluate_subset(
     import jax
     from tqdm import tqdm
 
-    dirs = subset_dirs(dataset_dir, subset, settings.limit)
-    physical_limit = len(dirs) if settings.physical_scenes is None else settings.physical_scenes
+    scenes = subset_scenes(dataset_dir, subset, settings.limit)
+    physical_limit = len(scenes) if settings.physical_scenes is None else settings.physical_scenes
     base_key = subset_key(settings.seed, name, subset)
     outcomes = []
-    bar = tqdm(total=len(dirs), desc=f"{name} {subset}", unit="scene", disable=not progress, leave=False)
-    for chunk_index, records in chunks(dirs, settings.chunk_size):
+    bar = tqdm(total=len(scenes), desc=f"{name} {subset}", unit="scene", disable=not progress, leave=False)
+    for chunk_index, records in chunks(scenes, settings.chunk_size):
         outputs = run_scenes(method, [redacted(r) for r in records], jax.random.fold_in(base_key, chunk_index))
         for record, output in zip(records, outputs):
             outcome = score_scene(record, output)

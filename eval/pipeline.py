@@ -48,6 +48,9 @@ class PipelineConfig:
     executor: ExecutorConfig = ExecutorConfig()  # where the graph's tasks run (local pool or Ray)
     progress: bool = True
 
+    def __post_init__(self):
+        self.experiment.validate()  # a value that cannot work fails here, not hours into the run
+
 
 @dataclasses.dataclass(frozen=True)
 class Step:
@@ -134,8 +137,6 @@ def planned_runs(config: PipelineConfig, specs: Sequence[MethodSpec]) -> list[Me
     methods on every fraction, and each of those again per extra seed (`EvalPlan.seeds`; only the
     `EvalPlan.seed_methods` and `seed_fractions` when they name some)."""
     plan, base = config.experiment.evaluation, config.experiment.seed
-    if plan.seeds < 1:
-        raise ConfigError(f"evaluation.seeds must be at least 1, got {plan.seeds}")
     runs = []
     for spec in specs:
         learns = spec.train is not None
@@ -173,15 +174,14 @@ def placement_figure_step(run_dir: Path, config: PipelineConfig, dataset_dir: Pa
     from ocplace.eval.ours import scene_input
     from ocplace.models.policy import PlacementPolicy, load_backbone_spec
     from ocplace.models.policy_figure import save_placement
-    from ocplace.sim.dataset.job import scene_dirs
-    from ocplace.sim.dataset.records import read_scene
+    from ocplace.sim.dataset.job import listed_scenes
 
-    scene_dir = scene_dirs(dataset_dir, "seen")[0]
+    scene = listed_scenes(dataset_dir, "seen")[0]
     experiment = config.experiment
     policy = PlacementPolicy.from_run(load_backbone_spec(backbone), run_dir, parser=experiment.evaluation.parser)
-    placement = save_placement(policy, scene_input(read_scene(scene_dir)), jax.random.key(experiment.seed), path)
+    placement = save_placement(policy, scene_input(scene.read()), jax.random.key(experiment.seed), path)
     print(placement.summary(), flush=True)
-    return f"{path} ({scene_dir.name}, {'placed' if placement.error is None else placement.failure})"
+    return f"{path} ({scene.name}, {'placed' if placement.error is None else placement.failure})"
 
 
 def evaluation_key(run: MethodRun, description: dict, settings: EvalSettings, dataset_hash: str) -> str:
@@ -357,6 +357,17 @@ def run_pipeline(
     `specs` defaults to the registry; a `library` passed in is not built again (the tasks load it from
     the cache, where it was built).
     """
+    from ocplace.paths import check_writable
+
+    if specs is None:
+        from ocplace.eval.registry import method_specs
+
+        specs = method_specs()
+    out = Path(out or config.experiment.out)
+    unknown = config.experiment.evaluation.unknown_methods(specs)
+    if unknown:
+        raise ConfigError(f"experiment {config.experiment.name!r} cannot run: {'; '.join(unknown)}")
+    check_writable(out, as_folder=True)
     with open_executor(config.executor) as executor:
         return _run(config, executor, out, specs, command, library)
 
@@ -366,13 +377,8 @@ def _run(config, executor, out, specs, command, library) -> PipelineSummary:
     from ocplace.models.offline_recipes import output_dir
 
     began = time.perf_counter()
-    out = Path(out or config.experiment.out)
     out.mkdir(parents=True, exist_ok=True)
     summary = PipelineSummary(out)
-    if specs is None:
-        from ocplace.eval.registry import method_specs
-
-        specs = method_specs()
     runs = planned_runs(config, selected_specs(config, specs))
     dataset_dir = Path(config.dataset or out / "dataset")
     print(f"running on a {config.executor.describe()}", flush=True)

@@ -17,6 +17,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import datetime
 import hashlib
 import json
@@ -61,8 +62,10 @@ COMPARED_FIELDS = (
 )
 
 
-_SECTIONS = {"dataset": dict, "settings": dict, "evaluations": list}
-_ENTRY_FIELDS = {"key", "method", "label", "fraction", "subsets"}
+# What readers of a results file index (rerun, tables, figures, the notebook), checked when it is read.
+_DATASET_FIELDS = {"dir": str, "dataset_hash": str, "manifest_hash": str}
+_ENTRY_FIELDS = {"key": str, "method": str, "label": str, "fraction": (int, float), "subsets": dict}
+_SUBSET_FIELDS = {"aggregate": dict, "scenes": list}
 
 
 class ResultsError(EvaluationError):
@@ -158,6 +161,8 @@ def evaluation_from_json(entry: dict) -> Evaluation:
 def build_results(
     evaluations: Sequence[Evaluation], dataset_dir: str | Path, settings: EvalSettings, command=None
 ) -> dict:
+    """The results file's content. Its paths (the dataset, each run directory) are absolute, so that
+    `ocplace evaluate --rerun` finds them from any folder."""
     return {
         "schema": SCHEMA,
         "created": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
@@ -165,8 +170,14 @@ def build_results(
         "environment": environment(),
         "dataset": dataset_identity(dataset_dir),
         "settings": settings.to_json(),
-        "evaluations": [evaluation_to_json(e) for e in evaluations],
+        "evaluations": [evaluation_to_json(_with_absolute_run_dir(e)) for e in evaluations],
     }
+
+
+def _with_absolute_run_dir(evaluation: Evaluation) -> Evaluation:
+    if evaluation.run_dir is None:
+        return evaluation
+    return dataclasses.replace(evaluation, run_dir=str(Path(evaluation.run_dir).resolve()))
 
 
 def summarise(results: Mapping) -> dict:
@@ -220,15 +231,33 @@ def read_results(path: str | Path) -> dict:
     return results
 
 
+def _has(value, fields: Mapping[str, type | tuple]) -> bool:
+    """Whether `value` is a dict whose `fields` hold values of their types."""
+    return isinstance(value, dict) and all(isinstance(value.get(name), kind) for name, kind in fields.items())
+
+
+def _is_entry(entry) -> bool:
+    return (
+        _has(entry, _ENTRY_FIELDS)
+        and isinstance(entry.get("run_dir"), (str, type(None)))
+        and all(
+            _has(body, _SUBSET_FIELDS) and all(_has(scene, {"id": str}) for scene in body["scenes"])
+            for body in entry["subsets"].values()
+        )
+    )
+
+
 def _check_sections(path: Path, results: dict) -> None:
     """Refuses a results file cut short or edited by hand, before anything reads or draws from it."""
-    bad = [name for name, kind in _SECTIONS.items() if not isinstance(results.get(name), kind)]
-    entries = results.get("evaluations") if "evaluations" not in bad else []
-    bad += [
-        f"evaluations[{i}]"
-        for i, entry in enumerate(entries)
-        if not isinstance(entry, dict) or not entry.keys() >= _ENTRY_FIELDS
-    ]
+    bad = [] if _has(results.get("dataset"), _DATASET_FIELDS) else ["dataset"]
+    settings = results.get("settings")
+    if not _has(settings, {"subsets": list}) or not all(isinstance(s, str) for s in settings["subsets"]):
+        bad.append("settings")
+    entries = results.get("evaluations")
+    if not isinstance(entries, list):
+        bad.append("evaluations")
+        entries = []
+    bad += [f"evaluations[{i}]" for i, entry in enumerate(entries) if not _is_entry(entry)]
     if bad:
         raise ResultsError(
             f"{path} is not a complete evaluation: {', '.join(bad[:5])} missing or malformed; "
@@ -241,7 +270,13 @@ def evaluations(results: Mapping) -> list[Evaluation]:
 
 
 def settings_of(results: Mapping) -> EvalSettings:
-    return EvalSettings.from_json(results["settings"])
+    try:
+        return EvalSettings.from_json(results["settings"])
+    except (TypeError, ValueError) as error:
+        raise ResultsError(
+            f"the results' settings are not those of this ocplace's evaluations ({error}); write them again with "
+            "`ocplace evaluate` or `ocplace reproduce`"
+        ) from None
 
 
 # ----------------------------------------------------------------------------- reproducing a results file
@@ -260,11 +295,17 @@ def runs_of(results: Mapping, specs: Mapping[str, MethodSpec] | None = None) -> 
                 f"method {entry['method']!r} of the results is not registered here "
                 f"(registered: {', '.join(specs) or 'none'})"
             )
-        run_dir = None if entry["run_dir"] is None else Path(entry["run_dir"])
+        run_dir = None if entry.get("run_dir") is None else Path(entry["run_dir"])
         if run_dir is not None and not run_dir.exists():
             raise ResultsError(
                 f"run directory {run_dir} of {entry['key']!r} is gone; train it again with the "
                 "same settings (runs are deterministic) or restore it"
+                + (
+                    ""
+                    if run_dir.is_absolute()
+                    else " (results written before run directories were stored absolute name them from the "
+                    "folder `ocplace reproduce` or `evaluate` ran in: rerun from that folder)"
+                )
             )
         runs.append(MethodRun(specs[entry["method"]], run_dir, entry["fraction"], entry.get("seed")))
     return runs

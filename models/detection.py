@@ -183,10 +183,9 @@ def dataset_box_recall(
     iou_threshold: float = 0.5,
 ) -> dict[str, Recall]:
     """`box_recall` per split of a dataset directory."""
-    from ocplace.sim.dataset.job import scene_dirs
-    from ocplace.sim.dataset.records import read_scene
+    from ocplace.sim.dataset.job import listed_scenes
 
     return {
-        split: box_recall((read_scene(d) for d in scene_dirs(dataset_dir, split)), config, iou_threshold)
+        split: box_recall((scene.read() for scene in listed_scenes(dataset_dir, split)), config, iou_threshold)
         for split in splits
     }

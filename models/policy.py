@@ -289,39 +289,23 @@ class PlacementPolicy:
         """Checks one scene and cuts its crops and workspace image (224 px, as in training)."""
         from ocplace.sim.boxes import boxes_from_segmentation, square_crop
 
-        rgb, depth = _check_images(scene.rgb, scene.depth)
-        camera = PinholeCamera.from_any(scene.camera)
-        if (camera.width, camera.height) != (rgb.shape[1], rgb.shape[0]):
-            raise PolicyInputError(
-                f"the camera is {camera.width}x{camera.height} but the images are "
-                f"{rgb.shape[1]}x{rgb.shape[0]}; pass the intrinsics of this image"
-            )
+        rgb, depth, camera, half_extents = check_scene(scene)
         flags, segmentation, object_ids = [], None, None
         given = scene.boxes_or_segmentation
         if given is None:
             boxes = detect_boxes(depth, camera, self.detector)
             flags.append("boxes_detected")
-        elif np.ndim(given) == 2 and np.shape(given) == rgb.shape[:2] and np.shape(given)[1] != 4:
+        elif _is_segmentation(given, rgb):
             segmentation = np.asarray(given)
             found = boxes_from_segmentation(segmentation)
             boxes, object_ids = found.boxes, found.object_ids
-        elif (np.ndim(given) == 2 and np.shape(given)[1] == 4) or np.size(given) == 0:
-            boxes = _check_boxes(given, rgb.shape)
         else:
-            raise PolicyInputError(
-                f"boxes_or_segmentation has shape {np.shape(given)}: pass (N, 4) pixel boxes "
-                f"or a segmentation image of the image's size {rgb.shape[:2]}"
-            )
+            boxes = _check_boxes(given, rgb.shape)
         if scene.object_aabbs is None:
             aabbs = estimate_aabbs(depth, camera, boxes, segmentation, object_ids, self.detector)
             flags.append("aabbs_estimated")
         else:
             aabbs = _check_aabbs(scene.object_aabbs, len(boxes))
-        half_extents = np.asarray(scene.held_footprint, np.float64).reshape(-1)
-        if half_extents.shape != (2,) or not np.all(np.isfinite(half_extents) & (half_extents >= 0)):
-            raise PolicyInputError(
-                f"held_footprint must be two half-extents (hx, hy) >= 0 in metres, got {scene.held_footprint!r}"
-            )
         crops = (
             np.stack([square_crop(rgb, box, size=self.crop_size) for box in boxes])
             if len(boxes)
@@ -528,6 +512,36 @@ def _check_boxes_for(scene: PreparedScene, parsed: Sequence[ParsedTuple]) -> Non
 
 def _token_label(scene: PreparedScene, token: int) -> str:
     return TABLE_LABEL if token == len(scene.boxes) else f"box {token} {scene.boxes[token].tolist()}"
+
+
+def check_scene(scene: SceneInput) -> tuple[np.ndarray, np.ndarray, PinholeCamera, np.ndarray]:
+    """(rgb, depth, camera, held half-extents) of `scene`, checked: everything about a scene that can be
+    refused without a model (sizes that disagree, a bad camera or footprint), so that a caller can refuse it
+    before a backbone loads. PolicyInputError names what is wrong."""
+    rgb, depth = _check_images(scene.rgb, scene.depth)
+    camera = PinholeCamera.from_any(scene.camera)
+    if (camera.width, camera.height) != (rgb.shape[1], rgb.shape[0]):
+        raise PolicyInputError(
+            f"the camera is {camera.width}x{camera.height} but the images are "
+            f"{rgb.shape[1]}x{rgb.shape[0]}; pass the intrinsics of this image"
+        )
+    given = scene.boxes_or_segmentation
+    is_boxes = given is not None and ((np.ndim(given) == 2 and np.shape(given)[1] == 4) or np.size(given) == 0)
+    if given is not None and not (_is_segmentation(given, rgb) or is_boxes):
+        raise PolicyInputError(
+            f"the segmentation (boxes_or_segmentation) has shape {np.shape(given)}: pass a segmentation image "
+            f"of the image's size {rgb.shape[1]}x{rgb.shape[0]} (shape {rgb.shape[:2]}), or (N, 4) pixel boxes"
+        )
+    half_extents = np.asarray(scene.held_footprint, np.float64).reshape(-1)
+    if half_extents.shape != (2,) or not np.all(np.isfinite(half_extents) & (half_extents >= 0)):
+        raise PolicyInputError(
+            f"held_footprint must be two half-extents (hx, hy) >= 0 in metres, got {scene.held_footprint!r}"
+        )
+    return rgb, depth, camera, half_extents
+
+
+def _is_segmentation(given, rgb: np.ndarray) -> bool:
+    return np.ndim(given) == 2 and np.shape(given) == rgb.shape[:2] and np.shape(given)[1] != 4
 
 
 def _check_images(rgb, depth) -> tuple[np.ndarray, np.ndarray]:

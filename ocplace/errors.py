@@ -107,6 +107,10 @@ class LLMConfigError(OcplaceError, ValueError):
     """An LLM parser setting that cannot work (a base URL that is not http(s), a limit <= 0)."""
 
 
+class LLMUnreachable(OcplaceError):
+    """An LLM endpoint that failed in transport (no connection, timeouts, 5xx) for several requests in a row."""
+
+
 class OutputError(OcplaceError):
     """An output that cannot be written: a path under a file, a read-only folder, a full disk."""
 

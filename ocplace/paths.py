@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import hashlib
+import json
 import os
 import shutil
 import tempfile
@@ -104,6 +106,23 @@ def refuse_old_run(run_dir: str | os.PathLike, how_to_train: str) -> None:
         )
 
 
+def read_run_file(run_dir: str | os.PathLike) -> dict:
+    """The metadata in `run_dir/RUN_FILE`; TrainingError when it is not a JSON object (cut short by a crash of
+    an older ocplace, edited, damaged). FileNotFoundError when there is none."""
+    path = Path(run_dir) / RUN_FILE
+    text = path.read_text()
+    try:
+        meta = json.loads(text)
+    except ValueError:
+        meta = None
+    if not isinstance(meta, dict):
+        raise TrainingError(
+            f"{path} is truncated or damaged (not a JSON object), so the run cannot be checked or resumed: delete "
+            f"{run_dir} to train it again from the start, or restore that file"
+        )
+    return meta
+
+
 def trained_weights(run_dir: str | os.PathLike, what: str, how_to_train: str) -> Path:
     """`run_dir/WEIGHTS_FILE`, the final `what` of a finished run; TrainingError when missing or from an older run."""
     refuse_old_run(run_dir, how_to_train)
@@ -131,6 +150,20 @@ def file_lock(target: str | os.PathLike):
 
 
 @contextlib.contextmanager
+def disk_full_is_typed(target: str | os.PathLike):
+    """Turns a full disk (ENOSPC, EDQUOT) while writing `target` into an OutputError naming it."""
+    try:
+        yield
+    except OSError as error:
+        if error.errno in _DISK_FULL:
+            raise OutputError(
+                f"cannot write {target}: the disk is full ({error.strerror}); free some space "
+                "there or write the output elsewhere"
+            ) from error
+        raise
+
+
+@contextlib.contextmanager
 def atomic_path(target: str | os.PathLike):
     """Yields a temporary path beside `target`; renames it onto `target` only on success.
 
@@ -141,34 +174,38 @@ def atomic_path(target: str | os.PathLike):
     target.parent.mkdir(parents=True, exist_ok=True)
     tmp = None
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
-        os.close(fd)
-        yield Path(tmp)
-        os.replace(tmp, target)
-    except OSError as error:
-        if error.errno in _DISK_FULL:
-            raise OutputError(
-                f"cannot write {target}: the disk is full ({error.strerror}); free some space "
-                "there or write the output elsewhere"
-            ) from error
-        raise
+        with disk_full_is_typed(target):
+            fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+            os.close(fd)
+            yield Path(tmp)
+            os.replace(tmp, target)
     finally:
         if tmp is not None:
             with contextlib.suppress(FileNotFoundError):
                 os.unlink(tmp)
 
 
-def check_writable(target: str | os.PathLike) -> None:
-    """Raises OutputError unless `target` (a file or folder to create or replace) can be written.
+def check_writable(target: str | os.PathLike, as_folder: bool = False) -> None:
+    """Raises OutputError unless `target` (a file or folder to create or replace; with `as_folder`, a
+    folder to create or write into) can be written.
 
     Commands call it before any expensive work, so that a bad `--out` fails at once and not after
-    minutes of computing: every existing ancestor must be a folder and the nearest one writable.
-    Nothing is written to find out (a probe file would change the folder's mtime).
+    minutes of computing: every existing ancestor must be a folder and the nearest one writable, and
+    no symlink on the way may point at nothing (creating the folder would fail on it). Nothing is
+    written to find out (a probe file would change the folder's mtime).
     """
     target = Path(target)
-    folder = target if target.is_dir() else target.parent
-    while not folder.exists() and folder != folder.parent:
-        folder = folder.parent
+    if as_folder and target.exists() and not target.is_dir():
+        raise OutputError(f"cannot write into {target}: it is a file, not a folder; choose a folder")
+    nearest = target
+    while not nearest.exists() and nearest != nearest.parent:
+        if nearest.is_symlink():
+            raise OutputError(
+                f"cannot write {target}: {nearest} is a symlink to {os.readlink(nearest)}, which does not exist; "
+                "create what it points to, remove the symlink, or choose another output path"
+            )
+        nearest = nearest.parent
+    folder = target.parent if nearest == target and not target.is_dir() else nearest  # an existing file is replaced
     if not folder.is_dir():
         raise OutputError(f"cannot write {target}: {folder} is a file, not a folder; choose an output path in a folder")
     # os.access knows permissions (and that root passes them) but not read-only mounts: ask statvfs too.
@@ -188,7 +225,8 @@ def write_text_atomic(target: str | os.PathLike, text: str) -> None:
     write_bytes_atomic(target, text.encode("utf-8"))
 
 
-def _pid_alive(pid: int) -> bool:
+def pid_alive(pid: int) -> bool:
+    """Whether a process with this pid runs (on this machine, in this pid namespace)."""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
@@ -205,5 +243,14 @@ def remove_abandoned_tmp(tmp_root: Path) -> None:
     for path in tmp_root.iterdir():
         parts = path.name.split(".")
         pid = int(parts[-2]) if len(parts) >= 3 and parts[-2].isdigit() else None
-        if pid is None or not _pid_alive(pid):
+        if pid is None or not pid_alive(pid):
             shutil.rmtree(path, ignore_errors=True)
+
+
+def file_sha256(path: str | os.PathLike) -> str:
+    """The sha256 of a file's bytes, read in 1 MiB blocks (catalogues and weights run to 100 MB)."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()

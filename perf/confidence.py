@@ -40,10 +40,9 @@ def main() -> None:
     from ocplace.eval.ours import scene_input
     from ocplace.models.placement.sampler import SamplerConfig
     from ocplace.models.policy import PlacementPolicy, load_backbone_spec
-    from ocplace.sim.dataset.job import scene_dirs
-    from ocplace.sim.dataset.records import read_scene
+    from ocplace.sim.dataset.job import listed_scenes
 
-    records = [read_scene(d) for d in scene_dirs(args.dataset, args.split)]
+    records = [scene.read() for scene in listed_scenes(args.dataset, args.split)]
     policy = PlacementPolicy.from_run(
         load_backbone_spec(args.backbone), args.adapters, threshold=0.0, sampler=SamplerConfig(num_samples=16)
     )

@@ -40,10 +40,9 @@ def random_offline_backbone(tiny: bool):
 def pick_scene(dataset: Path):
     """The first seen scene with the most references (2obj) and boxes: `(policy input, true tokens)`."""
     from ocplace.eval.ours import scene_input
-    from ocplace.sim.dataset.job import scene_dirs
-    from ocplace.sim.dataset.records import read_scene
+    from ocplace.sim.dataset.job import listed_scenes
 
-    records = [read_scene(d) for d in scene_dirs(dataset, "seen")[:40]]
+    records = [scene.read() for scene in listed_scenes(dataset, "seen")[:40]]
     record = max(records, key=lambda r: (len(r.tuples), len(r.boxes)))
     return scene_input(record), [t.token_index for t in record.tuples]
 

@@ -27,9 +27,8 @@ import numpy as np
 import ocplace  # noqa: F401  (sets the headless OpenGL default before MuJoCo loads)
 from ocplace.models.backbone import PromptConfig
 from ocplace.models.offline_recipes import recipe_config
-from ocplace.sim.dataset.job import scene_dirs
+from ocplace.sim.dataset.job import listed_scenes
 from ocplace.sim.dataset.loader import CROP_SIZE, example_from_record
-from ocplace.sim.dataset.records import read_scene
 from ocplace.sim.library import load_library
 from ocplace.train.pretrain.loop import pretrain
 
@@ -53,8 +52,8 @@ def measure(backbone, data: Path, held_out: list[str], seen_names: list[str], li
     names = backbone.encode_texts([prompt.text_for(library.get(n).human_name) for n in seen_names])
     correct = tuples = 0
     ranks = []
-    for scene_dir in scene_dirs(data, "seen")[:limit]:
-        record = read_scene(scene_dir)
+    for scene in listed_scenes(data, "seen")[:limit]:
+        record = scene.read()
         example = example_from_record(record, CROP_SIZE)
         object_names = {o.object_id: o.name for o in record.objects}
         crop_names = [object_names[int(i)] for i in example.box_object_ids]

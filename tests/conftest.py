@@ -1,5 +1,11 @@
 """Shared test fixtures."""
 
+import contextlib
+import os
+import shutil
+import subprocess
+from pathlib import Path
+
 import pytest
 
 import ocplace  # noqa: F401  (sets the headless OpenGL default before MuJoCo loads)
@@ -57,3 +63,47 @@ def tiny_backbone_spec(tmp_path_factory):
         tmp_path_factory.mktemp("tiny_backbone"), config, params, ob.FrozenTextTower.load(config.text_max_length).digest
     )
     return f"offline:{directory}"
+
+
+@contextlib.contextmanager
+def _tmpfs(folder: Path, options: str):
+    """A small file system mounted on `folder`. Needs the right to mount (root in a container); else skips."""
+    folder.mkdir()
+    if (
+        shutil.which("mount") is None
+        or subprocess.run(["mount", "-t", "tmpfs", "-o", options, "tmpfs", str(folder)], capture_output=True).returncode
+        != 0
+    ):
+        pytest.skip("cannot mount a file system here")
+    try:
+        yield folder
+    finally:
+        subprocess.run(["umount", str(folder)], check=True)
+
+
+@pytest.fixture
+def tmpfs():
+    """`tmpfs(folder, options)`: a context manager mounting a small file system on `folder`."""
+    return _tmpfs
+
+
+@pytest.fixture
+def read_only_dir(tmp_path):
+    """A folder that cannot be written: mode 555, or for root (whom modes do not stop) a read-only mount."""
+    folder = tmp_path / "read-only"
+    if os.geteuid() != 0:
+        folder.mkdir(mode=0o555)
+        yield folder
+        folder.chmod(0o755)
+        return
+    with _tmpfs(folder, "ro,size=64k"):
+        yield folder
+
+
+@pytest.fixture
+def full_disk(tmp_path):
+    """A 64 KiB file system, filled."""
+    with _tmpfs(tmp_path / "small-disk", "size=64k") as mount:
+        with contextlib.suppress(OSError), open(mount / "filler", "wb") as filler:
+            filler.write(b"\0" * (1 << 20))
+        yield mount

@@ -5,14 +5,10 @@ it would stop at loading that backbone with another message, so each expected me
 that the check came before the model.
 """
 
-import contextlib
 import errno
 import json
 import math
-import os
 import re
-import shutil
-import subprocess
 from pathlib import Path
 
 import cv2
@@ -24,7 +20,7 @@ from hypothesis import strategies as st
 
 from ocplace.cli import main
 from ocplace.errors import OutputError, ParseError, PolicyInputError
-from ocplace.eval.results import ResultsError, read_results
+from ocplace.eval.results import ResultsError, read_results, settings_of
 from ocplace.models.parsing import as_pairs, make_parser
 from ocplace.paths import atomic_path, check_writable
 from ocplace.sim.camera import DEFAULT_CAMERA
@@ -237,6 +233,25 @@ def test_cli_refuses_a_truncated_or_missing_depth(images, tmp_path, capsys):
     assert code == 2 and "error: cannot read the depth" in err and "No such file" in err
 
 
+@pytest.mark.parametrize(
+    "image, size, message",
+    [
+        ("depth", (320, 240), "rgb is 640x480 but depth is 320x240; register the depth image to the colour image"),
+        ("segmentation", (320, 240), "the segmentation (boxes_or_segmentation) has shape (240, 320): pass a "),
+        ("segmentation", (640, 480), None),  # the right size: past the checks, to the missing backbone
+    ],
+)
+def test_cli_refuses_images_of_other_sizes_before_the_model(images, tmp_path, capsys, image, size, message):
+    path = tmp_path / f"{image}.png"
+    cv2.imwrite(str(path), np.zeros(size[::-1], np.uint16 if image == "depth" else np.uint8))
+    code, _, err = _cli(capsys, *_place(images, tmp_path, **{image: path}))
+    assert code == 2
+    if message is None:
+        assert "/nonexistent/ocplace-backbone" in err, err
+    else:
+        assert err.startswith(f"ocplace place: error: {message}"), err
+
+
 # --- results files ---------------------------------------------------------------------------
 
 
@@ -246,7 +261,7 @@ def _results(tmp_path, **body) -> Path:
         json.dumps(
             {
                 "schema": "ocplace.evaluation/1",
-                "dataset": {"dir": str(tmp_path)},
+                "dataset": {"dir": str(tmp_path), "dataset_hash": "0" * 16, "manifest_hash": "0" * 64},
                 "settings": {"subsets": ["seen"]},
                 **body,
             }
@@ -255,12 +270,23 @@ def _results(tmp_path, **body) -> Path:
     return path
 
 
+def _entry(**changes) -> dict:
+    """An evaluation entry of a results file, complete but for `changes`."""
+    return {"key": "ours", "method": "ours", "label": "Ours", "fraction": 1.0, "run_dir": None, "subsets": {}} | changes
+
+
 @pytest.mark.parametrize(
     "body, named",
     [
         ({}, "evaluations"),
         ({"evaluations": {"ours": 1}}, "evaluations"),
         ({"evaluations": [{"method": "ours"}]}, "evaluations\\[0\\]"),
+        ({"evaluations": [], "dataset": {}}, "dataset"),
+        ({"evaluations": [], "settings": {"subsets": "seen"}}, "settings"),
+        ({"evaluations": [_entry(subsets=["seen"])]}, "evaluations\\[0\\]"),
+        ({"evaluations": [_entry(subsets={"seen": "all"})]}, "evaluations\\[0\\]"),
+        ({"evaluations": [_entry(subsets={"seen": {"aggregate": {}, "scenes": [1]}})]}, "evaluations\\[0\\]"),
+        ({"evaluations": [_entry(run_dir=3)]}, "evaluations\\[0\\]"),
     ],
 )
 def test_results_without_evaluations_are_refused(tmp_path, capsys, body, named):
@@ -270,6 +296,13 @@ def test_results_without_evaluations_are_refused(tmp_path, capsys, body, named):
     code, _, err = _cli(capsys, "figures", path, "--out", tmp_path / "figures")
     assert code == 2 and err.startswith(f"ocplace figures: error: {path} is not a complete evaluation")
     assert not (tmp_path / "figures").exists()
+    code, _, err = _cli(capsys, "evaluate", "--rerun", path)
+    assert code == 2 and err.startswith(f"ocplace evaluate: error: {path} is not a complete evaluation")
+
+
+def test_results_settings_of_another_version_are_refused():
+    with pytest.raises(ResultsError, match="settings are not those of this ocplace's evaluations"):
+        settings_of({"settings": {"subsets": ["seen"], "sampler": "grid"}})
 
 
 def test_truncated_results_are_refused(tmp_path, capsys):
@@ -281,6 +314,8 @@ def test_truncated_results_are_refused(tmp_path, capsys):
 
 # --- configuration overrides -----------------------------------------------------------------
 
+CANNOT_RUN = "experiment 'smoke' cannot run: "
+
 
 @pytest.mark.parametrize(
     "override, message",
@@ -288,6 +323,34 @@ def test_truncated_results_are_refused(tmp_path, capsys):
         ("recipes.ours.stepz=1", "unknown key 'recipes.ours.stepz': valid keys under 'recipes.ours' are steps, "),
         ("dataset.train_scenes=many", "--set dataset.train_scenes=many: expected an integer, got 'many'"),
         ("evaluation", "--set takes KEY=VALUE, got 'evaluation'"),
+        ("evaluation.num_samples=-1", CANNOT_RUN + "evaluation.num_samples must be at least 1, got -1"),
+        ("recipes.ours.learning_rate=-1", CANNOT_RUN + "recipes.ours.learning_rate must be positive, got -1.0"),
+        ("recipes.ours.learning_rate=nan", CANNOT_RUN + "recipes.ours.learning_rate is nan; numbers must be finite"),
+        ("recipes.cliport.schedule.learning_rate=inf", CANNOT_RUN + "recipes.cliport.schedule.learning_rate is inf"),
+        ("backbone.optim.learning_rate=0", CANNOT_RUN + "backbone.optim.learning_rate must be positive, got 0.0"),
+        ("recipes.no_llm.warmup_steps=-5", CANNOT_RUN + "recipes.no_llm.warmup_steps must be at least 0, got -5"),
+        (
+            "recipes.ours.steps=-1",
+            CANNOT_RUN + "recipes.ours: invalid training configuration: steps, batch_size and chunk_steps",
+        ),
+        (
+            "evaluation.fractions=0.5,2.0",
+            CANNOT_RUN + "evaluation.fractions holds 2.0; a training-set fraction lies in (0, 1]",
+        ),
+        (
+            "evaluation.subsets=seen,bogus",
+            CANNOT_RUN + "evaluation.subsets must name each test subset at most once, some of seen",
+        ),
+        ("evaluation.subsets=", CANNOT_RUN + "evaluation.subsets must name each test subset"),
+        (
+            "evaluation.parser=bogus",
+            CANNOT_RUN + "evaluation.parser 'bogus' is not a parser; choose one of offline, offline-snap",
+        ),
+        ("evaluation.seeds=0", CANNOT_RUN + "evaluation.seeds must be at least 1, got 0"),
+        ("evaluation.seed_fractions=0.5", CANNOT_RUN + "evaluation.seed_fractions holds 0.5, which is not trained"),
+        ("evaluation.methods=", CANNOT_RUN + "evaluation.methods names no method"),
+        ("dataset.test_scenes=0", CANNOT_RUN + "dataset.test_scenes must be at least 1, got 0"),
+        ("dataset.physical_scenes=-2", CANNOT_RUN + "dataset.physical_scenes must be none (all) or at least 0, got -2"),
     ],
 )
 def test_reproduce_refuses_a_bad_override_before_any_work(tmp_path, capsys, monkeypatch, override, message):
@@ -295,7 +358,31 @@ def test_reproduce_refuses_a_bad_override_before_any_work(tmp_path, capsys, monk
 
     monkeypatch.setattr(pipeline, "run_pipeline", lambda *args, **kwargs: pytest.fail("the pipeline started"))
     code, _, err = _cli(capsys, "reproduce", "--scale", "smoke", "--set", override, "--out", tmp_path / "out")
-    assert code == 2 and err.startswith(f"ocplace reproduce: error: {message}")
+    assert code == 2 and err.startswith(f"ocplace reproduce: error: {message}"), err
+    assert not (tmp_path / "out").exists()
+
+
+def test_reproduce_checks_its_methods_and_output_before_any_work(tmp_path, capsys, monkeypatch):
+    from ocplace.eval import pipeline
+
+    monkeypatch.setattr(pipeline, "open_executor", lambda *args: pytest.fail("the pipeline started"))
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "afile").write_text("not a folder")
+    (tmp_path / "dangling").symlink_to(tmp_path / "nowhere")
+    for options, message in [
+        (("--set", "out=afile/x"), "cannot write afile/x: afile is a file, not a folder"),
+        (("--set", "out="), "--set out=: expected a path, got ''"),
+        (("--out", "afile"), "cannot write into afile: it is a file, not a folder"),
+        (("--set", "evaluation.seed_methods=ours,bogus"), "evaluation.seed_methods names bogus, not registered"),
+        (("--set", "evaluation.fraction_methods=nope"), "evaluation.fraction_methods names nope, not registered"),
+    ]:
+        code, _, err = _cli(capsys, "reproduce", "--scale", "smoke", *options)
+        assert code == 2 and err.startswith("ocplace reproduce: error: ") and message in err, err
+    for out in ("dangling", "dangling/deeper"):
+        for command in (["reproduce", "--scale", "smoke"], ["figures", tmp_path / "missing.json"]):
+            code, _, err = _cli(capsys, *command, "--out", out)
+            assert code == 2 and f"dangling is a symlink to {tmp_path / 'nowhere'}, which does not exist" in err, err
+    assert sorted(path.name for path in tmp_path.iterdir()) == ["afile", "dangling"]
 
 
 def test_train_refuses_a_flag_value_its_field_cannot_take(capsys):
@@ -306,35 +393,6 @@ def test_train_refuses_a_flag_value_its_field_cannot_take(capsys):
 
 
 # --- outputs ---------------------------------------------------------------------------------
-
-
-@contextlib.contextmanager
-def _tmpfs(folder: Path, options: str):
-    """A small file system mounted on `folder`. Needs the right to mount (root in a container); else skips."""
-    folder.mkdir()
-    if (
-        shutil.which("mount") is None
-        or subprocess.run(["mount", "-t", "tmpfs", "-o", options, "tmpfs", str(folder)], capture_output=True).returncode
-        != 0
-    ):
-        pytest.skip("cannot mount a file system here")
-    try:
-        yield folder
-    finally:
-        subprocess.run(["umount", str(folder)], check=True)
-
-
-@pytest.fixture
-def read_only_dir(tmp_path):
-    """A folder that cannot be written: mode 555, or for root (whom modes do not stop) a read-only mount."""
-    folder = tmp_path / "read-only"
-    if os.geteuid() != 0:
-        folder.mkdir(mode=0o555)
-        yield folder
-        folder.chmod(0o755)
-        return
-    with _tmpfs(folder, "ro,size=64k"):
-        yield folder
 
 
 def test_out_under_a_file_or_in_a_read_only_folder_fails_first(images, tmp_path, capsys, read_only_dir):
@@ -360,15 +418,6 @@ def test_a_full_disk_is_a_typed_error_naming_the_file(tmp_path):
         tmp.write_text("{")
         raise OSError(errno.ENOSPC, "No space left on device")  # what a write to a full disk raises
     assert list(target.parent.iterdir()) == []  # neither the target nor the temporary file
-
-
-@pytest.fixture
-def full_disk(tmp_path):
-    """A 64 KiB file system, filled."""
-    with _tmpfs(tmp_path / "small-disk", "size=64k") as mount:
-        with contextlib.suppress(OSError), open(mount / "filler", "wb") as filler:
-            filler.write(b"\0" * (1 << 20))
-        yield mount
 
 
 # --- the backbone the adapters were trained with ---------------------------------------------

@@ -4,6 +4,7 @@ import pytest
 
 from ocplace import configs
 from ocplace.errors import UnknownExperiment
+from ocplace.eval.registry import method_specs
 from ocplace.models.offline_recipes import output_dir, recipe_dir
 
 
@@ -22,6 +23,8 @@ def test_each_experiment_is_named_after_its_scale_and_its_recipes_are_valid(name
     for config in trainings:
         config.validate()
     experiment.backbone.validate()
+    experiment.validate()
+    assert experiment.evaluation.unknown_methods(method_specs()) == []
     # `reproduce` pretrains into the folder that the backbone spec `offline:NAME` loads from.
     assert output_dir(experiment.backbone) == recipe_dir(name)
 

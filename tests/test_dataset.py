@@ -150,6 +150,28 @@ def test_killed_generation_resumes_without_duplicates_or_corruption(tmp_path, li
     assert not list((out / "train").glob(".tmp-*"))
 
 
+def test_a_full_disk_is_a_typed_error_and_the_resume_is_identical(tmp_path, library, tmpfs, capsys):
+    from ocplace.cli import main
+
+    command = ["generate", "--train", "2", "--test", "1", "--split", "train", "--workers", "1"]
+    assert main([*command, "--out", str(tmp_path / "reference")]) == 0
+    with tmpfs(tmp_path / "disk", "size=100k") as disk:  # room for dataset.json, not for a scene
+        out = disk / "ds"
+        capsys.readouterr()
+        assert main([*command, "--out", str(out)]) == 2
+        error = capsys.readouterr().err.splitlines()[-1]  # after the progress bar
+        assert error == (
+            f"ocplace generate: error: cannot write {out / 'train' / 'train-00000'}: the disk is full (No space "
+            "left on device); free some space there or write the output elsewhere"
+        )
+        assert [path.name for path in (out / "train").iterdir()] == []  # no temporary folder left
+        subprocess.run(["mount", "-o", "remount,size=16m", str(disk)], check=True)
+        assert main([*command, "--out", str(out)]) == 0
+        assert verify_dataset(out) == []
+        resumed = json.loads((out / MANIFEST_FILE).read_text())["files"]
+    assert resumed == json.loads((tmp_path / "reference" / MANIFEST_FILE).read_text())["files"]
+
+
 def test_verify_names_a_corrupt_scene_and_generate_regenerates_exactly_it(tmp_path, library):
     config = dataclasses.replace(TINY, splits=TINY.splits[:1])
     out = tmp_path / "corrupt"

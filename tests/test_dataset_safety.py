@@ -6,6 +6,8 @@ import shutil
 import tempfile
 from pathlib import Path
 
+import cv2
+import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -15,8 +17,16 @@ from ocplace.errors import DatasetError
 from ocplace.paths import inside
 from ocplace.sim.dataset.config import DatasetConfig, SplitConfig, smoke_config
 from ocplace.sim.dataset.generate import describe
-from ocplace.sim.dataset.job import CONFIG_FILE, MANIFEST_FILE, generate_dataset, scene_dirs, verify_dataset
-from ocplace.sim.dataset.loader import iter_examples
+from ocplace.sim.dataset.job import (
+    CONFIG_FILE,
+    MANIFEST_FILE,
+    generate_dataset,
+    listed_scenes,
+    scene_dirs,
+    verify_dataset,
+)
+from ocplace.sim.dataset.loader import batches, iter_examples
+from ocplace.sim.dataset.records import read_scene
 
 CONFIG = DatasetConfig(splits=(SplitConfig("train", (("table", 1), ("1obj", 1)), "seen", "seen", "seen"),))
 
@@ -229,3 +239,61 @@ def test_a_manifest_that_is_not_a_manifest_is_a_corrupt_dataset(tmp_path, tiny, 
         with pytest.raises(DatasetError, match=r"corrupt dataset: .* rerun `ocplace generate --out"):
             read(ds)
     assert _snapshot(tmp_path) == before
+
+
+# --- scenes edited after generation -----------------------------------------------------------
+
+SEEN = DatasetConfig(splits=(SplitConfig("seen", (("1obj", 2),), "seen", "seen", "seen"),))
+
+
+@pytest.fixture(scope="module")
+def two_seen(tmp_path_factory, library):
+    """Two generated scenes of a test subset."""
+    out = tmp_path_factory.mktemp("two_seen") / "ds"
+    generate_dataset(out, SEEN, progress=False)
+    return out
+
+
+def _edit(path: Path) -> None:
+    """A valid file with other content: the scene another instruction, an image one pixel changed."""
+    if path.suffix == ".json":
+        meta = json.loads(path.read_text())
+        meta["instruction"] = "put it at the back left corner of the table"
+        path.write_text(json.dumps(meta, indent=1, sort_keys=True))
+        return
+    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    image.flat[0] ^= 1
+    cv2.imwrite(str(path), image)
+
+
+@pytest.mark.parametrize("name", ["scene.json", "rgb.png", "depth.png", "segmentation.png"])
+def test_a_scene_edited_after_generation_is_never_read_as_the_datasets(tmp_path, two_seen, name):
+    ds = tmp_path / "ds"
+    shutil.copytree(two_seen, ds)
+    _edit(ds / "seen" / "seen-00001" / name)
+    first, second = listed_scenes(ds, "seen")
+    record = first.read()  # the untouched scene reads as before, and as an unchecked read does
+    for field in ("rgb", "depth", "segmentation"):
+        assert np.array_equal(getattr(record, field), getattr(read_scene(first.dir), field))
+    readers = [second.read, lambda: list(iter_examples(ds, "seen", 32)), lambda: list(batches(ds, "seen", 2, 32))]
+    for read in readers + ([second.info] if name == "scene.json" else []):
+        with pytest.raises(DatasetError, match=f"{name} of scene seen-00001 does not match the sha256") as raised:
+            read()
+        assert f"`ocplace dataset verify {ds}`" in str(raised.value)
+
+
+def test_evaluate_refuses_an_edited_scene(tmp_path, two_seen, monkeypatch, capsys):
+    from ocplace.eval import registry
+
+    monkeypatch.setattr(registry, "METHOD_MODULES", ("eval_methods",))
+    ds = tmp_path / "ds"
+    shutil.copytree(two_seen, ds)
+    _edit(ds / "seen" / "seen-00001" / "scene.json")
+    command = ["evaluate", "--methods", "centre", "--backbone", "none", "--subsets", "seen", "--physical", "0"]
+    command += ["--num-samples", "4", "--no-progress", "--workers", "1"]
+    assert main([*command, "--dataset", str(two_seen), "--out", str(tmp_path / "published.json")]) == 0
+    capsys.readouterr()
+    assert main([*command, "--dataset", str(ds), "--out", str(tmp_path / "edited.json")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("ocplace evaluate: error: scene.json of scene seen-00001 does not match the sha256")
+    assert "ocplace dataset verify" in err and not (tmp_path / "edited.json").exists()

@@ -7,9 +7,11 @@ cluster) and the reproduce runs are slow tests (`make test-all`), to keep the de
 15 minutes on 2 cores.
 """
 
+import contextlib
 import dataclasses
 import hashlib
 import json
+import logging
 import os
 import shutil
 import socket
@@ -125,6 +127,15 @@ def test_graph_runs_a_node_after_its_inputs_and_skips_what_follows_a_failure():
         run_graph(None, [Node("x", lambda done: Task(add), ("y",)), Node("y", lambda done: Task(add))])
 
 
+def test_more_workers_than_the_machine_runs_are_clamped_with_a_warning(caplog):
+    cpus = len(os.sched_getaffinity(0))
+    with caplog.at_level(logging.WARNING), open_executor(ExecutorConfig(workers=cpus + 62)) as executor:
+        pids = {pid for _, pid in map_tasks(executor, [Task(os.getpid) for _ in range(4 * cpus)])}
+    assert executor.capacity <= cpus and len(pids) <= cpus
+    assert f"--workers {cpus + 62} is more than this machine runs side by side ({cpus} CPUs; " in caplog.text
+    assert f"using {executor.capacity} workers" in caplog.text
+
+
 def test_a_local_ray_instance_retries_a_killed_worker_and_reraises_task_errors(reference, tmp_path, monkeypatch):
     marker = tmp_path / "a-worker-died"
     with open_executor(RAY) as executor:
@@ -138,6 +149,36 @@ def test_a_local_ray_instance_retries_a_killed_worker_and_reraises_task_errors(r
     assert files == reference  # the same bytes as this process alone made
     assert verify_dataset(tmp_path / "data") == []
     assert not list((tmp_path / "data" / "train").glob(".tmp-*"))
+
+
+KILLED_DRIVER = """
+import os, signal
+from ocplace.runtime import ExecutorConfig, Task, map_tasks, open_executor
+with open_executor(ExecutorConfig(kind="ray", workers=1)) as executor:
+    print(executor._temp_dir, list(map_tasks(executor, [Task(os.getpid)])), flush=True)
+    os.kill(os.getpid(), signal.SIGKILL)
+"""
+
+
+def test_the_next_ray_start_reaps_what_a_killed_command_left():
+    from ocplace.runtime.ray_executor import _processes_using
+
+    killed = subprocess.run([sys.executable, "-c", KILLED_DRIVER], capture_output=True, text=True, timeout=300)
+    assert killed.returncode == -9, killed.stderr
+    folder = Path(killed.stdout.split()[0])
+    left = _processes_using(folder)
+    try:
+        assert folder.is_dir() and left, "Ray left nothing behind: there is nothing to reap"
+        with open_executor(RAY) as executor:  # the next start
+            assert not folder.exists() and Path(executor._temp_dir).is_dir()
+            assert dict(map_tasks(executor, [Task(add, (1, 2))])) == {0: 3}
+        for pid in left:
+            state = Path(f"/proc/{pid}/stat")
+            assert not state.exists() or state.read_text().rsplit(")", 1)[1].split()[0] in "ZX"
+    finally:
+        for pid in left:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, 9)
 
 
 def test_fresh_tasks_reuse_what_an_earlier_one_compiled_at_the_same_width(tmp_path, monkeypatch):

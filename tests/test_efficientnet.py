@@ -13,6 +13,7 @@ from ocplace.errors import MissingAssetPackage, WeightsError
 from ocplace.models import efficientnet as en
 from ocplace.models import imagenet_weights as iw
 from ocplace.models.torch_legacy import read_legacy
+from ocplace.paths import file_sha256
 
 MILITARY_UNIFORM = 652
 # Other ImageNet classes that describe the Grace Hopper portrait (uniform, suit, ties, cap, gown).
@@ -221,7 +222,7 @@ def test_conversion_is_cached_and_rebuilt_when_the_source_changes(cache, lite0, 
     convert = iw.convert
     monkeypatch.setattr(iw, "convert", lambda *args: calls.append(1) or convert(*args))
     source = iw.source_file("lite0")
-    cached = cache / "weights" / f"efficientnet-lite0-{iw.sha256(source)[:12]}.safetensors"
+    cached = cache / "weights" / f"efficientnet-lite0-{file_sha256(source)[:12]}.safetensors"
     before = cached.stat().st_mtime_ns
     again = iw.load_pretrained("lite0")
     assert calls == [] and cached.stat().st_mtime_ns == before
@@ -233,7 +234,7 @@ def test_conversion_is_cached_and_rebuilt_when_the_source_changes(cache, lite0, 
     changed.write_bytes(legacy_bytes(*contiguous(state)))
     rebuilt = iw.load_pretrained("lite0", source=changed)
     assert calls == [1]
-    assert (cache / "weights" / f"efficientnet-lite0-{iw.sha256(changed)[:12]}.safetensors").is_file()
+    assert (cache / "weights" / f"efficientnet-lite0-{file_sha256(changed)[:12]}.safetensors").is_file()
     assert cached.is_file() and cached.stat().st_mtime_ns == before
     np.testing.assert_allclose(rebuilt["params"]["classifier"]["bias"], lite0["params"]["classifier"]["bias"] + 1.0)
     iw.load_pretrained("lite0", source=changed)
@@ -244,7 +245,7 @@ def test_a_damaged_or_outdated_cache_file_is_rebuilt(cache, lite0, monkeypatch):
     calls = []
     convert = iw.convert
     monkeypatch.setattr(iw, "convert", lambda *args: calls.append(1) or convert(*args))
-    cached = cache / "weights" / f"efficientnet-lite0-{iw.sha256(iw.source_file('lite0'))[:12]}.safetensors"
+    cached = cache / "weights" / f"efficientnet-lite0-{file_sha256(iw.source_file('lite0'))[:12]}.safetensors"
     cached.write_bytes(b"not a safetensors file")
     rebuilt = iw.load_pretrained("lite0")
     monkeypatch.setattr(iw, "FORMAT", "ocplace-efficientnet-v0")

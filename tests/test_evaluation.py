@@ -325,3 +325,22 @@ def test_cli_evaluate_and_rerun(smoke_dataset, oracle_run, tmp_path, monkeypatch
     assert main(["evaluate", "--rerun", str(out), "--no-progress"]) == 0
     assert "reproduced exactly" in capsys.readouterr().out
     assert results.compare(saved, results.read_results(tmp_path / "results.rerun.json")) == []
+
+
+def test_a_rerun_finds_runs_named_relative_to_another_folder(smoke_dataset, tmp_path, monkeypatch, capsys):
+    from ocplace.cli import main
+
+    monkeypatch.setattr(registry, "METHOD_MODULES", ("eval_methods",))
+    (tmp_path / "here").mkdir()
+    (tmp_path / "elsewhere").mkdir()
+    monkeypatch.chdir(tmp_path / "here")
+    eval_methods.train_oracle(TrainContext(smoke_dataset, "none", tmp_path / "here" / "runs" / "oracle"))
+    common = ["--backbone", "none", "--physical", "0", "--limit", "2", "--subsets", "seen", "--no-progress"]
+    command = ["evaluate", "--dataset", str(smoke_dataset), "--methods", "oracle", "--run", "oracle=runs/oracle"]
+    assert main([*command, *common, "--num-samples", "4", "--out", "results.json"]) == 0
+    (entry,) = results.read_results(tmp_path / "here" / "results.json")["evaluations"]
+    assert entry["run_dir"] == str(tmp_path / "here" / "runs" / "oracle")
+    monkeypatch.chdir(tmp_path / "elsewhere")
+    capsys.readouterr()
+    assert main(["evaluate", "--rerun", str(tmp_path / "here" / "results.json"), "--no-progress"]) == 0
+    assert "reproduced exactly" in capsys.readouterr().out

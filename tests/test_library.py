@@ -2,6 +2,7 @@
 
 import dataclasses
 import json
+import shutil
 import subprocess
 import sys
 
@@ -149,3 +150,31 @@ def test_library_metadata_has_distinct_names_and_every_split():
     paper = [o for o in objects if o["split"] in ("seen", "unseen")]  # unseen_cat comes on top
     seen = sum(o["split"] == "seen" for o in paper)
     assert 0.6 <= seen / len(paper) <= 0.8
+
+
+@pytest.mark.parametrize(
+    "manifest",
+    [
+        [],
+        "library",
+        {"version": 1},
+        {"version": 1, "objects": {}, "textures": []},
+        {"version": 1, "objects": [1], "textures": []},
+        {"version": 1, "objects": [{"name": "butter"}], "textures": []},
+        {"version": 1, "objects": [], "textures": [{"name": "wood"}]},
+    ],
+)
+def test_a_manifest_that_is_not_a_library_manifest_is_typed_and_rebuilt(built, tmp_path, manifest, monkeypatch, capsys):
+    from ocplace.cli import main
+    from ocplace.errors import LibraryNotBuilt
+    from ocplace.sim.library import load_library
+
+    cache, config, library = built
+    shutil.copytree(cache / "library", tmp_path / "library")
+    (tmp_path / "library" / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(LibraryNotBuilt, match="is not a library manifest this ocplace reads: .*`ocplace assets build`"):
+        load_library(tmp_path)
+    monkeypatch.setenv("OCPLACE_CACHE", str(tmp_path))
+    assert main(["assets", "list"]) == 2
+    assert "is not a library manifest" in capsys.readouterr().err
+    assert build_library(config, cache=tmp_path, progress=False).names() == library.names()

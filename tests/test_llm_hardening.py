@@ -6,6 +6,7 @@ import dataclasses
 import http.server
 import json
 import logging
+import socket
 import threading
 import time
 
@@ -13,9 +14,9 @@ import pytest
 from llm_endpoint import completion, send
 
 from ocplace.cli import main
-from ocplace.errors import LLMConfigError
-from ocplace.models.parsing import LLMConfig, OfflineConfig, SnapConfig, as_pairs, make_snapper
-from ocplace.models.parsing.llm import LLMParser
+from ocplace.errors import LLMConfigError, LLMUnreachable
+from ocplace.models.parsing import LLMConfig, OfflineConfig, SnapConfig, as_pairs, evaluation, make_snapper
+from ocplace.models.parsing.llm import LLMParser, NoAnswer
 from ocplace.models.parsing.offline import OfflineParser
 
 SECRET = "sk-test-0123456789-do-not-leak"
@@ -36,6 +37,18 @@ def _echo(handler) -> str:
     return f"Authorization: {handler.headers['Authorization']}; {dict(handler.headers)}"
 
 
+def _escaped(handler) -> str:
+    """The request's API key as JSON text with its first character escaped (`\\u0073k-...`): not the key's
+    bytes, but what a JSON decoder turns into the key."""
+    key = handler.headers["Authorization"].removeprefix("Bearer ")
+    return f"\\u{ord(key[0]):04x}{key[1:]}"
+
+
+def _answer_beside(echo: str) -> str:
+    """A valid answer's JSON text with an extra field holding `echo`."""
+    return '{"tuples": [{"reference": "red bowl", "relation": "left"}], "echo": "' + echo + '"}'
+
+
 ONE_MB = 1_000_000  # LLMConfig's default body cap
 FAULTS = {
     "answer": lambda h: send(h, 200, completion(h.server.options.get("answer", GOOD_ANSWER))),
@@ -49,14 +62,37 @@ FAULTS = {
     "echo as body": lambda h: send(h, 200, _echo(h).encode()),
     "echo as answer": lambda h: send(h, 200, completion(_echo(h))),
     "echo as status line": lambda h: h.wfile.write(f"HTTP/1.1 {_echo(h)}\r\n\r\n".encode()),
+    "escaped echo as body": lambda h: send(h, 200, f'{{"echo": "{_escaped(h)}"}}'.encode()),
+    "escaped echo, cut short": lambda h: send(h, 200, f'{{"echo": "{_escaped(h)}'.encode()),
+    "echo in UTF-16": lambda h: send(h, 200, json.dumps({"echo": _echo(h)}).encode("utf-16")),
+    "escaped echo as content": lambda h: send(
+        h, 200, f'{{"choices": [{{"message": {{"content": "{_escaped(h)}"}}}}]}}'.encode()
+    ),
+    "escaped echo as reference": lambda h: send(
+        h, 200, completion(f'{{"tuples": [{{"reference": "{_escaped(h)}", "relation": "left"}}]}}')
+    ),
+    "escaped echo as relation": lambda h: send(
+        h, 200, completion(f'{{"tuples": [{{"reference": "red bowl", "relation": "{_escaped(h)}"}}]}}')
+    ),
+    "escaped echo beside an answer": lambda h: send(h, 200, completion(_answer_beside(_escaped(h)))),
+    "echo beside an answer": lambda h: send(h, 200, completion(_answer_beside(_echo(h).replace('"', "'")))),
 }
+# Echoes of the key that only decoding reveals; each makes the answer invalid.
+DECODED_ECHOES = [
+    "escaped echo as body",
+    "escaped echo, cut short",
+    "echo in UTF-16",
+    "escaped echo as content",
+    "escaped echo as reference",
+    "escaped echo as relation",
+]
 
 
 class _FaultHandler(http.server.BaseHTTPRequestHandler):
     """Answers each POST with the next fault of `server.script`, then with `server.fault`."""
 
     def do_POST(self):
-        self.rfile.read(int(self.headers["Content-Length"]))
+        self.server.bodies.append(self.rfile.read(int(self.headers["Content-Length"])))
         self.server.requests.append(dict(self.headers))
         fault = self.server.script.pop(0) if self.server.script else self.server.fault
         try:
@@ -77,7 +113,7 @@ def serve():
         httpd = http.server.ThreadingHTTPServer(("127.0.0.1", 0), _FaultHandler)
         httpd.daemon_threads = True
         httpd.fault, httpd.script, httpd.options = fault, list(script), options
-        httpd.requests, httpd.stop = [], threading.Event()
+        httpd.requests, httpd.bodies, httpd.stop = [], [], threading.Event()
         threading.Thread(target=httpd.serve_forever, args=(0.05,), daemon=True).start()
         servers.append(httpd)
         return httpd
@@ -140,7 +176,26 @@ def test_the_parse_command_ends_at_its_deadline(serve, capsys):
     (item,) = json.loads(capsys.readouterr().out)
     assert item["parser"] == "offline" and "1 s deadline" in item["fallback_reason"]
     assert main([*command, "--llm-deadline", "0", INSTRUCTION]) == 2
-    assert "must all be positive" in capsys.readouterr().err
+    assert "deadline_s must be a number of seconds above 0" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("flag", ["--llm-deadline", "--llm-timeout"])
+@pytest.mark.parametrize("value", ["nan", "inf", "-inf", "-1", "1e300"])
+def test_limits_that_are_not_finite_seconds_are_refused(serve, capsys, flag, value):
+    server = serve("drip body")
+    command = ["parse", "--parser", "llm", "--base-url", url(server), f"{flag}={value}", INSTRUCTION]
+    assert main(command) == 2
+    field = "deadline_s" if flag == "--llm-deadline" else "timeout_s"
+    assert capsys.readouterr().err.startswith(
+        f"ocplace parse: error: the LLM parser's {field} must be a number of seconds above 0 and at most 86,400"
+    )
+    assert server.requests == []
+
+
+@pytest.mark.parametrize("changes", [{"backoff_s": float("nan")}, {"backoff_s": -1.0}, {"temperature": float("inf")}])
+def test_backoff_and_temperature_must_be_finite(changes):
+    with pytest.raises(LLMConfigError, match="backoff_s must be 0 to 86,400 seconds and its temperature 0 to 2"):
+        LLMConfig(**changes)
 
 
 def test_the_parse_command_sets_timeout_attempts_cache_and_cross_check(serve, capsys):
@@ -211,6 +266,99 @@ def test_an_echoing_endpoint_never_puts_the_api_key_in_reasons_or_logs(serve, ll
     assert item.parser == "offline" and item.fallback_reason
     assert SECRET not in item.fallback_reason
     assert "fell back" in caplog.text and SECRET not in caplog.text
+
+
+def _files_holding(root, secret: str) -> list:
+    return [path for path in root.rglob("*") if path.is_file() and secret.encode() in path.read_bytes()]
+
+
+@pytest.mark.parametrize("fault", DECODED_ECHOES)
+def test_an_echo_that_decodes_to_the_api_key_is_scrubbed(serve, llm, caplog, tmp_path, fault):
+    server = serve(fault)
+    with caplog.at_level(logging.DEBUG):
+        (item,) = llm(server).parse(INSTRUCTION)
+    assert item.parser == "offline" and item.fallback_reason
+    # Every spelling of the key ends in its last characters as written: none may be left.
+    assert SECRET[1:] not in item.fallback_reason and SECRET[1:] not in caplog.text
+    assert "<api key>" in item.fallback_reason
+    assert _files_holding(tmp_path, SECRET[1:]) == []
+
+
+@pytest.mark.parametrize("fault", ["escaped echo beside an answer", "echo beside an answer"])
+def test_a_valid_answer_is_cached_without_what_the_endpoint_added(serve, llm, caplog, tmp_path, fault):
+    server = serve(fault)
+    with caplog.at_level(logging.DEBUG):
+        (item,) = llm(server).parse(INSTRUCTION)
+        (again,) = llm(server).parse(INSTRUCTION)
+    assert item.parser == again.parser == "llm" and as_pairs([item]) == as_pairs([again]) == [("red bowl", "left")]
+    assert len(server.requests) == 1, "the second parse is served from the cache"
+    (cached,) = (tmp_path / "parser").iterdir()
+    assert json.loads(json.loads(cached.read_text())["content"]) == json.loads(GOOD_ANSWER)
+    assert _files_holding(tmp_path, SECRET[1:]) == [] and SECRET[1:] not in caplog.text
+
+
+def test_the_parse_command_never_prints_the_api_key(serve, caplog, capsys, tmp_path):
+    for fault in ["escaped echo as reference", "escaped echo beside an answer"]:
+        command = ["parse", "--parser", "llm", "--base-url", url(serve(fault)), "--json", INSTRUCTION]
+        with caplog.at_level(logging.DEBUG):
+            assert main(command) == 0
+        captured = capsys.readouterr()
+        assert json.loads(captured.out)[0]["reference"] == "red bowl"
+        assert SECRET[1:] not in captured.out + captured.err + caplog.text
+    assert _files_holding(tmp_path, SECRET[1:]) == []
+
+
+# --- an endpoint that is gone -----------------------------------------------------------------
+
+
+def _closed_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+def test_the_parser_evaluation_stops_at_an_endpoint_that_never_answers(serve, llm):
+    server = serve("drip headers")  # accepts the connection, never finishes its answer
+    parser = llm(server, timeout_s=0.5, deadline_s=0.5)
+    cases = evaluation.generated_cases("seen", 10, 0)
+    with pytest.raises(LLMUnreachable, match=f"the LLM endpoint {url(server)} gave no answer to 3 instructions in a"):
+        evaluation.evaluate_llm(parser, cases, "seen")
+    asked = {json.loads(body)["messages"][-1]["content"] for body in server.bodies}
+    assert asked == {case.instruction for case in cases[:3]}
+
+
+def test_parse_eval_stops_at_a_dead_endpoint_and_says_why(capsys):
+    command = ["parse-eval", "--parser", "llm", "--base-url", f"http://127.0.0.1:{_closed_port()}/v1", "--num", "1"]
+    assert main(command) == 2
+    err = capsys.readouterr().err
+    assert "ocplace parse-eval: error: the LLM endpoint" in err and "3 instructions in a row" in err
+    assert "connection failed" in err and "make llm-server" in err
+
+
+def test_an_answer_resets_the_count_of_failures_in_a_row(serve, llm):
+    server = serve("answer", script=["busy", "busy"], status=503, retry_after="0")
+    parser = llm(server, max_attempts=1)
+    for expected in (1, 2):
+        with pytest.raises(NoAnswer):
+            parser.answer(INSTRUCTION)
+        assert parser.unreachable_in_a_row == expected
+    parser.answer(INSTRUCTION)
+    assert parser.unreachable_in_a_row == 0
+
+
+# --- the answer cache -------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("cache", ["read_only_dir", "full_disk"])
+def test_an_unwritable_answer_cache_keeps_the_answer(serve, llm, caplog, monkeypatch, request, cache):
+    folder = request.getfixturevalue(cache)
+    monkeypatch.setenv("OCPLACE_CACHE", str(folder))
+    server = serve("answer")
+    with caplog.at_level(logging.WARNING):
+        (item,) = llm(server).parse(INSTRUCTION)
+    assert item.parser == "llm" and item.fallback_reason is None
+    assert "cannot store the LLM's answer" in caplog.text and "--no-llm-cache" in caplog.text
+    assert not (folder / "parser").exists() or list((folder / "parser").iterdir()) == []
 
 
 # --- answers ----------------------------------------------------------------------------------

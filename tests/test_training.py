@@ -204,6 +204,24 @@ def test_train_command(tmp_path, features):
     assert trained_adapters.load_adapters(run).steps == 100
 
 
+@pytest.mark.parametrize("content", ['{"train_config": {"st', "", "[]"])
+def test_a_damaged_run_file_is_typed_when_the_run_resumes_or_loads(tmp_path, features, capsys, content):
+    from ocplace.cli import main
+    from ocplace.models.baselines.trained_run import load_run
+
+    path = save_features(features, tmp_path / "features.safetensors")
+    run = tmp_path / "run"
+    command = ["train", "--features", str(path), "--out", str(run), "--smoke", "--steps", "50", "--cpus", "0"]
+    assert main(command) == 0
+    (run / RUN_FILE).write_text(content)
+    capsys.readouterr()
+    assert main(command) == 2
+    message = f"{run / RUN_FILE} is truncated or damaged (not a JSON object), so the run cannot be checked or resumed"
+    assert capsys.readouterr().err.startswith(f"ocplace train: error: {message}")
+    with pytest.raises(TrainingError, match=re.escape(f"delete {run} to train it again")):
+        load_run(run)
+
+
 def _train_args(*options):
     parser = argparse.ArgumentParser()
     train_command.register(parser.add_subparsers())

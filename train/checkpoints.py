@@ -15,7 +15,7 @@ from pathlib import Path
 
 from ocplace.errors import TrainingError
 from ocplace.models.weights_file import flatten_state, load_weights, save_weights, unflatten_state
-from ocplace.paths import RUN_FILE, refuse_old_run, write_text_atomic
+from ocplace.paths import RUN_FILE, read_run_file, refuse_old_run, write_text_atomic
 
 CHECKPOINT_DIR = "checkpoints"
 
@@ -52,7 +52,7 @@ def claim_run_dir(run_dir: Path, run_meta: dict) -> None:
     refuse_old_run(run_dir, "train again")
     path = run_dir / RUN_FILE
     if path.exists():
-        existing = json.loads(path.read_text())
+        existing = read_run_file(run_dir)
         if existing != run_meta:
             changed = sorted(k for k in run_meta if existing.get(k) != run_meta[k])
             raise TrainingError(

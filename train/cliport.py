@@ -24,8 +24,7 @@ from ocplace.models.baselines import cliport
 from ocplace.models.baselines.common import top_down_camera
 from ocplace.paths import atomic_path, baselines_cache
 from ocplace.sim import metric
-from ocplace.sim.dataset.job import scene_dirs
-from ocplace.sim.dataset.records import read_scene
+from ocplace.sim.dataset.job import listed_scenes
 from ocplace.train import baseline_runs
 from ocplace.train.baseline_runs import Schedule
 from ocplace.train.loop import batch_indices, subset_indices
@@ -57,8 +56,8 @@ def scene_arrays(
 
     config = recipe_.network
     rgbs, heights, targets, instructions, ids = [], [], [], [], []
-    for scene_dir in tqdm(scene_dirs(dataset_dir, split), desc="cliport data", unit="scene", disable=not progress):
-        record = read_scene(scene_dir)
+    for scene in tqdm(listed_scenes(dataset_dir, split), desc="cliport data", unit="scene", disable=not progress):
+        record = scene.read()
         rgb, height = cliport.prepare_image(record.rgb, record.depth, top_down_camera(record), config)
         rgbs.append(rgb)
         heights.append(height)
@@ -150,7 +149,7 @@ def train_cliport(
     arrays, data_key = training_data(Path(dataset_dir), backbone, chosen, progress=progress)
     num_scenes = len(arrays["rgb"])
     subset = subset_indices(num_scenes, fraction, 0)
-    camera = top_down_camera(read_scene(scene_dirs(dataset_dir, "train")[0]))
+    camera = top_down_camera(listed_scenes(dataset_dir, "train")[0].read())
     run_meta = {
         "method": "cliport",
         "scale": experiment,

@@ -27,9 +27,8 @@ from ocplace.models.backbone import Backbone
 from ocplace.models.baselines import grids
 from ocplace.models.baselines.common import top_down_camera
 from ocplace.paths import baselines_cache
-from ocplace.sim.dataset.job import scene_dirs
+from ocplace.sim.dataset.job import listed_scenes, scene_dirs
 from ocplace.sim.dataset.loader import letterbox
-from ocplace.sim.dataset.records import read_scene
 from ocplace.train import baseline_runs
 from ocplace.train.baseline_runs import Schedule
 from ocplace.train.loop import batch_indices, subset_indices
@@ -44,8 +43,8 @@ class GridsRecipe:
 
 def scene_examples(dataset_dir: Path, split: str, config: grids.GridConfig) -> Iterator[feature_cache.SceneToFeaturize]:
     """The cache's scene examples: cells as crops, tuple texts, the oracle's cell as every tuple's target."""
-    for scene_dir in scene_dirs(dataset_dir, split):
-        record = read_scene(scene_dir)
+    for scene in listed_scenes(dataset_dir, split):
+        record = scene.read()
         texts = tuple(grids.tuple_text(t.reference_name, t.relation) for t in record.tuples)
         target = int(grids.cell_of(record.oracle.placement, config))
         yield feature_cache.SceneToFeaturize(

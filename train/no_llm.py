@@ -102,8 +102,7 @@ def split_sentences(dataset_dir: Path, split: str, backbone: Backbone, config: N
     from safetensors.numpy import load_file, save_file
 
     from ocplace.sim.dataset.identity import dataset_hash
-    from ocplace.sim.dataset.job import scene_dirs
-    from ocplace.sim.dataset.records import SceneInfo, read_meta
+    from ocplace.sim.dataset.job import listed_scenes
 
     digest = dataset_hash(dataset_dir, split)
     key = sentences_key(backbone.fingerprint, digest, config)
@@ -114,7 +113,7 @@ def split_sentences(dataset_dir: Path, split: str, backbone: Backbone, config: N
         if meta.get("key") == key:
             arrays = load_file(str(path))
             return Sentences(tuple(json.loads(meta["scene_ids"])), arrays["sentence"], arrays["relations"], key)
-    scenes = [SceneInfo(read_meta(d)) for d in scene_dirs(dataset_dir, split)]
+    scenes = [scene.info() for scene in listed_scenes(dataset_dir, split)]
     relations = np.zeros((len(scenes), 2), np.int32)
     for row, scene in enumerate(scenes):
         relations[row, : len(scene.tuples)] = [relation_index(t.relation) for t in scene.tuples]

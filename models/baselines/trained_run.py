@@ -8,13 +8,12 @@ baseline never needs `train`.
 from __future__ import annotations
 
 import hashlib
-import json
 from pathlib import Path
 
 import numpy as np
 
 from ocplace.models import weights_file
-from ocplace.paths import RUN_FILE, trained_weights
+from ocplace.paths import read_run_file, trained_weights
 
 
 def load_run(run_dir: Path) -> tuple[dict, dict[str, np.ndarray], str]:
@@ -23,7 +22,7 @@ def load_run(run_dir: Path) -> tuple[dict, dict[str, np.ndarray], str]:
     `weights_file.unflatten_state` makes the tree of the arrays.
     """
     path = trained_weights(run_dir, "weights", "train the method first (`ocplace evaluate` trains missing runs)")
-    run_meta = json.loads((Path(run_dir) / RUN_FILE).read_text())
+    run_meta = read_run_file(run_dir)
     arrays, _ = weights_file.load_weights(
         path, f"delete {path.parent} and rerun `ocplace evaluate` or `ocplace reproduce` (they train missing runs)"
     )

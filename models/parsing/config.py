@@ -30,6 +30,11 @@ class OfflineConfig:
     snap: SnapConfig = SnapConfig()
 
 
+# The longest a parse may wait, and a request last: beyond it (inf included) the watchdog's timer and the
+# socket timeout overflow; a NaN would silently remove the deadline.
+MAX_WAIT_S = 86_400
+
+
 @dataclasses.dataclass(frozen=True)
 class LLMConfig:
     """The endpoint and its limits; a parse waits at most `deadline_s` (then the offline parser
@@ -53,11 +58,19 @@ class LLMConfig:
 
     def __post_init__(self):
         check_base_url(self.base_url, self.api_key_env)
-        if min(self.timeout_s, self.deadline_s, self.max_body_bytes, self.max_attempts, self.max_tokens) <= 0:
+        for name in ("timeout_s", "deadline_s"):  # `not 0 < x <= max` also refuses NaN
+            if not 0 < getattr(self, name) <= MAX_WAIT_S:
+                raise LLMConfigError(
+                    f"the LLM parser's {name} must be a number of seconds above 0 and at most {MAX_WAIT_S:,} "
+                    f"(a day), got {getattr(self, name)}"
+                )
+        if not 0 <= self.backoff_s <= MAX_WAIT_S or not 0 <= self.temperature <= 2:
             raise LLMConfigError(
-                "the LLM parser's timeout_s, deadline_s, max_body_bytes, max_attempts and max_tokens must all be "
-                "positive"
+                f"the LLM parser's backoff_s must be 0 to {MAX_WAIT_S:,} seconds and its temperature 0 to 2, got "
+                f"{self.backoff_s} and {self.temperature}"
             )
+        if min(self.max_body_bytes, self.max_attempts, self.max_tokens) <= 0:
+            raise LLMConfigError("the LLM parser's max_body_bytes, max_attempts and max_tokens must all be positive")
         if self.cross_check not in CROSS_CHECK_POLICIES:
             raise LLMConfigError(f"cross_check must be one of {CROSS_CHECK_POLICIES}, got {self.cross_check!r}")
 

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ocplace.errors import ParseError
+from ocplace.errors import LLMUnreachable, ParseError
 from ocplace.models.parsing import crosscheck, text
 from ocplace.models.parsing.config import CROSS_CHECK_POLICIES
 from ocplace.models.parsing.types import ParsedTuple, Parser, as_pairs
@@ -77,6 +77,7 @@ EVAL_OBJECT_NAMES: tuple[str, ...] = (
 )
 FREEFORM_PATH = Path(__file__).resolve().parents[2] / "tests" / "data" / "freeform_instructions.jsonl"
 LEVEL_WEIGHTS = {"table": 9, "1obj": 9, "2obj": 22}  # the test subsets' ratio (docs/design.md#dataset)
+MAX_TRANSPORT_FAILURES = 3  # instructions in a row without an answer, for transport reasons, before stopping
 
 
 @dataclasses.dataclass(frozen=True)
@@ -212,7 +213,10 @@ class LLMReport:
 
 
 def evaluate_llm(parser, cases: Iterable[Case], name: str) -> LLMReport:
-    """`parser` (an LLMParser) asked once per case; every policy is scored on the same answers."""
+    """`parser` (an LLMParser) asked once per case; every policy is scored on the same answers.
+
+    Raises LLMUnreachable once MAX_TRANSPORT_FAILURES instructions in a row got no answer for transport
+    reasons: a dead endpoint would otherwise cost the whole deadline per instruction (hours for a set)."""
     from ocplace.models.parsing.llm import NoAnswer
 
     keys = ("llm alone", "offline alone", *(f"cross-check {policy}" for policy in CROSS_CHECK_POLICIES))
@@ -229,8 +233,14 @@ def evaluate_llm(parser, cases: Iterable[Case], name: str) -> LLMReport:
             start = time.perf_counter()
             try:
                 own = parser.answer(cleaned)
-            except NoAnswer:
+            except NoAnswer as error:
                 own = None
+                if parser.unreachable_in_a_row >= MAX_TRANSPORT_FAILURES:  # counted across sets
+                    raise LLMUnreachable(
+                        f"the LLM endpoint {parser.config.base_url} gave no answer to {parser.unreachable_in_a_row} "
+                        f"instructions in a row ({error}); stopped rather than wait the deadline for every "
+                        "instruction. Check that the server runs (`make llm-server`) and --base-url, then rerun"
+                    ) from None
             request_ms.append((time.perf_counter() - start) * 1e3)
             fallbacks += own is None
             answers = _answers_by_policy(parser, cleaned, own)

@@ -34,7 +34,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from ocplace import paths
-from ocplace.errors import OcplaceError, ParseError
+from ocplace.errors import OcplaceError, OutputError, ParseError
 from ocplace.models.parsing import crosscheck, lexicon, text
 from ocplace.models.parsing.config import LLMConfig
 from ocplace.models.parsing.offline import relation_of_phrase
@@ -85,9 +85,41 @@ class _Transient(Exception):
 class NoAnswer(Exception):
     """Retrying cannot help or time is up; the message says why (it becomes `fallback_reason`)."""
 
-    def __init__(self, reason: str, json_mode_refused: bool = False):
+    def __init__(self, reason: str, json_mode_refused: bool = False, transport: bool = False):
         super().__init__(reason)
         self.json_mode_refused = json_mode_refused  # an HTTP 400/422 whose body names JSON mode
+        self.transport = transport  # every attempt failed in transport: no connection, timeouts, 429, 5xx
+
+
+API_KEY_MARK = "<api key>"
+_JSON_ESCAPE = re.compile(r'\\(u[0-9a-fA-F]{4}|["\\/bfnrt])')
+_SIMPLE_ESCAPES = {'"': '"', "\\": "\\", "/": "/", "b": "\b", "f": "\f", "n": "\n", "r": "\r", "t": "\t"}
+
+
+def scrub(message: str, secret: str | None) -> str:
+    """`message` with every occurrence of `secret` (the API key) replaced by API_KEY_MARK."""
+    return message.replace(secret, API_KEY_MARK) if secret else message
+
+
+def scrub_decoded(value, secret: str | None):
+    """A decoded JSON value with `secret` scrubbed from every string in it, keys included."""
+    if isinstance(value, str):
+        return scrub(value, secret)
+    if isinstance(value, list):
+        return [scrub_decoded(item, secret) for item in value]
+    if isinstance(value, dict):
+        return {scrub(key, secret): scrub_decoded(item, secret) for key, item in value.items()}
+    return value
+
+
+def quote(raw: bytes | str, secret: str | None, limit: int) -> str:
+    """The start of text the server sent that did not decode as JSON, fit for a message: decoded (in any
+    encoding JSON allows), its JSON escapes decoded too, then scrubbed, so that no spelling of the key
+    survives."""
+    if isinstance(raw, bytes):
+        raw = raw.decode(json.detect_encoding(raw), errors="replace")
+    decoded = _JSON_ESCAPE.sub(lambda m: chr(int(m[1][1:], 16)) if m[1][0] == "u" else _SIMPLE_ESCAPES[m[1]], raw)
+    return repr(scrub(decoded, secret)[:limit])
 
 
 def prompt_messages(instruction: str) -> list[dict[str, str]]:
@@ -124,6 +156,7 @@ class LLMParser:
         self._snapper_factory = snapper_factory
         self._sleep = sleep
         self._json_mode = config.json_mode  # off once the server refuses `response_format`
+        self.unreachable_in_a_row = 0  # instructions that got no answer for transport reasons, since the last answer
 
     @property
     def cache_dir(self) -> Path:
@@ -167,20 +200,39 @@ class LLMParser:
         if self.config.use_cache and cache_file.exists():
             try:
                 content = json.loads(cache_file.read_text(encoding="utf-8"))["content"]
-                return self._tuples_from_answer(content, instruction)
-            except (OSError, ValueError, KeyError, _InvalidAnswer):
+                return self._validated(content, instruction)[1]
+            except (OSError, ValueError, KeyError, RecursionError, _InvalidAnswer):
                 log.warning("ignoring unreadable parser cache entry %s", cache_file)
-        content, tuples = self._ask_with_retries(instruction)
+        try:
+            content, tuples = self._ask_with_retries(instruction)
+        except NoAnswer as error:  # the last place a reason passes before it reaches a log or a tuple
+            self.unreachable_in_a_row = self.unreachable_in_a_row + 1 if error.transport else 0
+            raise NoAnswer(self._scrub(str(error)), error.json_mode_refused, error.transport) from None
+        self.unreachable_in_a_row = 0
         if self.config.use_cache and (tuples or self.config.temperature == 0):  # "no placement" may vary above 0
-            record = {
-                "base_url": self.config.base_url,
-                "model": self.config.model,
-                "prompt_version": PROMPT_VERSION,
-                "instruction": instruction,
-                "content": content,
-            }
-            paths.write_text_atomic(cache_file, json.dumps(record))
+            self._store(cache_file, instruction, content)
         return tuples
+
+    def _store(self, cache_file: Path, instruction: str, content: str) -> None:
+        """Caches a valid answer; a cache that cannot be written costs the next parse a request, not this answer."""
+        record = {
+            "base_url": self.config.base_url,
+            "model": self.config.model,
+            "prompt_version": PROMPT_VERSION,
+            "instruction": instruction,
+            "content": content,
+        }
+        try:
+            paths.write_text_atomic(cache_file, json.dumps(record))
+        except (OSError, OutputError) as error:
+            log.warning(
+                "cannot store the LLM's answer in the parser cache (%s); answering without caching it: make "
+                "$OCPLACE_CACHE writable, free space there, or pass --no-llm-cache",
+                error,
+            )
+
+    def _scrub(self, message: str) -> str:
+        return scrub(message, os.environ.get(self.config.api_key_env))
 
     def _ask_with_retries(self, instruction: str) -> tuple[str, list[ParsedTuple]]:
         """The first valid answer; NoAnswer when a failure is final, attempts run out or the
@@ -188,29 +240,31 @@ class LLMParser:
         config = self.config
         deadline = time.monotonic() + config.deadline_s
         reasons: list[str] = []
+        transport = True  # every failure so far was one of transport
         backoff = config.backoff_s
         for attempt in range(1, config.max_attempts + 1):
             try:
-                content = self._complete(instruction, deadline)
-                return content, self._tuples_from_answer(content, instruction)
+                return self._validated(self._complete(instruction, deadline), instruction)
             except _InvalidAnswer as error:
                 if config.temperature == 0:
                     raise NoAnswer(
                         f"invalid answer, not retried at temperature 0 (the same request gets the same answer): {error}"
                     ) from error
-                reason, wait = f"invalid answer: {error}", backoff
+                reason, wait, transport = f"invalid answer: {error}", backoff, False
             except _Transient as error:
                 reason = str(error)
                 wait = backoff if error.retry_after is None else error.retry_after
             reasons.append(reason)
-            log.info("LLM parser attempt %d/%d failed: %s", attempt, config.max_attempts, reason)
+            log.info("LLM parser attempt %d/%d failed: %s", attempt, config.max_attempts, self._scrub(reason))
             if attempt == config.max_attempts:
                 break
             if time.monotonic() + wait >= deadline:
-                raise NoAnswer(f"gave up at the {config.deadline_s:g} s deadline: {'; '.join(reasons)}")
+                raise NoAnswer(
+                    f"gave up at the {config.deadline_s:g} s deadline: {'; '.join(reasons)}", transport=transport
+                )
             self._sleep(wait)
             backoff *= 2
-        raise NoAnswer(f"{config.max_attempts} attempts failed: {'; '.join(reasons)}")
+        raise NoAnswer(f"{config.max_attempts} attempts failed: {'; '.join(reasons)}", transport=transport)
 
     def _complete(self, instruction: str, deadline: float) -> str:
         """The assistant message's content for `instruction`; raises _Transient or NoAnswer on a
@@ -242,12 +296,12 @@ class LLMParser:
             log.info("the endpoint refused JSON mode (%s); asking without it from now on", error)
             self._json_mode = False
             return self._complete(instruction, deadline)
-        if key:  # a server that echoes the request must not put the key into reasons or logs
-            payload = payload.replace(key.encode(), b"<api key>")
+        # A server that echoes the request must not put the key into reasons, logs or the cache. It is
+        # scrubbed from what JSON decodes to, not from the bytes: `\\u0073k-...` decodes to `sk-...`.
         try:
-            return json.loads(payload)["choices"][0]["message"]["content"]
-        except (ValueError, KeyError, IndexError, TypeError) as error:
-            raise _InvalidAnswer(f"response is not a chat completion: {payload[:120]!r}") from error
+            return scrub_decoded(json.loads(payload), key)["choices"][0]["message"]["content"]
+        except (ValueError, KeyError, IndexError, TypeError, RecursionError) as error:
+            raise _InvalidAnswer(f"response is not a chat completion: {quote(payload, key, 120)}") from error
 
     def _post(self, request: urllib.request.Request, deadline: float) -> bytes:
         """The response body, within `timeout_s` (and the parse's deadline) and the size cap."""
@@ -279,12 +333,16 @@ class LLMParser:
             )
         return payload
 
-    def _tuples_from_answer(self, content: object, instruction: str) -> list[ParsedTuple]:
-        items = _answer_items(content)
-        return [
+    def _validated(self, content: object, instruction: str) -> tuple[str, list[ParsedTuple]]:
+        """(the answer rewritten with its tuples alone, its tuples), or _InvalidAnswer. Only the rewrite is
+        cached, so that nothing else the endpoint sent (an echo of the request in an extra field) is kept."""
+        items = _answer_items(content, os.environ.get(self.config.api_key_env))
+        tuples = [
             self._tuple(_checked_reference(reference, instruction), relation.strip().lower())
             for reference, relation in items
         ]
+        rewritten = {"tuples": [{"reference": reference, "relation": relation} for reference, relation in items]}
+        return json.dumps(rewritten), tuples
 
     def _tuple(self, reference: str, relation_text: str) -> ParsedTuple:
         # The offline lexicon reads what the encoder confuses ("upper right corner", "near side").
@@ -463,14 +521,14 @@ def _is_phrase_of(words: list[str], written: list[str]) -> bool:
 _FENCE = re.compile(r"^```(?:json)?\s*|\s*```$")
 
 
-def _answer_items(content: object) -> list[tuple[str, str]]:
+def _answer_items(content: object, secret: str | None) -> list[tuple[str, str]]:
     """`(reference, relation)` strings from the answer's JSON, or _InvalidAnswer."""
     if not isinstance(content, str):
         raise _InvalidAnswer("answer content is not text")
     try:
-        answer = json.loads(_FENCE.sub("", content.strip()))
-    except ValueError as error:
-        raise _InvalidAnswer(f"answer is not JSON: {content[:80]!r}") from error
+        answer = scrub_decoded(json.loads(_FENCE.sub("", content.strip())), secret)
+    except (ValueError, RecursionError) as error:
+        raise _InvalidAnswer(f"answer is not JSON: {quote(content, secret, 80)}") from error
     items = answer.get("tuples") if isinstance(answer, dict) else None
     if not isinstance(items, list) or len(items) > MAX_PARSED_TUPLES:
         raise _InvalidAnswer(f"answer needs a 'tuples' list of at most {MAX_PARSED_TUPLES} items")

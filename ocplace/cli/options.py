@@ -109,6 +109,8 @@ def _parse(text: str, hint, depth: int):
     try:
         if inner is bool:
             return _BOOLS[text.strip().lower()]
+        if inner is Path and not text.strip():
+            raise ValueError  # Path("") is the current folder: never what an empty value meant
         return inner(text)
     except (KeyError, ValueError):
         raise ValueError(f"expected {describe(hint)}, got {text!r}") from None

@@ -71,12 +71,13 @@ def run_place(args: argparse.Namespace) -> int:
 
     from ocplace.models.parsing import make_parser
     from ocplace.models.placement.sampler import SamplerConfig
-    from ocplace.models.policy import PlacementPolicy, load_backbone_spec
+    from ocplace.models.policy import PlacementPolicy, check_scene, load_backbone_spec
     from ocplace.models.policy_figure import save_placement_figure
     from ocplace.models.trained_adapters import load_adapters
 
     # Everything given is read and checked before the backbone loads, which takes seconds to minutes.
     scene, record = _scene(args)
+    check_scene(scene)  # sizes that disagree, the camera, the footprint
     parser = make_parser(args.parser)
     parser.parse(scene.instruction)  # the policy parses it again: a few milliseconds, or the LLM parser's cache
     adapters = None if args.adapters is None else load_adapters(args.adapters)  # a bad adapters file fails here
@@ -136,22 +137,21 @@ def _dataset_scene(args):
 
     from ocplace.errors import DatasetError
     from ocplace.eval.ours import scene_input
-    from ocplace.sim.dataset.job import scene_dirs
-    from ocplace.sim.dataset.records import read_scene
+    from ocplace.sim.dataset.job import listed_scenes
 
     if args.id is None:
         raise DatasetError("--dataset needs --id (a scene id such as seen-00003, or an index within --split)")
-    dirs = scene_dirs(args.dataset, args.split)
+    scenes = listed_scenes(args.dataset, args.split)
     if args.id.isdigit():
-        if int(args.id) >= len(dirs):
-            raise DatasetError(f"split {args.split!r} has {len(dirs)} scenes; --id {args.id} is out of range")
-        scene_dir = dirs[int(args.id)]
+        if int(args.id) >= len(scenes):
+            raise DatasetError(f"split {args.split!r} has {len(scenes)} scenes; --id {args.id} is out of range")
+        listed = scenes[int(args.id)]
     else:
-        matches = [d for d in dirs if d.name == args.id]
+        matches = [scene for scene in scenes if scene.name == args.id]
         if not matches:
             raise DatasetError(f"no scene {args.id!r} in split {args.split!r} of {args.dataset}")
-        scene_dir = matches[0]
-    record = read_scene(scene_dir)
+        listed = matches[0]
+    record = listed.read()
     scene = scene_input(record)
     if args.detect:
         scene = dataclasses.replace(scene, boxes_or_segmentation=None, object_aabbs=None)

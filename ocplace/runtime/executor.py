@@ -19,6 +19,7 @@ import abc
 import concurrent.futures
 import contextlib
 import dataclasses
+import logging
 import multiprocessing
 import os
 from collections.abc import Callable, Iterable, Iterator
@@ -26,6 +27,8 @@ from concurrent.futures.process import BrokenProcessPool
 from typing import Any, Literal
 
 from ocplace.errors import ClusterError, ConfigError
+
+log = logging.getLogger(__name__)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -47,12 +50,44 @@ class ExecutorConfig:
             raise ConfigError("a cluster address needs the ray executor (--ray-address implies --ray)")
 
     def cpus(self) -> int:
-        return self.workers or len(os.sched_getaffinity(0))
+        """The CPUs tasks run on here: `workers` (0: every CPU), at most what this machine runs side by side."""
+        return usable_workers(self.workers)[0]
 
     def describe(self) -> str:
         if self.kind == "local":
             return f"local pool of {self.cpus()} process(es)"
         return f"Ray cluster at {self.address}" if self.address else f"local Ray instance with {self.cpus()} CPUs"
+
+
+# Memory a worker process may need: one making scenes holds the object library, a MuJoCo arena and a renderer
+# (about 0.4 GB), a training or an evaluation JAX and its buffers (1 to 2 GB, but those declare two CPUs).
+WORKER_MEMORY_GB = 1.0
+
+
+def usable_workers(requested: int) -> tuple[int, str | None]:
+    """(workers to start, why fewer than `requested`): no more than this process's CPUs, nor than the
+    memory available holds at WORKER_MEMORY_GB each. More would only share the CPUs (the tasks compute the
+    same either way) and can exhaust memory before any task finishes."""
+    cpus = len(os.sched_getaffinity(0))
+    available_gb = _available_memory_bytes() / 1e9
+    allowed = max(1, min(cpus, int(available_gb / WORKER_MEMORY_GB)))
+    wanted = requested or cpus
+    if wanted <= allowed:
+        return wanted, None
+    return allowed, (
+        f"{'--workers ' + str(requested) if requested else 'one worker per CPU'} is more than this machine runs "
+        f"side by side ({cpus} CPUs; {available_gb:.1f} GB of memory available, {WORKER_MEMORY_GB:g} GB per "
+        f"worker): using {allowed} workers"
+    )
+
+
+def _available_memory_bytes() -> int:
+    """MemAvailable (free memory plus what the page cache would give back)."""
+    with contextlib.suppress(OSError, ValueError, StopIteration):
+        with open("/proc/meminfo") as meminfo:
+            line = next(line for line in meminfo if line.startswith("MemAvailable:"))
+        return int(line.split()[1]) * 1024
+    return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -189,6 +224,9 @@ def _init_local_worker() -> None:
 def open_executor(config: ExecutorConfig | None = None) -> Iterator[Executor]:
     """The executor `config` describes, closed (and a Ray instance it started shut down) on exit."""
     config = config or ExecutorConfig()
+    clamped = usable_workers(config.workers)[1]
+    if clamped is not None and config.address is None:  # a cluster joined sizes itself
+        log.warning(clamped)
     if config.kind == "ray":
         from ocplace.runtime.ray_executor import RayExecutor
 

@@ -1,27 +1,39 @@
 """The Ray executor: starts a local Ray instance, or joins a running cluster, and runs tasks on it.
 
 A Ray instance this executor starts lives in a short temporary folder (Ray's socket paths must stay
-under 107 characters) and is shut down, with every process it started, when the executor closes.
+under 107 characters), named after the command's pid, and is shut down, with every process it started,
+when the executor closes. A command killed with SIGKILL cannot shut it down: Ray's DashboardAgent and
+RuntimeEnvAgent outlive it, with the folder. The next start reaps them: it ends the processes holding
+files in the folder of an instance whose command is gone, and removes the folder.
 Joining a cluster first probes the head's port, so an unreachable head fails within
 `connect_timeout_s` instead of hanging (ray.init itself has no timeout).
 """
 
 from __future__ import annotations
 
+import contextlib
+import logging
 import os
 import shutil
+import signal
 import socket
 import subprocess
 import sys
 import tempfile
+from pathlib import Path
 
 from ocplace.errors import ClusterError, ConfigError
-from ocplace.paths import cache_dir
+from ocplace.paths import cache_dir, pid_alive
 from ocplace.runtime.executor import Executor, ExecutorConfig, Task, run_task, run_task_in_fresh_process
+
+TEMP_ROOT = "/tmp"
+TEMP_PREFIX = "ocray-"  # then the pid of the command that started the instance, "-", random characters
 
 # Forwarded to every worker, so the tasks of a cluster read and write what the driver means.
 FORWARDED_ENV = ("OCPLACE_CACHE", "MUJOCO_GL", "PYOPENGL_PLATFORM")
 TEST_HOOK_PREFIX = "OCPLACE_TEST_"  # test hooks (e.g. a worker that kills itself) reach the workers too
+
+log = logging.getLogger(__name__)
 
 
 def worker_env() -> dict[str, str]:
@@ -75,6 +87,37 @@ def preflight(address: str, timeout_s: float) -> None:
         raise ClusterError(f"could not join the Ray cluster at {address}: {last}{hint}")
 
 
+def reap_abandoned_instances(root: str = TEMP_ROOT) -> list[int]:
+    """Ends the processes left by local Ray instances whose command is gone, and removes their folders;
+    returns the pids ended. An instance whose command still runs is left alone."""
+    ended = []
+    for folder in Path(root).glob(f"{TEMP_PREFIX}*-*"):
+        owner = folder.name.removeprefix(TEMP_PREFIX).split("-")[0]
+        if not owner.isdigit() or pid_alive(int(owner)):
+            continue
+        left = _processes_using(folder)
+        for pid in left:
+            with contextlib.suppress(ProcessLookupError, PermissionError):
+                os.kill(pid, signal.SIGKILL)
+        shutil.rmtree(folder, ignore_errors=True)
+        log.info("removed %s, left by a Ray instance whose command was killed; ended processes %s", folder, left)
+        ended += left
+    return ended
+
+
+def _processes_using(folder: Path) -> list[int]:
+    """The pids of the processes that hold a file under `folder` open (a Ray process keeps its logs open)."""
+    inside_folder = f"{folder}/"
+    found = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit() or int(entry.name) == os.getpid():
+            continue
+        with contextlib.suppress(OSError):  # the process ended, or is not ours to read
+            if any(os.readlink(fd).startswith(inside_folder) for fd in (entry / "fd").iterdir()):
+                found.append(int(entry.name))
+    return found
+
+
 class RayExecutor(Executor):
     def __init__(self, config: ExecutorConfig):
         import ray
@@ -89,7 +132,8 @@ class RayExecutor(Executor):
             runtime_env={"env_vars": self._env},
         )
         if config.address is None:
-            self._temp_dir = tempfile.mkdtemp(prefix="ocray-", dir="/tmp")
+            reap_abandoned_instances()
+            self._temp_dir = tempfile.mkdtemp(prefix=f"{TEMP_PREFIX}{os.getpid()}-", dir=TEMP_ROOT)
             # "local": a new instance even where RAY_ADDRESS names a cluster (--ray-address joins one).
             options |= dict(address="local", num_cpus=config.cpus(), _temp_dir=self._temp_dir)
         else:

@@ -26,7 +26,7 @@ from pathlib import Path
 from tqdm import tqdm
 
 from ocplace.errors import CorpusError
-from ocplace.paths import corpus_cache, inside, remove_abandoned_tmp, write_text_atomic
+from ocplace.paths import corpus_cache, file_sha256, inside, remove_abandoned_tmp, write_text_atomic
 from ocplace.sim.corpus.catalogue import CatalogueEntry, read_entries
 from ocplace.sim.corpus.convert import ConversionConfig, ConversionResult, convert_model, read_converted
 from ocplace.sim.library.types import ObjectAsset
@@ -93,14 +93,6 @@ def _catalogues(source: Path) -> list[Path]:
     return found
 
 
-def _sha256(path: Path) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as handle:
-        for block in iter(lambda: handle.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
-
-
 def _model_folder(entry: CatalogueEntry, catalogue_hash: str, config: ConversionConfig) -> str:
     key = json.dumps(
         [CONVERSION_VERSION, catalogue_hash, dataclasses.asdict(entry), dataclasses.asdict(config)], sort_keys=True
@@ -138,7 +130,7 @@ def build_corpus(
             catalogues.append({"file": path.name, "error": str(error)})
             models.append(CorpusModel(_unread(path), "skipped", str(error)))
             continue
-        catalogue_hash = _sha256(path)
+        catalogue_hash = file_sha256(path)
         catalogues.append({"file": path.name, "sha256": catalogue_hash, "licence": licence, "models": len(entries)})
         models += [CorpusModel(_unread(path, index, name), "skipped", why) for index, name, why in problems]
         for entry in entries:

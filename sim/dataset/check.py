@@ -7,13 +7,11 @@ scene, so its scenes go to the executor's workers in chunks; each worker compile
 from __future__ import annotations
 
 import contextlib
-from pathlib import Path
 
 from tqdm import tqdm
 
 from ocplace.runtime import Executor, ExecutorConfig, Task, map_tasks, open_executor
-from ocplace.sim.dataset.job import scene_dirs
-from ocplace.sim.dataset.records import SceneInfo, read_meta
+from ocplace.sim.dataset.job import ListedScene, listed_scenes
 from ocplace.sim.metric import placement_success
 
 _ARENA: dict = {}  # per worker process: the compiled MuJoCo arena of one library cache
@@ -36,23 +34,25 @@ def _close_arena() -> None:
         _ARENA.clear()
 
 
-def physical_failures(dirs: list[str], cache: str | None) -> list[str]:
+def physical_failures(scenes: list[ListedScene], cache: str | None) -> list[str]:
     """The ids of the scenes whose oracle placement fails the physical drop check."""
     from ocplace.sim.physical import physical_check
 
     failures = []
-    for scene_dir in dirs:
-        scene = SceneInfo(read_meta(Path(scene_dir)))
+    for listed in scenes:
+        scene = listed.info()
         if not physical_check(_arena(cache), scene, scene.oracle.placement).success:
             failures.append(scene.id)
     return failures
 
 
-def _physical_report(dirs: list[Path], executor: Executor, cache: str | None, progress: bool, desc: str) -> list:
-    size = max(1, -(-len(dirs) // (executor.capacity * CHUNKS_PER_WORKER)))
-    chunks = [[str(d) for d in dirs[start : start + size]] for start in range(0, len(dirs), size)]
+def _physical_report(
+    scenes: list[ListedScene], executor: Executor, cache: str | None, progress: bool, desc: str
+) -> list:
+    size = max(1, -(-len(scenes) // (executor.capacity * CHUNKS_PER_WORKER)))
+    chunks = [scenes[start : start + size] for start in range(0, len(scenes), size)]
     failures = []
-    bar = tqdm(total=len(dirs), desc=desc, disable=not progress)
+    bar = tqdm(total=len(scenes), desc=desc, disable=not progress)
     for index, failed in map_tasks(executor, [Task(physical_failures, (chunk, cache)) for chunk in chunks]):
         failures += failed
         bar.update(len(chunks[index]))
@@ -75,18 +75,18 @@ def check_oracle(
         if executor is None and physical:
             executor = stack.enter_context(open_executor(ExecutorConfig(workers=1)))
         for split in splits:
-            dirs = scene_dirs(dataset_dir, split)
+            scenes = listed_scenes(dataset_dir, split)
             metric_failures = []
-            for scene_dir in tqdm(dirs, desc=f"oracle {split}", disable=not progress):
-                scene = SceneInfo(read_meta(scene_dir))
+            for listed in tqdm(scenes, desc=f"oracle {split}", disable=not progress):
+                scene = listed.info()
                 if not placement_success(scene.oracle.placement[None], scene.problem())[0]:
                     metric_failures.append(scene.id)
             report[split] = {
-                "scenes": len(dirs),
-                "metric_success": len(dirs) - len(metric_failures),
+                "scenes": len(scenes),
+                "metric_success": len(scenes) - len(metric_failures),
                 "metric_failures": metric_failures,
             }
             if physical:
-                failed = _physical_report(dirs, executor, cache, progress, f"physical {split}")
-                report[split] |= {"physical_success": len(dirs) - len(failed), "physical_failures": failed}
+                failed = _physical_report(scenes, executor, cache, progress, f"physical {split}")
+                report[split] |= {"physical_success": len(scenes) - len(failed), "physical_failures": failed}
     return report

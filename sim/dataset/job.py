@@ -14,24 +14,25 @@ and every entry is checked to name a scene file inside DIR before anything is re
 from __future__ import annotations
 
 import contextlib
-import hashlib
+import dataclasses
 import json
 import os
 import shutil
 import signal
 import socket
 import subprocess
+from collections.abc import Mapping
 from pathlib import Path
 
 from tqdm import tqdm
 
 import ocplace
 from ocplace.errors import DatasetError
-from ocplace.paths import inside, write_text_atomic
+from ocplace.paths import disk_full_is_typed, file_sha256, inside, write_text_atomic
 from ocplace.runtime import Executor, ExecutorConfig, Task, map_tasks, open_executor
 from ocplace.sim.dataset.config import DatasetConfig
 from ocplace.sim.dataset.generate import SceneGenerator, describe, level_schedule, scene_id
-from ocplace.sim.dataset.records import IMAGE_FILES, SCENE_FILE, SceneInfo, read_meta
+from ocplace.sim.dataset.records import IMAGE_FILES, SCENE_FILE, SceneInfo, SceneRecord, read_meta, read_scene
 
 CONFIG_FILE = "dataset.json"
 MANIFEST_FILE = "manifest.json"
@@ -58,24 +59,22 @@ def code_version() -> str:
     return f"{ocplace.__version__}+{commit}" if commit else ocplace.__version__
 
 
-def _sha256(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
-
-
 def write_scene(scene_dir: Path, files: dict[str, bytes]) -> None:
-    """Writes a scene folder atomically: a temporary sibling folder renamed into place."""
-    scene_dir.parent.mkdir(parents=True, exist_ok=True)
+    """Writes a scene folder atomically: a temporary sibling folder renamed into place. A full disk is an
+    OutputError naming the scene, and its temporary folder is removed."""
     tmp = scene_dir.parent / f"{TMP_PREFIX}{scene_dir.name}-{socket.gethostname()}-{os.getpid()}"
-    shutil.rmtree(tmp, ignore_errors=True)
-    tmp.mkdir()
-    for name, data in files.items():
-        (tmp / name).write_bytes(data)
-    try:
-        os.rename(tmp, scene_dir)
-    except OSError:
+    with disk_full_is_typed(scene_dir):
+        scene_dir.parent.mkdir(parents=True, exist_ok=True)
         shutil.rmtree(tmp, ignore_errors=True)
-        if not (scene_dir / SCENE_FILE).exists():
-            raise
+        try:
+            tmp.mkdir()
+            for name, data in files.items():
+                (tmp / name).write_bytes(data)
+            os.rename(tmp, scene_dir)
+        except OSError:
+            shutil.rmtree(tmp, ignore_errors=True)
+            if not (scene_dir / SCENE_FILE).exists():  # else another worker wrote it first
+                raise
 
 
 def _claim_directory(out: Path, config: DatasetConfig) -> None:
@@ -170,7 +169,7 @@ def _damaged_files(out: Path, manifest: dict) -> list[tuple[str, str]]:
         path = _listed_path(out, relative)
         if not path.is_file():
             problems.append((relative, f"{relative} is missing"))
-        elif _sha256(path) != digest:
+        elif file_sha256(path) != digest:
             problems.append((relative, f"{relative} does not match its sha256"))
         elif path.name == SCENE_FILE:
             try:
@@ -333,7 +332,7 @@ def write_manifest(out: Path, config: DatasetConfig, regenerated: int = 0) -> di
             resamples["scenes"] += scene.resamples.scenes
             resamples["relations"] += scene.resamples.relations
             for name in SCENE_FILES:
-                files[f"{split.name}/{scene_dir.name}/{name}"] = _sha256(scene_dir / name)
+                files[f"{split.name}/{scene_dir.name}/{name}"] = file_sha256(scene_dir / name)
     manifest = {
         "config": describe(config),
         "code_version": code_version(),
@@ -349,13 +348,43 @@ def write_manifest(out: Path, config: DatasetConfig, regenerated: int = 0) -> di
     return manifest
 
 
-def scene_dirs(out: str | Path, split: str) -> list[Path]:
-    """The scene folders of `split` that the manifest lists, in id order: what `verify` checked."""
+@dataclasses.dataclass(frozen=True)
+class ListedScene:
+    """A scene folder that the manifest lists, with the sha256 it lists for each file of the scene.
+
+    Reading through it hashes every file as it is read: a scene edited after generation is a
+    DatasetError naming it, never a scene read (and scored) as the dataset's.
+    """
+
+    dir: Path
+    digests: Mapping[str, str]  # file name -> sha256
+
+    @property
+    def name(self) -> str:
+        return self.dir.name
+
+    def read(self) -> SceneRecord:
+        return read_scene(self.dir, self.digests)
+
+    def info(self) -> SceneInfo:
+        return SceneInfo(read_meta(self.dir, self.digests))
+
+
+def listed_scenes(out: str | Path, split: str) -> list[ListedScene]:
+    """The scenes of `split` that the manifest lists, in id order: what `verify` checked."""
     out = Path(out)
-    listed = [relative for relative in read_manifest(out)["files"] if relative.startswith(f"{split}/")]
-    dirs = sorted({(out / relative).parent for relative in listed})  # read_manifest checked every entry
-    if not dirs:
+    digests: dict[Path, dict[str, str]] = {}
+    for relative, digest in read_manifest(out)["files"].items():  # read_manifest checked every entry
+        if relative.startswith(f"{split}/"):
+            path = out / relative
+            digests.setdefault(path.parent, {})[path.name] = digest
+    if not digests:
         raise DatasetError(
             f"{out} has no scenes of split {split!r}; generate them with `ocplace generate --out {out} --split {split}`"
         )
-    return dirs
+    return [ListedScene(scene_dir, digests[scene_dir]) for scene_dir in sorted(digests)]
+
+
+def scene_dirs(out: str | Path, split: str) -> list[Path]:
+    """The folders of `listed_scenes`, for code that names or counts scenes; readers use `listed_scenes`."""
+    return [scene.dir for scene in listed_scenes(out, split)]

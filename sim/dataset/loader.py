@@ -10,8 +10,8 @@ import cv2
 import numpy as np
 
 from ocplace.sim.boxes import square_crop
-from ocplace.sim.dataset.job import scene_dirs
-from ocplace.sim.dataset.records import SceneRecord, read_scene
+from ocplace.sim.dataset.job import listed_scenes
+from ocplace.sim.dataset.records import SceneRecord
 from ocplace.vocabulary import MAX_PARSED_TUPLES
 
 CROP_SIZE = 224
@@ -58,9 +58,9 @@ def example_from_record(record: SceneRecord, crop_size: int = CROP_SIZE) -> Scen
 
 
 def iter_examples(dataset_dir: str | Path, split: str, crop_size: int = CROP_SIZE) -> Iterator[SceneExample]:
-    """Every scene of `split` that the manifest lists, in id order."""
-    for scene_dir in scene_dirs(dataset_dir, split):
-        yield example_from_record(read_scene(scene_dir), crop_size)
+    """Every scene of `split` that the manifest lists, in id order, each checked against its hashes there."""
+    for scene in listed_scenes(dataset_dir, split):
+        yield example_from_record(scene.read(), crop_size)
 
 
 def collate(examples: list[SceneExample], max_boxes: int = MAX_BOXES, max_tuples: int = MAX_PARSED_TUPLES) -> dict:
@@ -101,8 +101,8 @@ def batches(
     dataset_dir: str | Path, split: str, batch_size: int, crop_size: int = CROP_SIZE, shuffle_seed: int | None = None
 ) -> Iterator[dict]:
     """Padded batches of `split`; with `shuffle_seed`, scenes in a seeded random order."""
-    dirs = scene_dirs(dataset_dir, split)
+    scenes = listed_scenes(dataset_dir, split)
     if shuffle_seed is not None:
-        dirs = [dirs[i] for i in np.random.default_rng(shuffle_seed).permutation(len(dirs))]
-    for start in range(0, len(dirs), batch_size):
-        yield collate([example_from_record(read_scene(d), crop_size) for d in dirs[start : start + batch_size]])
+        scenes = [scenes[i] for i in np.random.default_rng(shuffle_seed).permutation(len(scenes))]
+    for start in range(0, len(scenes), batch_size):
+        yield collate([example_from_record(s.read(), crop_size) for s in scenes[start : start + batch_size]])

@@ -9,7 +9,9 @@
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import json
+from collections.abc import Mapping
 from pathlib import Path
 
 import cv2
@@ -197,8 +199,27 @@ def scene_files(meta: dict, images: dict[str, bytes]) -> dict[str, bytes]:
     return {SCENE_FILE: json.dumps(meta, indent=1, sort_keys=True).encode(), **images}
 
 
-def _read_png(path: Path, flags: int) -> np.ndarray:
-    image = cv2.imread(str(path), flags)
+def _read_listed(path: Path, digests: Mapping[str, str] | None) -> bytes:
+    """The bytes of a scene file, hashed as they are read when `digests` (file name -> the sha256 the
+    dataset's manifest lists) is given; DatasetError when they differ from the listed hash."""
+    data = path.read_bytes()
+    if digests is not None and hashlib.sha256(data).hexdigest() != digests.get(path.name):
+        dataset = path.parent.parent.parent
+        raise DatasetError(
+            f"{path.name} of scene {path.parent.name} does not match the sha256 that {dataset}/manifest.json "
+            "lists: it was edited or damaged after generation, so the scene is not the dataset's. Run "
+            f"`ocplace dataset verify {dataset}` to list every such file, then `ocplace generate --out "
+            f"{dataset}` with the dataset's options to regenerate them"
+        )
+    return data
+
+
+def _read_png(path: Path, flags: int, digests: Mapping[str, str] | None) -> np.ndarray:
+    try:
+        data = _read_listed(path, digests)
+    except OSError:
+        data = b""
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), flags) if data else None
     if image is None:
         raise DatasetError(
             f"{path} is missing or not a readable PNG; run `ocplace generate` on the "
@@ -207,10 +228,11 @@ def _read_png(path: Path, flags: int) -> np.ndarray:
     return image
 
 
-def read_meta(scene_dir: Path) -> dict:
+def read_meta(scene_dir: Path, digests: Mapping[str, str] | None = None) -> dict:
+    """The scene's JSON, checked against `digests` (see `read_scene`) when given."""
     path = Path(scene_dir) / SCENE_FILE
     try:
-        meta = json.loads(path.read_text())
+        meta = json.loads(_read_listed(path, digests))
     except (OSError, ValueError) as error:
         raise DatasetError(
             f"{path} is missing or corrupt ({error}); run `ocplace generate` on the "
@@ -227,10 +249,13 @@ def read_meta(scene_dir: Path) -> dict:
     return meta
 
 
-def read_scene(scene_dir: str | Path) -> SceneRecord:
+def read_scene(scene_dir: str | Path, digests: Mapping[str, str] | None = None) -> SceneRecord:
+    """The scene in `scene_dir`. With `digests` (file name -> sha256, from the dataset's manifest) every
+    file is hashed as it is read and a DatasetError names the first that differs; readers of a dataset
+    pass them (`ocplace.sim.dataset.job.listed_scenes`), so an edited scene is never read as the dataset's."""
     scene_dir = Path(scene_dir)
-    meta = read_meta(scene_dir)
-    rgb = _read_png(scene_dir / "rgb.png", cv2.IMREAD_COLOR)[..., ::-1]
-    depth = _read_png(scene_dir / "depth.png", cv2.IMREAD_UNCHANGED).astype(np.float32) / 1000.0
-    segmentation = _read_png(scene_dir / "segmentation.png", cv2.IMREAD_UNCHANGED).astype(np.int32)
+    meta = read_meta(scene_dir, digests)
+    rgb = _read_png(scene_dir / "rgb.png", cv2.IMREAD_COLOR, digests)[..., ::-1]
+    depth = _read_png(scene_dir / "depth.png", cv2.IMREAD_UNCHANGED, digests).astype(np.float32) / 1000.0
+    segmentation = _read_png(scene_dir / "segmentation.png", cv2.IMREAD_UNCHANGED, digests).astype(np.int32)
     return SceneRecord(meta, np.ascontiguousarray(rgb), depth, segmentation)

@@ -30,6 +30,7 @@ from ocplace.sim.library.records import (
     TEXTURES_DIRNAME,
     TMP_DIRNAME,
     asset_from_json,
+    manifest_problem,
 )
 from ocplace.sim.library.sources import SourceFiles, gso_specs, libero_root, pybullet_root, source_files
 
@@ -195,7 +196,7 @@ def _previous_entries(root: Path) -> list[dict]:
         manifest = json.loads((root / MANIFEST_FILE).read_text())
     except (OSError, ValueError):
         return []
-    if manifest.get("version") != MANIFEST_VERSION:
+    if manifest_problem(manifest) is not None:  # rebuilt from nothing, and rewritten
         return []
     return [e for e in manifest["objects"] if e["status"] != "ok" or (root / e["folder"] / ASSET_FILE).is_file()]
 

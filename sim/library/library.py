@@ -14,8 +14,8 @@ from ocplace.paths import inside, library_cache
 from ocplace.sim.library.records import (
     ASSET_FILE,
     MANIFEST_FILE,
-    MANIFEST_VERSION,
     asset_from_json,
+    manifest_problem,
 )
 from ocplace.sim.library.types import ObjectAsset
 from ocplace.vocabulary import LIBRARY_SPLITS
@@ -69,8 +69,9 @@ def _read_manifest(root: Path) -> dict:
         raise LibraryNotBuilt(f"no object library in {root}; {BUILD_HINT}") from None
     except (OSError, ValueError) as error:
         raise LibraryNotBuilt(f"unreadable {path} ({error}); {BUILD_HINT}") from error
-    if manifest.get("version") != MANIFEST_VERSION:
-        raise LibraryNotBuilt(f"{path} is from another ocplace version; {BUILD_HINT}")
+    problem = manifest_problem(manifest)
+    if problem is not None:
+        raise LibraryNotBuilt(f"{path} is not a library manifest this ocplace reads: {problem}; {BUILD_HINT}")
     return manifest
 
 

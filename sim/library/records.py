@@ -16,6 +16,26 @@ ASSET_FILE = "asset.json"  # written last inside an object's folder: its presenc
 MANIFEST_VERSION = 1
 
 
+_OBJECT_FIELDS = {"name": str, "status": str, "folder": (str, type(None))}
+_TEXTURE_FIELDS = {"name": str, "file": str, "split": str}
+
+
+def manifest_problem(manifest: object) -> str | None:
+    """What keeps `manifest` (decoded JSON) from being a library manifest this version reads; None if nothing."""
+    if not isinstance(manifest, dict):
+        return f"it is a JSON {type(manifest).__name__}, not an object"
+    if manifest.get("version") != MANIFEST_VERSION:
+        return "it is from another ocplace version"
+    for key, fields in (("objects", _OBJECT_FIELDS), ("textures", _TEXTURE_FIELDS)):
+        entries = manifest.get(key)
+        if not isinstance(entries, list):
+            return f"it has no {key!r} list"
+        for index, entry in enumerate(entries):
+            if not isinstance(entry, dict) or not all(isinstance(entry.get(f), kind) for f, kind in fields.items()):
+                return f"{key}[{index}] is not an entry with {', '.join(fields)}"
+    return None
+
+
 def asset_to_json(asset: ObjectAsset) -> dict:
     """Paths relative to the object's folder, so a cache can be moved as a whole."""
     record = {}

@@ -16,9 +16,8 @@ from pathlib import Path
 import numpy as np
 
 from ocplace.models.backbone import Backbone, PromptConfig
-from ocplace.sim.dataset.job import scene_dirs
+from ocplace.sim.dataset.job import listed_scenes
 from ocplace.sim.dataset.loader import CROP_SIZE, example_from_record
-from ocplace.sim.dataset.records import read_scene
 
 
 @dataclasses.dataclass
@@ -50,9 +49,9 @@ def evaluate_split(
     counts = collections.Counter()
     chance = []
     crop_features, crop_names = [], []
-    dirs = scene_dirs(dataset_dir, split)[:limit]
-    for scene_dir in tqdm(dirs, desc=f"eval {split}", unit="scene", disable=not progress):
-        record = read_scene(scene_dir)
+    scenes = listed_scenes(dataset_dir, split)[:limit]
+    for scene in tqdm(scenes, desc=f"eval {split}", unit="scene", disable=not progress):
+        record = scene.read()
         example = example_from_record(record, CROP_SIZE)
         visual = backbone.encode_images(np.concatenate([example.crops, example.workspace[None]]))
         text = encode_texts([prompt.text_for(t) for t in example.texts])
@@ -70,7 +69,7 @@ def evaluate_split(
     pools["split"] = sorted(set(crop_names))
     grounding = {group: counts[group, "correct"] / counts[group, "tuples"] for group, key in counts if key == "tuples"}
     grounding["tuples"] = counts["all", "tuples"]
-    grounding["scenes"] = len(dirs)
+    grounding["scenes"] = len(scenes)
     grounding["chance"] = float(np.mean(chance))
     crops = np.concatenate(crop_features)
     retrieval = {

@@ -44,6 +44,7 @@ from ocplace.models.offline_backbone import (
     trainable_mask,
 )
 from ocplace.models.offline_recipes import OptimConfig, PretrainConfig, output_dir
+from ocplace.sim.corpus.build import build_corpus
 from ocplace.train import checkpoints, runner
 from ocplace.train.pretrain.captions import CaptionBank
 from ocplace.train.pretrain.classes import caption_bank, pretraining_classes
@@ -331,11 +332,7 @@ def pretrain(
 
 def corpus_of(config: PretrainConfig):
     """The corpus a recipe's pool is drawn from (built into the cache on first use), None for `task`."""
-    if config.render.pool == "task":
-        return None
-    from ocplace.sim.corpus.build import build_corpus
-
-    return build_corpus(progress=False)
+    return None if config.render.pool == "task" else build_corpus(progress=False)
 
 
 def _run_metadata(config: PretrainConfig, pool: TrainingPool, bank: CaptionBank) -> dict:
