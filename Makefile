@@ -16,10 +16,10 @@ library: setup
 	$(RUN)ocplace corpus build
 
 demo: library
-	$(RUN)ocplace reproduce --scale demo --out out/demo
+	$(RUN)ocplace reproduce --experiment demo --out out/demo
 
 reproduce: library
-	$(RUN)ocplace reproduce --scale default --out out/reproduce
+	$(RUN)ocplace reproduce --experiment default --out out/reproduce
 
 lint: setup
 	$(VENV)/bin/ruff check .

@@ -2,7 +2,7 @@
 
 from pathlib import Path
 
-from ocplace.eval.experiment import DatasetSizes, EvalPlan, Experiment, MethodRecipes, TaskCpus
+from ocplace.experiments.experiment import DatasetSizes, EvalPlan, Experiment, MethodRecipes, TaskCpus
 from ocplace.models import no_pretrain, offline_recipes
 from ocplace.models.baselines.cliport import CliportConfig
 from ocplace.models.baselines.grids import GridConfig

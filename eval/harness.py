@@ -22,14 +22,15 @@ import contextlib
 import dataclasses
 import time
 import zlib
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
 
+from ocplace import serial
 from ocplace.errors import OcplaceError
-from ocplace.eval.api import LoadContext, Method, MethodOutput, MethodSpec
+from ocplace.eval.api import Method, MethodOutput
 from ocplace.sim.boxes import Boxes
 from ocplace.sim.dataset.records import SceneRecord
 from ocplace.vocabulary import LEVELS, TEST_SUBSETS
@@ -47,7 +48,7 @@ class EvalSettings:
     """Everything that decides an evaluation's outcome besides the methods' own runs."""
 
     backbone: str = "offline"
-    scale: str = "default"  # the experiment's name, recorded; the methods' runs carry their recipes
+    experiment: str = "default"  # the experiment's name, recorded; the methods' runs carry their recipes
     parser: str = "offline"
     num_samples: int = 1024
     subsets: tuple[str, ...] = TEST_SUBSETS
@@ -56,26 +57,21 @@ class EvalSettings:
     seed: int = 0
     chunk_size: int = 32  # scenes per `Method.run` call
 
-    def to_json(self) -> dict:
-        return dataclasses.asdict(self) | {"subsets": list(self.subsets)}
-
-    @classmethod
-    def from_json(cls, fields: dict) -> EvalSettings:
-        return cls(**(fields | {"subsets": tuple(fields["subsets"])}))
-
 
 @dataclasses.dataclass(frozen=True)
 class MethodRun:
-    """One row to evaluate: a method and its trained run directory (None: nothing trained)."""
+    """One row to evaluate: a method by its registered name, its Table I label and its trained run directory
+    (None: nothing trained)."""
 
-    spec: MethodSpec
+    method: str
+    label: str
     run_dir: Path | None = None
     fraction: float = 1.0
     seed: int | None = None  # a repeat's own training and evaluation seed; None: the settings' seed
 
     @property
     def key(self) -> str:
-        key = self.spec.name if self.fraction == 1.0 else f"{self.spec.name}@{self.fraction:g}"
+        key = self.method if self.fraction == 1.0 else f"{self.method}@{self.fraction:g}"
         return key if self.seed is None else f"{key}~seed{self.seed}"
 
     def settings(self, settings: EvalSettings) -> EvalSettings:
@@ -110,27 +106,6 @@ class SceneOutcome:
     stage: str | None  # where an unsuccessful scene went wrong (STAGES); None on success
     physical: PhysicalOutcome | None = None
     parse_note: str | None = None  # the LLM parser's fall-back reason or disagreement (MethodOutput.parse_note)
-
-    def to_json(self) -> dict:
-        return jsonable(self)
-
-    @classmethod
-    def from_json(cls, fields: dict) -> SceneOutcome:
-        def tuples(value, inner):
-            return None if value is None else tuple(inner(v) for v in value)
-
-        physical = fields.get("physical")
-        return cls(
-            **(
-                fields
-                | {
-                    "mode": tuples(fields["mode"], float),
-                    "parsed": tuples(fields["parsed"], tuple),
-                    "grounded": tuples(fields["grounded"], int),
-                    "physical": None if physical is None else PhysicalOutcome(**physical),
-                }
-            )
-        )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -343,34 +318,6 @@ def physical_outcome(arena, record: SceneRecord, outcome: SceneOutcome) -> Physi
 # ----------------------------------------------------------------------------- a method on the test subsets
 
 
-def load_method(run: MethodRun, settings: EvalSettings) -> Method:
-    return run.spec.load(
-        LoadContext(
-            run_dir=run.run_dir,
-            backbone=settings.backbone,
-            parser=settings.parser,
-            num_samples=settings.num_samples,
-        )
-    )
-
-
-def jsonable(value):
-    """`value` with numpy scalars, arrays, paths and tuples turned into JSON types."""
-    if isinstance(value, Mapping):
-        return {str(k): jsonable(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [jsonable(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return jsonable(value.tolist())
-    if isinstance(value, np.generic):
-        return value.item()
-    if dataclasses.is_dataclass(value) and not isinstance(value, type):
-        return jsonable(dataclasses.asdict(value))
-    if value is None or isinstance(value, (bool, int, float, str)):
-        return value
-    return str(value)
-
-
 def evaluate_subset(
     method: Method, name: str, dataset_dir: Path, subset: str, settings: EvalSettings, arena=None, progress: bool = True
 ) -> tuple[SceneOutcome, ...]:
@@ -396,63 +343,42 @@ def evaluate_subset(
 
 
 def evaluate_run(
-    run: MethodRun,
-    dataset_dir: str | Path,
-    settings: EvalSettings,
-    arena=None,
-    progress: bool = True,
-    method: Method | None = None,
+    run: MethodRun, method: Method, dataset_dir: str | Path, settings: EvalSettings, arena=None, progress: bool = True
 ) -> Evaluation:
-    """Loads the run (unless `method` is given) and scores it on every subset of `settings`.
+    """Scores `method`, loaded from `run`, on every subset of `settings`.
 
     The physical check runs for runs on the whole training set only (fractions feed the
     sample-efficiency curve, which plots the metric).
     """
     began = time.perf_counter()
     settings = run.settings(settings)
-    method = method or load_method(run, settings)
     arena = arena if run.fraction == 1.0 else None
     subsets = {
-        subset: evaluate_subset(method, run.spec.name, Path(dataset_dir), subset, settings, arena, progress)
+        subset: evaluate_subset(method, run.method, Path(dataset_dir), subset, settings, arena, progress)
         for subset in settings.subsets
     }
     return Evaluation(
         key=run.key,
-        method=run.spec.name,
-        label=run.spec.label,
+        method=run.method,
+        label=run.label,
         fraction=run.fraction,
         run_dir=None if run.run_dir is None else str(run.run_dir),
-        description=jsonable(method.describe()),
+        description=serial.to_dict(method.describe()),
         subsets=subsets,
         wall_s=time.perf_counter() - began,
         seed=run.seed,
     )
 
 
-def evaluate_in_worker(
-    run: MethodRun, dataset_dir: str | Path, settings: EvalSettings, method: Method | None = None
+def evaluate_in_own_arena(
+    run: MethodRun, method: Method, dataset_dir: str | Path, settings: EvalSettings
 ) -> Evaluation:
-    """`evaluate_run` as an executor task: its own physical arena (for runs on the whole training set)."""
+    """`evaluate_run` with its own physical arena (for runs on the whole training set), as a task does it."""
     checked = run.settings(settings)
     if run.fraction != 1.0:
         checked = dataclasses.replace(checked, physical_scenes=0)
     with physical_arena(checked) as arena:
-        return evaluate_run(run, dataset_dir, settings, arena, progress=False, method=method)
-
-
-def evaluate_runs(
-    runs: Sequence[MethodRun], dataset_dir: str | Path, settings: EvalSettings, executor, progress: bool = True
-) -> list[Evaluation]:
-    """Every run scored as one task of `executor` (a fresh process each, JAX one CPU wide); in `runs` order."""
-    from ocplace.runtime import Task, map_tasks
-
-    tasks = [Task(evaluate_in_worker, (run, dataset_dir, settings), fresh_process=True) for run in runs]
-    evaluations: list[Evaluation | None] = [None] * len(runs)
-    for index, evaluation in map_tasks(executor, tasks):
-        evaluations[index] = evaluation
-        if progress:
-            print(f"evaluated {runs[index].key} in {evaluation.wall_s:.1f} s", flush=True)
-    return evaluations
+        return evaluate_run(run, method, dataset_dir, settings, arena, progress=False)
 
 
 # ----------------------------------------------------------------------------- aggregates

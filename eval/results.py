@@ -4,7 +4,7 @@
      "command": {"argv": [...], "arguments": {parsed options}} from the CLI (any JSON from Python),
      "environment": {ocplace commit and version, python, jax, jaxlib, flax, mujoco, numpy, platform},
      "dataset": {"dir", "dataset_hash", "manifest_hash", "counts", "config"},
-     "settings": EvalSettings (backbone spec, scale, parser, samples, subsets, limit, physical, seed, chunk),
+     "settings": EvalSettings (backbone spec, experiment, parser, samples, subsets, limit, physical, seed, chunk),
      "evaluations": [{"key", "method", "label", "fraction", "run_dir", "description" (the method's
                       describe(): configs, seeds, checkpoint hashes, backbone fingerprint, parser),
                       "seed" (only for a repeat of `--seeds`: its training and evaluation seed),
@@ -27,18 +27,8 @@ from collections.abc import Mapping, Sequence
 from importlib import metadata
 from pathlib import Path
 
-from ocplace.eval.api import MethodSpec
-from ocplace.eval.harness import (
-    EvalSettings,
-    Evaluation,
-    EvaluationError,
-    MethodRun,
-    SceneOutcome,
-    aggregate_subset,
-    evaluate_run,
-    evaluate_runs,
-    jsonable,
-)
+from ocplace import serial
+from ocplace.eval.harness import EvalSettings, Evaluation, EvaluationError, SceneOutcome, aggregate_subset
 from ocplace.paths import write_text_atomic
 
 SCHEMA = "ocplace.evaluation/1"
@@ -135,7 +125,7 @@ def evaluation_to_json(evaluation: Evaluation) -> dict:
         "description": evaluation.description,
         "wall_s": round(evaluation.wall_s, 3),
         "subsets": {
-            subset: {"aggregate": aggregate_subset(outcomes), "scenes": [o.to_json() for o in outcomes]}
+            subset: {"aggregate": aggregate_subset(outcomes), "scenes": [serial.to_dict(o) for o in outcomes]}
             for subset, outcomes in evaluation.subsets.items()
         },
     } | ({} if evaluation.seed is None else {"seed": evaluation.seed})
@@ -151,7 +141,7 @@ def evaluation_from_json(entry: dict) -> Evaluation:
         description=entry["description"],
         wall_s=entry["wall_s"],
         subsets={
-            subset: tuple(SceneOutcome.from_json(s) for s in body["scenes"])
+            subset: tuple(serial.from_dict(SceneOutcome, s) for s in body["scenes"])
             for subset, body in entry["subsets"].items()
         },
         seed=entry.get("seed"),
@@ -166,10 +156,10 @@ def build_results(
     return {
         "schema": SCHEMA,
         "created": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
-        "command": jsonable(command),
+        "command": serial.to_dict(command),
         "environment": environment(),
         "dataset": dataset_identity(dataset_dir),
-        "settings": settings.to_json(),
+        "settings": serial.to_dict(settings),
         "evaluations": [evaluation_to_json(_with_absolute_run_dir(e)) for e in evaluations],
     }
 
@@ -271,7 +261,10 @@ def evaluations(results: Mapping) -> list[Evaluation]:
 
 def settings_of(results: Mapping) -> EvalSettings:
     try:
-        return EvalSettings.from_json(results["settings"])
+        fields = results["settings"]
+        # Results written before the field's rename name the experiment `scale`.
+        renamed = {"experiment": fields["scale"]} if "scale" in fields else {}
+        return serial.from_dict(EvalSettings, fields | renamed)
     except (TypeError, ValueError) as error:
         raise ResultsError(
             f"the results' settings are not those of this ocplace's evaluations ({error}); write them again with "
@@ -279,69 +272,7 @@ def settings_of(results: Mapping) -> EvalSettings:
         ) from None
 
 
-# ----------------------------------------------------------------------------- reproducing a results file
-
-
-def runs_of(results: Mapping, specs: Mapping[str, MethodSpec] | None = None) -> list[MethodRun]:
-    """The method runs a results file evaluated, looked up in `specs` (default: the registry)."""
-    if specs is None:
-        from ocplace.eval.registry import method_specs
-
-        specs = method_specs()
-    runs = []
-    for entry in results["evaluations"]:
-        if entry["method"] not in specs:
-            raise ResultsError(
-                f"method {entry['method']!r} of the results is not registered here "
-                f"(registered: {', '.join(specs) or 'none'})"
-            )
-        run_dir = None if entry.get("run_dir") is None else Path(entry["run_dir"])
-        if run_dir is not None and not run_dir.exists():
-            raise ResultsError(
-                f"run directory {run_dir} of {entry['key']!r} is gone; train it again with the "
-                "same settings (runs are deterministic) or restore it"
-                + (
-                    ""
-                    if run_dir.is_absolute()
-                    else " (results written before run directories were stored absolute name them from the "
-                    "folder `ocplace reproduce` or `evaluate` ran in: rerun from that folder)"
-                )
-            )
-        runs.append(MethodRun(specs[entry["method"]], run_dir, entry["fraction"], entry.get("seed")))
-    return runs
-
-
-def rerun(
-    results: Mapping,
-    specs: Mapping[str, MethodSpec] | None = None,
-    arena=None,
-    progress: bool = True,
-    command=None,
-    executor=None,
-) -> dict:
-    """Evaluates again every run of `results` with its settings, on its dataset; returns the new results.
-
-    With `executor`, each run is a task as in `ocplace evaluate` and `reproduce` (JAX one CPU wide);
-    without, the runs are scored in this process with `arena`.
-    """
-    if results.get("summary"):
-        raise ResultsError(
-            "these results are a summary without per-scene outcomes; rerun from the full results.json it was made from"
-        )
-    dataset_dir = Path(results["dataset"]["dir"])
-    identity = dataset_identity(dataset_dir)
-    if identity["manifest_hash"] != results["dataset"]["manifest_hash"]:
-        raise ResultsError(
-            f"the dataset in {dataset_dir} changed since the evaluation (manifest hash "
-            f"{identity['manifest_hash'][:16]} != {results['dataset']['manifest_hash'][:16]})"
-        )
-    settings = settings_of(results)
-    runs = runs_of(results, specs)
-    if executor is not None:
-        fresh = evaluate_runs(runs, dataset_dir, settings, executor, progress)
-    else:
-        fresh = [evaluate_run(run, dataset_dir, settings, arena, progress) for run in runs]
-    return build_results(fresh, dataset_dir, settings, command)
+# ----------------------------------------------------------------------------- comparing two results
 
 
 def compare(expected: Mapping, actual: Mapping) -> list[str]:

@@ -79,14 +79,6 @@ class PromptConfig:
             return self.table_text
         return self.template.format(phrase)
 
-    def to_json(self) -> str:
-        return json.dumps(dataclasses.asdict(self), sort_keys=True)
-
-    @classmethod
-    def from_json(cls, text: str) -> PromptConfig:
-        fields = json.loads(text)
-        return cls(**{**fields, "table_phrases": tuple(fields["table_phrases"])})
-
 
 def load_backbone(spec: str, **kwargs) -> Backbone:
     """A backbone from a spec string (see the module docstring); a bare kind such as "offline" is "offline:"."""
@@ -264,7 +256,7 @@ def _tokenizer_json(tokenizer) -> str:
 
 
 def _config_json(config) -> str:
-    """The model config without bookkeeping fields that do not change the model."""
+    """The model config (transformers' `PretrainedConfig`) without bookkeeping fields that do not change the model."""
     fields = config.to_dict()
     for key in ("architectures", "_name_or_path", "transformers_version", "torch_dtype", "dtype", "_commit_hash"):
         fields.pop(key, None)

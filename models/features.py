@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ocplace import serial
 from ocplace.errors import FeaturesError
 from ocplace.models.backbone import Backbone, PromptConfig
 from ocplace.paths import atomic_path, file_lock
@@ -83,9 +84,6 @@ class FeaturizeConfig:
     def max_tokens(self) -> int:
         return self.max_objects + 1
 
-    def to_json(self) -> str:
-        return json.dumps(dataclasses.asdict(self), sort_keys=True)
-
     def content_json(self) -> str:
         """The settings that change the file's content (not `chunk_scenes`)."""
         return json.dumps({k: v for k, v in dataclasses.asdict(self).items() if k != "chunk_scenes"}, sort_keys=True)
@@ -108,7 +106,7 @@ class FeatureInfo:
             "key": self.key,
             "backbone_fingerprint": self.backbone_fingerprint,
             "dataset_hash": self.dataset_hash,
-            "config": self.config.to_json(),
+            "config": serial.to_json(self.config),
             "logit_scale": repr(self.logit_scale),
             "dim": str(self.dim),
         }
@@ -116,7 +114,7 @@ class FeatureInfo:
     @classmethod
     def from_metadata(cls, meta: dict[str, str]) -> FeatureInfo:
         fields = json.loads(meta["config"])
-        config = FeaturizeConfig(**{**fields, "prompt": PromptConfig.from_json(json.dumps(fields["prompt"]))})
+        config = serial.from_dict(FeaturizeConfig, fields)
         return cls(
             meta["key"],
             meta["backbone_fingerprint"],

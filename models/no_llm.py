@@ -26,6 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from ocplace import serial
 from ocplace.models.adapters import AdapterConfig, GroundingAdapters, apply_adapters
 from ocplace.models.backbone import Backbone, update_with_params
 from ocplace.models.grounding import cosine_logits, grounding_loss
@@ -55,13 +56,6 @@ class NoLlmConfig:
 
     def sentence_text(self, instruction: str) -> str:
         return self.sentence_template.format(" ".join(instruction.split()))
-
-    def to_json(self) -> str:
-        return json.dumps(dataclasses.asdict(self), sort_keys=True)
-
-    @classmethod
-    def from_json(cls, text: str) -> NoLlmConfig:
-        return cls(**json.loads(text))
 
 
 class RelationHead(nn.Module):
@@ -232,7 +226,7 @@ def load_model(run_dir: Path) -> TrainedNoLlm:
     arrays, metadata = load_weights(
         path, f"delete {path.parent} and rerun `ocplace evaluate` or `ocplace reproduce` (they train missing runs)"
     )
-    config = NoLlmConfig.from_json(metadata["model_config"])
+    config = serial.from_json(NoLlmConfig, metadata["model_config"])
     template = jax.eval_shape(lambda: init_params(config, jax.random.key(0)))
     params = unflatten_state(arrays, template)
     return TrainedNoLlm(

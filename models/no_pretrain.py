@@ -40,13 +40,6 @@ class NoPretrainConfig:
     def adapters(self) -> AdapterConfig:
         return AdapterConfig(self.backbone.embed_dim, self.reduction, self.residual_ratio)
 
-    def to_dict(self) -> dict:
-        return {**dataclasses.asdict(self), "backbone": self.backbone.to_dict()}
-
-    @classmethod
-    def from_dict(cls, fields: dict) -> NoPretrainConfig:
-        return cls(**{**fields, "backbone": ob.OfflineConfig.from_dict(fields["backbone"])})
-
 
 def from_random(backbone: ob.OfflineConfig) -> ob.OfflineConfig:
     """`backbone`'s architecture with nothing pretrained."""

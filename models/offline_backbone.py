@@ -32,6 +32,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ocplace import serial
 from ocplace.errors import BackboneError, BackboneUnavailable
 from ocplace.models import efficientnet
 from ocplace.models.backbone import (
@@ -66,9 +67,9 @@ class OfflineConfig:
     its first `frozen_blocks` entries of `efficientnet.block_names` never trained.
     """
 
-    trunk: str = VIT
-    trunk_init: str = "random"  # "imagenet" (EfficientNet-Lite only) or "random"
-    frozen_blocks: int = 0
+    trunk: str = "lite0"  # every recipe's; "vit" is kept for comparison (`vit_config`)
+    trunk_init: str = "imagenet"  # "imagenet" (EfficientNet-Lite only) or "random"
+    frozen_blocks: int = 13  # the stem and first 12 blocks: measured in docs/offline_backbone.md
     image_size: int = 128
     patch_size: int = 16
     width: int = 256  # the ViT's width; an EfficientNet-Lite trunk gives 1280 features
@@ -121,25 +122,20 @@ class OfflineConfig:
             projection_dim=self.embed_dim,
         )
 
-    def to_dict(self) -> dict:
-        """The fields; an EfficientNet trunk's leaves out the ViT's depth, which does not shape it, so
-        that its recipe key (and the cached backbones named by it) change only with what matters."""
-        fields = dataclasses.asdict(self)
-        return fields if self.is_vit else {k: v for k, v in fields.items() if k not in VIT_DEPTH_FIELDS}
-
-    @classmethod
-    def from_dict(cls, fields: dict) -> OfflineConfig:
-        return cls(**fields)
+    def serial_omitted(self) -> tuple[str, ...]:
+        """An EfficientNet trunk's text leaves out the ViT's depth, which does not shape it, so that its recipe
+        key (and the cached backbones named by it) change only with what matters (`ocplace.serial`)."""
+        return () if self.is_vit else VIT_DEPTH_FIELDS
 
 
 def vit_config() -> OfflineConfig:
     """The first offline backbone: a 4.9M-parameter ViT trained from scratch (kept for comparison)."""
-    return OfflineConfig()
+    return OfflineConfig(trunk=VIT, trunk_init="random", frozen_blocks=0)
 
 
 def default_config() -> OfflineConfig:
-    """EfficientNet-Lite0 from ImageNet, 128 px crops, stem and first 12 blocks frozen."""
-    return OfflineConfig(trunk="lite0", trunk_init="imagenet", frozen_blocks=13)
+    """EfficientNet-Lite0 from ImageNet, 128 px crops, stem and first 12 blocks frozen: the class defaults."""
+    return OfflineConfig()
 
 
 def smoke_config() -> OfflineConfig:
@@ -400,7 +396,7 @@ class OfflineBackbone:
 
 def compute_fingerprint(config: OfflineConfig, params: dict, text_digest: str) -> str:
     digest = hashlib.sha256(FORMAT.encode())
-    digest.update(json.dumps(config.to_dict(), sort_keys=True).encode())
+    digest.update(serial.to_json(config).encode())
     digest.update(json.dumps(dataclasses.asdict(config.preprocessing), sort_keys=True).encode())
     digest.update(text_digest.encode())
     update_with_params(digest, params)
@@ -446,7 +442,7 @@ def save_backbone(
         save_file(flatten_params(params), str(tmp), metadata={"format": FORMAT, "fingerprint": fingerprint})
     document = {
         "format": FORMAT,
-        "model": config.to_dict(),
+        "model": serial.to_dict(config),
         "preprocessing": dataclasses.asdict(config.preprocessing),
         "text_tower": {
             "name": "sentence-transformers/all-MiniLM-L6-v2",
@@ -481,7 +477,7 @@ def load_saved_backbone(directory: str | Path, max_batch: int = 64) -> OfflineBa
         raise BackboneUnavailable(
             f"{directory} holds no finished offline backbone ({FORMAT}); run (or resume) `ocplace backbone pretrain`"
         )
-    config = OfflineConfig.from_dict(document["model"])
+    config = serial.from_dict(OfflineConfig, document["model"])
     # the fingerprint is this file's content hash; read_weights adds typed errors and the NaN check
     arrays, _ = read_weights(
         directory / WEIGHTS_FILE,

@@ -14,9 +14,9 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-import json
 from pathlib import Path
 
+from ocplace import serial
 from ocplace.errors import TrainingError
 from ocplace.models import offline_backbone
 from ocplace.models.offline_backbone import OfflineConfig
@@ -140,20 +140,9 @@ class PretrainConfig:
         if problems:
             raise TrainingError(f"invalid pretraining recipe {self.recipe!r}: " + "; ".join(problems))
 
-    def to_dict(self) -> dict:
-        return json.loads(json.dumps({**dataclasses.asdict(self), "model": self.model.to_dict()}))
-
-    @classmethod
-    def from_dict(cls, fields: dict) -> PretrainConfig:
-        render = {k: tuple(v) if isinstance(v, list) else v for k, v in fields["render"].items()}
-        optim = {k: tuple(tuple(pair) for pair in v) if k == "kind_shares" else v for k, v in fields["optim"].items()}
-        return cls(
-            fields["recipe"], OfflineConfig.from_dict(fields["model"]), RenderConfig(**render), OptimConfig(**optim)
-        )
-
     def key(self) -> str:
         """12 hex digits that change with any setting."""
-        return hashlib.sha256(json.dumps(self.to_dict(), sort_keys=True).encode()).hexdigest()[:12]
+        return hashlib.sha256(serial.to_json(self).encode()).hexdigest()[:12]
 
 
 def default_config() -> PretrainConfig:

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import jax
 
+from ocplace import serial
 from ocplace.errors import TrainingError
 from ocplace.models.adapters import AdapterConfig, init_adapters
 from ocplace.models.backbone import PromptConfig
@@ -50,7 +51,7 @@ def save_adapters(
         "adapter_config": json.dumps(dataclasses.asdict(config)),
         "logit_scale": repr(logit_scale),
         "backbone_fingerprint": backbone_fingerprint,
-        "prompt": prompt.to_json(),
+        "prompt": serial.to_json(prompt),
         "features_key": features_key,
         "steps": str(steps),
         "train_config": train_config_json,
@@ -77,7 +78,7 @@ def load_adapters(source) -> TrainedAdapters:
     return TrainedAdapters(
         model,
         metadata["backbone_fingerprint"],
-        PromptConfig.from_json(metadata["prompt"]),
+        serial.from_json(PromptConfig, metadata["prompt"]),
         metadata["features_key"],
         int(metadata["steps"]),
         source,

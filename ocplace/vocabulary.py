@@ -23,3 +23,6 @@ MAX_INSTRUCTION_TUPLES = 2
 # OpenAI CLIP's per-channel pixel statistics (RGB, on [0, 1]): CLIP-style towers were trained on inputs normalised so.
 CLIP_IMAGE_MEAN = (0.48145466, 0.4578275, 0.40821073)
 CLIP_IMAGE_STD = (0.26862954, 0.26130258, 0.27577711)
+
+# The experiments of ocplace/configs by name (the keys of `ocplace.configs.EXPERIMENTS`), for the CLI's choices.
+EXPERIMENT_NAMES = ("smoke", "demo", "default")

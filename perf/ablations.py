@@ -4,7 +4,7 @@ A step costs the same whatever the pixels or features hold, so the recipe's time
 as compile + steps x (measured seconds per step); the one-off input caches (crops for
 no_pretrain, sentence tokens for no_llm; the visual features are Ours' shared cache) are not
 included. Usage:
-    python perf/ablations.py --scale default [--steps 40] [--dim 256] [--out report.json]
+    python perf/ablations.py --experiment default [--steps 40] [--dim 256] [--out report.json]
 `--steps` is how many steps are timed after compilation (the estimate extrapolates to the recipe).
 """
 
@@ -19,12 +19,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ocplace import serial
 
-def time_no_llm(scale: str, dim: int, steps: int, num_scenes: int) -> dict:
+
+def time_no_llm(experiment: str, dim: int, steps: int, num_scenes: int) -> dict:
     from ocplace import configs
     from ocplace.train import no_llm
 
-    config = configs.get(scale).recipes.no_llm
+    config = configs.get(experiment).recipes.no_llm
     rng = np.random.default_rng(0)
     arrays = {
         "visual": rng.normal(size=(num_scenes, 6, dim)).astype(np.float32),
@@ -51,7 +53,7 @@ def time_no_llm(scale: str, dim: int, steps: int, num_scenes: int) -> dict:
     timed = run(steps, steps)
     return {
         "method": "no_llm",
-        "scale": scale,
+        "experiment": experiment,
         "dim": dim,
         "batch_size": config.batch_size,
         "recipe_steps": config.steps,
@@ -59,13 +61,13 @@ def time_no_llm(scale: str, dim: int, steps: int, num_scenes: int) -> dict:
     }
 
 
-def time_no_pretrain(scale: str, steps: int, num_scenes: int) -> dict:
+def time_no_pretrain(experiment: str, steps: int, num_scenes: int) -> dict:
     from ocplace import configs
     from ocplace.models import no_pretrain
     from ocplace.models.offline_backbone import split_trainable
     from ocplace.train import no_pretrain as train_no_pretrain
 
-    recipe = configs.get(scale).recipes.no_pretrain
+    recipe = configs.get(experiment).recipes.no_pretrain
     model, config = recipe.model, recipe.train
     size = model.backbone.image_size
     rng = np.random.default_rng(0)
@@ -98,8 +100,8 @@ def time_no_pretrain(scale: str, steps: int, num_scenes: int) -> dict:
     parameters = sum(int(leaf.size) for leaf in jax.tree_util.tree_leaves(params))
     return {
         "method": "no_pretrain",
-        "scale": scale,
-        "model": model.to_dict(),
+        "experiment": experiment,
+        "model": serial.to_dict(model),
         "parameters": parameters,
         "batch_scenes": config.batch_size,
         "recipe_steps": config.steps,
@@ -131,7 +133,7 @@ def report_times(first: Timer, timed: Timer, steps: int, recipe_steps: int) -> d
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--scale", default="default", choices=("smoke", "demo", "default"))
+    parser.add_argument("--experiment", default="default", choices=("smoke", "demo", "default"))
     parser.add_argument("--steps", type=int, default=40, help="steps timed after compilation")
     parser.add_argument("--dim", type=int, default=256, help="backbone width D for no_llm (offline: 256)")
     parser.add_argument("--scenes", type=int, default=200, help="synthetic training scenes held in memory")
@@ -141,8 +143,8 @@ def main() -> None:
         "cpus": len(os.sched_getaffinity(0)),
         "load_average": os.getloadavg(),
         "results": [
-            time_no_llm(args.scale, args.dim, args.steps, args.scenes),
-            time_no_pretrain(args.scale, args.steps, args.scenes),
+            time_no_llm(args.experiment, args.dim, args.steps, args.scenes),
+            time_no_pretrain(args.experiment, args.steps, args.scenes),
         ],
     }
     text = json.dumps(report, indent=2)

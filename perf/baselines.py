@@ -4,7 +4,7 @@ Measures: (1) Raw Image Grids featurisation, seconds per scene (cutting 48 cells
 frame and encoding them with a default-size offline backbone); (2) its training step time, and the
 recipe's projected training time; (3) CLIPort-Place's training step time and projected training
 time; (4) CLIPort-Place's inference, seconds per scene at batch 8.
-Usage: `python perf/baselines.py [--scale default] [--grid-steps 2000] [--cliport-steps 6]`.
+Usage: `python perf/baselines.py [--experiment default] [--grid-steps 2000] [--cliport-steps 6]`.
 """
 
 from __future__ import annotations
@@ -102,15 +102,15 @@ def cliport_seconds(recipe: train_cliport.CliportRecipe, dim: int, steps: int) -
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--scale", default="default", choices=sorted(configs.EXPERIMENTS))
+    parser.add_argument("--experiment", default="default", choices=sorted(configs.EXPERIMENTS))
     parser.add_argument("--grid-steps", type=int, default=2000)
     parser.add_argument("--cliport-steps", type=int, default=6)
     parser.add_argument("--scenes", type=int, default=4, help="scenes for the featurisation timing")
     args = parser.parse_args()
 
-    config = ob.default_config() if args.scale == "default" else ob.smoke_config()
+    config = ob.default_config() if args.experiment == "default" else ob.smoke_config()
     backbone = ob.OfflineBackbone(config, ob.init_params(config, jax.random.key(0)))
-    recipes = configs.get(args.scale).recipes
+    recipes = configs.get(args.experiment).recipes
     grid_recipe, cliport_recipe = recipes.grids, recipes.cliport
     featurize = grid_featurize_seconds(backbone, grid_recipe.grid, args.scenes)
     grid_step = grid_step_seconds(grid_recipe, backbone.dim, args.grid_steps)
@@ -118,7 +118,7 @@ def main() -> None:
     print(
         json.dumps(
             {
-                "scale": args.scale,
+                "experiment": args.experiment,
                 "backbone_dim": backbone.dim,
                 "cpus": len(os.sched_getaffinity(0)),
                 "grids_featurize_s_per_scene": round(featurize, 4),

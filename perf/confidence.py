@@ -37,7 +37,7 @@ def main() -> None:
     parser.add_argument("--split", default="seen")
     args = parser.parse_args()
 
-    from ocplace.eval.ours import scene_input
+    from ocplace.methods.policy_method import scene_input
     from ocplace.models.backbone import load_backbone
     from ocplace.models.placement.sampler import SamplerConfig
     from ocplace.models.policy import PlacementPolicy

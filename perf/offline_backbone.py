@@ -7,7 +7,7 @@ is scored on the same scenes) and on benchmark test splits (`ocplace backbone ev
 report with the timings and the machine's load average, which matters: the 30-minute budget is for 2
 otherwise idle cores.
 
-Usage: `python perf/offline_backbone.py --data DIR [--recipe default|strict|task|demo] [--variant
+Usage: `python perf/offline_backbone.py --dataset DIR [--recipe default|strict|task|demo] [--variant
 chosen] [--splits seen unseen_obj unseen_cat] [--out report.json]`. `--variant` changes the recipe
 for comparisons: `vit` is the first offline backbone (a ViT from scratch, no attribute data), `no-
 attributes` the chosen trunk without recoloured objects and primitives, `chosen` the recipe as it
@@ -49,7 +49,7 @@ def variant_config(config, variant: str):
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--data", type=Path, required=True)
+    parser.add_argument("--dataset", type=Path, required=True)
     parser.add_argument("--recipe", default="default", choices=tuple(RECIPES))
     parser.add_argument("--variant", default="chosen", choices=("chosen", "no-attributes", "vit"))
     parser.add_argument("--backbone-dir", type=Path, help="pretrain into this directory (default: the cache)")
@@ -90,7 +90,7 @@ def main() -> None:
     }
     for name, candidate in (("pretrained", backbone), ("random_init", random_init)):
         report["results"][name] = {
-            split: evaluate_split(candidate, args.data, split, library, limit=args.limit, progress=True)
+            split: evaluate_split(candidate, args.dataset, split, library, limit=args.limit, progress=True)
             for split in args.splits
         }
     report["load_average_end"] = os.getloadavg()

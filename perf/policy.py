@@ -40,7 +40,7 @@ def random_offline_backbone(tiny: bool):
 
 def pick_scene(dataset: Path):
     """The first seen scene with the most references (2obj) and boxes: `(policy input, true tokens)`."""
-    from ocplace.eval.ours import scene_input
+    from ocplace.methods.policy_method import scene_input
     from ocplace.sim.dataset.job import listed_scenes
 
     records = [scene.read() for scene in listed_scenes(dataset, "seen")[:40]]

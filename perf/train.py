@@ -45,7 +45,8 @@ def run(args) -> None:
     import jax.numpy as jnp
 
     from ocplace.models.adapters import AdapterConfig, count_parameters
-    from ocplace.train.loop import batch_indices, init_state, jit_train_chunk, jit_train_step, make_optimizer
+    from ocplace.train.batches import batch_indices
+    from ocplace.train.ours import init_state, jit_train_chunk, jit_train_step, make_optimizer
 
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # the test support: synthetic inputs
     from synthetic_features import synthetic_features

@@ -7,7 +7,7 @@ pretrained on the other 24 objects at a fixed selection size (150 scenes x 2 ren
 subset's tuples whose reference is a held-out object: zero-shot grounding top-1 among the
 scene's visual tokens, and crop-to-name retrieval among the 30 training names.
 
-Usage: `python perf/trunk_selection.py --data DIR --out selection.json [--candidates 13@128 16@128]`
+Usage: `python perf/trunk_selection.py --dataset DIR --out selection.json [--candidates 13@128 16@128]`
 where DIR holds a `seen` subset (`ocplace generate --out DIR --split seen`) and a candidate is
 `FROZEN@SIZE`: the number of leading trunk entries (stem, blocks_00, ...) kept frozen, and the
 input size in pixels.
@@ -84,7 +84,7 @@ def measure(backbone, data: Path, held_out: list[str], seen_names: list[str], li
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--data", type=Path, required=True)
+    parser.add_argument("--dataset", type=Path, required=True)
     parser.add_argument("--candidates", nargs="+", default=["18@128", "16@128", "13@128", "10@128", "13@160"])
     parser.add_argument("--work", type=Path, default=Path("out/trunk_selection"))
     parser.add_argument("--limit", type=int)
@@ -110,7 +110,7 @@ def main() -> None:
         result = pretrain(config, dev_library, args.work / candidate, progress=True)
         row = {
             "pretrain_s": round(time.perf_counter() - began, 1),
-            **measure(result.backbone, args.data, held_out, library.names("seen"), library, args.limit),
+            **measure(result.backbone, args.dataset, held_out, library.names("seen"), library, args.limit),
         }
         report["candidates"][candidate] = row
         print(candidate, json.dumps(row), flush=True)

@@ -1,6 +1,6 @@
 """The shortest wall time any scheduler could give a `reproduce` run on N CPUs, from its tasks' walls.
 
-    python perf/work_bound.py ONE_WORKER/results.json --scale default [--cpus 2] [--graph-min 123.2]
+    python perf/work_bound.py ONE_WORKER/results.json --experiment default [--cpus 2] [--graph-min 123.2]
 
 Each task of the graph declares its CPUs (pretraining and training the experiment's `cpus`, an
 evaluation one) and keeps that width on every executor, because the width decides JAX's last bits
@@ -51,7 +51,10 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("results", type=Path, help="results.json of a one-worker run (tasks one after another)")
     parser.add_argument(
-        "--scale", default="default", choices=list(EXPERIMENTS), help="the experiment whose task widths the run used"
+        "--experiment",
+        default="default",
+        choices=list(EXPERIMENTS),
+        help="the experiment whose task widths the run used",
     )
     parser.add_argument("--cpus", type=int, default=2, help="the machine the bound is for")
     parser.add_argument("--graph-min", type=float, help="the graph's measured wall on those CPUs, in minutes")
@@ -62,7 +65,7 @@ def main() -> None:
     if not steps:
         parser.error(f"{args.results} holds no reproduce steps: give the results.json of an `ocplace reproduce` run")
     one_worker = sum(step["wall_s"] for step in steps) / 60
-    cpus = get(args.scale).cpus
+    cpus = get(args.experiment).cpus
     work = sum(step["wall_s"] * task_cpus(step["name"], cpus) for step in steps) / 60
     chain = longest_chain({step["name"]: step["wall_s"] for step in steps}) / 60
     bound = max(work / args.cpus, chain)

@@ -52,7 +52,7 @@ class PhysicsConfig:
 
 
 @dataclasses.dataclass(frozen=True)
-class RenderConfig:
+class ArenaRenderConfig:
     # Shadows and reflections are off: on a CPU (llvmpipe) they triple the render time and the
     # benchmark's camera sees the scene from straight above, where they add little.
     shadows: bool = False
@@ -66,7 +66,7 @@ class RenderConfig:
 @dataclasses.dataclass(frozen=True)
 class ArenaConfig:
     physics: PhysicsConfig = PhysicsConfig()
-    render: RenderConfig = RenderConfig()
+    render: ArenaRenderConfig = ArenaRenderConfig()
     camera: Camera = DEFAULT_CAMERA
     table: Table = DEFAULT_TABLE
 

@@ -29,9 +29,6 @@ class SceneSpec:
         if self.held_object in self.objects:
             raise SceneError(f"the held object {self.held_object!r} cannot also be in the scene")
 
-    def to_json(self) -> dict:
-        return dataclasses.asdict(self) | {"objects": list(self.objects)}
-
 
 @dataclasses.dataclass(frozen=True)
 class SceneObject:

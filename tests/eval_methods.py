@@ -1,4 +1,4 @@
-"""Test-only methods for the evaluation harness, registered by tests as the module `eval_methods`.
+"""Test-only methods for the evaluation harness: `SPECS`, passed to the pipeline or put in place of the registry.
 
 `oracle` cheats on purpose: its "training" records the dataset folder, and at run time it reads
 each scene's ground truth from disk (the harness hides it from the record it passes).
@@ -12,7 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ocplace.eval.api import LoadContext, MethodOutput, MethodSpec, TrainContext
+from ocplace.eval.api import MethodOutput
+from ocplace.methods.api import LoadContext, MethodSpec, TrainContext
 from ocplace.sim.workspace import DEFAULT_TABLE
 
 
@@ -139,12 +140,13 @@ def load_random(context: LoadContext) -> RandomMethod:
     return RandomMethod(min(context.num_samples, 64))
 
 
-METHODS = (
-    MethodSpec("oracle", "Oracle", load=load_oracle, train=train_oracle),
-    MethodSpec("centre", "Table centre", load=load_centre),
-    MethodSpec("failing", "Always fails", load=load_failing),
-    MethodSpec("flaky", "Raises on odd scenes", load=load_flaky),
-    MethodSpec("random", "Uniform random", load=load_random),
-)
-
-SPECS = {spec.name: spec for spec in METHODS}
+SPECS = {
+    spec.name: spec
+    for spec in (
+        MethodSpec("oracle", "Oracle", load=load_oracle, train=train_oracle),
+        MethodSpec("centre", "Table centre", load=load_centre),
+        MethodSpec("failing", "Always fails", load=load_failing),
+        MethodSpec("flaky", "Raises on odd scenes", load=load_flaky),
+        MethodSpec("random", "Uniform random", load=load_random),
+    )
+}

@@ -9,8 +9,8 @@ import pytest
 from safetensors.numpy import load_file
 
 from ocplace.configs import smoke
-from ocplace.eval.api import LoadContext, TrainContext
 from ocplace.eval.harness import redacted
+from ocplace.methods.api import LoadContext, TrainContext
 from ocplace.models import no_llm
 from ocplace.paths import RUN_FILE, WEIGHTS_FILE
 from ocplace.sim.dataset.job import scene_dirs
@@ -33,9 +33,9 @@ def isolated_cache(smoke_dataset, tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def specs():
-    from ocplace.eval.ablations import METHODS
+    from ocplace.methods import no_llm, no_pretrain
 
-    return {spec.name: spec for spec in METHODS}
+    return {spec.name: spec for spec in (no_llm.SPEC, no_pretrain.SPEC)}
 
 
 class Lazy(dict):
@@ -270,7 +270,7 @@ def test_describe_is_json_with_weights_and_backbone(methods, name):
 
 
 def test_methods_are_registered():
-    from ocplace.eval.registry import method_specs
+    from ocplace.methods.registry import method_specs
 
     specs = method_specs()
     assert specs["no_llm"].label == "Ours w/o LLM" and specs["no_pretrain"].label == "Ours w/o CLIP pre-train"

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from tiny_clip import build_tiny_clip, write_tokenizer
 
+from ocplace import serial
 from ocplace.errors import BackboneError, BackboneUnavailable
 from ocplace.models import backbone as backbone_module
 from ocplace.models.backbone import (
@@ -175,4 +176,4 @@ def test_prompt():
     prompt = PromptConfig()
     assert prompt.text_for("red  bowl") == "a photo of a red bowl."
     assert prompt.text_for("table") == prompt.text_for("The table") == "a photo of a table."
-    assert PromptConfig.from_json(prompt.to_json()) == prompt
+    assert serial.from_json(PromptConfig, serial.to_json(prompt)) == prompt

@@ -354,16 +354,16 @@ CANNOT_RUN = "experiment 'smoke' cannot run: "
     ],
 )
 def test_reproduce_refuses_a_bad_override_before_any_work(tmp_path, capsys, monkeypatch, override, message):
-    from ocplace.eval import pipeline
+    from ocplace.experiments import pipeline
 
     monkeypatch.setattr(pipeline, "run_pipeline", lambda *args, **kwargs: pytest.fail("the pipeline started"))
-    code, _, err = _cli(capsys, "reproduce", "--scale", "smoke", "--set", override, "--out", tmp_path / "out")
+    code, _, err = _cli(capsys, "reproduce", "--experiment", "smoke", "--set", override, "--out", tmp_path / "out")
     assert code == 2 and err.startswith(f"ocplace reproduce: error: {message}"), err
     assert not (tmp_path / "out").exists()
 
 
 def test_reproduce_checks_its_methods_and_output_before_any_work(tmp_path, capsys, monkeypatch):
-    from ocplace.eval import pipeline
+    from ocplace.experiments import pipeline
 
     monkeypatch.setattr(pipeline, "open_executor", lambda *args: pytest.fail("the pipeline started"))
     monkeypatch.chdir(tmp_path)
@@ -376,10 +376,10 @@ def test_reproduce_checks_its_methods_and_output_before_any_work(tmp_path, capsy
         (("--set", "evaluation.seed_methods=ours,bogus"), "evaluation.seed_methods names bogus, not registered"),
         (("--set", "evaluation.fraction_methods=nope"), "evaluation.fraction_methods names nope, not registered"),
     ]:
-        code, _, err = _cli(capsys, "reproduce", "--scale", "smoke", *options)
+        code, _, err = _cli(capsys, "reproduce", "--experiment", "smoke", *options)
         assert code == 2 and err.startswith("ocplace reproduce: error: ") and message in err, err
     for out in ("dangling", "dangling/deeper"):
-        for command in (["reproduce", "--scale", "smoke"], ["figures", tmp_path / "missing.json"]):
+        for command in (["reproduce", "--experiment", "smoke"], ["figures", tmp_path / "missing.json"]):
             code, _, err = _cli(capsys, *command, "--out", out)
             assert code == 2 and f"dangling is a symlink to {tmp_path / 'nowhere'}, which does not exist" in err, err
     assert sorted(path.name for path in tmp_path.iterdir()) == ["afile", "dangling"]

@@ -60,7 +60,7 @@ def test_evaluate(default_offline_backbone, smoke_dataset, tmp_path):
 
 def test_reproduce(default_offline_backbone, smoke_dataset, tmp_path):
     out = tmp_path / "out"
-    command = ["reproduce", "--scale", "smoke", "--out", str(out), "--dataset", str(smoke_dataset)]
+    command = ["reproduce", "--experiment", "smoke", "--out", str(out), "--dataset", str(smoke_dataset)]
     options = ["--methods", "no_adapter", "--set", "evaluation.subsets=seen", "--physical", "0", "--no-progress"]
     assert main([*command, "--backbone", "offline", *options, "--workers", "1"]) == 0
     results = json.loads((out / "results.json").read_text())

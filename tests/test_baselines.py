@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from llm_endpoint import fixed_answer, llm_parser
 
 from ocplace.configs import smoke
-from ocplace.eval.api import LoadContext, TrainContext
+from ocplace.methods.api import LoadContext, TrainContext
 from ocplace.models.baselines import cliport, grids
 from ocplace.paths import RUN_FILE, WEIGHTS_FILE
 from ocplace.sim.camera import Camera
@@ -142,10 +142,10 @@ def _on_table(points, margin=1e-6):
 
 @pytest.fixture()
 def specs(monkeypatch, tmp_path):
-    from ocplace.eval.baselines import METHODS
+    from ocplace.methods import cliport, grids
 
     monkeypatch.setenv("OCPLACE_CACHE", str(tmp_path / "cache"))
-    return {spec.name: spec for spec in METHODS}
+    return {spec.name: spec for spec in (grids.SPEC, cliport.SPEC)}
 
 
 def test_grids_trains_resumes_and_places_in_the_chosen_cell(specs, smoke_dataset, tiny_backbone_spec, tmp_path):

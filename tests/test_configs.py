@@ -4,7 +4,7 @@ import pytest
 
 from ocplace import configs
 from ocplace.errors import UnknownExperiment
-from ocplace.eval.registry import method_specs
+from ocplace.methods.registry import method_specs
 from ocplace.models.offline_recipes import output_dir, recipe_dir
 
 

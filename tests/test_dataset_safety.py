@@ -279,13 +279,15 @@ def test_a_scene_edited_after_generation_is_never_read_as_the_datasets(tmp_path,
     for read in readers + ([second.info] if name == "scene.json" else []):
         with pytest.raises(DatasetError, match=f"{name} of scene seen-00001 does not match the sha256") as raised:
             read()
-        assert f"`ocplace dataset verify {ds}`" in str(raised.value)
+        assert f"`ocplace dataset verify --dataset {ds}`" in str(raised.value)
 
 
 def test_evaluate_refuses_an_edited_scene(tmp_path, two_seen, monkeypatch, capsys):
-    from ocplace.eval import registry
+    import eval_methods
 
-    monkeypatch.setattr(registry, "METHOD_MODULES", ("eval_methods",))
+    from ocplace.methods import registry
+
+    monkeypatch.setattr(registry, "method_specs", lambda: dict(eval_methods.SPECS))
     ds = tmp_path / "ds"
     shutil.copytree(two_seen, ds)
     _edit(ds / "seen" / "seen-00001" / "scene.json")

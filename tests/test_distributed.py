@@ -264,7 +264,8 @@ def test_reproduce_on_ray_writes_the_same_results(
     import eval_methods
 
     from ocplace import configs
-    from ocplace.eval import pipeline, results
+    from ocplace.eval import results
+    from ocplace.experiments import pipeline
 
     smoke = configs.get("smoke")
     experiment = dataclasses.replace(

@@ -1,14 +1,20 @@
 """The evaluation harness: scoring, results JSON, Table I, `ocplace evaluate`, re-running from a JSON."""
 
+import dataclasses
 import json
 
 import eval_methods
 import numpy as np
 import pytest
 
-from ocplace.eval import harness, registry, results, table
-from ocplace.eval.api import MethodOutput, TrainContext
-from ocplace.eval.harness import EvalSettings, MethodRun
+from ocplace import serial
+from ocplace.eval import harness, results, table
+from ocplace.eval.api import MethodOutput
+from ocplace.eval.harness import EvalSettings
+from ocplace.experiments.evaluation import rerun
+from ocplace.methods import registry
+from ocplace.methods.api import TrainContext
+from ocplace.methods.registry import load_method, method_run
 from ocplace.sim.dataset.job import scene_dirs
 from ocplace.sim.dataset.records import read_scene
 from ocplace.vocabulary import TEST_SUBSETS
@@ -20,17 +26,22 @@ SETTINGS = EvalSettings(backbone="none", physical_scenes=0, chunk_size=3, num_sa
 def oracle_run(smoke_dataset, tmp_path_factory):
     spec = eval_methods.SPECS["oracle"]
     out = tmp_path_factory.mktemp("oracle_run")
-    return MethodRun(spec, spec.train(TrainContext(smoke_dataset, "none", out)))
+    return method_run(spec, spec.train(TrainContext(smoke_dataset, "none", out, None)))
+
+
+def scored(run, dataset, settings=SETTINGS, arena=None):
+    method = load_method(eval_methods.SPECS[run.method], run, settings)
+    return harness.evaluate_run(run, method, dataset, settings, arena, progress=False)
 
 
 def evaluate(name, dataset, settings=SETTINGS, run_dir=None, arena=None):
-    return harness.evaluate_run(MethodRun(eval_methods.SPECS[name], run_dir), dataset, settings, arena, progress=False)
+    return scored(method_run(eval_methods.SPECS[name], run_dir), dataset, settings, arena)
 
 
 @pytest.fixture(scope="module")
 def evaluations(smoke_dataset, oracle_run):
     return [
-        harness.evaluate_run(oracle_run, smoke_dataset, SETTINGS, progress=False),
+        scored(oracle_run, smoke_dataset),
         *(evaluate(name, smoke_dataset) for name in ("centre", "failing", "flaky", "random")),
     ]
 
@@ -136,11 +147,11 @@ def test_methods_never_see_the_ground_truth(smoke_dataset):
             return super().run(scenes, key)
 
     harness.evaluate_run(
-        MethodRun(eval_methods.SPECS["centre"]),
+        method_run(eval_methods.SPECS["centre"]),
+        Spy(),
         smoke_dataset,
         EvalSettings(subsets=("seen",), physical_scenes=0),
         progress=False,
-        method=Spy(),
     )
     assert len(seen) == 8
     assert all(scene.tuples == () and scene.oracle is None and len(scene.boxes) for scene in seen)
@@ -185,15 +196,13 @@ def test_sampling_is_deterministic_and_keyed_per_subset(smoke_dataset):
     assert first.subsets == again.subsets
     modes = {subset: [o.mode for o in outcomes] for subset, outcomes in first.subsets.items()}
     assert modes["seen"] != modes["unseen_obj"]
-    other_seed = evaluate(
-        "random", smoke_dataset, EvalSettings(**(SETTINGS.to_json() | {"seed": 1, "subsets": ("seen",)}))
-    )
+    other_seed = evaluate("random", smoke_dataset, dataclasses.replace(SETTINGS, seed=1, subsets=("seen",)))
     assert [o.mode for o in other_seed.subsets["seen"]] != modes["seen"]
 
 
 def test_physical_check_on_the_first_k_scenes(smoke_dataset, oracle_run, arena):
     settings = EvalSettings(subsets=("seen",), physical_scenes=2, chunk_size=4)
-    evaluation = harness.evaluate_run(oracle_run, smoke_dataset, settings, arena, progress=False)
+    evaluation = scored(oracle_run, smoke_dataset, settings, arena)
     outcomes = evaluation.subsets["seen"]
     assert [o.physical is not None for o in outcomes] == [True, True] + [False] * 6
     assert all(o.physical.dropped and o.physical.held_offset is not None for o in outcomes[:2])
@@ -242,7 +251,7 @@ def test_table_one_layout(results_json):
 
 
 def test_rerun_reproduces_exactly(results_json, oracle_run):
-    fresh = results.rerun(results_json, eval_methods.SPECS, progress=False)
+    fresh = rerun(results_json, eval_methods.SPECS, progress=False)
     assert results.compare(results_json, fresh) == []
     tampered = json.loads(json.dumps(fresh))
     scene = by_key(tampered, "random")["subsets"]["seen"]["scenes"][3]
@@ -256,7 +265,7 @@ def test_rerun_reproduces_exactly(results_json, oracle_run):
 def test_cli_evaluate_and_rerun(smoke_dataset, oracle_run, tmp_path, monkeypatch, capsys):
     from ocplace.cli import main
 
-    monkeypatch.setattr(registry, "METHOD_MODULES", ("eval_methods",))
+    monkeypatch.setattr(registry, "method_specs", lambda: dict(eval_methods.SPECS))
     out = tmp_path / "results.json"
     common = [
         "--dataset",
@@ -299,11 +308,11 @@ def test_cli_evaluate_and_rerun(smoke_dataset, oracle_run, tmp_path, monkeypatch
     assert [e["key"] for e in saved["evaluations"]] == list(eval_methods.SPECS)
     assert saved["settings"]["subsets"] == ["seen", "unseen_inst"] and saved["settings"]["limit"] == 4
     wanted = EvalSettings(backbone="none", num_samples=8, subsets=("seen", "unseen_inst"), limit=4, physical_scenes=0)
-    assert saved["settings"] == wanted.to_json()  # options left out keep EvalSettings' defaults
+    assert saved["settings"] == serial.to_dict(wanted)  # options left out keep EvalSettings' defaults
     assert saved["command"]["arguments"]["methods"] == "all" and saved["command"]["argv"][0] == "ocplace"
     assert out.with_suffix(".md").read_text().startswith("Dataset ")
     pipeline_out = tmp_path / "reproduce"
-    eval_methods.train_oracle(TrainContext(smoke_dataset, "none", pipeline_out / "runs/oracle/fraction-1.00"))
+    eval_methods.train_oracle(TrainContext(smoke_dataset, "none", pipeline_out / "runs/oracle/fraction-1.00", None))
     assert (
         main(
             [
@@ -330,11 +339,11 @@ def test_cli_evaluate_and_rerun(smoke_dataset, oracle_run, tmp_path, monkeypatch
 def test_a_rerun_finds_runs_named_relative_to_another_folder(smoke_dataset, tmp_path, monkeypatch, capsys):
     from ocplace.cli import main
 
-    monkeypatch.setattr(registry, "METHOD_MODULES", ("eval_methods",))
+    monkeypatch.setattr(registry, "method_specs", lambda: dict(eval_methods.SPECS))
     (tmp_path / "here").mkdir()
     (tmp_path / "elsewhere").mkdir()
     monkeypatch.chdir(tmp_path / "here")
-    eval_methods.train_oracle(TrainContext(smoke_dataset, "none", tmp_path / "here" / "runs" / "oracle"))
+    eval_methods.train_oracle(TrainContext(smoke_dataset, "none", tmp_path / "here" / "runs" / "oracle", None))
     common = ["--backbone", "none", "--physical", "0", "--limit", "2", "--subsets", "seen", "--no-progress"]
     command = ["evaluate", "--dataset", str(smoke_dataset), "--methods", "oracle", "--run", "oracle=runs/oracle"]
     assert main([*command, *common, "--num-samples", "4", "--out", "results.json"]) == 0

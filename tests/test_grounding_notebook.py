@@ -18,7 +18,7 @@ def test_grounding_notebook_executes(tmp_path, smoke_dataset, monkeypatch):
     from ocplace.sim.dataset.identity import dataset_hash
     from ocplace.sim.dataset.loader import iter_examples
     from ocplace.train.config import smoke_config
-    from ocplace.train.loop import train
+    from ocplace.train.ours import train_ours as train
 
     dataset, features_path, run = smoke_dataset, tmp_path / "seen.safetensors", tmp_path / "run"
     backbone = load_clip_backbone(str(build_tiny_clip(tmp_path / "clip")), max_batch=8)

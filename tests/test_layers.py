@@ -14,7 +14,7 @@ CHECK = ROOT / "scripts" / "check_layers.py"
 @pytest.fixture
 def checkout(tmp_path):
     """A copy of the package sources and pyproject.toml that a test may break."""
-    for folder in ("ocplace", "sim", "models", "train", "eval", "configs", "assets"):
+    for folder in ("ocplace", "sim", "models", "train", "eval", "methods", "experiments", "configs", "assets"):
         shutil.copytree(ROOT / folder, tmp_path / folder, ignore=shutil.ignore_patterns("__pycache__"))
     shutil.copy(ROOT / "pyproject.toml", tmp_path / "pyproject.toml")
     return tmp_path
@@ -37,8 +37,10 @@ def test_an_upward_import_inside_a_function_breaks_the_layers(checkout):
     assert "ocplace.sim.upward -> ocplace.eval.api" in result.stdout
 
 
-def test_eval_loading_through_train_breaks_its_contract(checkout):
-    (checkout / "eval" / "loader.py").write_text("from ocplace.train import runner\n")
+@pytest.mark.parametrize(("sibling", "module"), [("eval", "train.runner"), ("train", "eval.harness")])
+def test_eval_and_train_importing_each_other_breaks_the_layers(checkout, sibling, module):
+    """Scoring never trains and training never scores: the siblings share a layer, independent."""
+    (checkout / sibling / "reach.py").write_text(f"import ocplace.{module}\n")
     result = _check(checkout)
     assert result.returncode != 0
-    assert "ocplace.eval.loader -> ocplace.train.runner" in result.stdout
+    assert f"ocplace.{sibling}.reach -> ocplace.{module}" in result.stdout

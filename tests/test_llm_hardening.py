@@ -15,7 +15,7 @@ from llm_endpoint import completion, send
 
 from ocplace.cli import main
 from ocplace.errors import LLMConfigError, LLMUnreachable
-from ocplace.models.parsing import LLMConfig, OfflineConfig, SnapConfig, as_pairs, evaluation, make_snapper
+from ocplace.models.parsing import GrammarConfig, LLMConfig, SnapConfig, as_pairs, evaluation, make_snapper
 from ocplace.models.parsing.llm import LLMParser, NoAnswer
 from ocplace.models.parsing.offline import OfflineParser
 
@@ -134,7 +134,7 @@ def environment(tmp_path, monkeypatch):
 @pytest.fixture(scope="module")
 def offline():
     # The fallback instructions here never need the sentence encoder, so it never loads.
-    return OfflineParser(OfflineConfig(), lambda: make_snapper(SnapConfig()))
+    return OfflineParser(GrammarConfig(), lambda: make_snapper(SnapConfig()))
 
 
 def url(server) -> str:

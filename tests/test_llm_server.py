@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from ocplace.models.parsing import LLMConfig, OfflineConfig, as_pairs, make_snapper
+from ocplace.models.parsing import GrammarConfig, LLMConfig, as_pairs, make_snapper
 from ocplace.models.parsing.llm import LLMParser, prompt_messages
 from ocplace.models.parsing.offline import OfflineParser
 
@@ -76,7 +76,7 @@ def server():
 @pytest.fixture
 def parser(server, tmp_path, monkeypatch):
     monkeypatch.setenv("OCPLACE_CACHE", str(tmp_path))
-    offline = OfflineParser(OfflineConfig(), lambda: make_snapper(OfflineConfig().snap))
+    offline = OfflineParser(GrammarConfig(), lambda: make_snapper(GrammarConfig().snap))
     config = LLMConfig(base_url=server.url, model="smollm2", timeout_s=10, deadline_s=15, use_cache=False)
     return LLMParser(config, offline, lambda: offline.snapper)
 

@@ -11,6 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from ocplace import serial
 from ocplace.errors import BackboneError, BackboneUnavailable, TrainingError
 from ocplace.models import offline_backbone as ob
 from ocplace.models.backbone import Backbone, PromptConfig, load_backbone
@@ -94,7 +95,7 @@ def test_recipes_validate_and_hash_apart():
     for name in RECIPES:
         config = recipe_config(name)
         config.validate()
-        assert PretrainConfig.from_dict(json.loads(json.dumps(config.to_dict()))) == config
+        assert serial.from_json(PretrainConfig, serial.to_json(config)) == config
         keys.add(config.key())
     assert len(keys) == len(RECIPES)
     for field, value in (("pool", "library"), ("protocol", "lenient"), ("validation_share", 1.0)):
@@ -376,6 +377,6 @@ def test_the_vit_depth_does_not_change_an_efficientnet_recipe_key():
     recipe = recipe_config("default")
     deeper = dataclasses.replace(recipe, model=dataclasses.replace(recipe.model, layers=12, heads=8))
     assert recipe.model.trunk == "lite0" and deeper.key() == recipe.key()
-    assert PretrainConfig.from_dict(deeper.to_dict()) == recipe
+    assert serial.from_dict(PretrainConfig, serial.to_dict(deeper)) == recipe
     vit = dataclasses.replace(recipe, model=ob.vit_config())
     assert dataclasses.replace(vit, model=dataclasses.replace(vit.model, layers=12)).key() != vit.key()

@@ -290,3 +290,27 @@ def test_unsupported_types_fail_when_the_parser_is_built():
         add_config_arguments(argparse.ArgumentParser(), Odd)
     with pytest.raises(TypeError, match="no command-line form"):
         describe(typing.get_type_hints(Odd)["table"])
+
+
+def test_old_flags_work_for_one_release_and_say_what_to_use(capsys, tmp_path):
+    """`--scale`, `--data` and the positional dataset folder: the new flag's value, a deprecation message."""
+    from ocplace.cli import build_parser
+    from ocplace.cli.options import dataset_of
+
+    parser = build_parser()
+    cases = [
+        (["reproduce", "--scale", "smoke"], "experiment", "smoke", "--experiment"),
+        (["evaluate", "--scale", "demo"], "experiment", "demo", "--experiment"),
+        (["backbone", "eval", "--data", str(tmp_path)], "dataset", tmp_path, "--dataset DIR"),
+    ]
+    for argv, dest, value, instead in cases:
+        assert getattr(parser.parse_args(argv), dest) == value
+        assert f"deprecated and goes in the next release; use {instead}" in capsys.readouterr().err
+    old = parser.parse_args(["dataset", "verify", str(tmp_path)])
+    assert dataset_of(old) == tmp_path and "use --dataset DIR" in capsys.readouterr().err
+    new = parser.parse_args(["dataset", "verify", "--dataset", str(tmp_path)])
+    assert dataset_of(new) == tmp_path and capsys.readouterr().err == ""
+    assert parser.parse_args(["reproduce", "--experiment", "smoke"]).experiment == "smoke"
+    assert capsys.readouterr().err == ""
+    with pytest.raises(ConfigError, match="--dataset DIR"):
+        dataset_of(parser.parse_args(["dataset", "verify"]))

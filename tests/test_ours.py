@@ -8,12 +8,14 @@ import numpy as np
 import pytest
 from llm_endpoint import fixed_answer, llm_parser
 
+from ocplace import serial
 from ocplace.configs import smoke
 from ocplace.errors import TrainingError
-from ocplace.eval import ours
-from ocplace.eval.api import LoadContext, MethodOutput, TrainContext
+from ocplace.eval.api import MethodOutput
 from ocplace.eval.harness import SceneOutcome, score_scene
-from ocplace.eval.registry import method_specs
+from ocplace.methods import ours
+from ocplace.methods.api import LoadContext, TrainContext
+from ocplace.methods.registry import method_specs
 from ocplace.paths import RUN_FILE
 from ocplace.sim.dataset.job import scene_dirs
 from ocplace.sim.dataset.records import SceneRecord, read_scene
@@ -51,7 +53,7 @@ def trained_run(smoke_dataset, tiny_backbone_spec, tmp_path_factory):
 
 def test_methods_are_registered():
     specs = method_specs()
-    assert specs["ours"].label == "Ours" and specs["ours"].train is ours.train_ours
+    assert specs["ours"].label == "Ours" and specs["ours"].train is ours.train
     assert specs["no_adapter"].label == "Ours w/o Adapter" and specs["no_adapter"].train is None
 
 
@@ -108,7 +110,7 @@ def test_ours_without_a_run_says_to_train_first(tiny_backbone_spec, tmp_path):
 
 
 def test_pipeline_draws_ours_on_the_first_seen_scene(trained_run, smoke_dataset, tiny_backbone_spec, tmp_path):
-    from ocplace.eval import pipeline
+    from ocplace.experiments import pipeline
 
     path = tmp_path / "placement.png"
     config = pipeline.PipelineConfig(smoke.get_config())
@@ -137,4 +139,4 @@ def test_results_say_when_the_llm_parser_fell_back_or_disagreed(tiny_backbone_sp
         assert after.parsed == before.parsed and "HTTP 500" in after.parse_note
     for outcome in disagreed:  # the cross-check keeps the offline parse and says why
         assert "unicorn" in outcome.parse_note and ("unicorn", "left") not in outcome.parsed
-    assert SceneOutcome.from_json(json.loads(json.dumps(disagreed[0].to_json()))) == disagreed[0]
+    assert serial.from_dict(SceneOutcome, json.loads(serial.to_json(disagreed[0]))) == disagreed[0]

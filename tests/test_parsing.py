@@ -17,8 +17,8 @@ from llm_endpoint import completion, send
 
 from ocplace.errors import ParseError
 from ocplace.models.parsing import (
+    GrammarConfig,
     LLMConfig,
-    OfflineConfig,
     ParsedTuple,
     SnapConfig,
     as_pairs,
@@ -40,7 +40,7 @@ def snapper():
 
 @pytest.fixture(scope="module")
 def offline(snapper):
-    return OfflineParser(OfflineConfig(), lambda: snapper)
+    return OfflineParser(GrammarConfig(), lambda: snapper)
 
 
 def pairs(parser, instruction):
@@ -123,7 +123,7 @@ def test_parsed_tuples_carry_phrase_and_provenance(offline):
 def test_relation_outside_the_lexicon_is_snapped(offline):
     (item,) = offline.parse("put it left to the mug")
     assert item.provenance == "direct"
-    snapped = OfflineParser(OfflineConfig(relation_source="encoder"), lambda: offline.snapper)
+    snapped = OfflineParser(GrammarConfig(relation_source="encoder"), lambda: offline.snapper)
     (item,) = snapped.parse("put it left to the mug")
     assert (item.relation, item.provenance) == ("left", "snapped")
     assert 0.0 < item.similarity <= 1.0
@@ -502,7 +502,7 @@ def test_snapping_encoder_can_be_a_backbone_text_tower(tiny_clip_dir):
     clip_snapper = make_snapper(SnapConfig(encoder="backbone", source=f"clip:{tiny_clip_dir}"))
     assert clip_snapper.nearest("to the left of").relation == "left"
     assert clip_snapper.nearest("to the top right corner of").relation == "back right"
-    parser = OfflineParser(OfflineConfig(relation_source="encoder"), lambda: clip_snapper)
+    parser = OfflineParser(GrammarConfig(relation_source="encoder"), lambda: clip_snapper)
     assert as_pairs(parser.parse("put it behind the mug")) == [("mug", "back")]
 
 

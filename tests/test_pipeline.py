@@ -1,7 +1,7 @@
 """`ocplace reproduce` at smoke scale.
 
 The default tests run the pipeline on the session's smoke dataset and tiny backbone with test-local
-methods (seconds); the slow test runs `ocplace reproduce --scale smoke` from nothing with every
+methods (seconds); the slow test runs `ocplace reproduce --experiment smoke` from nothing with every
 method registered at the time (their smoke trainings take minutes on a shared 2-core machine).
 """
 
@@ -14,8 +14,11 @@ import pytest
 
 from ocplace import configs
 from ocplace.errors import ConfigError, OcplaceError
-from ocplace.eval import figures, pipeline, registry, results
-from ocplace.eval.experiment import TaskCpus
+from ocplace.eval import figures, results
+from ocplace.experiments import pipeline
+from ocplace.experiments.evaluation import rerun
+from ocplace.experiments.experiment import TaskCpus
+from ocplace.methods import registry
 from ocplace.runtime import ExecutorConfig
 from ocplace.vocabulary import TEST_SUBSETS
 
@@ -101,7 +104,7 @@ def test_summary_keeps_every_table_and_counts_the_scenes(first_run):
     )
     assert len(first_run.results_path.read_bytes()) > 2 * len((first_run.out / pipeline.SUMMARY_FILE).read_bytes())
     with pytest.raises(OcplaceError, match="summary without per-scene outcomes"):
-        results.rerun(summary)
+        rerun(summary)
 
 
 def test_table_one_shows_mean_and_spread_over_seeds(first_run):
@@ -224,8 +227,9 @@ def test_scale_configs():
 
 def test_task_graph_of_the_demo(tmp_path):
     demo = pipeline.PipelineConfig(with_seeds(configs.get("demo"), 2))
-    runs = pipeline.planned_runs(demo, pipeline.selected_specs(demo, registry.method_specs()))
-    nodes = {node.key: node for node in pipeline.task_graph(demo, runs, tmp_path / "data", tmp_path, "hash")}
+    specs = registry.method_specs()
+    runs = pipeline.planned_runs(demo, pipeline.selected_specs(demo, specs))
+    nodes = {node.key: node for node in pipeline.task_graph(demo, specs, runs, tmp_path / "data", tmp_path, "hash")}
     assert list(nodes)[:2] == ["backbone", "prepare ours+no_llm"]  # the shared features: made once, for both
     assert nodes["backbone"].make({}).cpus == demo.experiment.cpus.pretrain == 2
     assert nodes["train no_llm~seed1"].after == ("backbone", "prepare ours+no_llm")
@@ -260,11 +264,11 @@ def test_reproduce_smoke_from_nothing_with_every_registered_method(tmp_path, cap
     from ocplace.cli import main
 
     registered = registry.method_specs()
-    assert main(["reproduce", "--scale", "smoke", "--out", str(tmp_path), "--no-progress"]) == 0
+    assert main(["reproduce", "--experiment", "smoke", "--out", str(tmp_path), "--no-progress"]) == 0
     printed = capsys.readouterr().out
     saved = results.read_results(tmp_path / "results.json")
     assert [e["key"] for e in saved["evaluations"]] == list(registered)
-    assert saved["pipeline"]["errors"] == [] and saved["command"]["arguments"]["scale"] == "smoke"
+    assert saved["pipeline"]["errors"] == [] and saved["command"]["arguments"]["experiment"] == "smoke"
     for spec in registered.values():
         assert f"| {spec.label} |" in printed
     for entry in saved["evaluations"]:
@@ -288,7 +292,7 @@ def test_reproduce_options_reach_the_config(tmp_path, monkeypatch):
 
     monkeypatch.setattr(pipeline, "run_pipeline", record)
     config, out = reproduce(
-        *("--scale", "default", "--out", str(tmp_path / "out"), "--backbone", "offline:spec"),
+        *("--experiment", "default", "--out", str(tmp_path / "out"), "--backbone", "offline:spec"),
         *("--methods", "oracle, centre", "--workers", "3", "--dataset", str(tmp_path / "dataset")),
         *("--fractions", "1", "0.5", "1", "--physical", "5", "--no-progress", "--seeds", "2", "--ray"),
     )
@@ -317,7 +321,7 @@ def test_reproduce_options_reach_the_config(tmp_path, monkeypatch):
             evaluation=dataclasses.replace(demo.evaluation, methods=None),
         )
     )
-    config, _ = reproduce("--scale", "smoke")
+    config, _ = reproduce("--experiment", "smoke")
     assert config == pipeline.PipelineConfig(configs.get("smoke"))
     with pytest.raises(SystemExit):
         build_parser().parse_args(["reproduce", "--fractions", "0"])
@@ -335,7 +339,7 @@ def test_reproduce_set_reaches_the_experiment(tmp_path, monkeypatch):
     monkeypatch.setattr(pipeline, "run_pipeline", record)
     args = build_parser().parse_args(
         [
-            *("reproduce", "--scale", "smoke", "--methods", "all", "--workers", "2"),
+            *("reproduce", "--experiment", "smoke", "--methods", "all", "--workers", "2"),
             *("--set", "recipes.ours.steps=5000", "--set", "dataset.train_scenes=100"),
             *("--set", "evaluation.methods=oracle, centre", "--set", f"out={tmp_path / 'elsewhere'}"),
         ]
@@ -361,7 +365,7 @@ def test_reproduce_refuses_to_set_what_each_run_sets(key, tmp_path, monkeypatch,
     from ocplace.cli import main
 
     monkeypatch.setattr(pipeline, "run_pipeline", lambda *args, **kwargs: pytest.fail("ran with a refused key"))
-    assert main(["reproduce", "--scale", "smoke", "--out", str(tmp_path), "--set", f"{key}=3"]) == 2
+    assert main(["reproduce", "--experiment", "smoke", "--out", str(tmp_path), "--set", f"{key}=3"]) == 2
     assert f"{key} is set for each run from" in capsys.readouterr().err
 
 

@@ -15,7 +15,7 @@ from ocplace.errors import (
     ParseError,
     PolicyInputError,
 )
-from ocplace.eval.ours import scene_input
+from ocplace.methods.policy_method import scene_input
 from ocplace.models import detection
 from ocplace.models.backbone import PromptConfig, load_backbone
 from ocplace.models.grounding import GroundingModel

@@ -17,9 +17,10 @@ from ocplace.models.features import save_features
 from ocplace.models.grounding import GroundingModel
 from ocplace.paths import OLD_RUN_FILES, RUN_FILE, WEIGHTS_FILE
 from ocplace.train import checkpoints
+from ocplace.train.batches import batch_indices, subset_indices
 from ocplace.train.config import TrainConfig, smoke_config
-from ocplace.train.loop import batch_indices, subset_indices, train
 from ocplace.train.metrics import MetricsLog, evaluate_features
+from ocplace.train.ours import train_ours as train
 
 DIM = 32
 
@@ -77,7 +78,7 @@ def test_checkpoint_round_trip(fitted):
 
 
 def _state_template(result):
-    from ocplace.train.loop import init_state, make_optimizer
+    from ocplace.train.ours import init_state, make_optimizer
 
     return init_state(result.model.config, make_optimizer(smoke_config()), seed=123)
 
@@ -212,7 +213,7 @@ def test_train_command_gives_the_bits_of_a_reproduce_training_task(tmp_path, fea
     import subprocess
     import sys
 
-    from ocplace.eval.experiment import TaskCpus
+    from ocplace.experiments.experiment import TaskCpus
     from ocplace.runtime import ExecutorConfig, Task, map_tasks, open_executor
     from ocplace.runtime.width import compiled_folder
 

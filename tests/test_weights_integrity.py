@@ -7,7 +7,6 @@ line of metrics.jsonl does not stop a run from resuming.
 """
 
 import dataclasses
-import json
 import logging
 import re
 import shutil
@@ -20,6 +19,7 @@ from safetensors import safe_open
 from safetensors.numpy import save_file
 from synthetic_features import synthetic_features
 
+from ocplace import serial
 from ocplace.errors import BackboneError, GroundingUncertain, TrainingError, WeightsError
 from ocplace.models import offline_backbone as ob
 from ocplace.models import trained_adapters, weights_file
@@ -34,8 +34,9 @@ from ocplace.models.policy import PlacementPolicy, PreparedScene
 from ocplace.paths import WEIGHTS_FILE
 from ocplace.train import baseline_runs, checkpoints, no_llm
 from ocplace.train.config import smoke_config
-from ocplace.train.loop import init_state, make_optimizer, train
 from ocplace.train.metrics import MetricsLog
+from ocplace.train.ours import init_state, make_optimizer
+from ocplace.train.ours import train_ours as train
 
 DIM = 16
 KEY = jax.random.key(0)
@@ -79,7 +80,7 @@ def _adapters(run_dir):
 
 def _grids(run_dir):
     config = grids.smoke_grid_config()
-    checkpoints.claim_run_dir(run_dir, {"grid": json.loads(config.to_json())})
+    checkpoints.claim_run_dir(run_dir, {"grid": serial.to_dict(config)})
     params = _random_like(lambda: grids.init_grids(config, DIM, KEY))
     path = baseline_runs.save_weights(run_dir, params, {"run": "test"})
     return path, lambda: grids.load_params(run_dir)[0], params
@@ -87,7 +88,7 @@ def _grids(run_dir):
 
 def _cliport(run_dir):
     config = cliport.smoke_config()
-    checkpoints.claim_run_dir(run_dir, {"network": json.loads(config.to_json()), "dim": DIM})
+    checkpoints.claim_run_dir(run_dir, {"network": serial.to_dict(config), "dim": DIM})
     params = _random_like(lambda: cliport.init_network(config, DIM, KEY))
     path = baseline_runs.save_weights(run_dir, params, {"run": "test"})
     return path, lambda: cliport.load_params(run_dir)[0], params

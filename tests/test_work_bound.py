@@ -23,7 +23,7 @@ def bound(tmp_path: Path, cpus: int) -> list[str]:
     results = tmp_path / "results.json"
     steps = [{"name": name, "wall_s": wall, "detail": ""} for name, wall in STEPS.items()]
     results.write_text(json.dumps({"pipeline": {"steps": steps}}))
-    command = [sys.executable, str(SCRIPT), str(results), "--scale", "default", "--cpus", str(cpus)]
+    command = [sys.executable, str(SCRIPT), str(results), "--experiment", "default", "--cpus", str(cpus)]
     done = subprocess.run([*command, "--graph-min", "70"], capture_output=True, text=True, check=True)
     return done.stdout.splitlines()
 

@@ -19,6 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from ocplace import serial
 from ocplace.models.backbone import Backbone
 from ocplace.models.baselines import cliport
 from ocplace.models.baselines.common import top_down_camera
@@ -27,7 +28,7 @@ from ocplace.sim import metric
 from ocplace.sim.dataset.job import listed_scenes
 from ocplace.train import baseline_runs
 from ocplace.train.baseline_runs import Schedule
-from ocplace.train.loop import batch_indices, subset_indices
+from ocplace.train.batches import batch_indices, subset_indices
 
 CACHE_FORMAT = "ocplace-cliport-data-v1"
 DATA_ARRAYS = ("rgb", "height", "text", "targets")
@@ -85,7 +86,7 @@ def training_data(
     digest = dataset_hash(dataset_dir, split)
     key = hashlib.sha256(
         json.dumps(
-            [CACHE_FORMAT, digest, backbone.fingerprint, recipe_.network.to_json(), recipe_.num_targets]
+            [CACHE_FORMAT, digest, backbone.fingerprint, serial.to_json(recipe_.network), recipe_.num_targets]
         ).encode()
     ).hexdigest()
     path = baselines_cache() / f"cliport-{digest[:16]}-{split}-{key[:16]}.safetensors"
@@ -155,7 +156,7 @@ def train_cliport(
         "scale": experiment,
         "fraction": fraction,
         "seed": seed,
-        "network": json.loads(config.to_json()),
+        "network": serial.to_dict(config),
         "schedule": dataclasses.asdict(chosen.schedule),
         "num_targets": chosen.num_targets,
         "data_key": data_key,

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import dataclasses
-import json
 
 from ocplace.errors import TrainingError
 
@@ -47,13 +46,6 @@ class TrainConfig:
             problems.append("keep_checkpoints must be at least 1")
         if problems:
             raise TrainingError("invalid training configuration: " + "; ".join(problems))
-
-    def to_json(self) -> str:
-        return json.dumps(dataclasses.asdict(self), sort_keys=True)
-
-    @classmethod
-    def from_json(cls, text: str) -> TrainConfig:
-        return cls(**json.loads(text))
 
 
 def default_config() -> TrainConfig:

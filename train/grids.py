@@ -13,7 +13,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import hashlib
-import json
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -22,6 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from ocplace import serial
 from ocplace.models import features as feature_cache
 from ocplace.models.backbone import Backbone
 from ocplace.models.baselines import grids
@@ -31,7 +31,7 @@ from ocplace.sim.dataset.job import listed_scenes, scene_dirs
 from ocplace.sim.dataset.loader import letterbox
 from ocplace.train import baseline_runs
 from ocplace.train.baseline_runs import Schedule
-from ocplace.train.loop import batch_indices, subset_indices
+from ocplace.train.batches import batch_indices, subset_indices
 from ocplace.vocabulary import MAX_INSTRUCTION_TUPLES
 
 
@@ -63,7 +63,7 @@ def cell_features(
     from ocplace.sim.dataset.identity import dataset_hash
 
     digest = dataset_hash(dataset_dir, split)
-    grid_key = hashlib.sha256(config.to_json().encode()).hexdigest()
+    grid_key = hashlib.sha256(serial.to_json(config).encode()).hexdigest()
     name = f"grids-{digest[:16]}-{split}-{backbone.fingerprint[:16]}-{grid_key[:8]}.safetensors"
     path = baselines_cache() / name
     featurize_config = feature_cache.FeaturizeConfig(
@@ -73,7 +73,7 @@ def cell_features(
         scene_examples(dataset_dir, split, config),
         backbone,
         path,
-        dataset_hash=f"{digest}|grids|{config.to_json()}",
+        dataset_hash=f"{digest}|grids|{serial.to_json(config)}",
         config=featurize_config,
         total=len(scene_dirs(dataset_dir, split)),
         progress=progress,
@@ -129,7 +129,7 @@ def train_grids(
         "scale": experiment,
         "fraction": fraction,
         "seed": seed,
-        "grid": json.loads(chosen.grid.to_json()),
+        "grid": serial.to_dict(chosen.grid),
         "schedule": dataclasses.asdict(chosen.schedule),
         "features_key": features.info.key,
         "backbone_fingerprint": backbone.fingerprint,

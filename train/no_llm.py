@@ -3,7 +3,7 @@
 Visual tokens come from the shared feature cache (`models.features`, the same file `ocplace
 featurize` writes and Ours trains on); the only extra encoding is one sentence token per scene,
 cached beside it (`sentences_path`). Steps run in chunks fused with `lax.scan`; the example
-order and the initial weights are functions of the seed (as in `train.loop`), so a resumed run
+order and the initial weights are functions of the seed (as in `train.ours`), so a resumed run
 ends with the weights of an uninterrupted one.
 
 Run directory:
@@ -28,6 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from ocplace import serial
 from ocplace.errors import FeaturesError, TrainingError
 from ocplace.models.backbone import Backbone
 from ocplace.models.features import Features, featurize_split, load_features
@@ -36,7 +37,7 @@ from ocplace.models.weights_file import save_weights
 from ocplace.paths import WEIGHTS_FILE, atomic_path, features_cache
 from ocplace.sim.relations import relation_index
 from ocplace.train import checkpoints, optim, runner
-from ocplace.train.loop import batch_indices, subset_indices
+from ocplace.train.batches import batch_indices, subset_indices
 
 # The paper's name in the cache key: renaming it would orphan every cached sentence file.
 SENTENCES_FORMAT = "ocplace-gtref-sentences-v1"
@@ -54,7 +55,7 @@ class NoLlmTrainConfig:
     residual_ratio: float = 0.2
     seed: int = 0  # initial weights and example order
     fraction: float = 1.0
-    subset_seed: int = 0  # nested subsets, as train.loop
+    subset_seed: int = 0  # nested subsets, as train.ours
     chunk_steps: int = 1_000
     checkpoint_every: int = 5_000
     keep_checkpoints: int = 2
@@ -69,9 +70,6 @@ class NoLlmTrainConfig:
 
     def model_config(self, dim: int) -> NoLlmConfig:
         return NoLlmConfig(dim=dim, reduction=self.reduction, residual_ratio=self.residual_ratio, hidden=self.hidden)
-
-    def to_json(self) -> str:
-        return json.dumps(dataclasses.asdict(self), sort_keys=True)
 
 
 # ----------------------------------------------------------------------------- cached inputs
@@ -242,7 +240,7 @@ def train_no_llm(
     chosen = subset_indices(features.num_scenes, config.fraction, config.subset_seed)
     arrays = {name: array[chosen] for name, array in training_arrays(features, sentences).items()}
     run_meta = {
-        "train_config": json.loads(config.to_json()),
+        "train_config": serial.to_dict(config),
         "features_key": features.info.key,
         "sentences_key": sentences.key,
         "backbone_fingerprint": backbone.fingerprint,
@@ -262,9 +260,9 @@ def train_no_llm(
 def save_model(path: Path, model: NoLlmModel, *, backbone_fingerprint: str, train_config: NoLlmTrainConfig) -> None:
     """Writes the model file that `models.no_llm.load_model` reads back."""
     metadata = {
-        "model_config": model.config.to_json(),
+        "model_config": serial.to_json(model.config),
         "logit_scale": repr(model.logit_scale),
         "backbone_fingerprint": backbone_fingerprint,
-        "train_config": train_config.to_json(),
+        "train_config": serial.to_json(train_config),
     }
     save_weights(path, checkpoints.flatten_state(model.params), metadata)

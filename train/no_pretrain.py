@@ -9,7 +9,7 @@ loss. Example order, symmetries and initial weights are functions of the seed an
 a resumed run ends with the weights of an uninterrupted one.
 
 Run directory:
-    run.json, metrics.jsonl, checkpoints/        as in train.loop
+    run.json, metrics.jsonl, checkpoints/        as in train.ours
     backbone/                                    the trained tower as an offline backbone directory
                                                  (its own config.json, weights.safetensors, fingerprint.txt)
     weights.safetensors                          the trained adapters (`models.trained_adapters`), written last
@@ -29,6 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from ocplace import serial
 from ocplace.errors import TrainingError
 from ocplace.models import no_pretrain, trained_adapters
 from ocplace.models import offline_backbone as ob
@@ -36,7 +37,7 @@ from ocplace.models.backbone import PromptConfig
 from ocplace.models.no_pretrain import BACKBONE_DIR
 from ocplace.paths import WEIGHTS_FILE, atomic_path, scratch_cache
 from ocplace.train import checkpoints, optim, runner
-from ocplace.train.loop import batch_indices, subset_indices
+from ocplace.train.batches import batch_indices, subset_indices
 from ocplace.vocabulary import MAX_INSTRUCTION_TUPLES as MAX_TUPLES
 
 # The format and its cache folder (`paths.scratch_cache`) keep their old name: renaming would orphan every cached input.
@@ -70,9 +71,6 @@ class NoPretrainTrainConfig:
 class NoPretrainRecipe:
     model: no_pretrain.NoPretrainConfig
     train: NoPretrainTrainConfig
-
-    def to_dict(self) -> dict:
-        return {"model": self.model.to_dict(), "train": dataclasses.asdict(self.train)}
 
 
 # ----------------------------------------------------------------------------- cached inputs
@@ -111,7 +109,14 @@ def no_pretrain_inputs(
     digest = dataset_hash(dataset_dir, split)
     key = hashlib.sha256(
         json.dumps(
-            [INPUTS_FORMAT, digest, config.image_size, config.text_max_length, prompt.to_json(), text_tower.digest]
+            [
+                INPUTS_FORMAT,
+                digest,
+                config.image_size,
+                config.text_max_length,
+                serial.to_json(prompt),
+                text_tower.digest,
+            ]
         ).encode()
     ).hexdigest()
     path = scratch_cache() / f"{digest[:16]}-{split}-{config.image_size}px-{key[:12]}.safetensors"
@@ -248,7 +253,7 @@ def save_trained(
         model.backbone,
         params["backbone"],
         text_digest,
-        {"trained_by": "ocplace.train.no_pretrain (Ours w/o CLIP pre-train)", "recipe": recipe_.to_dict()},
+        {"trained_by": "ocplace.train.no_pretrain (Ours w/o CLIP pre-train)", "recipe": serial.to_dict(recipe_)},
     )
     fingerprint = (backbone_dir / ob.FINGERPRINT_FILE).read_text().strip()
     scale = float(np.exp(min(float(params["backbone"]["log_logit_scale"]), math.log(model.max_logit_scale))))
@@ -261,7 +266,7 @@ def save_trained(
         prompt=prompt,
         features_key=inputs_key,
         steps=recipe_.train.steps,
-        train_config_json=json.dumps(recipe_.to_dict()),
+        train_config_json=json.dumps(serial.to_dict(recipe_)),
     )
 
 
@@ -271,7 +276,7 @@ def train_no_pretrain(dataset_dir: Path, run_dir: Path, recipe_: NoPretrainRecip
     prompt = PromptConfig()
     inputs = no_pretrain_inputs(dataset_dir, "train", recipe_.model.backbone, prompt, progress)
     chosen = subset_indices(len(inputs.scene_ids), recipe_.train.fraction, recipe_.train.subset_seed)
-    run_meta = {"recipe": recipe_.to_dict(), "inputs_key": inputs.key, "train_scenes": int(len(chosen))}
+    run_meta = {"recipe": serial.to_dict(recipe_), "inputs_key": inputs.key, "train_scenes": int(len(chosen))}
     if (run_dir / WEIGHTS_FILE).exists() and (run_dir / BACKBONE_DIR / ob.FINGERPRINT_FILE).exists():
         checkpoints.claim_run_dir(run_dir, run_meta)
         return run_dir

@@ -74,14 +74,14 @@ class Run:
 
 
 @dataclasses.dataclass(frozen=True)
-class Outcome:
+class RunOutcome:
     state: Any
     saved: Any  # what `save_artefact` returned; None when stopped before the end
 
 
 def run(
     spec: Run, progress: bool = True, callback: Callable[[dict], None] | None = None, stop_after: int | None = None
-) -> Outcome:
+) -> RunOutcome:
     """Claims the run directory, resumes, trains to `spec.steps` and saves the artefact.
 
     `callback(record)` runs after each metrics record (and its checkpoint), e.g. to stop by raising;
@@ -117,7 +117,7 @@ def run(
             if record is not None and callback is not None:
                 callback(record)
     saved = spec.save_artefact(spec.artefact_path, state) if step == spec.steps else None
-    return Outcome(state, saved)
+    return RunOutcome(state, saved)
 
 
 def resume(run_dir: Path, state) -> tuple[Any, int]:

@@ -18,7 +18,6 @@ flat index is `v * width + u`.
 from __future__ import annotations
 
 import dataclasses
-import json
 from pathlib import Path
 
 import cv2
@@ -28,6 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from ocplace import serial
 from ocplace.models.baselines.trained_run import load_run
 from ocplace.models.weights_file import unflatten_state
 from ocplace.sim.camera import Camera
@@ -47,14 +47,6 @@ class CliportConfig:
     @property
     def num_pixels(self) -> int:
         return self.width * self.height
-
-    def to_json(self) -> str:
-        return json.dumps(dataclasses.asdict(self), sort_keys=True)
-
-    @classmethod
-    def from_json(cls, text: str) -> CliportConfig:
-        fields = json.loads(text)
-        return cls(**{**fields, "channels": tuple(fields["channels"]), "table": Table.from_dict(fields["table"])})
 
 
 def smoke_config() -> CliportConfig:
@@ -204,6 +196,6 @@ def mode_and_samples(
 def load_params(run_dir: Path) -> tuple[dict, dict, str]:
     """`(params, run_meta, weights sha256)` of a finished run."""
     run_meta, arrays, sha = load_run(run_dir)
-    config = CliportConfig.from_json(json.dumps(run_meta["network"]))
+    config = serial.from_dict(CliportConfig, run_meta["network"])
     template = jax.eval_shape(lambda: init_network(config, run_meta["dim"], jax.random.key(0)))
     return unflatten_state(arrays, template), run_meta, sha

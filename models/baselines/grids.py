@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import json
 from pathlib import Path
 
 import flax.linen as nn
@@ -26,6 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from ocplace import serial
 from ocplace.models.adapters import ClipAdapter, blend
 from ocplace.models.backbone import PromptConfig
 from ocplace.models.baselines.trained_run import load_run
@@ -59,14 +59,6 @@ class GridConfig:
     def cell_size(self) -> np.ndarray:
         """`(2,)` metres."""
         return 2.0 * np.asarray(self.table.half_extents) / np.array([self.columns, self.rows])
-
-    def to_json(self) -> str:
-        return json.dumps(dataclasses.asdict(self), sort_keys=True)
-
-    @classmethod
-    def from_json(cls, text: str) -> GridConfig:
-        fields = json.loads(text)
-        return cls(**{**fields, "table": Table.from_dict(fields["table"])})
 
 
 def smoke_grid_config() -> GridConfig:
@@ -213,7 +205,7 @@ def sample_in_cell(
 def load_params(run_dir: Path) -> tuple[dict, dict, str]:
     """`(params, run_meta, weights sha256)` of a finished run."""
     run_meta, arrays, sha = load_run(run_dir)
-    config = GridConfig.from_json(json.dumps(run_meta["grid"]))
+    config = serial.from_dict(GridConfig, run_meta["grid"])
     dim = int(arrays["['visual']['up']['kernel']"].shape[-1])  # the feature size is not in the run's config
     template = jax.eval_shape(lambda: init_grids(config, dim, jax.random.key(0)))
     return unflatten_state(arrays, template), run_meta, sha

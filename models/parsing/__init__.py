@@ -14,8 +14,8 @@ import dataclasses
 
 from ocplace.models.parsing.config import (
     PARSER_NAMES,
+    GrammarConfig,
     LLMConfig,
-    OfflineConfig,
     ParsingConfig,
     SnapConfig,
     default_config,
@@ -24,8 +24,8 @@ from ocplace.models.parsing.types import ParsedTuple, Parser, as_pairs
 
 __all__ = [
     "PARSER_NAMES",
+    "GrammarConfig",
     "LLMConfig",
-    "OfflineConfig",
     "ParsedTuple",
     "Parser",
     "ParsingConfig",

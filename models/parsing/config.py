@@ -24,7 +24,7 @@ class SnapConfig:
 
 
 @dataclasses.dataclass(frozen=True)
-class OfflineConfig:
+class GrammarConfig:
     max_chars: int = text.DEFAULT_MAX_CHARS
     relation_source: str = "lexicon"  # "lexicon", or "encoder": snap every relation phrase
     snap: SnapConfig = SnapConfig()
@@ -100,7 +100,7 @@ def check_base_url(url: str, api_key_env: str) -> None:
 @dataclasses.dataclass(frozen=True)
 class ParsingConfig:
     parser: str = "offline"
-    offline: OfflineConfig = OfflineConfig()
+    offline: GrammarConfig = GrammarConfig()
     llm: LLMConfig = LLMConfig()
 
 

@@ -18,7 +18,7 @@ from collections.abc import Callable
 
 from ocplace.errors import ParseError
 from ocplace.models.parsing import grammar, lexicon, text
-from ocplace.models.parsing.config import OfflineConfig
+from ocplace.models.parsing.config import GrammarConfig
 from ocplace.models.parsing.snapping import Snapper
 from ocplace.models.parsing.types import ParsedTuple
 from ocplace.sim import language, relations
@@ -36,7 +36,7 @@ _OPPOSITE = {
 class OfflineParser:
     """Parses instructions without a network; loads the sentence encoder only when it must snap."""
 
-    def __init__(self, config: OfflineConfig, snapper_factory: Callable[[], Snapper], name: str = "offline"):
+    def __init__(self, config: GrammarConfig, snapper_factory: Callable[[], Snapper], name: str = "offline"):
         self.config = config
         self.name = name
         self._snapper_factory = snapper_factory

@@ -18,6 +18,7 @@ from ocplace.errors import OcplaceError
 COMMAND_MODULES = (
     "ocplace.cli.assets",
     "ocplace.cli.scene",
+    "ocplace.cli.generate",
     "ocplace.cli.dataset",
     "ocplace.cli.parse",
     "ocplace.cli.featurize",
@@ -26,6 +27,7 @@ COMMAND_MODULES = (
     "ocplace.cli.backbone",
     "ocplace.cli.densities",
     "ocplace.cli.evaluate",
+    "ocplace.cli.reproduce",
     "ocplace.cli.place",
 )
 

@@ -6,6 +6,7 @@ import argparse
 import json
 from pathlib import Path
 
+from ocplace.cli.options import add_dataset_argument, dataset_of
 from ocplace.vocabulary import TEST_SUBSETS
 
 # `models.offline_recipes.RECIPES`, spelled out so that building the parser imports no JAX (a test
@@ -44,7 +45,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Top-1 grounding accuracy among the N+1 visual tokens with no adapters, and "
         "crop-to-name retrieval, for a backbone and for the same architecture at random init.",
     )
-    evaluate.add_argument("--data", type=Path, required=True, help="dataset folder (`ocplace generate`)")
+    add_dataset_argument(evaluate, "dataset folder (`ocplace generate`)", required=True)
     evaluate.add_argument("--backbone", default="offline", help="backbone spec (default: offline)")
     evaluate.add_argument("--splits", nargs="+", choices=TEST_SUBSETS, default=["seen", "unseen_obj"])
     evaluate.add_argument(
@@ -109,14 +110,14 @@ def _eval(args: argparse.Namespace) -> int:
     report = {
         "backbone": args.backbone,
         "fingerprint": backbone.fingerprint,
-        "data": str(args.data),
+        "data": str(dataset_of(args)),
         "started": datetime.datetime.now().astimezone().isoformat(timespec="seconds"),
         "load_average_start": os.getloadavg(),
         "results": {},
     }
     for name, candidate in candidates.items():
         report["results"][name] = {
-            split: evaluate_split(candidate, args.data, split, library, limit=args.limit, progress=True)
+            split: evaluate_split(candidate, dataset_of(args), split, library, limit=args.limit, progress=True)
             for split in args.splits
         }
     report["load_average_end"] = os.getloadavg()

@@ -1,4 +1,4 @@
-"""CLI: `ocplace evaluate` (Table I from trained runs, or a re-run of a results JSON) and `ocplace reproduce`."""
+"""CLI: `ocplace evaluate`: Table I from trained runs, or a re-run of a results JSON."""
 
 from __future__ import annotations
 
@@ -7,12 +7,12 @@ import sys
 from pathlib import Path
 
 from ocplace.cli.executor_options import add_executor_arguments, executor_config
-from ocplace.cli.options import config_from_arguments
-from ocplace.vocabulary import TEST_SUBSETS
+from ocplace.cli.options import DeprecatedAlias, add_dataset_argument, config_from_arguments
+from ocplace.vocabulary import EXPERIMENT_NAMES, TEST_SUBSETS
 
 # `ocplace evaluate` options named after EvalSettings fields: left out (None), they keep its defaults.
 # Written by hand, not generated: EvalSettings sits behind NumPy, too slow to import for `--help`.
-EVAL_SETTINGS_OPTIONS = ("backbone", "scale", "parser", "num_samples", "limit", "seed", "chunk_size")
+EVAL_SETTINGS_OPTIONS = ("backbone", "experiment", "parser", "num_samples", "limit", "seed", "chunk_size")
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -26,7 +26,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "accuracy. Writes RESULTS.json and RESULTS.md (the tables) and prints the tables. "
         "With --rerun, evaluates again from a results JSON and lists every difference.",
     )
-    evaluate.add_argument("--dataset", type=Path, help="dataset folder (`ocplace generate`)")
+    add_dataset_argument(evaluate, "dataset folder (`ocplace generate`)")
     evaluate.add_argument(
         "--methods", default="all", help="comma-separated method names, or `all` (every registered method)"
     )
@@ -57,10 +57,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     evaluate.add_argument("--parser", help="parser for methods that parse (default: offline)")
     evaluate.add_argument("--num-samples", type=int, help="placement samples per scene (default: 1024)")
     evaluate.add_argument(
-        "--scale",
-        choices=("smoke", "demo", "default"),
+        "--experiment",
+        choices=EXPERIMENT_NAMES,
         help="the experiment the runs come from, recorded in the results (each run carries its own recipe; "
         "default: default)",
+    )
+    evaluate.add_argument(
+        "--scale", dest="experiment", choices=EXPERIMENT_NAMES, action=DeprecatedAlias, instead="--experiment"
     )
     evaluate.add_argument("--seed", type=int, help="default: 0")
     evaluate.add_argument("--chunk-size", type=int, help="scenes per method call (default: 32)")
@@ -73,74 +76,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     evaluate.add_argument("--no-progress", action="store_true")
     add_executor_arguments(evaluate, "each method's evaluation is a task")
     evaluate.set_defaults(func=_evaluate)
-
-    reproduce = subparsers.add_parser(
-        "reproduce",
-        help="the whole pipeline: library, dataset, backbone, training, evaluation, tables",
-        description="Builds the object library, generates the dataset, pretrains the offline backbone, "
-        "trains every registered method (and, at the default scale, the data fractions), "
-        "evaluates them and writes results.json, results.md and the paper's figures (OUT/figures). "
-        "Every step skips what is already done: rerun to resume.",
-    )
-    reproduce.add_argument("--scale", choices=("smoke", "demo", "default"), default="demo")
-    reproduce.add_argument("--out", type=Path, help="output folder (default: out/demo, out/reproduce, out/smoke)")
-    reproduce.add_argument("--backbone", help="use this backbone spec instead of pretraining the offline one")
-    reproduce.add_argument(
-        "--methods",
-        help="comma-separated method names, or `all` (default: the scale's: "
-        "every method; at the demo scale Ours and its ablations)",
-    )
-    reproduce.add_argument(
-        "--seeds",
-        type=int,
-        metavar="N",
-        help="train and evaluate every run with N seeds; Table I shows mean and spread (default: the scale's, 1)",
-    )
-    reproduce.add_argument(
-        "--dataset", type=Path, help="dataset folder to use, or to generate into (default: OUT/dataset)"
-    )
-    reproduce.add_argument(
-        "--fractions",
-        type=_fraction,
-        nargs="+",
-        metavar="F",
-        help="training-set fractions of the sample-efficiency study (default: the scale's)",
-    )
-    reproduce.add_argument(
-        "--physical",
-        type=int,
-        default=None,
-        metavar="K",
-        help="physical check on the first K scenes per subset (default: the scale's)",
-    )
-    reproduce.add_argument(
-        "--set",
-        dest="overrides",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="set any setting of the experiment (ocplace.configs), applied after the other options; KEY is a "
-        "dotted path such as recipes.ours.steps or dataset.train_scenes, an unknown one lists the valid keys "
-        "(repeatable; see docs/evaluation.md)",
-    )
-    reproduce.add_argument("--no-progress", action="store_true")
-    add_executor_arguments(
-        reproduce, "objects, scenes, the pretraining, each training and each evaluation are tasks of one graph"
-    )
-    reproduce.set_defaults(func=_reproduce)
-
-    figures = subparsers.add_parser(
-        "figures",
-        help="the paper's Fig. 5, 6 and 7 from a results JSON",
-        description="Draws Fig. 5 (placement densities on the first `seen` scene), Fig. 6 (each method's "
-        "placement in chosen test scenes; needs Ours and CLIPort-Place evaluated) and Fig. 7 "
-        "(sample efficiency; needs several training fractions) as PNGs.",
-    )
-    figures.add_argument("results", type=Path, help="results JSON of `ocplace evaluate` or `ocplace reproduce`")
-    figures.add_argument("--dataset", type=Path, help="the evaluated dataset (default: the one the results name)")
-    figures.add_argument("--out", type=Path, default=Path("figures"), help="output folder (default: ./figures)")
-    figures.add_argument("--seed", type=int, default=0, help="seed of Fig. 5's relations and samples")
-    figures.set_defaults(func=_figures)
 
 
 def parse_runs(items: list[str]) -> dict[str, Path]:
@@ -155,13 +90,6 @@ def parse_runs(items: list[str]) -> dict[str, Path]:
     return runs
 
 
-def _fraction(text: str) -> float:
-    value = float(text)
-    if not 0.0 < value <= 1.0:
-        raise argparse.ArgumentTypeError(f"a training-set fraction lies in (0, 1], got {text}")
-    return value
-
-
 def physical_setting(value: int | None, default: int | None) -> int | None:
     if value is None:
         return default
@@ -169,8 +97,9 @@ def physical_setting(value: int | None, default: int | None) -> int | None:
 
 
 def method_runs(specs: list, runs: dict[str, Path], runs_from: Path | None = None) -> list:
-    from ocplace.eval.harness import EvaluationError, MethodRun
-    from ocplace.eval.pipeline import run_directory
+    from ocplace.eval.harness import EvaluationError
+    from ocplace.experiments.pipeline import run_directory
+    from ocplace.methods.registry import method_run
 
     unused = set(runs) - {spec.name for spec in specs}
     if unused:
@@ -187,11 +116,11 @@ def method_runs(specs: list, runs: dict[str, Path], runs_from: Path | None = Non
             )
         if run_dir is not None and not run_dir.exists():
             raise EvaluationError(f"run directory {run_dir} of {spec.name!r} does not exist")
-        selected.append(MethodRun(spec, run_dir))
+        selected.append(method_run(spec, run_dir))
     return selected
 
 
-def _command(args: argparse.Namespace) -> dict:
+def command_record(args: argparse.Namespace) -> dict:
     """The command line as typed (`argv`) and as parsed (`arguments`: exact even when called in-process)."""
     arguments = {key: value for key, value in vars(args).items() if key != "func"}
     return {
@@ -206,9 +135,10 @@ def _command(args: argparse.Namespace) -> dict:
 def _evaluate(args: argparse.Namespace) -> int:
     if args.rerun is not None:
         return _rerun(args)
-    from ocplace.eval.harness import DEFAULT_PHYSICAL_SCENES, EvalSettings, EvaluationError, evaluate_runs
-    from ocplace.eval.registry import method_specs, select_specs
+    from ocplace.eval.harness import DEFAULT_PHYSICAL_SCENES, EvalSettings, EvaluationError
     from ocplace.eval.results import build_results, write_outputs
+    from ocplace.experiments.evaluation import evaluate_runs
+    from ocplace.methods.registry import method_specs, select_specs
     from ocplace.runtime import open_executor
 
     if args.dataset is None or args.out is None:
@@ -220,22 +150,24 @@ def _evaluate(args: argparse.Namespace) -> int:
         ),
         fields=EVAL_SETTINGS_OPTIONS,
     )
-    runs = method_runs(select_specs(args.methods, method_specs()), parse_runs(args.run), args.runs_from)
+    specs = method_specs()
+    runs = method_runs(select_specs(args.methods, specs), parse_runs(args.run), args.runs_from)
     with open_executor(executor_config(args)) as executor:
-        evaluations = evaluate_runs(runs, args.dataset, settings, executor, progress=not args.no_progress)
-    markdown = write_outputs(build_results(evaluations, args.dataset, settings, _command(args)), args.out)
+        evaluations = evaluate_runs(specs, runs, args.dataset, settings, executor, progress=not args.no_progress)
+    markdown = write_outputs(build_results(evaluations, args.dataset, settings, command_record(args)), args.out)
     print(markdown)
     print(f"wrote {args.out} and {args.out.with_suffix('.md')}")
     return 0
 
 
 def _rerun(args: argparse.Namespace) -> int:
-    from ocplace.eval.results import compare, read_results, rerun, write_outputs
+    from ocplace.eval.results import compare, read_results, write_outputs
+    from ocplace.experiments.evaluation import rerun
     from ocplace.runtime import open_executor
 
     original = read_results(args.rerun)
     with open_executor(executor_config(args)) as executor:
-        fresh = rerun(original, progress=not args.no_progress, command=_command(args), executor=executor)
+        fresh = rerun(original, progress=not args.no_progress, command=command_record(args), executor=executor)
     out = args.out or args.rerun.with_name(args.rerun.stem + ".rerun.json")
     write_outputs(fresh, out)
     differences = compare(original, fresh)
@@ -245,50 +177,3 @@ def _rerun(args: argparse.Namespace) -> int:
         print(f"... and {len(differences) - 50} more differences")
     print(f"{'reproduced exactly' if not differences else f'{len(differences)} differences'}: {args.rerun} vs {out}")
     return 0 if not differences else 1
-
-
-def _reproduce(args: argparse.Namespace) -> int:
-    import dataclasses
-
-    from ocplace import configs
-    from ocplace.cli.options import apply_overrides
-    from ocplace.errors import ConfigError
-    from ocplace.eval.experiment import refuse_run_keys
-    from ocplace.eval.pipeline import PipelineConfig, run_pipeline
-
-    experiment = configs.get(args.scale)
-    plan, sizes = experiment.evaluation, experiment.dataset
-    if args.methods == "all":
-        plan = dataclasses.replace(plan, methods=None)
-    elif args.methods:
-        plan = dataclasses.replace(plan, methods=tuple(n.strip() for n in args.methods.split(",") if n.strip()))
-    if args.fractions:
-        plan = dataclasses.replace(plan, fractions=tuple(sorted(set(args.fractions))))
-    if args.seeds is not None:
-        if args.seeds < 1:
-            raise ConfigError(f"--seeds must be at least 1, got {args.seeds}")
-        plan = dataclasses.replace(plan, seeds=args.seeds)
-    if args.physical is not None:
-        sizes = dataclasses.replace(sizes, physical_scenes=physical_setting(args.physical, sizes.physical_scenes))
-    refuse_run_keys([item.partition("=")[0].strip() for item in args.overrides])
-    experiment = apply_overrides(dataclasses.replace(experiment, evaluation=plan, dataset=sizes), args.overrides)
-    config = PipelineConfig(
-        experiment,
-        backbone=args.backbone or None,
-        dataset=args.dataset,
-        executor=executor_config(args),
-        progress=not args.no_progress,
-    )
-    summary = run_pipeline(config, args.out or experiment.out, command=_command(args))
-    print(summary.markdown)
-    print(summary.report())
-    return 1 if summary.errors else 0
-
-
-def _figures(args: argparse.Namespace) -> int:
-    from ocplace.eval.figures import write_figures
-    from ocplace.eval.results import read_results
-
-    for path in write_figures(read_results(args.results), args.out, args.dataset, args.seed):
-        print(f"wrote {path}")
-    return 0

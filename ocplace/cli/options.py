@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import sys
 import types
 import typing
 from collections.abc import Iterable, Mapping, Sequence
@@ -230,3 +231,38 @@ def _unwrap_optional(hint) -> tuple[bool, object]:
 
 def _is_group(hint) -> bool:
     return dataclasses.is_dataclass(_unwrap_optional(hint)[1])
+
+
+class DeprecatedAlias(argparse.Action):
+    """An old flag kept for one release: it stores into the new flag's `dest` and says what to use instead."""
+
+    def __init__(self, option_strings, dest, instead: str, **kwargs):
+        super().__init__(option_strings, dest, help=argparse.SUPPRESS, **kwargs)
+        self.instead = instead
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        if values is None:  # an optional positional left out: argparse still calls its action
+            return
+        print(
+            f"{parser.prog}: {option_string or 'a positional folder'} is deprecated and goes in the next release; "
+            f"use {self.instead}",
+            file=sys.stderr,
+        )
+        setattr(namespace, self.dest, values)
+
+
+def add_dataset_argument(parser: argparse.ArgumentParser, help_text: str, required: bool = False) -> None:
+    """`--dataset DIR`, the one flag naming a dataset folder; the older `--data` and positional folder
+    still work for one release, with a deprecation message."""
+    parser.add_argument("--dataset", type=Path, help=help_text)
+    parser.add_argument("--data", dest="dataset", type=Path, action=DeprecatedAlias, instead="--dataset DIR")
+    if required:
+        parser.add_argument("legacy_dataset", nargs="?", type=Path, action=DeprecatedAlias, instead="--dataset DIR")
+
+
+def dataset_of(args: argparse.Namespace) -> Path:
+    """The dataset folder of a command that needs one: `--dataset`, or the deprecated positional folder."""
+    dataset = getattr(args, "dataset", None) or getattr(args, "legacy_dataset", None)
+    if dataset is None:
+        raise ConfigError("name the dataset folder with --dataset DIR")
+    return dataset

@@ -137,7 +137,7 @@ def _dataset_scene(args):
     import dataclasses
 
     from ocplace.errors import DatasetError
-    from ocplace.eval.ours import scene_input
+    from ocplace.methods.policy_method import scene_input
     from ocplace.sim.dataset.job import listed_scenes
 
     if args.id is None:

@@ -45,7 +45,7 @@ def run_train(args) -> int:
     if args.cpus:  # before JAX starts, as in each task of `reproduce`: the width decides the last bits
         pin_jax_width(args.cpus)
     from ocplace.models.features import load_features
-    from ocplace.train.loop import train
+    from ocplace.train.ours import train_ours as train
 
     config = train_config_from_args(args)
     config.validate()

@@ -11,6 +11,7 @@ import json
 
 import numpy as np
 
+from ocplace import serial
 from ocplace.errors import SceneError
 from ocplace.sim import relations
 from ocplace.sim.boxes import boxes_from_segmentation
@@ -147,7 +148,7 @@ class SceneGenerator:
                 "footprint_half_extents": _half_extents(library, held.name),
             },
             "table_texture": spec.table_texture,
-            "spec": spec.to_json(),
+            "spec": serial.to_dict(spec),
             "objects": [
                 {
                     "object_id": obj.object_id,

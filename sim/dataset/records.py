@@ -208,7 +208,7 @@ def _read_listed(path: Path, digests: Mapping[str, str] | None) -> bytes:
         raise DatasetError(
             f"{path.name} of scene {path.parent.name} does not match the sha256 that {dataset}/manifest.json "
             "lists: it was edited or damaged after generation, so the scene is not the dataset's. Run "
-            f"`ocplace dataset verify {dataset}` to list every such file, then `ocplace generate --out "
+            f"`ocplace dataset verify --dataset {dataset}` to list every such file, then `ocplace generate --out "
             f"{dataset}` with the dataset's options to regenerate them"
         )
     return data

@@ -27,6 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from ocplace import serial
 from ocplace.errors import TrainingError
 from ocplace.models.offline_backbone import (
     CONFIG_FILE,
@@ -327,7 +328,7 @@ def corpus_of(config: PretrainConfig):
 
 def _run_metadata(config: PretrainConfig, pool: TrainingPool, bank: CaptionBank) -> dict:
     return {
-        "recipe": config.to_dict(),
+        "recipe": serial.to_dict(config),
         "key": config.key(),
         "objects": list(pool.objects),
         "textures": list(pool.textures),

@@ -1,22 +1,22 @@
-"""Table I rows "Ours" and "Ours w/o Adapter": the placement policy as an evaluation method.
+"""The placement policy as a `Method`: what Ours, Ours w/o Adapter and Ours w/o CLIP pre-train share.
 
-"ours" featurizes the training split with the frozen backbone (cached, shared with `ocplace
-featurize`) and trains the CLIP-Adapters on it (`train.loop`); "no_adapter" learns nothing and
-grounds by plain backbone similarity. Both place with `PlacementPolicy.place_many`: one pipeline,
-the robot's (`models/policy.py`), fed with what the harness allows a method to see.
+They place with `PlacementPolicy.place_many`: one pipeline, the robot's (`models/policy.py`), fed
+with what the harness allows a method to see (`scene_input`). Ours and w/o LLM train on the same
+cached features of the training split (`prepare_train_features`).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import hashlib
-import json
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
-from ocplace.eval.api import LoadContext, MethodOutput, MethodSpec, TrainContext
+from ocplace import serial
+from ocplace.eval.api import MethodOutput
+from ocplace.methods.api import LoadContext, TrainContext
 from ocplace.sim.dataset.records import SceneRecord
 
 
@@ -26,19 +26,6 @@ def prepare_train_features(ctx: TrainContext) -> Path:
     from ocplace.models.features import featurize_split
 
     return featurize_split(Path(ctx.dataset_dir), "train", load_backbone(ctx.backbone), progress=False)
-
-
-def train_ours(ctx: TrainContext) -> Path:
-    """Featurize the training split, then train the adapters into `ctx.out_dir` (resumable)."""
-    from ocplace.models.backbone import load_backbone
-    from ocplace.models.features import featurize_split, load_features
-    from ocplace.train.loop import train
-
-    backbone = load_backbone(ctx.backbone)
-    features = load_features(featurize_split(Path(ctx.dataset_dir), "train", backbone), backbone.fingerprint)
-    config = dataclasses.replace(ctx.recipe, fraction=ctx.fraction, seed=ctx.seed)
-    train(features, ctx.out_dir, config)
-    return Path(ctx.out_dir)
 
 
 def scene_input(record: SceneRecord):
@@ -108,49 +95,38 @@ def describe_policy(policy, name: str, backbone_spec: str, adapters_file: Path |
             "steps": trained.steps,
             "features_key": trained.features_key,
         }
-    return json.loads(
-        json.dumps(
-            {
-                "method": name,
-                "backbone": {"spec": backbone_spec, "fingerprint": policy.backbone.fingerprint},
-                "adapters": adapters,
-                "grounding": {
-                    "adapter_config": dataclasses.asdict(policy.grounding.config),
-                    "logit_scale": float(policy.grounding.logit_scale),
-                    "zero_shot": adapters is None,
-                },
-                "prompt": dataclasses.asdict(policy.prompt),
-                "parser": {
-                    "name": parser_name,
-                    "config": parsing,
-                    "cache": str(llm_cache(parsing["llm"]["cache_subdir"])) if parser_name == "llm" else None,
-                },
-                "sampler": dataclasses.asdict(policy.sampler),
-                "threshold": policy.threshold,
-                "policy": {
-                    "crop_size": policy.crop_size,
-                    "min_boxes": policy.min_boxes,
-                    "max_tuples": policy.max_tuples,
-                    "detector": dataclasses.asdict(policy.detector),
-                    "boxes": "dataset (from segmentation)",
-                    "aabbs": "dataset (simulator AABBs of boxed objects)",
-                },
+    return serial.to_dict(
+        {
+            "method": name,
+            "backbone": {"spec": backbone_spec, "fingerprint": policy.backbone.fingerprint},
+            "adapters": adapters,
+            "grounding": {
+                "adapter_config": dataclasses.asdict(policy.grounding.config),
+                "logit_scale": float(policy.grounding.logit_scale),
+                "zero_shot": adapters is None,
             },
-            default=json_default,
-        )
+            "prompt": dataclasses.asdict(policy.prompt),
+            "parser": {
+                "name": parser_name,
+                "config": parsing,
+                "cache": str(llm_cache(parsing["llm"]["cache_subdir"])) if parser_name == "llm" else None,
+            },
+            "sampler": dataclasses.asdict(policy.sampler),
+            "threshold": policy.threshold,
+            "policy": {
+                "crop_size": policy.crop_size,
+                "min_boxes": policy.min_boxes,
+                "max_tuples": policy.max_tuples,
+                "detector": dataclasses.asdict(policy.detector),
+                "boxes": "dataset (from segmentation)",
+                "aabbs": "dataset (simulator AABBs of boxed objects)",
+            },
+        },
     )
 
 
-def json_default(value):
-    """`json.dumps`'s `default` for numpy arrays and scalars; anything else is a TypeError."""
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, (np.floating, np.integer)):
-        return value.item()
-    raise TypeError(f"not JSON-serialisable: {type(value).__name__}")
-
-
-def _policy(ctx: LoadContext, adapters_file: Path | None):
+def policy_of(ctx: LoadContext, adapters_file: Path | None):
+    """The placement policy on `ctx`'s backbone, parser and sample count, with these adapters (None: zero-shot)."""
     from ocplace.models.backbone import load_backbone
     from ocplace.models.placement.sampler import SamplerConfig
     from ocplace.models.policy import PlacementPolicy
@@ -163,11 +139,6 @@ def _policy(ctx: LoadContext, adapters_file: Path | None):
     )
 
 
-def load_ours(ctx: LoadContext) -> PolicyMethod:
-    adapters_file = trained_run_weights(ctx.run_dir, "adapters", "ours")
-    return PolicyMethod("ours", _policy(ctx, adapters_file), ctx.backbone, adapters_file)
-
-
 def trained_run_weights(run_dir: Path | None, what: str, method: str) -> Path:
     """The weights file of `method`'s finished run in `run_dir`; TrainingError when there is none."""
     from ocplace.errors import TrainingError
@@ -177,13 +148,3 @@ def trained_run_weights(run_dir: Path | None, what: str, method: str) -> Path:
     if run_dir is None:
         raise TrainingError(f"no trained {what}: no run directory; {how_to_train}")
     return trained_weights(run_dir, what, how_to_train)
-
-
-def load_no_adapter(ctx: LoadContext) -> PolicyMethod:
-    return PolicyMethod("no_adapter", _policy(ctx, None), ctx.backbone, None)
-
-
-METHODS = (
-    MethodSpec("ours", "Ours", load=load_ours, train=train_ours, prepare=prepare_train_features),
-    MethodSpec("no_adapter", "Ours w/o Adapter", load=load_no_adapter),
-)

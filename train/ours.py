@@ -1,4 +1,4 @@
-"""Adapter training on cached features: Adam, steps fused with `lax.scan`, checkpoints, resume.
+"""Ours' training: the CLIP-Adapters on cached features: Adam, steps fused with `lax.scan`, checkpoints, resume.
 
 The example order is a pure function of (seed, step): epoch e visits the training scenes in the
 order `default_rng([seed, e]).permutation(n)`. With the initial weights drawn from `seed` too, a
@@ -22,14 +22,15 @@ from pathlib import Path
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 import optax
 
+from ocplace import serial
 from ocplace.models import trained_adapters
 from ocplace.models.adapters import AdapterConfig, init_adapters
 from ocplace.models.features import Features
 from ocplace.models.grounding import GroundingModel, adapted_logits, grounding_loss
 from ocplace.train import optim, runner
+from ocplace.train.batches import batch_indices, subset_indices
 from ocplace.train.config import TrainConfig
 from ocplace.train.metrics import GroundingAccuracy, evaluate_features
 
@@ -49,23 +50,6 @@ def learning_rate_schedule(config: TrainConfig) -> optax.Schedule:
 
 def make_optimizer(config: TrainConfig) -> optax.GradientTransformation:
     return optim.adam(learning_rate_schedule(config))
-
-
-def subset_indices(num_scenes: int, fraction: float, subset_seed: int) -> np.ndarray:
-    """Sorted indices of a seeded `fraction` of the scenes; smaller fractions are prefixes of larger."""
-    count = max(1, round(fraction * num_scenes))
-    return np.sort(np.random.default_rng(subset_seed).permutation(num_scenes)[:count])
-
-
-def batch_indices(num_examples: int, seed: int, start_step: int, num_steps: int, batch_size: int) -> np.ndarray:
-    """int32 `(num_steps, batch_size)` example indices of steps `start_step ...`: epoch-wise shuffles."""
-    flat = np.arange(start_step * batch_size, (start_step + num_steps) * batch_size)
-    epochs, positions = np.divmod(flat, num_examples)
-    indices = np.empty_like(flat)
-    for epoch in np.unique(epochs):
-        in_epoch = epochs == epoch
-        indices[in_epoch] = np.random.default_rng([seed, int(epoch)]).permutation(num_examples)[positions[in_epoch]]
-    return indices.reshape(num_steps, batch_size).astype(np.int32)
 
 
 def train_step(adapter_config: AdapterConfig, config: TrainConfig, logit_scale: float, state, data, indices):
@@ -101,7 +85,7 @@ def init_state(adapter_config: AdapterConfig, optimizer: optax.GradientTransform
     return params, optimizer.init(params)
 
 
-def train(
+def train_ours(
     features: Features,
     run_dir,
     config: TrainConfig,
@@ -144,7 +128,7 @@ def train(
             prompt=features.info.config.prompt,
             features_key=features.info.key,
             steps=config.steps,
-            train_config_json=config.to_json(),
+            train_config_json=serial.to_json(config),
         )
 
     spec = runner.Run(
@@ -181,7 +165,7 @@ def _evaluate(adapter_config, params, logit_scale, train_set: Features, val_feat
 
 def _run_metadata(config: TrainConfig, features: Features, val_features: Features | None, train_set) -> dict:
     return {
-        "train_config": json.loads(config.to_json()),
+        "train_config": serial.to_dict(config),
         "features_key": features.info.key,
         "backbone_fingerprint": features.info.backbone_fingerprint,
         "val_features_key": val_features.info.key if val_features is not None else None,

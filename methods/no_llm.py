@@ -1,42 +1,30 @@
-"""Table I rows "Ours w/o LLM" (`no_llm`) and "Ours w/o CLIP pre-train" as evaluation methods.
+"""Table I row "Ours w/o LLM" (`models/no_llm.py`, `train/no_llm.py`).
 
-"no_llm" (`models/no_llm.py`, `train/no_llm.py`): no parser; the instruction is one text token, the
-top-L visual tokens are the references (L from the scene's level, the one ground-truth input
-this ablation is allowed) and an MLP picks each one's relation. Scenes are prepared (crops,
-workspace, AABBs) and sampled by the placement policy's own stages, so only the program
-(references and relations) differs from Ours.
-
-"no_pretrain" (`models/no_pretrain.py`, `train/no_pretrain.py`): the offline backbone's architecture at
-random initialisation, trained with the adapters on the training split; at test time it is
-Ours' policy (parser, grounding, sampler) on that tower and those adapters.
+No parser: the instruction is one text token, the top-L visual tokens are the references (L from the
+scene's level, the one ground-truth input this ablation is allowed) and an MLP picks each one's
+relation. Scenes are prepared (crops, workspace, AABBs) and sampled by the placement policy's own
+stages, so only the program (references and relations) differs from Ours.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import json
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
+from ocplace import serial
 from ocplace.errors import OcplaceError, TrainingError
-from ocplace.eval.api import LoadContext, MethodOutput, MethodSpec, TrainContext
-from ocplace.eval.ours import (
-    PolicyMethod,
-    describe_policy,
-    json_default,
-    prepare_train_features,
-    scene_input,
-    trained_run_weights,
-)
-from ocplace.paths import WEIGHTS_FILE, read_run_file
+from ocplace.eval.api import MethodOutput
+from ocplace.methods.api import LoadContext, MethodSpec, TrainContext
+from ocplace.methods.policy_method import prepare_train_features, scene_input
+from ocplace.paths import WEIGHTS_FILE
 from ocplace.sim.dataset.records import SceneRecord
+from ocplace.train.no_llm import NoLlmTrainConfig as Recipe
 
-# ----------------------------------------------------------------------------- Ours w/o LLM
 
-
-def train_no_llm(ctx: TrainContext) -> Path:
+def train(ctx: TrainContext[Recipe]) -> Path:
     """Featurize the training split (shared cache) and its sentences, then train no_llm (idempotent)."""
     from ocplace.models.backbone import load_backbone
     from ocplace.train import no_llm
@@ -127,35 +115,32 @@ class NoLlmMethod:
 
     def describe(self) -> dict:
         model = self.trained.model
-        return json.loads(
-            json.dumps(
-                {
-                    "method": self.name,
-                    "backbone": {"spec": self.backbone_spec, "fingerprint": self.policy.backbone.fingerprint},
-                    "model": {
-                        "path": str(Path(self.run_dir) / WEIGHTS_FILE),
-                        "weights_sha256": self.trained.sha256,
-                        "config": dataclasses.asdict(model.config),
-                        "logit_scale": float(model.logit_scale),
-                        "train_config": self.trained.train_config,
-                        "seed": self.trained.train_config["seed"],
-                    },
-                    "references": "top-L visual tokens by adapted similarity to the sentence; L from meta['level'] "
-                    "(table, 1obj: 1; 2obj: 2)",
-                    "sampler": dataclasses.asdict(self.policy.sampler),
-                    "policy": {
-                        "crop_size": self.policy.crop_size,
-                        "min_boxes": self.policy.min_boxes,
-                        "boxes": "dataset (from segmentation)",
-                        "aabbs": "dataset (simulator AABBs of boxed objects)",
-                    },
+        return serial.to_dict(
+            {
+                "method": self.name,
+                "backbone": {"spec": self.backbone_spec, "fingerprint": self.policy.backbone.fingerprint},
+                "model": {
+                    "path": str(Path(self.run_dir) / WEIGHTS_FILE),
+                    "weights_sha256": self.trained.sha256,
+                    "config": dataclasses.asdict(model.config),
+                    "logit_scale": float(model.logit_scale),
+                    "train_config": self.trained.train_config,
+                    "seed": self.trained.train_config["seed"],
                 },
-                default=json_default,
-            )
+                "references": "top-L visual tokens by adapted similarity to the sentence; L from meta['level'] "
+                "(table, 1obj: 1; 2obj: 2)",
+                "sampler": dataclasses.asdict(self.policy.sampler),
+                "policy": {
+                    "crop_size": self.policy.crop_size,
+                    "min_boxes": self.policy.min_boxes,
+                    "boxes": "dataset (from segmentation)",
+                    "aabbs": "dataset (simulator AABBs of boxed objects)",
+                },
+            },
         )
 
 
-def load_no_llm(ctx: LoadContext) -> NoLlmMethod:
+def load(ctx: LoadContext) -> NoLlmMethod:
     from ocplace.models.backbone import PromptConfig, load_backbone
     from ocplace.models.grounding import GroundingModel
     from ocplace.models.no_llm import load_model
@@ -182,48 +167,4 @@ def load_no_llm(ctx: LoadContext) -> NoLlmMethod:
     return NoLlmMethod("no_llm", policy, trained, ctx.backbone, Path(ctx.run_dir))
 
 
-# ----------------------------------------------------------------------------- Ours w/o CLIP pre-train
-
-
-def train_no_pretrain(ctx: TrainContext) -> Path:
-    """Train the tower and adapters from random weights (`ctx.backbone` is not used: nothing is pretrained)."""
-    from ocplace.train import no_pretrain
-
-    train = dataclasses.replace(ctx.recipe.train, fraction=ctx.fraction, seed=ctx.seed)
-    recipe = dataclasses.replace(ctx.recipe, train=train)
-    return no_pretrain.train_no_pretrain(Path(ctx.dataset_dir), Path(ctx.out_dir), recipe, progress=False)
-
-
-@dataclasses.dataclass
-class NoPretrainMethod(PolicyMethod):
-    run_dir: Path | None = None
-
-    def describe(self) -> dict:
-        described = describe_policy(self.policy, self.name, self.backbone_spec, self.adapters_file)
-        from ocplace.models.no_llm import params_sha256
-
-        described["from_scratch"] = read_run_file(self.run_dir)
-        described["backbone"]["weights_sha256"] = params_sha256(self.policy.backbone.params)
-        described["adapters"]["weights_sha256"] = params_sha256(self.policy.grounding.params)
-        return described
-
-
-def load_no_pretrain(ctx: LoadContext) -> NoPretrainMethod:
-    from ocplace.models.no_pretrain import BACKBONE_DIR
-    from ocplace.models.offline_backbone import load_saved_backbone
-    from ocplace.models.placement.sampler import SamplerConfig
-    from ocplace.models.policy import PlacementPolicy
-
-    adapters_file = trained_run_weights(ctx.run_dir, "tower and adapters", "no_pretrain")
-    run_dir = Path(ctx.run_dir)
-    backbone = load_saved_backbone(run_dir / BACKBONE_DIR)
-    policy = PlacementPolicy.from_run(
-        backbone, adapters_file, parser=ctx.parser, sampler=SamplerConfig(num_samples=ctx.num_samples)
-    )
-    return NoPretrainMethod("no_pretrain", policy, f"offline:{run_dir / BACKBONE_DIR}", adapters_file, run_dir)
-
-
-METHODS = (
-    MethodSpec("no_llm", "Ours w/o LLM", load=load_no_llm, train=train_no_llm, prepare=prepare_train_features),
-    MethodSpec("no_pretrain", "Ours w/o CLIP pre-train", load=load_no_pretrain, train=train_no_pretrain),
-)
+SPEC: MethodSpec[Recipe] = MethodSpec("no_llm", "Ours w/o LLM", load=load, train=train, prepare=prepare_train_features)

@@ -28,10 +28,12 @@ import traceback
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
+from ocplace import serial
 from ocplace.errors import ConfigError
-from ocplace.eval.api import MethodSpec, TrainContext
-from ocplace.eval.experiment import Experiment
 from ocplace.eval.harness import EvalSettings, Evaluation, MethodRun
+from ocplace.experiments.experiment import Experiment
+from ocplace.methods.api import MethodSpec, TrainContext
+from ocplace.methods.registry import method_run, method_specs, select_specs
 from ocplace.runtime import Executor, ExecutorConfig, Task, open_executor
 from ocplace.runtime.graph import Node, run_graph
 
@@ -126,8 +128,6 @@ def dataset_step(config: PipelineConfig, dataset_dir: Path, executor: Executor) 
 
 
 def selected_specs(config: PipelineConfig, specs: Mapping[str, MethodSpec]) -> list[MethodSpec]:
-    from ocplace.eval.registry import select_specs
-
     methods = config.experiment.evaluation.methods
     return select_specs("all" if methods is None else ",".join(methods), dict(specs))
 
@@ -145,7 +145,7 @@ def planned_runs(config: PipelineConfig, specs: Sequence[MethodSpec]) -> list[Me
         for fraction in sorted(set(fractions) | {1.0}):
             again = repeated and (plan.seed_fractions is None or fraction in plan.seed_fractions)
             seeds = [None, *range(base + 1, base + plan.seeds)] if again else [None]
-            runs += [MethodRun(spec, None, fraction, seed) for seed in seeds]
+            runs += [method_run(spec, None, fraction, seed) for seed in seeds]
     return runs
 
 
@@ -158,7 +158,7 @@ def evaluation_settings(config: PipelineConfig, backbone: str) -> EvalSettings:
     experiment = config.experiment
     return EvalSettings(
         backbone=backbone,
-        scale=experiment.name,
+        experiment=experiment.name,
         parser=experiment.evaluation.parser,
         num_samples=experiment.evaluation.num_samples,
         subsets=experiment.evaluation.subsets,
@@ -171,7 +171,7 @@ def placement_figure_step(run_dir: Path, config: PipelineConfig, dataset_dir: Pa
     """Draws Ours on the first `seen` test scene: what a user looks at first."""
     import jax
 
-    from ocplace.eval.ours import scene_input
+    from ocplace.methods.policy_method import scene_input
     from ocplace.models.backbone import load_backbone
     from ocplace.models.policy import PlacementPolicy
     from ocplace.models.policy_figure import save_placement
@@ -194,7 +194,7 @@ def evaluation_key(run: MethodRun, description: dict, settings: EvalSettings, da
         "key": run.key,
         "run_dir": None if run.run_dir is None else str(run.run_dir),
         "description": description,
-        "settings": settings.to_json(),
+        "settings": serial.to_dict(settings),
         "dataset": dataset_hash,
     }
     return hashlib.sha256(json.dumps(fields, sort_keys=True).encode()).hexdigest()[:16]
@@ -216,8 +216,8 @@ def train_context(run: MethodRun, config: PipelineConfig, dataset_dir: Path, bac
     return TrainContext(
         dataset_dir=dataset_dir,
         backbone=backbone,
-        out_dir=run_directory(out, run.spec.name, run.fraction, run.seed),
-        recipe=experiment.recipes.of(run.spec.name),
+        out_dir=run_directory(out, run.method, run.fraction, run.seed),
+        recipe=experiment.recipes.of(run.method),
         fraction=run.fraction,
         seed=experiment.seed if run.seed is None else run.seed,
         experiment=experiment.name,
@@ -232,11 +232,10 @@ def prepare_task(spec: MethodSpec, context: TrainContext) -> str:
 def train_task(spec: MethodSpec, context: TrainContext) -> tuple[Path, bool]:
     """(run directory, reused). A finished training is recorded beside its run directory and not
     repeated: a method's own resume may rewrite its files, which would change checkpoint hashes."""
-    from ocplace.eval.harness import jsonable
     from ocplace.paths import write_text_atomic
 
     record = context.out_dir.with_name(context.out_dir.name + ".done.json")
-    wanted = jsonable(dataclasses.asdict(context))
+    wanted = serial.to_dict(dataclasses.asdict(context))
     if record.exists():
         done = json.loads(record.read_text())
         if done["context"] == wanted and Path(done["run_dir"]).exists():
@@ -246,22 +245,25 @@ def train_task(spec: MethodSpec, context: TrainContext) -> tuple[Path, bool]:
     return run_dir, False
 
 
-def evaluate_task(run: MethodRun, settings: EvalSettings, dataset_dir: Path, dataset_hash: str, out: Path):
+def evaluate_task(
+    spec: MethodSpec, run: MethodRun, settings: EvalSettings, dataset_dir: Path, dataset_hash: str, out: Path
+):
     """(stored evaluation's path, reused, seen success): from OUT/evaluations/ when an identical one is
     stored, else scored now and stored."""
-    from ocplace.eval.harness import evaluate_in_worker, jsonable, load_method
     from ocplace.eval.results import evaluation_from_json, evaluation_to_json
+    from ocplace.experiments.evaluation import evaluate_in_worker
+    from ocplace.methods.registry import load_method
     from ocplace.paths import write_text_atomic
 
     settings = run.settings(settings)
-    method = load_method(run, settings)
-    key = evaluation_key(run, jsonable(method.describe()), settings, dataset_hash)
+    method = load_method(spec, run, settings)
+    key = evaluation_key(run, serial.to_dict(method.describe()), settings, dataset_hash)
     path = out / "evaluations" / f"{run.key}-{key}.json"
     reused = path.exists()
     if reused:
         evaluation = evaluation_from_json(json.loads(path.read_text()))
     else:
-        evaluation = evaluate_in_worker(run, dataset_dir, settings, method)
+        evaluation = evaluate_in_worker(spec, run, dataset_dir, settings, method)
         write_text_atomic(path, json.dumps(evaluation_to_json(evaluation), indent=1))
     seen = evaluation.subsets.get("seen")
     return path, reused, f"seen success {sum(o.success for o in seen) / max(len(seen), 1):.1%}" if seen else ""
@@ -271,7 +273,12 @@ def evaluate_task(run: MethodRun, settings: EvalSettings, dataset_dir: Path, dat
 
 
 def task_graph(
-    config: PipelineConfig, runs: list[MethodRun], dataset_dir: Path, out: Path, dataset_hash: str
+    config: PipelineConfig,
+    specs: Mapping[str, MethodSpec],
+    runs: list[MethodRun],
+    dataset_dir: Path,
+    out: Path,
+    dataset_hash: str,
 ) -> list[Node]:
     """backbone -> each method's shared inputs -> (train method x fraction x seed) -> evaluate each run.
 
@@ -294,41 +301,39 @@ def task_graph(
 
         def make(done):
             context = train_context(run, config, dataset_dir, backbone_of(done), out)
-            return Task(function, (run.spec, context), cpus=cpus.train, fresh_process=True)
+            return Task(function, (specs[run.method], context), cpus=cpus.train, fresh_process=True)
 
         return Node(key, make, after)
 
     sharing: dict = {}  # each prepare function -> the runs of the methods whose trainings need it
     for run in runs:
-        if run.spec.prepare is not None and run.spec.train is not None:
-            sharing.setdefault(run.spec.prepare, []).append(run)
+        spec = specs[run.method]
+        if spec.prepare is not None and spec.train is not None:
+            sharing.setdefault(spec.prepare, []).append(run)
     prepare_key = {}  # method name -> the key of the node making its shared inputs, once for all who share them
     for shared in sharing.values():
-        names = list(dict.fromkeys(run.spec.name for run in shared))
+        names = list(dict.fromkeys(run.method for run in shared))
         key = f"prepare {'+'.join(names)}"
         prepare_key |= dict.fromkeys(names, key)
         nodes.append(method_node(key, prepare_task, shared[0], backbone_after))
     for run in runs:
-        if run.spec.train is not None:
-            after = backbone_after + ((prepare_key[run.spec.name],) if run.spec.name in prepare_key else ())
+        if specs[run.method].train is not None:
+            after = backbone_after + ((prepare_key[run.method],) if run.method in prepare_key else ())
             nodes.append(method_node(f"train {run.key}", train_task, run, after))
     for run in runs:
-        after = backbone_after + ((f"train {run.key}",) if run.spec.train is not None else ())
-        nodes.append(
-            Node(
-                f"evaluate {run.key}", _evaluate_maker(config, run, dataset_dir, out, dataset_hash, backbone_of), after
-            )
-        )
+        after = backbone_after + ((f"train {run.key}",) if specs[run.method].train is not None else ())
+        evaluate = _evaluate_maker(config, specs[run.method], run, dataset_dir, out, dataset_hash, backbone_of)
+        nodes.append(Node(f"evaluate {run.key}", evaluate, after))
     return nodes
 
 
-def _evaluate_maker(config, run, dataset_dir, out, dataset_hash, backbone_of):
+def _evaluate_maker(config, spec, run, dataset_dir, out, dataset_hash, backbone_of):
     def make(done):
         backbone = backbone_of(done)
         trained = done.get(f"train {run.key}")
         ready = run if trained is None else dataclasses.replace(run, run_dir=trained[0])
         settings = evaluation_settings(config, backbone)
-        return Task(evaluate_task, (ready, settings, dataset_dir, dataset_hash, out), fresh_process=True)
+        return Task(evaluate_task, (spec, ready, settings, dataset_dir, dataset_hash, out), fresh_process=True)
 
     return make
 
@@ -360,10 +365,7 @@ def run_pipeline(
     """
     from ocplace.paths import check_writable
 
-    if specs is None:
-        from ocplace.eval.registry import method_specs
-
-        specs = method_specs()
+    specs = method_specs() if specs is None else specs
     out = Path(out or config.experiment.out)
     unknown = config.experiment.evaluation.unknown_methods(specs)
     if unknown:
@@ -394,7 +396,7 @@ def _run(config, executor, out, specs, command, library) -> PipelineSummary:
         with _Timer(summary, "backbone") as step:
             step.detail = f"{config.backbone} (given)"
     dataset_hash = dataset_identity(dataset_dir)["dataset_hash"]
-    nodes = task_graph(config, runs, dataset_dir, out, dataset_hash)
+    nodes = task_graph(config, specs, runs, dataset_dir, out, dataset_hash)
     outcomes = _run_graph(summary, executor, nodes)
 
     backbone = config.backbone or f"offline:{output_dir(config.experiment.backbone)}"
@@ -403,7 +405,7 @@ def _run(config, executor, out, specs, command, library) -> PipelineSummary:
     trained_ours = [
         outcomes[f"train {run.key}"].value[0]
         for run in runs
-        if run.spec.name == "ours" and run.fraction == 1.0 and run.seed is None and outcomes[f"train {run.key}"].ok
+        if run.method == "ours" and run.fraction == 1.0 and run.seed is None and outcomes[f"train {run.key}"].ok
     ]
     if trained_ours and "seen" in config.experiment.evaluation.subsets:
         with _Timer(summary, "figure") as step:
@@ -490,6 +492,5 @@ def _error(key: str, stage: str, error: BaseException) -> dict:
 
 def _config_json(config: PipelineConfig) -> dict:
     """The experiment and its inputs; not the executor, which changes nothing in the results."""
-    from ocplace.eval.harness import jsonable
 
-    return jsonable({field: value for field, value in dataclasses.asdict(config).items() if field != "executor"})
+    return serial.to_dict({field: value for field, value in dataclasses.asdict(config).items() if field != "executor"})

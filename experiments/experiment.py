@@ -1,8 +1,9 @@
-"""What one experiment scale decides, as one tree of frozen dataclasses.
+"""What one experiment decides, as one tree of frozen dataclasses.
 
-`ocplace.configs` holds one `Experiment` per scale (smoke, demo, default); `ocplace reproduce`
+`ocplace.configs` holds one `Experiment` per file (smoke, demo, default); `ocplace reproduce`
 runs one. Every method that learns finds its training recipe here by its registered name
-(`MethodRecipes.of`); the pipeline hands it to the method through `TrainContext.recipe`.
+(`MethodRecipes.of`), typed with that method's `Recipe` (`ocplace.methods`); the pipeline hands it
+to the method through `TrainContext.recipe`.
 """
 
 from __future__ import annotations
@@ -13,14 +14,10 @@ from collections.abc import Collection
 from pathlib import Path
 
 from ocplace.errors import ConfigError, OcplaceError
+from ocplace.methods import cliport, grids, no_llm, no_pretrain, ours
 from ocplace.models.offline_recipes import PretrainConfig
 from ocplace.models.parsing.config import PARSER_NAMES
 from ocplace.runtime.width import TRAIN_CPUS
-from ocplace.train.cliport import CliportRecipe
-from ocplace.train.config import TrainConfig
-from ocplace.train.grids import GridsRecipe
-from ocplace.train.no_llm import NoLlmTrainConfig
-from ocplace.train.no_pretrain import NoPretrainRecipe
 from ocplace.vocabulary import TEST_SUBSETS
 
 
@@ -75,11 +72,11 @@ def refuse_run_keys(keys: Collection[str]) -> None:
 class MethodRecipes:
     """The training configuration of each method that learns, keyed by its registered name."""
 
-    ours: TrainConfig
-    no_llm: NoLlmTrainConfig
-    no_pretrain: NoPretrainRecipe
-    grids: GridsRecipe
-    cliport: CliportRecipe
+    ours: ours.Recipe
+    no_llm: no_llm.Recipe
+    no_pretrain: no_pretrain.Recipe
+    grids: grids.Recipe
+    cliport: cliport.Recipe
 
     def of(self, method: str):
         """The recipe of a registered method; None for a method without one (it learns nothing)."""
@@ -170,7 +167,7 @@ class TaskCpus:
 
 @dataclasses.dataclass(frozen=True)
 class Experiment:
-    name: str  # recorded in results.json (EvalSettings.scale) and in baseline run metadata
+    name: str  # recorded in results.json (EvalSettings.experiment) and in baseline run metadata (`scale`)
     out: Path  # `ocplace reproduce`'s output folder unless --out is given
     seed: int  # training and evaluation
     dataset: DatasetSizes
@@ -193,7 +190,7 @@ class Experiment:
         if problems:
             raise ConfigError(
                 f"experiment {self.name!r} cannot run: {'; '.join(problems)}. Change the value with "
-                "--set KEY=VALUE, or in the scale's file in ocplace/configs"
+                "--set KEY=VALUE, or in the experiment's file in ocplace/configs"
             )
 
 

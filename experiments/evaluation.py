@@ -1,0 +1,111 @@
+"""Registered methods scored as executor tasks (`ocplace evaluate`), and reruns of a results file.
+
+Each task loads its method (`ocplace.methods`) in the worker and scores it with the harness
+(`ocplace.eval.harness`), so the harness itself only scores.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+from ocplace.eval.api import Method
+from ocplace.eval.harness import EvalSettings, Evaluation, MethodRun, evaluate_in_own_arena, evaluate_run
+from ocplace.eval.results import ResultsError, build_results, dataset_identity, settings_of
+from ocplace.methods import registry
+from ocplace.methods.api import MethodSpec
+from ocplace.methods.registry import load_method, method_run
+
+
+def evaluate_in_worker(
+    spec: MethodSpec, run: MethodRun, dataset_dir: str | Path, settings: EvalSettings, method: Method | None = None
+) -> Evaluation:
+    """`run` loaded by `spec` (unless `method` is given) and scored, with its own physical arena."""
+    method = method or load_method(spec, run, settings)
+    return evaluate_in_own_arena(run, method, dataset_dir, settings)
+
+
+def evaluate_runs(
+    specs: Mapping[str, MethodSpec],
+    runs: Sequence[MethodRun],
+    dataset_dir: str | Path,
+    settings: EvalSettings,
+    executor,
+    progress: bool = True,
+) -> list[Evaluation]:
+    """Every run scored as one task of `executor` (a fresh process each, JAX one CPU wide); in `runs` order.
+    `specs` holds the spec of each run's method."""
+    from ocplace.runtime import Task, map_tasks
+
+    tasks = [
+        Task(evaluate_in_worker, (specs[run.method], run, dataset_dir, settings), fresh_process=True) for run in runs
+    ]
+    evaluations: list[Evaluation | None] = [None] * len(runs)
+    for index, evaluation in map_tasks(executor, tasks):
+        evaluations[index] = evaluation
+        if progress:
+            print(f"evaluated {runs[index].key} in {evaluation.wall_s:.1f} s", flush=True)
+    return evaluations
+
+
+def runs_of(results: Mapping, specs: Mapping[str, MethodSpec] | None = None) -> list[MethodRun]:
+    """The method runs a results file evaluated, looked up in `specs` (default: the registry)."""
+    specs = registry.method_specs() if specs is None else specs
+    runs = []
+    for entry in results["evaluations"]:
+        if entry["method"] not in specs:
+            raise ResultsError(
+                f"method {entry['method']!r} of the results is not registered here "
+                f"(registered: {', '.join(specs) or 'none'})"
+            )
+        run_dir = None if entry.get("run_dir") is None else Path(entry["run_dir"])
+        if run_dir is not None and not run_dir.exists():
+            raise ResultsError(
+                f"run directory {run_dir} of {entry['key']!r} is gone; train it again with the "
+                "same settings (runs are deterministic) or restore it"
+                + (
+                    ""
+                    if run_dir.is_absolute()
+                    else " (results written before run directories were stored absolute name them from the "
+                    "folder `ocplace reproduce` or `evaluate` ran in: rerun from that folder)"
+                )
+            )
+        runs.append(method_run(specs[entry["method"]], run_dir, entry["fraction"], entry.get("seed")))
+    return runs
+
+
+def rerun(
+    results: Mapping,
+    specs: Mapping[str, MethodSpec] | None = None,
+    arena=None,
+    progress: bool = True,
+    command=None,
+    executor=None,
+) -> dict:
+    """Evaluates again every run of `results` with its settings, on its dataset; returns the new results.
+
+    With `executor`, each run is a task as in `ocplace evaluate` and `reproduce` (JAX one CPU wide);
+    without, the runs are scored in this process with `arena`.
+    """
+    if results.get("summary"):
+        raise ResultsError(
+            "these results are a summary without per-scene outcomes; rerun from the full results.json it was made from"
+        )
+    dataset_dir = Path(results["dataset"]["dir"])
+    identity = dataset_identity(dataset_dir)
+    if identity["manifest_hash"] != results["dataset"]["manifest_hash"]:
+        raise ResultsError(
+            f"the dataset in {dataset_dir} changed since the evaluation (manifest hash "
+            f"{identity['manifest_hash'][:16]} != {results['dataset']['manifest_hash'][:16]})"
+        )
+    specs = registry.method_specs() if specs is None else specs
+    settings = settings_of(results)
+    runs = runs_of(results, specs)
+    if executor is not None:
+        fresh = evaluate_runs(specs, runs, dataset_dir, settings, executor, progress)
+    else:
+        fresh = [
+            evaluate_run(run, load_method(specs[run.method], run, settings), dataset_dir, settings, arena, progress)
+            for run in runs
+        ]
+    return build_results(fresh, dataset_dir, settings, command)

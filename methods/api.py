@@ -1,0 +1,51 @@
+"""How a method of Table I trains and loads: one contract for every row.
+
+A method is registered as a `MethodSpec`: how to train it (if it learns anything) and how to load a
+trained run into an `ocplace.eval.api.Method`, which the harness scores. Training takes a
+`TrainContext` holding the method's own recipe type, and returns the run directory.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from pathlib import Path
+from typing import Generic, TypeVar
+
+from ocplace.eval.api import Method
+
+Recipe = TypeVar("Recipe")
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainContext(Generic[Recipe]):
+    """Everything a method's training needs; `out_dir` is its run directory (resumable)."""
+
+    dataset_dir: Path
+    backbone: str  # backbone spec, e.g. "offline" or "clip:/path"
+    out_dir: Path
+    recipe: Recipe  # the method's own training config (`Experiment.recipes.of(name)`); fraction and seed apart
+    fraction: float = 1.0  # share of the training split (seeded subsets, nested)
+    seed: int = 0
+    experiment: str = "default"  # the experiment's name, recorded in run metadata; decides nothing
+
+
+@dataclasses.dataclass(frozen=True)
+class LoadContext:
+    """Everything needed to turn a run directory into a `Method`."""
+
+    run_dir: Path | None  # None for methods that learn nothing
+    backbone: str
+    parser: str = "offline"  # parser name for methods that parse (models.parsing.make_parser)
+    num_samples: int = 1024
+
+
+@dataclasses.dataclass(frozen=True)
+class MethodSpec(Generic[Recipe]):
+    name: str  # command-line key, e.g. "ours", "no_adapter", "no_llm", "no_pretrain", "grids", "cliport"
+    label: str  # the row of Table I, e.g. "Ours w/o Adapter"
+    load: Callable[[LoadContext], Method]
+    train: Callable[[TrainContext[Recipe]], Path] | None = None  # returns the run directory; None: learns nothing
+    # Makes the cached inputs that all of this method's trainings read (e.g. the training split's features)
+    # once, before those trainings run side by side; None: nothing shared to make.
+    prepare: Callable[[TrainContext[Recipe]], object] | None = None

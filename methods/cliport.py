@@ -1,0 +1,91 @@
+"""Table I row "CLIPort-Place" (docs/baselines.md): an affordance map over the table's pixels from the
+image and the instruction; its argmax pixel is the placement, samples are drawn from it."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+from pathlib import Path
+
+import jax
+import numpy as np
+
+from ocplace import serial
+from ocplace.errors import OcplaceError
+from ocplace.eval.api import MethodOutput
+from ocplace.methods.api import LoadContext, MethodSpec, TrainContext
+from ocplace.methods.trained_baseline import describe_baseline, failure_output, load_checked_backbone, train_baseline
+from ocplace.models.baselines import cliport
+from ocplace.models.baselines.common import top_down_camera
+from ocplace.sim.dataset.records import SceneRecord
+from ocplace.train.cliport import CliportRecipe as Recipe
+
+SCENES_PER_BATCH = 8  # CLIPort scenes per network call (a fixed shape: one compilation)
+
+
+@dataclasses.dataclass
+class CliportMethod:
+    """The argmax pixel of the affordance map as the mode; samples drawn from the map."""
+
+    backbone: object
+    params: dict
+    config: cliport.CliportConfig
+    run_meta: dict
+    weights_sha256: str
+    num_samples: int
+    name: str = "cliport"
+
+    def describe(self) -> dict:
+        return describe_baseline(self.name, self.run_meta, self.weights_sha256, self.backbone, self.num_samples)
+
+    def distributions(self, scenes: Sequence[SceneRecord]) -> np.ndarray:
+        """`(num_scenes, h * w)` pixel distributions (each sums to 1 over the table's pixels)."""
+        out = []
+        for start in range(0, len(scenes), SCENES_PER_BATCH):
+            batch = list(scenes[start : start + SCENES_PER_BATCH])
+            cameras = [top_down_camera(scene) for scene in batch]
+            images = [cliport.prepare_image(s.rgb, s.depth, c, self.config) for s, c in zip(batch, cameras)]
+            text = self.backbone.encode_texts([scene.instruction for scene in batch])
+            pad = SCENES_PER_BATCH - len(batch)
+            rgb = np.stack([i[0] for i in images] + [np.zeros_like(images[0][0])] * pad)
+            height = np.stack([i[1] for i in images] + [np.zeros_like(images[0][1])] * pad)
+            text = np.concatenate([text, np.zeros((pad, text.shape[1]), text.dtype)])
+            mask = np.stack([cliport.table_mask(camera, self.config) for camera in cameras + cameras[:1] * pad])
+            probabilities = cliport.jit_distribution(self.config, self.params, rgb, height, text, mask)
+            out.append(np.asarray(probabilities)[: len(batch)])
+        return np.concatenate(out) if out else np.zeros((0, self.config.num_pixels), np.float32)
+
+    def run(self, scenes: Sequence[SceneRecord], key) -> list[MethodOutput]:
+        try:
+            distributions = self.distributions(scenes)
+        except OcplaceError as error:
+            return [failure_output(error) for _ in scenes]
+        outputs = []
+        for scene, probabilities, scene_key in zip(scenes, distributions, jax.random.split(key, len(scenes))):
+            mode, samples = cliport.mode_and_samples(
+                scene_key, probabilities, self.num_samples, top_down_camera(scene), self.config
+            )
+            outputs.append(MethodOutput(mode=mode, samples=samples, parsed=None, grounded=None))
+        return outputs
+
+
+def train(context: TrainContext[Recipe]) -> Path:
+    from ocplace.train.cliport import train_cliport
+
+    return train_baseline(train_cliport, context)
+
+
+def load(context: LoadContext) -> CliportMethod:
+    params, run_meta, sha = cliport.load_params(context.run_dir)
+    config = serial.from_dict(cliport.CliportConfig, run_meta["network"])
+    return CliportMethod(
+        load_checked_backbone(context.backbone, run_meta, "CLIPort-Place"),
+        params,
+        config,
+        run_meta,
+        sha,
+        context.num_samples,
+    )
+
+
+SPEC: MethodSpec[Recipe] = MethodSpec("cliport", "CLIPort-Place", load=load, train=train)

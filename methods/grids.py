@@ -1,0 +1,112 @@
+"""Table I row "Raw Image Grids" (docs/baselines.md): the table cut into cells, the cell most similar to the
+parsed tuples chosen, a collision-free point sampled inside it."""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+from collections.abc import Sequence
+from pathlib import Path
+
+import jax
+import numpy as np
+
+from ocplace import serial
+from ocplace.errors import OcplaceError
+from ocplace.eval.api import MethodOutput
+from ocplace.methods.api import LoadContext, MethodSpec, TrainContext
+from ocplace.methods.trained_baseline import describe_baseline, failure_output, load_checked_backbone, train_baseline
+from ocplace.models.baselines import grids
+from ocplace.models.baselines.common import free_grid, top_down_camera
+from ocplace.models.parsing.types import as_pairs, parse_note
+from ocplace.paths import atomic_path, baselines_cache
+from ocplace.sim.dataset.records import SceneRecord
+from ocplace.train.grids import GridsRecipe as Recipe
+
+
+@dataclasses.dataclass
+class GridsMethod:
+    """Chooses the cell most similar to all tuple texts and samples a collision-free point inside it."""
+
+    backbone: object
+    parser: object
+    params: dict
+    config: grids.GridConfig
+    run_meta: dict
+    weights_sha256: str
+    num_samples: int
+    cells_cache: Path | None = None  # encoded cells per image, by content: evaluations of several runs share them
+    name: str = "grids"
+
+    def describe(self) -> dict:
+        return describe_baseline(
+            self.name, self.run_meta, self.weights_sha256, self.backbone, self.num_samples, self.parser
+        )
+
+    def run(self, scenes: Sequence[SceneRecord], key) -> list[MethodOutput]:
+        return [self._place(scene, scene_key) for scene, scene_key in zip(scenes, jax.random.split(key, len(scenes)))]
+
+    def chosen_cell(self, scene: SceneRecord, parsed: Sequence[tuple[str, str]]) -> tuple[int, np.ndarray]:
+        """`(cell, logits (num_cells,))` for one scene and its parse."""
+        cells = self.encoded_cells(scene)
+        text = self.backbone.encode_texts([grids.tuple_text(reference, relation) for reference, relation in parsed])
+        logits = np.asarray(
+            grids.jit_grid_logits(
+                self.config, self.params, cells, text, np.ones(len(text), bool), float(self.run_meta["logit_scale"])
+            )
+        )
+        return int(np.argmax(logits)), logits
+
+    def encoded_cells(self, scene: SceneRecord) -> np.ndarray:
+        """`(num_cells, D)` backbone features of the scene's cells, read from `cells_cache` when there."""
+
+        def encode():
+            crops = grids.cell_crops(scene.rgb, top_down_camera(scene), self.config)
+            return np.asarray(self.backbone.encode_images(crops))
+
+        if self.cells_cache is None:
+            return encode()
+        # The raw camera JSON, so that cells cached before stay found.
+        image_key = scene.rgb.tobytes() + json.dumps(scene.meta["camera"], sort_keys=True).encode()
+        path = self.cells_cache / f"{hashlib.sha256(image_key).hexdigest()[:32]}.npy"
+        try:
+            return np.load(path)
+        except (OSError, ValueError):  # not cached yet, or a damaged file: encode (again)
+            cells = encode()
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with atomic_path(path) as tmp, open(tmp, "wb") as file:
+            np.save(file, cells)
+        return cells
+
+    def _place(self, scene: SceneRecord, key) -> MethodOutput:
+        try:
+            tuples = self.parser.parse(scene.instruction)
+            parsed = tuple(as_pairs(tuples))
+            cell, _ = self.chosen_cell(scene, parsed)
+            samples, mode, _ = grids.sample_in_cell(key, free_grid(scene), cell, self.num_samples, self.config)
+        except OcplaceError as error:
+            return failure_output(error)
+        return MethodOutput(mode=mode, samples=samples, parsed=parsed, grounded=None, parse_note=parse_note(tuples))
+
+
+def train(context: TrainContext[Recipe]) -> Path:
+    from ocplace.train.grids import train_grids
+
+    return train_baseline(train_grids, context)
+
+
+def load(context: LoadContext) -> GridsMethod:
+    from ocplace.models.parsing import make_parser
+
+    params, run_meta, sha = grids.load_params(context.run_dir)
+    config = serial.from_dict(grids.GridConfig, run_meta["grid"])
+    backbone = load_checked_backbone(context.backbone, run_meta, "Raw Image Grids")
+    grid_key = hashlib.sha256(serial.to_json(config).encode()).hexdigest()[:12]
+    cells_cache = baselines_cache() / f"test-cells-{backbone.fingerprint[:16]}-{grid_key}"
+    return GridsMethod(
+        backbone, make_parser(context.parser), params, config, run_meta, sha, context.num_samples, cells_cache
+    )
+
+
+SPEC: MethodSpec[Recipe] = MethodSpec("grids", "Raw Image Grids", load=load, train=train)

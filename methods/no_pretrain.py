@@ -1,0 +1,57 @@
+"""Table I row "Ours w/o CLIP pre-train" (`models/no_pretrain.py`, `train/no_pretrain.py`).
+
+The offline backbone's architecture at random initialisation, trained with the adapters on the
+training split; at test time it is Ours' policy (parser, grounding, sampler) on that tower and those
+adapters.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+from ocplace.methods.api import LoadContext, MethodSpec, TrainContext
+from ocplace.methods.policy_method import PolicyMethod, describe_policy, trained_run_weights
+from ocplace.paths import read_run_file
+from ocplace.train.no_pretrain import NoPretrainRecipe as Recipe
+
+
+def train(ctx: TrainContext[Recipe]) -> Path:
+    """Train the tower and adapters from random weights (`ctx.backbone` is not used: nothing is pretrained)."""
+    from ocplace.train import no_pretrain
+
+    train = dataclasses.replace(ctx.recipe.train, fraction=ctx.fraction, seed=ctx.seed)
+    recipe = dataclasses.replace(ctx.recipe, train=train)
+    return no_pretrain.train_no_pretrain(Path(ctx.dataset_dir), Path(ctx.out_dir), recipe, progress=False)
+
+
+@dataclasses.dataclass
+class NoPretrainMethod(PolicyMethod):
+    run_dir: Path | None = None
+
+    def describe(self) -> dict:
+        described = describe_policy(self.policy, self.name, self.backbone_spec, self.adapters_file)
+        from ocplace.models.no_llm import params_sha256
+
+        described["from_scratch"] = read_run_file(self.run_dir)
+        described["backbone"]["weights_sha256"] = params_sha256(self.policy.backbone.params)
+        described["adapters"]["weights_sha256"] = params_sha256(self.policy.grounding.params)
+        return described
+
+
+def load(ctx: LoadContext) -> NoPretrainMethod:
+    from ocplace.models.no_pretrain import BACKBONE_DIR
+    from ocplace.models.offline_backbone import load_saved_backbone
+    from ocplace.models.placement.sampler import SamplerConfig
+    from ocplace.models.policy import PlacementPolicy
+
+    adapters_file = trained_run_weights(ctx.run_dir, "tower and adapters", "no_pretrain")
+    run_dir = Path(ctx.run_dir)
+    backbone = load_saved_backbone(run_dir / BACKBONE_DIR)
+    policy = PlacementPolicy.from_run(
+        backbone, adapters_file, parser=ctx.parser, sampler=SamplerConfig(num_samples=ctx.num_samples)
+    )
+    return NoPretrainMethod("no_pretrain", policy, f"offline:{run_dir / BACKBONE_DIR}", adapters_file, run_dir)
+
+
+SPEC: MethodSpec[Recipe] = MethodSpec("no_pretrain", "Ours w/o CLIP pre-train", load=load, train=train)

@@ -1,0 +1,57 @@
+"""What the two competing approaches of Table I share (docs/baselines.md): the backbone check of a trained
+run, failures, descriptions and training from a context.
+
+Both read only what eval/api.py allows: RGB-D, the record's boxes with the AABBs of those objects,
+the camera, the instruction and the held object's footprint; never the tuples or the oracle.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ocplace.errors import TrainingError
+from ocplace.eval.api import MethodOutput
+from ocplace.methods.api import TrainContext
+
+
+def load_checked_backbone(spec: str, run_meta: dict, name: str):
+    from ocplace.models.backbone import load_backbone
+
+    backbone = load_backbone(spec)
+    if backbone.fingerprint != run_meta["backbone_fingerprint"]:
+        raise TrainingError(
+            f"the {name} run was trained with another backbone (fingerprint "
+            f"{run_meta['backbone_fingerprint'][:12]}, loaded {backbone.fingerprint[:12]}); "
+            "evaluate with the backbone it was trained with, or retrain"
+        )
+    return backbone
+
+
+def failure_output(error: Exception) -> MethodOutput:
+    return MethodOutput(mode=None, samples=None, failure=f"{type(error).__name__}: {error}")
+
+
+def describe_baseline(name: str, run_meta: dict, weights_sha256: str, backbone, num_samples: int, parser=None) -> dict:
+    """What decides a trained baseline's placements: its run, weights, backbone, parser (if any), sample count."""
+    described = {
+        "method": name,
+        "run": run_meta,
+        "weights_sha256": weights_sha256,
+        "backbone_fingerprint": backbone.fingerprint,
+    }
+    if parser is not None:
+        described["parser"] = parser.name
+    return {**described, "num_samples": num_samples}
+
+
+def train_baseline(train, context: TrainContext) -> Path:
+    """`train` (`train.grids.train_grids` or `train.cliport.train_cliport`) on the context's fields."""
+    return train(
+        context.dataset_dir,
+        context.backbone,
+        context.out_dir,
+        context.recipe,
+        context.fraction,
+        context.seed,
+        experiment=context.experiment,
+    )

@@ -1,0 +1,138 @@
+"""CLI: `ocplace reproduce` (one experiment end to end) and `ocplace figures` (the paper's figures of its results)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from ocplace.cli.evaluate import command_record, physical_setting
+from ocplace.cli.executor_options import add_executor_arguments, executor_config
+from ocplace.cli.options import DeprecatedAlias, add_dataset_argument
+from ocplace.vocabulary import EXPERIMENT_NAMES
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    reproduce = subparsers.add_parser(
+        "reproduce",
+        help="the whole pipeline: library, dataset, backbone, training, evaluation, tables",
+        description="Builds the object library, generates the dataset, pretrains the offline backbone, "
+        "trains every registered method (and, in the default experiment, the data fractions), "
+        "evaluates them and writes results.json, results.md and the paper's figures (OUT/figures). "
+        "Every step skips what is already done: rerun to resume.",
+    )
+    reproduce.add_argument(
+        "--experiment", choices=EXPERIMENT_NAMES, default="demo", help="which experiment (ocplace/configs) to run"
+    )
+    reproduce.add_argument(
+        "--scale", dest="experiment", choices=EXPERIMENT_NAMES, action=DeprecatedAlias, instead="--experiment"
+    )
+    reproduce.add_argument("--out", type=Path, help="output folder (default: out/demo, out/reproduce, out/smoke)")
+    reproduce.add_argument("--backbone", help="use this backbone spec instead of pretraining the offline one")
+    reproduce.add_argument(
+        "--methods",
+        help="comma-separated method names, or `all` (default: the experiment's: "
+        "every method; in the demo experiment Ours and its ablations)",
+    )
+    reproduce.add_argument(
+        "--seeds",
+        type=int,
+        metavar="N",
+        help="train and evaluate every run with N seeds; Table I shows mean and spread (default: the experiment's, 1)",
+    )
+    add_dataset_argument(reproduce, "dataset folder to use, or to generate into (default: OUT/dataset)")
+    reproduce.add_argument(
+        "--fractions",
+        type=_fraction,
+        nargs="+",
+        metavar="F",
+        help="training-set fractions of the sample-efficiency study (default: the experiment's)",
+    )
+    reproduce.add_argument(
+        "--physical",
+        type=int,
+        default=None,
+        metavar="K",
+        help="physical check on the first K scenes per subset (default: the experiment's)",
+    )
+    reproduce.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="set any setting of the experiment (ocplace.configs), applied after the other options; KEY is a "
+        "dotted path such as recipes.ours.steps or dataset.train_scenes, an unknown one lists the valid keys "
+        "(repeatable; see docs/evaluation.md)",
+    )
+    reproduce.add_argument("--no-progress", action="store_true")
+    add_executor_arguments(
+        reproduce, "objects, scenes, the pretraining, each training and each evaluation are tasks of one graph"
+    )
+    reproduce.set_defaults(func=_reproduce)
+
+    figures = subparsers.add_parser(
+        "figures",
+        help="the paper's Fig. 5, 6 and 7 from a results JSON",
+        description="Draws Fig. 5 (placement densities on the first `seen` scene), Fig. 6 (each method's "
+        "placement in chosen test scenes; needs Ours and CLIPort-Place evaluated) and Fig. 7 "
+        "(sample efficiency; needs several training fractions) as PNGs.",
+    )
+    figures.add_argument("results", type=Path, help="results JSON of `ocplace evaluate` or `ocplace reproduce`")
+    add_dataset_argument(figures, "the evaluated dataset (default: the one the results name)")
+    figures.add_argument("--out", type=Path, default=Path("figures"), help="output folder (default: ./figures)")
+    figures.add_argument("--seed", type=int, default=0, help="seed of Fig. 5's relations and samples")
+    figures.set_defaults(func=_figures)
+
+
+def _fraction(text: str) -> float:
+    value = float(text)
+    if not 0.0 < value <= 1.0:
+        raise argparse.ArgumentTypeError(f"a training-set fraction lies in (0, 1], got {text}")
+    return value
+
+
+def _reproduce(args: argparse.Namespace) -> int:
+    import dataclasses
+
+    from ocplace import configs
+    from ocplace.cli.options import apply_overrides
+    from ocplace.errors import ConfigError
+    from ocplace.experiments.experiment import refuse_run_keys
+    from ocplace.experiments.pipeline import PipelineConfig, run_pipeline
+
+    experiment = configs.get(args.experiment)
+    plan, sizes = experiment.evaluation, experiment.dataset
+    if args.methods == "all":
+        plan = dataclasses.replace(plan, methods=None)
+    elif args.methods:
+        plan = dataclasses.replace(plan, methods=tuple(n.strip() for n in args.methods.split(",") if n.strip()))
+    if args.fractions:
+        plan = dataclasses.replace(plan, fractions=tuple(sorted(set(args.fractions))))
+    if args.seeds is not None:
+        if args.seeds < 1:
+            raise ConfigError(f"--seeds must be at least 1, got {args.seeds}")
+        plan = dataclasses.replace(plan, seeds=args.seeds)
+    if args.physical is not None:
+        sizes = dataclasses.replace(sizes, physical_scenes=physical_setting(args.physical, sizes.physical_scenes))
+    refuse_run_keys([item.partition("=")[0].strip() for item in args.overrides])
+    experiment = apply_overrides(dataclasses.replace(experiment, evaluation=plan, dataset=sizes), args.overrides)
+    config = PipelineConfig(
+        experiment,
+        backbone=args.backbone or None,
+        dataset=args.dataset,
+        executor=executor_config(args),
+        progress=not args.no_progress,
+    )
+    summary = run_pipeline(config, args.out or experiment.out, command=command_record(args))
+    print(summary.markdown)
+    print(summary.report())
+    return 1 if summary.errors else 0
+
+
+def _figures(args: argparse.Namespace) -> int:
+    from ocplace.eval.figures import write_figures
+    from ocplace.eval.results import read_results
+
+    for path in write_figures(read_results(args.results), args.out, args.dataset, args.seed):
+        print(f"wrote {path}")
+    return 0
