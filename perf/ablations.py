@@ -38,7 +38,7 @@ def time_no_llm(experiment: str, dim: int, steps: int, num_scenes: int) -> dict:
     }
     model_config = config.model_config(dim)
     params = no_llm.init_params(model_config, jax.random.key(0))
-    state = (params, no_llm.optax.adam(no_llm.learning_rate_schedule(config)).init(params))
+    state = (params, no_llm.make_optimizer(config).init(params))
     data = jax.device_put(arrays)
 
     def run(count, start):

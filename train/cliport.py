@@ -51,18 +51,18 @@ def target_pixels(record, num_targets: int, seed: int, config: cliport.CliportCo
 
 
 def scene_arrays(
-    dataset_dir: Path, split: str, recipe_: CliportRecipe, backbone: Backbone, progress: bool
+    dataset_dir: Path, split: str, recipe: CliportRecipe, backbone: Backbone, progress: bool
 ) -> tuple[dict[str, np.ndarray], list[str]]:
     from tqdm import tqdm
 
-    config = recipe_.network
+    config = recipe.network
     rgbs, heights, targets, instructions, ids = [], [], [], [], []
     for scene in tqdm(listed_scenes(dataset_dir, split), desc="cliport data", unit="scene", disable=not progress):
         record = scene.read()
         rgb, height = cliport.prepare_image(record.rgb, record.depth, top_down_camera(record), config)
         rgbs.append(rgb)
         heights.append(height)
-        targets.append(target_pixels(record, recipe_.num_targets, 0, config))
+        targets.append(target_pixels(record, recipe.num_targets, 0, config))
         instructions.append(record.instruction)
         ids.append(record.id)
     arrays = {
@@ -75,7 +75,7 @@ def scene_arrays(
 
 
 def training_data(
-    dataset_dir: Path, backbone: Backbone, recipe_: CliportRecipe, split: str = "train", progress: bool = True
+    dataset_dir: Path, backbone: Backbone, recipe: CliportRecipe, split: str = "train", progress: bool = True
 ) -> tuple[dict[str, np.ndarray], str]:
     """`(arrays, key)` of the split, from the cache (built on first use); arrays as in DATA_ARRAYS."""
     from safetensors import safe_open
@@ -86,7 +86,7 @@ def training_data(
     digest = dataset_hash(dataset_dir, split)
     key = hashlib.sha256(
         json.dumps(
-            [CACHE_FORMAT, digest, backbone.fingerprint, serial.to_json(recipe_.network), recipe_.num_targets]
+            [CACHE_FORMAT, digest, backbone.fingerprint, serial.to_json(recipe.network), recipe.num_targets]
         ).encode()
     ).hexdigest()
     path = baselines_cache() / f"cliport-{digest[:16]}-{split}-{key[:16]}.safetensors"
@@ -94,7 +94,7 @@ def training_data(
         with safe_open(str(path), framework="numpy") as handle:
             if (handle.metadata() or {}).get("key") == key:
                 return load_file(str(path)), key
-    arrays, ids = scene_arrays(Path(dataset_dir), split, recipe_, backbone, progress)
+    arrays, ids = scene_arrays(Path(dataset_dir), split, recipe, backbone, progress)
     with atomic_path(path) as tmp:
         save_file(arrays, str(tmp), metadata={"key": key, "scenes": json.dumps(ids)})
     return arrays, key
@@ -130,7 +130,7 @@ def train_cliport(
     dataset_dir: Path,
     backbone_spec: str,
     out_dir: Path,
-    chosen: CliportRecipe,
+    recipe: CliportRecipe,
     fraction: float = 1.0,
     seed: int = 0,
     progress: bool = True,
@@ -145,9 +145,9 @@ def train_cliport(
     out_dir = Path(out_dir)
     if baseline_runs.is_finished(out_dir):
         return out_dir
-    config = chosen.network
+    config = recipe.network
     backbone = load_backbone(backbone_spec)
-    arrays, data_key = training_data(Path(dataset_dir), backbone, chosen, progress=progress)
+    arrays, data_key = training_data(Path(dataset_dir), backbone, recipe, progress=progress)
     num_scenes = len(arrays["rgb"])
     subset = subset_indices(num_scenes, fraction, 0)
     camera = top_down_camera(listed_scenes(dataset_dir, "train")[0].read())
@@ -157,8 +157,8 @@ def train_cliport(
         "fraction": fraction,
         "seed": seed,
         "network": serial.to_dict(config),
-        "schedule": dataclasses.asdict(chosen.schedule),
-        "num_targets": chosen.num_targets,
+        "schedule": dataclasses.asdict(recipe.schedule),
+        "num_targets": recipe.num_targets,
         "data_key": data_key,
         "dim": int(backbone.dim),
         "backbone_fingerprint": backbone.fingerprint,
@@ -173,9 +173,9 @@ def train_cliport(
     mask = jnp.asarray(cliport.table_mask(camera, config))
 
     def chunk(state, start, count):
-        indices = batch_indices(len(subset), seed, start, count, chosen.schedule.batch_size)
+        indices = batch_indices(len(subset), seed, start, count, recipe.schedule.batch_size)
         keys = baseline_runs.step_keys(seed, start, count)
-        return train_chunk(config, chosen.schedule, state, data, mask, jnp.asarray(indices), keys)
+        return train_chunk(config, recipe.schedule, state, data, mask, jnp.asarray(indices), keys)
 
-    baseline_runs.train(out_dir, run_meta, init_params, chunk, chosen.schedule, progress, "cliport")
+    baseline_runs.train(out_dir, run_meta, init_params, chunk, recipe.schedule, progress, "cliport")
     return out_dir

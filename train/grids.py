@@ -105,7 +105,7 @@ def train_grids(
     dataset_dir: Path,
     backbone_spec: str,
     out_dir: Path,
-    chosen: GridsRecipe,
+    recipe: GridsRecipe,
     fraction: float = 1.0,
     seed: int = 0,
     progress: bool = True,
@@ -121,7 +121,7 @@ def train_grids(
     if baseline_runs.is_finished(out_dir):
         return out_dir
     backbone = load_backbone(backbone_spec)
-    features = cell_features(Path(dataset_dir), backbone, chosen.grid, progress=progress)
+    features = cell_features(Path(dataset_dir), backbone, recipe.grid, progress=progress)
     subset = features.subset(subset_indices(features.num_scenes, fraction, 0))
     logit_scale = float(features.info.logit_scale)
     run_meta = {
@@ -129,8 +129,8 @@ def train_grids(
         "scale": experiment,
         "fraction": fraction,
         "seed": seed,
-        "grid": serial.to_dict(chosen.grid),
-        "schedule": dataclasses.asdict(chosen.schedule),
+        "grid": serial.to_dict(recipe.grid),
+        "schedule": dataclasses.asdict(recipe.schedule),
         "features_key": features.info.key,
         "backbone_fingerprint": backbone.fingerprint,
         "logit_scale": logit_scale,
@@ -138,13 +138,13 @@ def train_grids(
     }
 
     def init_params():
-        return grids.init_grids(chosen.grid, features.dim, jax.random.key(seed))
+        return grids.init_grids(recipe.grid, features.dim, jax.random.key(seed))
 
-    data = jax.device_put(training_arrays(subset, chosen.grid))
+    data = jax.device_put(training_arrays(subset, recipe.grid))
 
     def chunk(state, start, count):
-        indices = batch_indices(subset.num_scenes, seed, start, count, chosen.schedule.batch_size)
-        return train_chunk(chosen.grid, chosen.schedule, logit_scale, state, data, jnp.asarray(indices))
+        indices = batch_indices(subset.num_scenes, seed, start, count, recipe.schedule.batch_size)
+        return train_chunk(recipe.grid, recipe.schedule, logit_scale, state, data, jnp.asarray(indices))
 
-    baseline_runs.train(out_dir, run_meta, init_params, chunk, chosen.schedule, progress, "grids")
+    baseline_runs.train(out_dir, run_meta, init_params, chunk, recipe.schedule, progress, "grids")
     return out_dir

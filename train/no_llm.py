@@ -150,6 +150,11 @@ def learning_rate_schedule(config: NoLlmTrainConfig) -> optax.Schedule:
     return optim.warmup_cosine(config.learning_rate, config.warmup_steps, config.steps)
 
 
+def make_optimizer(config: NoLlmTrainConfig) -> optax.GradientTransformation:
+    """`train/optim.py`'s Adam, as Ours' (faster than optax's at no_llm's batch too: docs/performance.md)."""
+    return optim.adam(learning_rate_schedule(config))
+
+
 def train_step(model_config: NoLlmConfig, config: NoLlmTrainConfig, logit_scale: float, state, data, indices):
     """One Adam step on the scenes `indices` `(B,)`; returns `(state, (loss, reference, relation))`."""
 
@@ -160,7 +165,7 @@ def train_step(model_config: NoLlmConfig, config: NoLlmTrainConfig, logit_scale:
     params, opt_state = state
     batch = {name: array[indices] for name, array in data.items()}
     (loss, parts), grads = jax.value_and_grad(loss_fn, has_aux=True)(params, batch)
-    updates, opt_state = optax.adam(learning_rate_schedule(config)).update(grads, opt_state, params)
+    updates, opt_state = make_optimizer(config).update(grads, opt_state, params)
     return (optax.apply_updates(params, updates), opt_state), (loss, *parts)
 
 
@@ -193,7 +198,7 @@ def train_on_arrays(
 
     def init_state():
         params = init_params(model_config, jax.random.key(config.seed))
-        return params, optax.adam(schedule).init(params)
+        return params, make_optimizer(config).init(params)
 
     def chunk(state, start: int, count: int):
         indices = batch_indices(num_scenes, config.seed, start, count, config.batch_size)
@@ -231,16 +236,16 @@ def train_on_arrays(
 
 
 def train_no_llm(
-    dataset_dir: Path, backbone: Backbone, run_dir: Path, config: NoLlmTrainConfig, progress: bool = True
+    dataset_dir: Path, backbone: Backbone, run_dir: Path, recipe: NoLlmTrainConfig, progress: bool = True
 ) -> Path:
     """Featurizes the train split (cached), trains, writes `run_dir/WEIGHTS_FILE`; a finished run is kept."""
     run_dir = Path(run_dir)
     features = load_features(featurize_split(dataset_dir, "train", backbone, progress=progress), backbone.fingerprint)
-    sentences = split_sentences(dataset_dir, "train", backbone, config.model_config(backbone.dim))
-    chosen = subset_indices(features.num_scenes, config.fraction, config.subset_seed)
+    sentences = split_sentences(dataset_dir, "train", backbone, recipe.model_config(backbone.dim))
+    chosen = subset_indices(features.num_scenes, recipe.fraction, recipe.subset_seed)
     arrays = {name: array[chosen] for name, array in training_arrays(features, sentences).items()}
     run_meta = {
-        "train_config": serial.to_dict(config),
+        "train_config": serial.to_dict(recipe),
         "features_key": features.info.key,
         "sentences_key": sentences.key,
         "backbone_fingerprint": backbone.fingerprint,
@@ -250,7 +255,7 @@ def train_no_llm(
         checkpoints.claim_run_dir(run_dir, run_meta)
         return run_dir
     logit_scale = float(features.info.logit_scale)
-    train_on_arrays(arrays, run_dir, config, logit_scale, run_meta, progress, backbone_fingerprint=backbone.fingerprint)
+    train_on_arrays(arrays, run_dir, recipe, logit_scale, run_meta, progress, backbone_fingerprint=backbone.fingerprint)
     return run_dir
 
 

@@ -191,7 +191,7 @@ def step_codes(config: NoPretrainTrainConfig, step: int) -> np.ndarray:
 def train_on_inputs(
     arrays: dict,
     run_dir: Path,
-    recipe_: NoPretrainRecipe,
+    recipe: NoPretrainRecipe,
     run_meta: dict,
     progress: bool = True,
     *,
@@ -199,7 +199,7 @@ def train_on_inputs(
     inputs_key: str,
 ) -> None:
     """Trains into `run_dir` (resuming from its newest checkpoint), then saves `backbone/` and the adapters."""
-    config, model = recipe_.train, recipe_.model
+    config, model = recipe.train, recipe.model
     config.validate()
     run_dir = Path(run_dir)
     params = no_pretrain.init_params(model, jax.random.key(config.seed))
@@ -222,7 +222,7 @@ def train_on_inputs(
 
     def save(path: Path, state) -> None:
         trained = jax.tree_util.tree_map(np.asarray, ob.join_params(state[0], frozen))
-        save_trained(path, trained, recipe_, prompt=prompt, inputs_key=inputs_key)
+        save_trained(path, trained, recipe, prompt=prompt, inputs_key=inputs_key)
 
     spec = runner.Run(
         run_dir=run_dir,
@@ -243,17 +243,17 @@ def train_on_inputs(
 
 
 def save_trained(
-    adapters_path: Path, params: dict, recipe_: NoPretrainRecipe, *, prompt: PromptConfig, inputs_key: str
+    adapters_path: Path, params: dict, recipe: NoPretrainRecipe, *, prompt: PromptConfig, inputs_key: str
 ) -> None:
     """Writes the tower to `backbone/` beside `adapters_path`, then the adapters (last: they mark the run finished)."""
-    model = recipe_.model
+    model = recipe.model
     text_digest = ob.FrozenTextTower.load(model.backbone.text_max_length).digest
     backbone_dir = ob.save_backbone(
         adapters_path.parent / BACKBONE_DIR,
         model.backbone,
         params["backbone"],
         text_digest,
-        {"trained_by": "ocplace.train.no_pretrain (Ours w/o CLIP pre-train)", "recipe": serial.to_dict(recipe_)},
+        {"trained_by": "ocplace.train.no_pretrain (Ours w/o CLIP pre-train)", "recipe": serial.to_dict(recipe)},
     )
     fingerprint = (backbone_dir / ob.FINGERPRINT_FILE).read_text().strip()
     scale = float(np.exp(min(float(params["backbone"]["log_logit_scale"]), math.log(model.max_logit_scale))))
@@ -265,21 +265,21 @@ def save_trained(
         backbone_fingerprint=fingerprint,
         prompt=prompt,
         features_key=inputs_key,
-        steps=recipe_.train.steps,
-        train_config_json=json.dumps(serial.to_dict(recipe_)),
+        steps=recipe.train.steps,
+        train_config_json=json.dumps(serial.to_dict(recipe)),
     )
 
 
-def train_no_pretrain(dataset_dir: Path, run_dir: Path, recipe_: NoPretrainRecipe, progress: bool = True) -> Path:
+def train_no_pretrain(dataset_dir: Path, run_dir: Path, recipe: NoPretrainRecipe, progress: bool = True) -> Path:
     """Caches the inputs, trains, saves `backbone/` and the adapters (`WEIGHTS_FILE`); a finished run is kept."""
     run_dir = Path(run_dir)
     prompt = PromptConfig()
-    inputs = no_pretrain_inputs(dataset_dir, "train", recipe_.model.backbone, prompt, progress)
-    chosen = subset_indices(len(inputs.scene_ids), recipe_.train.fraction, recipe_.train.subset_seed)
-    run_meta = {"recipe": serial.to_dict(recipe_), "inputs_key": inputs.key, "train_scenes": int(len(chosen))}
+    inputs = no_pretrain_inputs(dataset_dir, "train", recipe.model.backbone, prompt, progress)
+    chosen = subset_indices(len(inputs.scene_ids), recipe.train.fraction, recipe.train.subset_seed)
+    run_meta = {"recipe": serial.to_dict(recipe), "inputs_key": inputs.key, "train_scenes": int(len(chosen))}
     if (run_dir / WEIGHTS_FILE).exists() and (run_dir / BACKBONE_DIR / ob.FINGERPRINT_FILE).exists():
         checkpoints.claim_run_dir(run_dir, run_meta)
         return run_dir
     arrays = {name: array[chosen] for name, array in inputs.arrays.items()}
-    train_on_inputs(arrays, run_dir, recipe_, run_meta, progress, prompt=prompt, inputs_key=inputs.key)
+    train_on_inputs(arrays, run_dir, recipe, run_meta, progress, prompt=prompt, inputs_key=inputs.key)
     return run_dir

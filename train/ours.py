@@ -88,7 +88,7 @@ def init_state(adapter_config: AdapterConfig, optimizer: optax.GradientTransform
 def train_ours(
     features: Features,
     run_dir,
-    config: TrainConfig,
+    recipe: TrainConfig,
     val_features: Features | None = None,
     progress: bool = True,
     callback: Callable[[dict], None] | None = None,
@@ -98,23 +98,23 @@ def train_ours(
     `callback(record)` is called after each chunk's metrics record is written (and its checkpoint,
     if one was due), e.g. to stop early by raising.
     """
-    config.validate()
+    recipe.validate()
     run_dir = Path(run_dir)
-    train_set = features.subset(subset_indices(features.num_scenes, config.fraction, config.subset_seed))
-    adapter_config = AdapterConfig(features.dim, config.reduction, config.residual_ratio)
-    logit_scale = float(config.logit_scale or features.info.logit_scale)
-    run_meta = _run_metadata(config, features, val_features, train_set)
+    train_set = features.subset(subset_indices(features.num_scenes, recipe.fraction, recipe.subset_seed))
+    adapter_config = AdapterConfig(features.dim, recipe.reduction, recipe.residual_ratio)
+    logit_scale = float(recipe.logit_scale or features.info.logit_scale)
+    run_meta = _run_metadata(recipe, features, val_features, train_set)
     data = jax.device_put(train_set.arrays())
 
     def chunk(state, start: int, count: int):
-        indices = batch_indices(train_set.num_scenes, config.seed, start, count, config.batch_size)
-        return jit_train_chunk(adapter_config, config, logit_scale, state, data, jnp.asarray(indices))
+        indices = batch_indices(train_set.num_scenes, recipe.seed, start, count, recipe.batch_size)
+        return jit_train_chunk(adapter_config, recipe, logit_scale, state, data, jnp.asarray(indices))
 
-    usual_record = runner.loss_and_learning_rate(learning_rate_schedule(config))
+    usual_record = runner.loss_and_learning_rate(learning_rate_schedule(recipe))
 
     def record(state, step: int, losses) -> dict:
         fields = usual_record(state, step, losses)
-        if step % config.eval_every == 0 or step == config.steps:
+        if step % recipe.eval_every == 0 or step == recipe.steps:
             fields.update(_evaluate(adapter_config, state[0], logit_scale, train_set, val_features))
         return fields
 
@@ -127,18 +127,18 @@ def train_ours(
             backbone_fingerprint=features.info.backbone_fingerprint,
             prompt=features.info.config.prompt,
             features_key=features.info.key,
-            steps=config.steps,
-            train_config_json=serial.to_json(config),
+            steps=recipe.steps,
+            train_config_json=serial.to_json(recipe),
         )
 
     spec = runner.Run(
         run_dir=run_dir,
         run_meta=run_meta,
-        steps=config.steps,
-        chunk_steps=config.chunk_steps,
-        checkpoint_every=config.checkpoint_every,
-        keep_checkpoints=config.keep_checkpoints,
-        init_state=lambda: init_state(adapter_config, make_optimizer(config), config.seed),
+        steps=recipe.steps,
+        chunk_steps=recipe.chunk_steps,
+        checkpoint_every=recipe.checkpoint_every,
+        keep_checkpoints=recipe.keep_checkpoints,
+        init_state=lambda: init_state(adapter_config, make_optimizer(recipe), recipe.seed),
         chunk=chunk,
         record=record,
         save_artefact=save,
@@ -149,7 +149,7 @@ def train_ours(
     return TrainResult(
         run_dir,
         model,
-        config.steps,
+        recipe.steps,
         evaluate_features(model, train_set),
         evaluate_features(model, val_features) if val_features is not None else None,
     )
