@@ -249,13 +249,34 @@ def read_meta(scene_dir: Path, digests: Mapping[str, str] | None = None) -> dict
     return meta
 
 
+def _record(meta: dict, rgb_bgr: np.ndarray, depth_mm: np.ndarray, segmentation: np.ndarray) -> SceneRecord:
+    """A record from its JSON and its decoded PNGs, whether they were read from disk or made in memory."""
+    rgb = np.ascontiguousarray(rgb_bgr[..., ::-1])
+    return SceneRecord(meta, rgb, depth_mm.astype(np.float32) / 1000.0, segmentation.astype(np.int32))
+
+
 def read_scene(scene_dir: str | Path, digests: Mapping[str, str] | None = None) -> SceneRecord:
     """The scene in `scene_dir`. With `digests` (file name -> sha256, from the dataset's manifest) every
     file is hashed as it is read and a DatasetError names the first that differs; readers of a dataset
     pass them (`ocplace.sim.dataset.job.listed_scenes`), so an edited scene is never read as the dataset's."""
     scene_dir = Path(scene_dir)
     meta = read_meta(scene_dir, digests)
-    rgb = _read_png(scene_dir / "rgb.png", cv2.IMREAD_COLOR, digests)[..., ::-1]
-    depth = _read_png(scene_dir / "depth.png", cv2.IMREAD_UNCHANGED, digests).astype(np.float32) / 1000.0
-    segmentation = _read_png(scene_dir / "segmentation.png", cv2.IMREAD_UNCHANGED, digests).astype(np.int32)
-    return SceneRecord(meta, np.ascontiguousarray(rgb), depth, segmentation)
+    rgb = _read_png(scene_dir / "rgb.png", cv2.IMREAD_COLOR, digests)
+    depth = _read_png(scene_dir / "depth.png", cv2.IMREAD_UNCHANGED, digests)
+    segmentation = _read_png(scene_dir / "segmentation.png", cv2.IMREAD_UNCHANGED, digests)
+    return _record(meta, rgb, depth, segmentation)
+
+
+def decode_scene(files: Mapping[str, bytes]) -> SceneRecord:
+    """The record of a scene's files by name (`scene_files`' output, as `generate` makes them), decoded as
+    `read_scene` decodes them from disk: the same arrays as reading the written scene back."""
+
+    def image(name: str, flags: int) -> np.ndarray:
+        return cv2.imdecode(np.frombuffer(files[name], np.uint8), flags)
+
+    return _record(
+        json.loads(files[SCENE_FILE]),
+        image("rgb.png", cv2.IMREAD_COLOR),
+        image("depth.png", cv2.IMREAD_UNCHANGED),
+        image("segmentation.png", cv2.IMREAD_UNCHANGED),
+    )
