@@ -30,5 +30,8 @@ def make_vector_env(num_envs: int = 2, **kwargs) -> AsyncVectorEnv:
     return AsyncVectorEnv(
         [functools.partial(PlaceEnv, **kwargs, worker=worker, workers=num_envs) for worker in range(num_envs)],
         context="spawn",
+        # Gymnasium 1.4 reads a Text space out of shared memory once, when the vector env is made: every
+        # instruction would come back as that first read ("aaa..."). Through the pipes they come back right.
+        shared_memory=False,
         autoreset_mode=AutoresetMode.SAME_STEP,
     )
