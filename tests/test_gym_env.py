@@ -154,3 +154,26 @@ def test_registered_by_its_module_qualified_id_without_an_import(smoke_dataset):
     run = subprocess.run([sys.executable, "-c", program], capture_output=True, text=True, timeout=120)
     assert run.returncode == 0, run.stderr
     assert run.stdout.split() == ["seen-00001", "ocplace.sim.env.vector:make_vector_env"]
+
+
+def test_the_physical_check_drops_the_held_object_when_asked(smoke_dataset, arena):
+    """As the harness checks: the drop where the metric succeeds, nothing dropped where it fails."""
+    from ocplace.sim.physical import physical_check
+
+    env = gymnasium.make(ENV_ID, dataset=smoke_dataset, split="seen", physical_check=True)
+    truth = oracles(smoke_dataset, "seen")
+    _, info = env.reset(seed=0)
+    _, reward, _, _, info = env.step(truth[info["scene"]])
+    expected = physical_check(arena, env.unwrapped.scenes.record(0), truth[info["scene"]])
+    assert info["success"] and info["physical"]["dropped"]
+    assert info["physical"]["success"] == expected.success and reward == float(expected.success)
+    assert info["physical"]["held_offset"] == expected.held_offset
+    env.reset()
+    _, reward, _, _, info = env.step(np.array([5.0, 0.0]))
+    assert reward == 0.0 and info["physical"] == {
+        "success": False,
+        "dropped": False,
+        "held_offset": None,
+        "max_disturbance": None,
+    }
+    env.close()
