@@ -183,14 +183,18 @@ def _encode_png(image: np.ndarray, compression: int) -> bytes:
     return encoded.tobytes()
 
 
+def stored_depth(depth: np.ndarray) -> np.ndarray:
+    """`(H, W)` uint16: planar depth in metres as a scene stores it, in whole millimetres."""
+    return np.clip(np.round(depth * 1000.0), 0, 65535).astype(np.uint16)
+
+
 def encode_images(
     rgb: np.ndarray, depth: np.ndarray, segmentation: np.ndarray, compression: int = 1
 ) -> dict[str, bytes]:
     """The three PNG files of a scene, by file name."""
-    depth_mm = np.clip(np.round(depth * 1000.0), 0, 65535).astype(np.uint16)
     return {
         "rgb.png": _encode_png(np.ascontiguousarray(rgb[..., ::-1]), compression),
-        "depth.png": _encode_png(depth_mm, compression),
+        "depth.png": _encode_png(stored_depth(depth), compression),
         "segmentation.png": _encode_png(segmentation.astype(np.uint8), compression),
     }
 
@@ -267,16 +271,8 @@ def read_scene(scene_dir: str | Path, digests: Mapping[str, str] | None = None) 
     return _record(meta, rgb, depth, segmentation)
 
 
-def decode_scene(files: Mapping[str, bytes]) -> SceneRecord:
-    """The record of a scene's files by name (`scene_files`' output, as `generate` makes them), decoded as
-    `read_scene` decodes them from disk: the same arrays as reading the written scene back."""
-
-    def image(name: str, flags: int) -> np.ndarray:
-        return cv2.imdecode(np.frombuffer(files[name], np.uint8), flags)
-
-    return _record(
-        json.loads(files[SCENE_FILE]),
-        image("rgb.png", cv2.IMREAD_COLOR),
-        image("depth.png", cv2.IMREAD_UNCHANGED),
-        image("segmentation.png", cv2.IMREAD_UNCHANGED),
-    )
+def stored_record(meta: dict, rgb: np.ndarray, depth: np.ndarray, segmentation: np.ndarray) -> SceneRecord:
+    """The record `read_scene` gives of a scene once written (`scene_files`, `encode_images`), without
+    writing it: the JSON round trip, depth in whole millimetres; PNGs are lossless, so nothing else changes."""
+    meta = json.loads(json.dumps(meta, sort_keys=True))
+    return _record(meta, rgb[..., ::-1], stored_depth(depth), segmentation.astype(np.uint8))

@@ -2,8 +2,8 @@
 
 Both are sequences of `SceneRecord`s in a fixed order: a dataset's listing order (scene-id order,
 what the evaluation harness runs), or the generator's indices of a split. A generated scene is the
-same bytes as the scene `ocplace generate` writes with the same configuration, decoded as reading
-it back would decode it, so an environment over either source shows the same observations.
+scene `ocplace generate` writes with the same configuration, as reading it back gives it (without
+encoding its PNGs), so an environment over either source shows the same observation bytes.
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ocplace.sim.dataset.config import DatasetConfig
-from ocplace.sim.dataset.records import SceneRecord, decode_scene
+from ocplace.sim.dataset.records import SceneRecord, stored_record
 from ocplace.sim.pinhole import PinholeCamera
 
 
@@ -68,7 +68,8 @@ class GeneratedScenes:
             from ocplace.sim.library import load_library
 
             self._generator = SceneGenerator(load_library(self._cache), self._config)
-        return decode_scene(self._generator.make(self._split, index, self._levels[index]))
+        meta, scene = self._generator.make_scene(self._split, index, self._levels[index])
+        return stored_record(meta, scene.rgb, scene.depth, scene.segmentation)
 
     def close(self) -> None:
         if self._generator is not None:
