@@ -21,7 +21,7 @@ import numpy as np
 from gymnasium import spaces
 
 from ocplace.errors import InvalidAction, PlaceEnvError
-from ocplace.sim.dataset.config import DatasetConfig
+from ocplace.sim.dataset.config import DatasetConfig, make_config
 from ocplace.sim.dataset.records import SceneRecord
 from ocplace.sim.env.observation import observation, observation_space
 from ocplace.sim.env.scenes import DatasetScenes, GeneratedScenes
@@ -116,8 +116,6 @@ class PlaceEnv(gymnasium.Env):
         workers: int = 1,
         library_cache: str | Path | None = None,
     ):
-        from ocplace.sim.dataset.config import make_config
-
         if render_mode not in (None, *self.metadata["render_modes"]):
             raise PlaceEnvError(f"render_mode is None or 'rgb_array', got {render_mode!r}")
         if not 0 <= worker < workers:

@@ -21,7 +21,6 @@ class DatasetScenes:
     def __init__(self, dataset_dir: str | Path, split: str):
         from ocplace.sim.dataset.job import listed_scenes
 
-        self.name = f"{dataset_dir}:{split}"
         self._listed = listed_scenes(dataset_dir, split)
 
     def __len__(self) -> int:
@@ -49,7 +48,6 @@ class GeneratedScenes:
         from ocplace.sim.dataset.generate import level_schedule
 
         config.validate()
-        self.name = f"generated:{split}:seed={config.seed}"
         self._config, self._split, self._cache = config, split, library_cache
         self._levels = level_schedule(config.split(split), config.seed)
         self._generator = None
