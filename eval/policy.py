@@ -109,9 +109,12 @@ def policy_spec(reference: str, label: str | None = None) -> MethodSpec:
 
     Its Table I label: `label`, else the policy's `label` attribute, else the reference.
     """
-    policy = import_policy(reference)
-    label = label or getattr(policy, "label", None) or reference
-    return MethodSpec(name=reference, label=label, load=functools.partial(load_policy, reference))
+    return _spec(import_policy(reference), reference, label)
+
+
+def _spec(policy, name: str, label: str | None) -> MethodSpec:
+    label = label or getattr(policy, "label", None) or name
+    return MethodSpec(name=name, label=label, load=functools.partial(load_policy, name))
 
 
 def with_policies(specs: Mapping[str, MethodSpec], results: Mapping) -> dict[str, MethodSpec]:
@@ -147,13 +150,8 @@ def evaluate_policy(
     """
     from ocplace.eval.results import build_results
 
-    if isinstance(policy, str):
-        spec, method = policy_spec(policy, label), load_policy(policy)
-    else:
-        name = reference_of(policy)
-        label = label or getattr(policy, "label", None) or name
-        spec = MethodSpec(name=name, label=label, load=functools.partial(load_policy, name))
-        method = as_method(policy, name)
+    name, policy = (policy, import_policy(policy)) if isinstance(policy, str) else (reference_of(policy), policy)
+    spec, method = _spec(policy, name, label), as_method(policy, name)
     with physical_arena(settings) as arena:
         evaluation = evaluate_run(MethodRun(spec), dataset_dir, settings, arena, progress=progress, method=method)
     command = {"python": "ocplace.eval.policy.evaluate_policy", "policy": spec.name}
