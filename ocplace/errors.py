@@ -129,3 +129,11 @@ class ClusterError(OcplaceError):
 
 class CorpusError(OcplaceError):
     """The pretraining corpus (furniture catalogues) is missing, unreadable or left nothing usable."""
+
+
+class PlaceEnvError(OcplaceError):
+    """A call the placement environment (`ocplace.sim.env`) cannot serve: a step before reset or after the end."""
+
+
+class InvalidAction(PlaceEnvError, ValueError):
+    """An action that is not one table-frame placement `(x, y)`: the wrong shape, or not numbers."""

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
@@ -28,7 +29,22 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     add_dataset_argument(evaluate, "dataset folder (`ocplace generate`)")
     evaluate.add_argument(
-        "--methods", default="all", help="comma-separated method names, or `all` (every registered method)"
+        "--methods",
+        help="comma-separated method names, or `all` (every registered method; the default without --policy)",
+    )
+    evaluate.add_argument(
+        "--policy",
+        action="append",
+        default=[],
+        metavar="MODULE:CALLABLE",
+        help="also evaluate your own policy: a Method, or a callable place(observation) -> (x, y) that gets the "
+        "Gymnasium environment's observation (docs/evaluation.md); repeatable; the current folder is importable",
+    )
+    evaluate.add_argument(
+        "--label",
+        action="append",
+        default=[],
+        help="the Table I row of each --policy, in their order (default: its `label` attribute, else MODULE:CALLABLE)",
     )
     evaluate.add_argument(
         "--run",
@@ -138,7 +154,7 @@ def _evaluate(args: argparse.Namespace) -> int:
     from ocplace.eval.harness import DEFAULT_PHYSICAL_SCENES, EvalSettings, EvaluationError
     from ocplace.eval.results import build_results, write_outputs
     from ocplace.experiments.evaluation import evaluate_runs
-    from ocplace.methods.registry import method_specs, select_specs
+    from ocplace.methods.registry import method_run, method_specs, select_specs
     from ocplace.runtime import open_executor
 
     if args.dataset is None or args.out is None:
@@ -151,7 +167,11 @@ def _evaluate(args: argparse.Namespace) -> int:
         fields=EVAL_SETTINGS_OPTIONS,
     )
     specs = method_specs()
-    runs = method_runs(select_specs(args.methods, specs), parse_runs(args.run), args.runs_from)
+    methods = args.methods or ("" if args.policy else "all")
+    runs = method_runs(select_specs(methods, specs) if methods else [], parse_runs(args.run), args.runs_from)
+    policies = _policy_specs(args.policy, args.label)
+    runs += [method_run(spec) for spec in policies]
+    specs |= {spec.name: spec for spec in policies}
     with open_executor(executor_config(args)) as executor:
         evaluations = evaluate_runs(specs, runs, args.dataset, settings, executor, progress=not args.no_progress)
     markdown = write_outputs(build_results(evaluations, args.dataset, settings, command_record(args)), args.out)
@@ -160,14 +180,37 @@ def _evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _policy_specs(references: list[str], labels: list[str]) -> list:
+    """The spec of each `--policy`, imported here (the current folder first on the import path, as for `python -m`)."""
+    from ocplace.eval.harness import EvaluationError
+    from ocplace.methods.policy import policy_spec
+
+    if labels and len(labels) != len(references):
+        raise EvaluationError(f"give one --label per --policy, or none: got {len(labels)} for {len(references)}")
+    if references:
+        _import_from_here()
+    return [policy_spec(ref, label) for ref, label in zip(references, labels or [None] * len(references))]
+
+
+def _import_from_here() -> None:
+    """Puts the current folder first on the import path, as `python -m` does, for policies' modules;
+    evaluation workers are spawned, so they inherit it."""
+    if os.getcwd() not in sys.path:
+        sys.path.insert(0, os.getcwd())
+
+
 def _rerun(args: argparse.Namespace) -> int:
     from ocplace.eval.results import compare, read_results, write_outputs
     from ocplace.experiments.evaluation import rerun
+    from ocplace.methods.policy import with_policies
+    from ocplace.methods.registry import method_specs
     from ocplace.runtime import open_executor
 
     original = read_results(args.rerun)
+    _import_from_here()  # a policy's module, as when it was evaluated from here
+    specs = with_policies(method_specs(), original)
     with open_executor(executor_config(args)) as executor:
-        fresh = rerun(original, progress=not args.no_progress, command=command_record(args), executor=executor)
+        fresh = rerun(original, specs, progress=not args.no_progress, command=command_record(args), executor=executor)
     out = args.out or args.rerun.with_name(args.rerun.stem + ".rerun.json")
     write_outputs(fresh, out)
     differences = compare(original, fresh)

@@ -65,6 +65,12 @@ class SceneGenerator:
 
     def make(self, split_name: str, index: int, level: str) -> dict[str, bytes]:
         """The files of scene `index` of `split_name`, by file name."""
+        meta, scene = self.make_scene(split_name, index, level)
+        images = encode_images(scene.rgb, scene.depth, scene.segmentation, self.config.png_compression)
+        return scene_files(meta, images)
+
+    def make_scene(self, split_name: str, index: int, level: str) -> tuple[dict, RenderedScene]:
+        """The scene.json content and the rendered scene of scene `index` of `split_name`, before encoding."""
         split = self.config.split(split_name)
         rng = np.random.default_rng([self.config.seed, SPLIT_NAMES.index(split_name), index])
         objects, textures = split_pools(self.library, split.objects)
@@ -80,9 +86,7 @@ class SceneGenerator:
             chosen = self._choose_tuples(rng, scene, level, resamples)
             if chosen is not None:
                 tuples, feasible = chosen
-                meta = self._meta(split, index, level, rng, scene, tuples, feasible, resamples)
-                images = encode_images(scene.rgb, scene.depth, scene.segmentation, self.config.png_compression)
-                return scene_files(meta, images)
+                return self._meta(split, index, level, rng, scene, tuples, feasible, resamples), scene
             resamples["scenes"] += 1
         raise UnsolvableScene(
             f"{scene_id(split_name, index)}: no solvable {level} instruction in {self.config.max_scene_attempts} scenes"

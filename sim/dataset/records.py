@@ -183,14 +183,18 @@ def _encode_png(image: np.ndarray, compression: int) -> bytes:
     return encoded.tobytes()
 
 
+def stored_depth(depth: np.ndarray) -> np.ndarray:
+    """`(H, W)` uint16: planar depth in metres as a scene stores it, in whole millimetres."""
+    return np.clip(np.round(depth * 1000.0), 0, 65535).astype(np.uint16)
+
+
 def encode_images(
     rgb: np.ndarray, depth: np.ndarray, segmentation: np.ndarray, compression: int = 1
 ) -> dict[str, bytes]:
     """The three PNG files of a scene, by file name."""
-    depth_mm = np.clip(np.round(depth * 1000.0), 0, 65535).astype(np.uint16)
     return {
         "rgb.png": _encode_png(np.ascontiguousarray(rgb[..., ::-1]), compression),
-        "depth.png": _encode_png(depth_mm, compression),
+        "depth.png": _encode_png(stored_depth(depth), compression),
         "segmentation.png": _encode_png(segmentation.astype(np.uint8), compression),
     }
 
@@ -249,13 +253,26 @@ def read_meta(scene_dir: Path, digests: Mapping[str, str] | None = None) -> dict
     return meta
 
 
+def _record(meta: dict, rgb_bgr: np.ndarray, depth_mm: np.ndarray, segmentation: np.ndarray) -> SceneRecord:
+    """A record from its JSON and its decoded PNGs, whether they were read from disk or made in memory."""
+    rgb = np.ascontiguousarray(rgb_bgr[..., ::-1])
+    return SceneRecord(meta, rgb, depth_mm.astype(np.float32) / 1000.0, segmentation.astype(np.int32))
+
+
 def read_scene(scene_dir: str | Path, digests: Mapping[str, str] | None = None) -> SceneRecord:
     """The scene in `scene_dir`. With `digests` (file name -> sha256, from the dataset's manifest) every
     file is hashed as it is read and a DatasetError names the first that differs; readers of a dataset
     pass them (`ocplace.sim.dataset.job.listed_scenes`), so an edited scene is never read as the dataset's."""
     scene_dir = Path(scene_dir)
     meta = read_meta(scene_dir, digests)
-    rgb = _read_png(scene_dir / "rgb.png", cv2.IMREAD_COLOR, digests)[..., ::-1]
-    depth = _read_png(scene_dir / "depth.png", cv2.IMREAD_UNCHANGED, digests).astype(np.float32) / 1000.0
-    segmentation = _read_png(scene_dir / "segmentation.png", cv2.IMREAD_UNCHANGED, digests).astype(np.int32)
-    return SceneRecord(meta, np.ascontiguousarray(rgb), depth, segmentation)
+    rgb = _read_png(scene_dir / "rgb.png", cv2.IMREAD_COLOR, digests)
+    depth = _read_png(scene_dir / "depth.png", cv2.IMREAD_UNCHANGED, digests)
+    segmentation = _read_png(scene_dir / "segmentation.png", cv2.IMREAD_UNCHANGED, digests)
+    return _record(meta, rgb, depth, segmentation)
+
+
+def stored_record(meta: dict, rgb: np.ndarray, depth: np.ndarray, segmentation: np.ndarray) -> SceneRecord:
+    """The record `read_scene` gives of a scene once written (`scene_files`, `encode_images`), without
+    writing it: the JSON round trip, depth in whole millimetres; PNGs are lossless, so nothing else changes."""
+    meta = json.loads(json.dumps(meta, sort_keys=True))
+    return _record(meta, rgb[..., ::-1], stored_depth(depth), segmentation.astype(np.uint8))

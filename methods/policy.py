@@ -1,0 +1,160 @@
+"""Any policy on the benchmark: `ocplace evaluate --policy MODULE:CALLABLE` and `evaluate_policy`.
+
+A policy is one of
+- a `Method` (eval/api.py: `describe()` and `run(scenes, key) -> [MethodOutput]`), run as the
+  registered methods are;
+- a placer: a callable `place(observation) -> (x, y)`, or an object with such a `place` method. It
+  gets each scene as the Gymnasium environment's observation (`ocplace.sim.env.observation`) and
+  returns the held object's table-frame placement in metres.
+A class is instantiated with no arguments first. The harness scores a policy as any method: same
+scenes, metric, physical check and tables; its Table I row carries the policy's label. The method
+name of a policy is its `MODULE:CALLABLE` reference (registered names have no colon), which is how
+`ocplace evaluate --rerun` imports it again.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import importlib
+import inspect
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+
+from ocplace.eval.api import Method, MethodOutput
+from ocplace.eval.harness import EvalSettings, EvaluationError, evaluate_run, physical_arena
+from ocplace.methods.api import LoadContext, MethodSpec
+from ocplace.methods.registry import method_run
+from ocplace.sim.dataset.records import SceneRecord
+
+REFERENCE_HELP = (
+    "a policy is named MODULE:CALLABLE, e.g. my_policies:place or my_pkg.policies:MyPolicy; the module must be "
+    "importable (the command adds the current folder to the import path; else set PYTHONPATH)"
+)
+
+
+def is_policy_name(name: str) -> bool:
+    """Whether a method name is a policy's `MODULE:CALLABLE` reference, not a registered method's."""
+    return ":" in name
+
+
+def import_policy(reference: str):
+    """The object `MODULE:ATTRIBUTE[.ATTRIBUTE...]` names; EvaluationError when it cannot be imported."""
+    module_name, _, attributes = reference.partition(":")
+    if not module_name or not attributes:
+        raise EvaluationError(f"cannot read the policy reference {reference!r}: {REFERENCE_HELP}")
+    try:
+        target = importlib.import_module(module_name)
+    except ImportError as error:
+        raise EvaluationError(f"cannot import the policy module {module_name!r} ({error}); {REFERENCE_HELP}") from None
+    for attribute in attributes.split("."):
+        if not hasattr(target, attribute):
+            raise EvaluationError(f"{module_name} has no {attributes!r} for the policy {reference!r}; {REFERENCE_HELP}")
+        target = getattr(target, attribute)
+    if not (callable(target) or _is_method(target) or callable(getattr(target, "place", None))):
+        raise EvaluationError(
+            f"{reference} is a {type(target).__name__}: a policy is a Method (describe and run), a callable "
+            "place(observation) -> (x, y), an object with such a place method, or a class making one"
+        )
+    return target
+
+
+def _is_method(policy) -> bool:
+    return callable(getattr(policy, "run", None)) and callable(getattr(policy, "describe", None))
+
+
+@dataclasses.dataclass
+class PlacerMethod:
+    """A `Method` around `place(observation) -> (x, y)`: one call per scene, in the harness's scene order."""
+
+    name: str
+    place: Callable
+
+    def describe(self) -> dict:
+        return {"policy": self.name, "interface": "place(observation) -> (x, y)"}
+
+    def run(self, scenes: Sequence[SceneRecord], key) -> list[MethodOutput]:
+        from ocplace.sim.env.observation import observation
+
+        outputs = []
+        for scene in scenes:
+            # Caught here, not by the harness: it would run the whole chunk again scene by scene, so a
+            # stateful placer (one random generator for all scenes) would see other calls than in the env.
+            try:
+                mode = self.place(observation(scene))
+            except Exception as error:
+                outputs.append(MethodOutput(mode=None, samples=None, failure=f"{type(error).__name__}: {error}"))
+            else:  # the harness checks the shape and finiteness: anything else is a failure there
+                outputs.append(MethodOutput(mode=mode, samples=None))
+        return outputs
+
+
+def as_method(policy, name: str) -> Method:
+    """The `Method` that runs `policy` (a Method, a placer, an object with a `place` method, or a class)."""
+    if inspect.isclass(policy):
+        policy = policy()
+    if _is_method(policy):
+        return policy
+    place = getattr(policy, "place", policy)
+    if not callable(place):
+        raise EvaluationError(f"policy {name!r} is neither a Method (describe and run) nor a placer (place)")
+    return PlacerMethod(name, place)
+
+
+def load_policy(reference: str, context: LoadContext | None = None) -> Method:
+    """`MethodSpec.load` of a policy: imports it anew (in an evaluation's worker process)."""
+    return as_method(import_policy(reference), reference)
+
+
+def policy_spec(reference: str, label: str | None = None) -> MethodSpec:
+    """The spec of the policy `MODULE:CALLABLE`, imported here so that a bad reference fails before any work.
+
+    Its Table I label: `label`, else the policy's `label` attribute, else the reference.
+    """
+    return _spec(import_policy(reference), reference, label)
+
+
+def _spec(policy, name: str, label: str | None) -> MethodSpec:
+    label = label or getattr(policy, "label", None) or name
+    return MethodSpec(name=name, label=label, load=functools.partial(load_policy, name))
+
+
+def with_policies(specs: Mapping[str, MethodSpec], results: Mapping) -> dict[str, MethodSpec]:
+    """`specs` plus a spec for each policy a results file evaluated (method names `MODULE:CALLABLE`)."""
+    policies = {
+        entry["method"]: policy_spec(entry["method"], entry["label"])
+        for entry in results["evaluations"]
+        if is_policy_name(entry["method"]) and entry["method"] not in specs
+    }
+    return dict(specs) | policies
+
+
+def reference_of(policy) -> str:
+    """`MODULE:QUALNAME` of a function or class, or of an object's class."""
+    named = policy if inspect.isclass(policy) or inspect.isroutine(policy) else type(policy)
+    return f"{named.__module__}:{named.__qualname__}"
+
+
+def evaluate_policy(
+    policy,
+    dataset_dir: str | Path,
+    settings: EvalSettings = EvalSettings(),
+    *,
+    label: str | None = None,
+    progress: bool = False,
+) -> dict:
+    """Scores `policy` on the test subsets of `dataset_dir` with the harness, in this process.
+
+    `policy` is a `MODULE:CALLABLE` reference or the policy itself (a Method, a placer, an object
+    with a `place` method, or a class). Returns the results (`ocplace.evaluation/1`, docs/evaluation.md):
+    `ocplace.eval.table.render(results)` gives Table I and the other tables,
+    `ocplace.eval.results.write_outputs(results, path)` writes them and the JSON.
+    """
+    from ocplace.eval.results import build_results
+
+    name, policy = (policy, import_policy(policy)) if isinstance(policy, str) else (reference_of(policy), policy)
+    spec, method = _spec(policy, name, label), as_method(policy, name)
+    with physical_arena(settings) as arena:
+        evaluation = evaluate_run(method_run(spec), method, dataset_dir, settings, arena, progress=progress)
+    command = {"python": "ocplace.methods.policy.evaluate_policy", "policy": spec.name}
+    return build_results([evaluation], dataset_dir, settings, command)

@@ -1,0 +1,99 @@
+"""Any policy on the benchmark: `evaluate_policy`, `ocplace evaluate --policy`, and the environment agreeing."""
+
+import hashlib
+import sys
+
+import eval_methods
+import gymnasium
+import numpy as np
+
+from ocplace.cli import main
+from ocplace.eval.harness import EvalSettings
+from ocplace.eval.results import read_results
+from ocplace.eval.table import table_one
+from ocplace.methods.policy import evaluate_policy
+from ocplace.sim.dataset.job import listed_scenes
+from ocplace.sim.env import ENV_ID
+from ocplace.sim.workspace import DEFAULT_TABLE
+
+SUBSETS = ("seen", "unseen_inst")
+SETTINGS = EvalSettings(backbone="none", subsets=SUBSETS, physical_scenes=0)
+
+
+def image_key(rgb: np.ndarray) -> str:
+    return hashlib.sha256(rgb.tobytes()).hexdigest()
+
+
+class MixedPolicy:
+    """Seeded, one draw per call: the oracle, a jittered oracle, a random point on the table, or NaN.
+
+    It cheats through a table of oracles keyed by image, so that its outcomes mix successes and failures.
+    """
+
+    def __init__(self, oracles: dict[str, np.ndarray]):
+        self.oracles = oracles
+        self.rng = np.random.default_rng(7)
+
+    def place(self, observation):
+        oracle = self.oracles[image_key(observation["rgb"])]
+        choice = self.rng.integers(4)
+        jitter = self.rng.normal(0.0, 0.03, 2)
+        anywhere = self.rng.uniform(DEFAULT_TABLE.bounds[0], DEFAULT_TABLE.bounds[1])
+        return (oracle, oracle + jitter, anywhere, np.array([np.nan, 0.0]))[choice]
+
+
+def oracles_by_image(dataset) -> dict[str, np.ndarray]:
+    scenes = [scene.read() for split in SUBSETS for scene in listed_scenes(dataset, split)]
+    return {image_key(record.rgb): record.oracle.placement for record in scenes}
+
+
+def test_a_fixed_random_policy_scores_the_same_through_the_env_and_the_harness(smoke_dataset):
+    oracles = oracles_by_image(smoke_dataset)
+    policy = MixedPolicy(oracles)
+    through_env = {}
+    for split in SUBSETS:
+        env = gymnasium.make(ENV_ID, dataset=smoke_dataset, split=split)
+        for episode in range(len(listed_scenes(smoke_dataset, split))):
+            observation, info = env.reset(seed=episode)
+            through_env[info["scene"]] = env.step(policy.place(observation))[1]
+    results = evaluate_policy(MixedPolicy(oracles), smoke_dataset, SETTINGS, label="Mixed")
+    (entry,) = results["evaluations"]
+    through_harness = {s["id"]: float(s["success"]) for subset in SUBSETS for s in entry["subsets"][subset]["scenes"]}
+    assert through_harness == through_env
+    assert set(through_env.values()) == {0.0, 1.0}
+    assert entry["method"] == "test_policy_evaluation:MixedPolicy" and "| Mixed |" in table_one(results)
+    failures = [s["failure"] for s in entry["subsets"]["seen"]["scenes"] if s["failure"]]
+    assert failures and all("finite" in failure for failure in failures)  # the NaN placements
+
+
+def test_a_method_object_runs_as_registered_methods_do(smoke_dataset):
+    results = evaluate_policy(eval_methods.OracleMethod(smoke_dataset), smoke_dataset, SETTINGS)
+    (entry,) = results["evaluations"]
+    assert entry["label"] == "eval_methods:OracleMethod" and entry["description"] == {"dataset": str(smoke_dataset)}
+    assert all(entry["subsets"][subset]["aggregate"]["overall"]["success"] == 1.0 for subset in SUBSETS)
+
+
+CENTRE_POLICY = '''
+def place(observation):
+    """The table's centre, whatever the instruction says."""
+    return (0.0, 0.0)
+'''
+
+
+def test_cli_evaluates_a_policy_module_and_reruns_it(smoke_dataset, tmp_path, monkeypatch, capsys):
+    (tmp_path / "centre_policy_of_the_cli_test.py").write_text(CENTRE_POLICY)
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(sys, "path", list(sys.path))  # the command puts the current folder on it
+    common = ["evaluate", "--dataset", str(smoke_dataset), "--subsets", "seen", "--physical", "0", "--no-progress"]
+    common += ["--backbone", "none", "--limit", "4", "--out", "results.json"]
+    assert main([*common, "--policy", "no_such_module_anywhere:place"]) == 2
+    assert "cannot import the policy module" in capsys.readouterr().err
+    assert main([*common, "--policy", "centre_policy_of_the_cli_test"]) == 2
+    assert "MODULE:CALLABLE" in capsys.readouterr().err
+    assert main([*common, "--policy", "centre_policy_of_the_cli_test:place", "--label", "Centre"]) == 0
+    assert "| Centre |" in capsys.readouterr().out
+    saved = read_results(tmp_path / "results.json")
+    assert [e["method"] for e in saved["evaluations"]] == ["centre_policy_of_the_cli_test:place"]
+    assert [s["mode"] for s in saved["evaluations"][0]["subsets"]["seen"]["scenes"]] == [[0.0, 0.0]] * 4
+    assert main(["evaluate", "--rerun", "results.json", "--no-progress"]) == 0
+    assert "reproduced exactly" in capsys.readouterr().out
