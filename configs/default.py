@@ -3,15 +3,18 @@
 from pathlib import Path
 
 from ocplace.experiments.experiment import DatasetSizes, EvalPlan, Experiment, MethodRecipes, TaskCpus
-from ocplace.models import no_pretrain, offline_recipes
-from ocplace.models.baselines.cliport import CliportConfig
-from ocplace.models.baselines.grids import GridConfig
-from ocplace.train.baseline_runs import Schedule
-from ocplace.train.cliport import CliportRecipe
+from ocplace.models import no_pretrain_config, offline_recipes
+from ocplace.models.baselines.cliport_config import CliportConfig
+from ocplace.models.baselines.grid_config import GridConfig
 from ocplace.train.config import TrainConfig
-from ocplace.train.grids import GridsRecipe
-from ocplace.train.no_llm import NoLlmTrainConfig
-from ocplace.train.no_pretrain import NoPretrainRecipe, NoPretrainTrainConfig
+from ocplace.train.recipes import (
+    CliportRecipe,
+    GridsRecipe,
+    NoLlmTrainConfig,
+    NoPretrainRecipe,
+    NoPretrainTrainConfig,
+    Schedule,
+)
 from ocplace.vocabulary import TEST_SUBSETS
 
 
@@ -25,7 +28,7 @@ def get_config() -> Experiment:
         recipes=MethodRecipes(
             ours=TrainConfig(),  # the paper's budget: 200K steps at batch 1
             no_llm=NoLlmTrainConfig(),
-            no_pretrain=NoPretrainRecipe(no_pretrain.default_config(), NoPretrainTrainConfig()),
+            no_pretrain=NoPretrainRecipe(no_pretrain_config.default_config(), NoPretrainTrainConfig()),
             # The paper's budget for the adapters: 200K steps at batch 1, warm-up then cosine decay.
             grids=GridsRecipe(
                 GridConfig(),

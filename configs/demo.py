@@ -7,15 +7,18 @@ them, or `--methods all`.
 from pathlib import Path
 
 from ocplace.experiments.experiment import DatasetSizes, EvalPlan, Experiment, MethodRecipes, TaskCpus
-from ocplace.models import no_pretrain, offline_recipes
-from ocplace.models.baselines.cliport import CliportConfig
-from ocplace.models.baselines.grids import GridConfig
-from ocplace.train.baseline_runs import Schedule
-from ocplace.train.cliport import CliportRecipe
+from ocplace.models import no_pretrain_config, offline_recipes
+from ocplace.models.baselines.cliport_config import CliportConfig
+from ocplace.models.baselines.grid_config import GridConfig
 from ocplace.train.config import TrainConfig
-from ocplace.train.grids import GridsRecipe
-from ocplace.train.no_llm import NoLlmTrainConfig
-from ocplace.train.no_pretrain import NoPretrainRecipe, NoPretrainTrainConfig
+from ocplace.train.recipes import (
+    CliportRecipe,
+    GridsRecipe,
+    NoLlmTrainConfig,
+    NoPretrainRecipe,
+    NoPretrainTrainConfig,
+    Schedule,
+)
 from ocplace.vocabulary import TEST_SUBSETS
 
 
@@ -33,7 +36,7 @@ def get_config() -> Experiment:
             ),
             no_llm=NoLlmTrainConfig(steps=3_000, warmup_steps=200, chunk_steps=500, checkpoint_every=1_500),
             no_pretrain=NoPretrainRecipe(
-                no_pretrain.demo_config(),
+                no_pretrain_config.demo_config(),
                 NoPretrainTrainConfig(steps=75, batch_size=8, warmup_steps=8, log_every=25, checkpoint_every=25),
             ),
             grids=GridsRecipe(

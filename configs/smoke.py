@@ -3,14 +3,17 @@
 from pathlib import Path
 
 from ocplace.experiments.experiment import DatasetSizes, EvalPlan, Experiment, MethodRecipes, TaskCpus
-from ocplace.models import no_pretrain, offline_recipes
-from ocplace.models.baselines import cliport, grids
+from ocplace.models import no_pretrain_config, offline_recipes
+from ocplace.models.baselines import cliport_config, grid_config
 from ocplace.train import config as ours
-from ocplace.train.baseline_runs import Schedule
-from ocplace.train.cliport import CliportRecipe
-from ocplace.train.grids import GridsRecipe
-from ocplace.train.no_llm import NoLlmTrainConfig
-from ocplace.train.no_pretrain import NoPretrainRecipe, NoPretrainTrainConfig
+from ocplace.train.recipes import (
+    CliportRecipe,
+    GridsRecipe,
+    NoLlmTrainConfig,
+    NoPretrainRecipe,
+    NoPretrainTrainConfig,
+    Schedule,
+)
 from ocplace.vocabulary import TEST_SUBSETS
 
 
@@ -33,19 +36,19 @@ def get_config() -> Experiment:
                 hidden=32,
             ),
             no_pretrain=NoPretrainRecipe(
-                no_pretrain.smoke_config(),
+                no_pretrain_config.smoke_config(),
                 NoPretrainTrainConfig(
                     steps=150, batch_size=4, learning_rate=1e-3, warmup_steps=3, log_every=10, checkpoint_every=50
                 ),
             ),
             grids=GridsRecipe(
-                grids.smoke_grid_config(),
+                grid_config.smoke_grid_config(),
                 Schedule(
                     steps=120, batch_size=4, learning_rate=1e-2, warmup_steps=5, chunk_steps=40, checkpoint_every=40
                 ),
             ),
             cliport=CliportRecipe(
-                cliport.smoke_config(),
+                cliport_config.smoke_config(),
                 Schedule(
                     steps=60, batch_size=4, learning_rate=3e-3, warmup_steps=5, chunk_steps=20, checkpoint_every=20
                 ),

@@ -2,8 +2,9 @@
 
 `ocplace.configs` holds one `Experiment` per file (smoke, demo, default); `ocplace reproduce`
 runs one. Every method that learns finds its training recipe here by its registered name
-(`MethodRecipes.of`), typed with that method's `Recipe` (`ocplace.methods`); the pipeline hands it
-to the method through `TrainContext.recipe`.
+(`MethodRecipes.of`), typed with that method's `Recipe` (`ocplace.methods`; the types live in the
+JAX-free `train/config.py` and `train/recipes.py`, so building and checking an experiment is fast);
+the pipeline hands it to the method through `TrainContext.recipe`.
 """
 
 from __future__ import annotations
@@ -14,10 +15,11 @@ from collections.abc import Collection
 from pathlib import Path
 
 from ocplace.errors import ConfigError, OcplaceError
-from ocplace.methods import cliport, grids, no_llm, no_pretrain, ours
 from ocplace.models.offline_recipes import PretrainConfig
 from ocplace.models.parsing.config import PARSER_NAMES
 from ocplace.runtime.width import TRAIN_CPUS
+from ocplace.train.config import TrainConfig
+from ocplace.train.recipes import CliportRecipe, GridsRecipe, NoLlmTrainConfig, NoPretrainRecipe
 from ocplace.vocabulary import TEST_SUBSETS
 
 
@@ -70,13 +72,14 @@ def refuse_run_keys(keys: Collection[str]) -> None:
 
 @dataclasses.dataclass(frozen=True)
 class MethodRecipes:
-    """The training configuration of each method that learns, keyed by its registered name."""
+    """The training recipe of each method that learns, keyed by its registered name; each field's type is
+    the `Recipe` of that method's module in `ocplace.methods` (imported from `train/`, where it is light)."""
 
-    ours: ours.Recipe
-    no_llm: no_llm.Recipe
-    no_pretrain: no_pretrain.Recipe
-    grids: grids.Recipe
-    cliport: cliport.Recipe
+    ours: TrainConfig
+    no_llm: NoLlmTrainConfig
+    no_pretrain: NoPretrainRecipe
+    grids: GridsRecipe
+    cliport: CliportRecipe
 
     def of(self, method: str):
         """The recipe of a registered method; None for a method without one (it learns nothing)."""

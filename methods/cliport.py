@@ -18,7 +18,7 @@ from ocplace.methods.trained_baseline import describe_baseline, failure_output, 
 from ocplace.models.baselines import cliport
 from ocplace.models.baselines.common import top_down_camera
 from ocplace.sim.dataset.records import SceneRecord
-from ocplace.train.cliport import CliportRecipe as Recipe
+from ocplace.train.recipes import CliportRecipe as Recipe
 
 SCENES_PER_BATCH = 8  # CLIPort scenes per network call (a fixed shape: one compilation)
 

@@ -22,7 +22,7 @@ from ocplace.models.baselines.common import free_grid, top_down_camera
 from ocplace.models.parsing.types import as_pairs, parse_note
 from ocplace.paths import atomic_path, baselines_cache
 from ocplace.sim.dataset.records import SceneRecord
-from ocplace.train.grids import GridsRecipe as Recipe
+from ocplace.train.recipes import GridsRecipe as Recipe
 
 
 @dataclasses.dataclass

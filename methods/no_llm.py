@@ -21,7 +21,7 @@ from ocplace.methods.api import LoadContext, MethodSpec, TrainContext
 from ocplace.methods.policy_method import prepare_train_features, scene_input
 from ocplace.paths import WEIGHTS_FILE
 from ocplace.sim.dataset.records import SceneRecord
-from ocplace.train.no_llm import NoLlmTrainConfig as Recipe
+from ocplace.train.recipes import NoLlmTrainConfig as Recipe
 
 
 def train(ctx: TrainContext[Recipe]) -> Path:

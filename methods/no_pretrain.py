@@ -13,7 +13,7 @@ from pathlib import Path
 from ocplace.methods.api import LoadContext, MethodSpec, TrainContext
 from ocplace.methods.policy_method import PolicyMethod, describe_policy, trained_run_weights
 from ocplace.paths import read_run_file
-from ocplace.train.no_pretrain import NoPretrainRecipe as Recipe
+from ocplace.train.recipes import NoPretrainRecipe as Recipe
 
 
 def train(ctx: TrainContext[Recipe]) -> Path:

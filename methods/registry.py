@@ -19,13 +19,19 @@ METHOD_MODULES: tuple[str, ...] = (
 )
 
 
+def registered_names() -> tuple[str, ...]:
+    """The registered methods' command-line names, known without importing their modules (and JAX): a
+    method is named after its module."""
+    return tuple(module_name.rsplit(".", 1)[-1] for module_name in METHOD_MODULES)
+
+
 def method_specs() -> dict[str, MethodSpec]:
     """Every registered method by its command-line name, in registration order."""
     specs: dict[str, MethodSpec] = {}
-    for module_name in METHOD_MODULES:
+    for module_name, name in zip(METHOD_MODULES, registered_names()):
         spec = importlib.import_module(module_name).SPEC
-        if spec.name in specs:
-            raise ValueError(f"method {spec.name!r} is registered twice (in {module_name})")
+        if spec.name != name:
+            raise ValueError(f"{module_name} registers {spec.name!r}: a method is named after its module")
         specs[spec.name] = spec
     return specs
 

@@ -27,9 +27,10 @@ import numpy as np
 import optax
 
 from ocplace import serial
-from ocplace.models.adapters import AdapterConfig, GroundingAdapters, apply_adapters
+from ocplace.models.adapters import GroundingAdapters, apply_adapters
 from ocplace.models.backbone import Backbone, update_with_params
 from ocplace.models.grounding import cosine_logits, grounding_loss
+from ocplace.models.no_llm_config import NoLlmConfig
 from ocplace.models.weights_file import load_weights, unflatten_state
 from ocplace.paths import trained_weights
 from ocplace.sim.relations import RELATION_NAMES, RELATIONS
@@ -37,25 +38,6 @@ from ocplace.sim.relations import RELATION_NAMES, RELATIONS
 NUM_RELATIONS = len(RELATION_NAMES)
 MAX_REFERENCES = 2  # the 2obj level names two references
 REFERENCES_BY_LEVEL = {"table": 1, "1obj": 1, "2obj": 2}
-
-
-@dataclasses.dataclass(frozen=True)
-class NoLlmConfig:
-    """Shapes of the no_llm model; everything that shapes its parameters or its text."""
-
-    dim: int = 512  # D, the backbone's embedding width
-    reduction: int = 4  # adapter hidden width = D / reduction
-    residual_ratio: float = 0.2
-    hidden: int = 256  # relation MLP hidden width
-    # The sentence is already a caption, so CLIP's "a photo of a {}." would only garble it.
-    sentence_template: str = "{}"
-
-    @property
-    def adapters(self) -> AdapterConfig:
-        return AdapterConfig(self.dim, self.reduction, self.residual_ratio)
-
-    def sentence_text(self, instruction: str) -> str:
-        return self.sentence_template.format(" ".join(instruction.split()))
 
 
 class RelationHead(nn.Module):

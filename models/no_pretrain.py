@@ -14,7 +14,6 @@ Once trained, the tower is an ordinary `OfflineBackbone` and the adapters an ord
 
 from __future__ import annotations
 
-import dataclasses
 import math
 
 import jax
@@ -23,40 +22,11 @@ import numpy as np
 
 from ocplace.models import efficientnet
 from ocplace.models import offline_backbone as ob
-from ocplace.models.adapters import AdapterConfig, apply_adapters, init_adapters
+from ocplace.models.adapters import apply_adapters, init_adapters
 from ocplace.models.grounding import cosine_logits, grounding_loss
+from ocplace.models.no_pretrain_config import NoPretrainConfig
 
 BACKBONE_DIR = "backbone"  # the trained tower inside a run directory, an offline backbone directory
-
-
-@dataclasses.dataclass(frozen=True)
-class NoPretrainConfig:
-    backbone: ob.OfflineConfig
-    reduction: int = 4
-    residual_ratio: float = 0.2
-    max_logit_scale: float = 100.0  # CLIP's clamp on the learned temperature
-
-    @property
-    def adapters(self) -> AdapterConfig:
-        return AdapterConfig(self.backbone.embed_dim, self.reduction, self.residual_ratio)
-
-
-def from_random(backbone: ob.OfflineConfig) -> ob.OfflineConfig:
-    """`backbone`'s architecture with nothing pretrained."""
-    return dataclasses.replace(backbone, trunk_init="random")
-
-
-def default_config() -> NoPretrainConfig:
-    """Ours' backbone (`offline_backbone.default_config`) from random weights."""
-    return NoPretrainConfig(from_random(ob.default_config()))
-
-
-def demo_config() -> NoPretrainConfig:
-    return default_config()
-
-
-def smoke_config() -> NoPretrainConfig:
-    return NoPretrainConfig(from_random(ob.smoke_config()))
 
 
 def init_params(config: NoPretrainConfig, key) -> dict:

@@ -36,111 +36,20 @@ from ocplace import serial
 from ocplace.errors import BackboneError, BackboneUnavailable
 from ocplace.models import efficientnet
 from ocplace.models.backbone import (
-    ImagePreprocessing,
     check_images,
     resize_and_crop,
     run_batched,
     update_with_params,
 )
 from ocplace.models.grounding import l2_normalize
+from ocplace.models.offline_config import OfflineConfig
 from ocplace.paths import WEIGHTS_FILE, atomic_path, backbones_cache, write_text_atomic
 from ocplace.vocabulary import CLIP_IMAGE_MEAN, CLIP_IMAGE_STD
 
 CONFIG_FILE = "config.json"  # the model's description, not a run's identity (a pretraining run keeps that in run/)
 FINGERPRINT_FILE = "fingerprint.txt"
 FORMAT = "ocplace-offline-backbone-v1"
-VIT = "vit"
-MINILM_DIM = 384
 MINILM_FILES = ("config.json", "model.safetensors", "tokenizer.json", "vocab.txt")
-BICUBIC = 3  # PIL.Image.BICUBIC
-
-
-VIT_DEPTH_FIELDS = ("layers", "heads", "mlp_dim")
-
-
-@dataclasses.dataclass(frozen=True)
-class OfflineConfig:
-    """Architecture of the offline backbone (everything that shapes its parameters).
-
-    `trunk` is "vit" (the fields `patch_size` ... `mlp_dim` shape it) or an EfficientNet-Lite
-    variant ("lite0"), started from ImageNet weights (`trunk_init="imagenet"`) or at random, with
-    its first `frozen_blocks` entries of `efficientnet.block_names` never trained.
-    """
-
-    trunk: str = "lite0"  # every recipe's; "vit" is kept for comparison (`vit_config`)
-    trunk_init: str = "imagenet"  # "imagenet" (EfficientNet-Lite only) or "random"
-    frozen_blocks: int = 13  # the stem and first 12 blocks: measured in docs/offline_backbone.md
-    image_size: int = 128
-    patch_size: int = 16
-    width: int = 256  # the ViT's width; an EfficientNet-Lite trunk gives 1280 features
-    layers: int = 6
-    heads: int = 4
-    mlp_dim: int = 1024
-    embed_dim: int = 256  # D, the shared embedding width
-    text_dim: int = MINILM_DIM  # width of the frozen text tower's sentence embedding
-    text_max_length: int = 32  # MiniLM tokens per text; longer texts are truncated
-    init_temperature: float = 0.07  # CLIP's initial softmax temperature (logit scale 1 / 0.07)
-
-    @property
-    def is_vit(self) -> bool:
-        return self.trunk == VIT
-
-    @property
-    def feature_width(self) -> int:
-        """Width of the trunk's pooled features, the input of `visual_projection`."""
-        return self.width if self.is_vit else efficientnet.HEAD_WIDTH
-
-    @property
-    def preprocessing(self) -> ImagePreprocessing:
-        mean, std = (
-            (CLIP_IMAGE_MEAN, CLIP_IMAGE_STD)
-            if self.is_vit
-            else ((efficientnet.PIXEL_MEAN / 255,) * 3, (efficientnet.PIXEL_STD / 255,) * 3)
-        )
-        return ImagePreprocessing(
-            resize=self.image_size, crop=(self.image_size, self.image_size), mean=mean, std=std, resample=BICUBIC
-        )
-
-    def validate(self) -> None:
-        if not self.is_vit:
-            efficientnet.config(self.trunk)
-        if self.trunk_init not in ("imagenet", "random") or (self.is_vit and self.trunk_init == "imagenet"):
-            raise BackboneError(
-                f"trunk_init {self.trunk_init!r}: use 'random', or 'imagenet' with an EfficientNet-Lite trunk"
-            )
-
-    def vision_config(self):
-        from transformers import CLIPVisionConfig
-
-        return CLIPVisionConfig(
-            image_size=self.image_size,
-            patch_size=self.patch_size,
-            hidden_size=self.width,
-            intermediate_size=self.mlp_dim,
-            num_hidden_layers=self.layers,
-            num_attention_heads=self.heads,
-            projection_dim=self.embed_dim,
-        )
-
-    def serial_omitted(self) -> tuple[str, ...]:
-        """An EfficientNet trunk's text leaves out the ViT's depth, which does not shape it, so that its recipe
-        key (and the cached backbones named by it) change only with what matters (`ocplace.serial`)."""
-        return () if self.is_vit else VIT_DEPTH_FIELDS
-
-
-def vit_config() -> OfflineConfig:
-    """The first offline backbone: a 4.9M-parameter ViT trained from scratch (kept for comparison)."""
-    return OfflineConfig(trunk=VIT, trunk_init="random", frozen_blocks=0)
-
-
-def default_config() -> OfflineConfig:
-    """EfficientNet-Lite0 from ImageNet, 128 px crops, stem and first 12 blocks frozen: the class defaults."""
-    return OfflineConfig()
-
-
-def smoke_config() -> OfflineConfig:
-    """Ours' trunk at 32 px (cheap enough for tests), D = 32."""
-    return dataclasses.replace(default_config(), image_size=32, embed_dim=32)
 
 
 # ----------------------------------------------------------------------------- pure model functions

@@ -18,12 +18,12 @@ from pathlib import Path
 
 from ocplace import serial
 from ocplace.errors import TrainingError
-from ocplace.models import offline_backbone
-from ocplace.models.offline_backbone import OfflineConfig
+from ocplace.models import offline_config
+from ocplace.models.offline_config import OfflineConfig
 from ocplace.paths import backbones_cache
 from ocplace.sim.colour_terms import BASIC_COLOURS, COLOUR_TERMS
 from ocplace.sim.corpus.selection import PROTOCOLS
-from ocplace.sim.primitives import SHAPES, SIZES
+from ocplace.vocabulary import SHAPES, SIZES
 
 POOLS = ("corpus", "task")
 
@@ -131,7 +131,7 @@ class OptimConfig:
 @dataclasses.dataclass(frozen=True)
 class PretrainConfig:
     recipe: str
-    model: OfflineConfig = offline_backbone.default_config()
+    model: OfflineConfig = offline_config.default_config()
     render: RenderConfig = RenderConfig()
     optim: OptimConfig = OptimConfig()
 
@@ -171,7 +171,7 @@ def smoke_config() -> PretrainConfig:
     """Seconds: a tiny tower, four corpus models, two scenes, a few steps."""
     return PretrainConfig(
         "smoke",
-        model=offline_backbone.smoke_config(),
+        model=offline_config.smoke_config(),
         # No primitives: the smoke run's scenes hold pool objects only (a test checks every scene it
         # builds against the pool); `tests/test_pretrain_data.py` turns them on.
         render=RenderConfig(

@@ -26,3 +26,7 @@ CLIP_IMAGE_STD = (0.26862954, 0.26130258, 0.27577711)
 
 # The experiments of ocplace/configs by name (the keys of `ocplace.configs.EXPERIMENTS`), for the CLI's choices.
 EXPERIMENT_NAMES = ("smoke", "demo", "default")
+
+# The named primitives of the backbone's pretraining arenas (`sim/primitives.py`): shapes and sizes.
+SHAPES = ("box", "cylinder", "sphere", "cone", "ring", "disc", "capsule", "pyramid")
+SIZES = ("small", "medium", "large")

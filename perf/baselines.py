@@ -20,6 +20,7 @@ import numpy as np
 
 from ocplace import configs
 from ocplace.models import offline_backbone as ob
+from ocplace.models import offline_config
 from ocplace.models.baselines import cliport, grids
 from ocplace.sim.camera import Camera
 from ocplace.train import cliport as train_cliport
@@ -108,7 +109,7 @@ def main() -> None:
     parser.add_argument("--scenes", type=int, default=4, help="scenes for the featurisation timing")
     args = parser.parse_args()
 
-    config = ob.default_config() if args.experiment == "default" else ob.smoke_config()
+    config = offline_config.default_config() if args.experiment == "default" else offline_config.smoke_config()
     backbone = ob.OfflineBackbone(config, ob.init_params(config, jax.random.key(0)))
     recipes = configs.get(args.experiment).recipes
     grid_recipe, cliport_recipe = recipes.grids, recipes.cliport

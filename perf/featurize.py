@@ -46,8 +46,9 @@ def offline_tower():
     import functools
 
     from ocplace.models import offline_backbone as ob
+    from ocplace.models import offline_config
 
-    config = ob.default_config()
+    config = offline_config.default_config()
     params = jax.device_put(ob.init_params(config, jax.random.key(0)))
     encode = jax.jit(functools.partial(ob.image_embeddings, config))
     return encode, params, config.preprocessing, f"offline (EfficientNet-{config.trunk}, {config.image_size} px)"

@@ -28,7 +28,8 @@ from pathlib import Path
 import jax
 
 import ocplace  # noqa: F401  (sets the headless OpenGL default before MuJoCo loads)
-from ocplace.models.offline_backbone import OfflineBackbone, init_params, vit_config
+from ocplace.models.offline_backbone import OfflineBackbone, init_params
+from ocplace.models.offline_config import vit_config
 from ocplace.models.offline_recipes import RECIPES, default_config, recipe_config
 from ocplace.sim.corpus.build import build_corpus
 from ocplace.sim.library import load_library

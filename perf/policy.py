@@ -33,8 +33,9 @@ from ocplace.models.policy import PlacementPolicy
 
 def random_offline_backbone(tiny: bool):
     from ocplace.models import offline_backbone as ob
+    from ocplace.models import offline_config
 
-    config = ob.smoke_config() if tiny else ob.default_config()
+    config = offline_config.smoke_config() if tiny else offline_config.default_config()
     return ob.OfflineBackbone(config, ob.init_params(config, jax.random.key(0)), source="random")
 
 

@@ -19,9 +19,8 @@ import trimesh
 from ocplace.errors import SceneError
 from ocplace.paths import write_text_atomic
 from ocplace.sim.library.types import ObjectAsset
+from ocplace.vocabulary import SHAPES, SIZES
 
-SHAPES = ("box", "cylinder", "sphere", "cone", "ring", "disc", "capsule", "pyramid")
-SIZES = ("small", "medium", "large")
 PRIMITIVE_SPLIT = "primitive"
 DENSITY = 400.0  # kg/m^3: between wood and hollow plastic, like the library's objects
 NEUTRAL_RGBA = (0.7, 0.7, 0.7, 1.0)  # until a scene paints it

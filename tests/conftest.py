@@ -56,8 +56,9 @@ def tiny_backbone_spec(tmp_path_factory):
     import jax
 
     from ocplace.models import offline_backbone as ob
+    from ocplace.models import offline_config
 
-    config = ob.smoke_config()
+    config = offline_config.smoke_config()
     params = ob.init_params(config, jax.random.key(0))
     directory = ob.save_backbone(
         tmp_path_factory.mktemp("tiny_backbone"), config, params, ob.FrozenTextTower.load(config.text_max_length).digest

@@ -280,14 +280,14 @@ def test_methods_are_registered():
 def test_no_pretrain_is_ours_architecture_from_random_weights():
     import dataclasses
 
-    from ocplace.models import no_pretrain
+    from ocplace.models import no_pretrain_config, offline_config
     from ocplace.models import offline_backbone as ob
     from ocplace.models.imagenet_weights import load_pretrained
 
-    backbone = no_pretrain.default_config().backbone
+    backbone = no_pretrain_config.default_config().backbone
     assert backbone.trunk_init == "random"
-    assert dataclasses.replace(backbone, trunk_init="imagenet") == ob.default_config()
-    smoke = no_pretrain.smoke_config().backbone
+    assert dataclasses.replace(backbone, trunk_init="imagenet") == offline_config.default_config()
+    smoke = no_pretrain_config.smoke_config().backbone
     params = ob.init_params(smoke, jax.random.key(0))
     imagenet = ob.flatten_params({"vision": load_pretrained(smoke.trunk)})
     random_trunk = ob.flatten_params({"vision": params["vision"]})
@@ -299,12 +299,12 @@ def test_no_pretrain_is_ours_architecture_from_random_weights():
 def test_calibration_keeps_a_random_trunk_alive(smoke_dataset):
     """A random EfficientNet with identity batch-norm statistics gives near-constant features;
     statistics measured on training images restore their spread across images."""
-    from ocplace.models import efficientnet, no_pretrain
+    from ocplace.models import efficientnet, no_pretrain, no_pretrain_config
     from ocplace.models import offline_backbone as ob
     from ocplace.models.backbone import PromptConfig
     from ocplace.train.no_pretrain import no_pretrain_inputs
 
-    model = no_pretrain.smoke_config()
+    model = no_pretrain_config.smoke_config()
     arrays = no_pretrain_inputs(smoke_dataset, "train", model.backbone, PromptConfig(), progress=False).arrays
     params = no_pretrain.init_params(model, jax.random.key(0))
     pixels = arrays["pixels"][arrays["visual_mask"].astype(bool)]

@@ -9,6 +9,8 @@ import errno
 import json
 import math
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 import cv2
@@ -427,13 +429,14 @@ def test_a_full_disk_is_a_typed_error_naming_the_file(tmp_path):
 def saved_cache(tmp_path_factory):
     """A cache with one saved (tiny) offline backbone, and adapters trained on it by fingerprint."""
     from ocplace.models import offline_backbone as ob
+    from ocplace.models import offline_config
     from ocplace.models.adapters import AdapterConfig, init_adapters
     from ocplace.models.backbone import PromptConfig
     from ocplace.models.trained_adapters import save_adapters
     from ocplace.paths import WEIGHTS_FILE
 
     cache = tmp_path_factory.mktemp("cache")
-    config = ob.smoke_config()
+    config = offline_config.smoke_config()
     directory = ob.save_backbone(
         cache / "backbones" / "offline-tiny",  # paths.backbones_cache() once OCPLACE_CACHE names `cache`
         config,
@@ -494,3 +497,26 @@ def test_a_full_disk_still_prints_the_placement(saved_cache, images, tmp_path, c
     assert code == 2 and "mode:" in printed and f"wrote {out}" not in printed
     assert err.startswith(f"ocplace place: error: cannot write {out}: the disk is full")
     assert sorted(p.name for p in full_disk.iterdir()) == ["filler"]
+
+
+@pytest.mark.parametrize(
+    "override", ["evaluation.num_samples=-1", "recipes.ours.learning_rate=nan", "evaluation.methods=nope", "out="]
+)
+def test_a_bad_set_fails_before_jax_is_imported(override, tmp_path):
+    """The experiment is built and checked from JAX-free modules, so a bad value fails at once (exit 2)."""
+    argv = ["reproduce", "--experiment", "smoke", "--out", str(tmp_path / "out"), "--set", override]
+    probe = (
+        "import sys\n"
+        "from ocplace.cli import main\n"
+        f"code = main({argv!r})\n"
+        "print(code, 'jax' in sys.modules, 'ocplace.experiments.pipeline' in sys.modules)\n"
+    )
+    result = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=120)
+    assert result.stdout.split() == ["2", "False", "False"], result.stdout + result.stderr
+    assert "ocplace reproduce: error:" in result.stderr and not (tmp_path / "out").exists()
+
+
+def test_registered_names_are_the_specs_names_without_importing_them():
+    from ocplace.methods.registry import method_specs, registered_names
+
+    assert registered_names() == tuple(method_specs())

@@ -13,7 +13,7 @@ from llm_endpoint import fixed_answer, llm_parser
 
 from ocplace.configs import smoke
 from ocplace.methods.api import LoadContext, TrainContext
-from ocplace.models.baselines import cliport, grids
+from ocplace.models.baselines import cliport, cliport_config, grids
 from ocplace.paths import RUN_FILE, WEIGHTS_FILE
 from ocplace.sim.camera import Camera
 from ocplace.sim.dataset.job import scene_dirs
@@ -100,7 +100,7 @@ def test_pixel_table_round_trip_over_the_whole_table():
 
 
 def test_cliport_output_is_a_distribution_over_table_pixels_and_its_argmax_round_trips():
-    camera, config = Camera(), cliport.smoke_config()
+    camera, config = Camera(), cliport_config.smoke_config()
     batch, dim = 8, 32  # the shapes the end-to-end test uses: one compilation for both
     params = cliport.init_network(config, dim, jax.random.key(1))
     rng = np.random.default_rng(0)

@@ -14,6 +14,7 @@ import pytest
 from ocplace import serial
 from ocplace.errors import BackboneError, BackboneUnavailable, TrainingError
 from ocplace.models import offline_backbone as ob
+from ocplace.models import offline_config
 from ocplace.models.backbone import Backbone, PromptConfig, load_backbone
 from ocplace.models.offline_backbone import (
     FINGERPRINT_FILE,
@@ -23,9 +24,7 @@ from ocplace.models.offline_backbone import (
     load_saved_backbone,
     minilm_digest,
 )
-from ocplace.models.offline_backbone import (
-    smoke_config as smoke_model,
-)
+from ocplace.models.offline_config import smoke_config as smoke_model
 from ocplace.models.offline_recipes import (
     RECIPES,
     PretrainConfig,
@@ -357,7 +356,7 @@ def test_backbone_path_command_prints_the_recipe_directory(tmp_path, monkeypatch
 def test_a_vit_trunk_still_builds_encodes_and_round_trips(tmp_path):
     """The first offline backbone's ViT trunk (`vit_config`) still builds, encodes, saves and loads."""
     vit = dataclasses.replace(
-        ob.vit_config(), image_size=32, patch_size=8, width=32, layers=1, heads=2, mlp_dim=64, embed_dim=16
+        offline_config.vit_config(), image_size=32, patch_size=8, width=32, layers=1, heads=2, mlp_dim=64, embed_dim=16
     )
     params = init_params(vit, jax.random.key(0))
     assert params["visual_projection"].shape == (32, 16)
@@ -378,5 +377,5 @@ def test_the_vit_depth_does_not_change_an_efficientnet_recipe_key():
     deeper = dataclasses.replace(recipe, model=dataclasses.replace(recipe.model, layers=12, heads=8))
     assert recipe.model.trunk == "lite0" and deeper.key() == recipe.key()
     assert serial.from_dict(PretrainConfig, serial.to_dict(deeper)) == recipe
-    vit = dataclasses.replace(recipe, model=ob.vit_config())
+    vit = dataclasses.replace(recipe, model=offline_config.vit_config())
     assert dataclasses.replace(vit, model=dataclasses.replace(vit.model, layers=12)).key() != vit.key()

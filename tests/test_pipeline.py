@@ -293,7 +293,7 @@ def test_reproduce_options_reach_the_config(tmp_path, monkeypatch):
     monkeypatch.setattr(pipeline, "run_pipeline", record)
     config, out = reproduce(
         *("--experiment", "default", "--out", str(tmp_path / "out"), "--backbone", "offline:spec"),
-        *("--methods", "oracle, centre", "--workers", "3", "--dataset", str(tmp_path / "dataset")),
+        *("--methods", "no_adapter, grids", "--workers", "3", "--dataset", str(tmp_path / "dataset")),
         *("--fractions", "1", "0.5", "1", "--physical", "5", "--no-progress", "--seeds", "2", "--ray"),
     )
     assert out == tmp_path / "out"
@@ -303,7 +303,7 @@ def test_reproduce_options_reach_the_config(tmp_path, monkeypatch):
             default,
             dataset=dataclasses.replace(default.dataset, physical_scenes=5),
             evaluation=dataclasses.replace(
-                default.evaluation, methods=("oracle", "centre"), fractions=(0.5, 1.0), seeds=2
+                default.evaluation, methods=("no_adapter", "grids"), fractions=(0.5, 1.0), seeds=2
             ),
         ),
         backbone="offline:spec",
@@ -341,7 +341,7 @@ def test_reproduce_set_reaches_the_experiment(tmp_path, monkeypatch):
         [
             *("reproduce", "--experiment", "smoke", "--methods", "all", "--workers", "2"),
             *("--set", "recipes.ours.steps=5000", "--set", "dataset.train_scenes=100"),
-            *("--set", "evaluation.methods=oracle, centre", "--set", f"out={tmp_path / 'elsewhere'}"),
+            *("--set", "evaluation.methods=no_adapter, grids", "--set", f"out={tmp_path / 'elsewhere'}"),
         ]
     )
     assert args.func(args) == 0
@@ -354,7 +354,7 @@ def test_reproduce_set_reaches_the_experiment(tmp_path, monkeypatch):
             out=tmp_path / "elsewhere",
             recipes=dataclasses.replace(smoke.recipes, ours=dataclasses.replace(smoke.recipes.ours, steps=5000)),
             dataset=dataclasses.replace(smoke.dataset, train_scenes=100),
-            evaluation=dataclasses.replace(smoke.evaluation, methods=("oracle", "centre")),  # after --methods
+            evaluation=dataclasses.replace(smoke.evaluation, methods=("no_adapter", "grids")),  # after --methods
         ),
         executor=ExecutorConfig(workers=2),
     )

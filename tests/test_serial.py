@@ -8,7 +8,7 @@ import pytest
 
 from ocplace import configs, serial
 from ocplace.eval.harness import EvalSettings, PhysicalOutcome, SceneOutcome
-from ocplace.models import offline_backbone as ob
+from ocplace.models import offline_config
 from ocplace.models.backbone import PromptConfig
 from ocplace.models.baselines.cliport import CliportConfig
 from ocplace.models.baselines.grids import GridConfig
@@ -45,7 +45,7 @@ def test_the_text_is_what_dataclasses_asdict_gave(config):
 
 
 def test_an_efficientnet_trunk_leaves_the_vit_depth_out_of_its_text():
-    lite, vit = ob.default_config(), ob.vit_config()
+    lite, vit = offline_config.default_config(), offline_config.vit_config()
     assert not {"layers", "heads", "mlp_dim"} & set(serial.to_dict(lite))
     assert {"layers", "heads", "mlp_dim"} <= set(serial.to_dict(vit))
     assert serial.to_dict(dataclasses.replace(lite, layers=99)) == serial.to_dict(lite)

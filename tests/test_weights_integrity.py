@@ -22,10 +22,10 @@ from synthetic_features import synthetic_features
 from ocplace import serial
 from ocplace.errors import BackboneError, GroundingUncertain, TrainingError, WeightsError
 from ocplace.models import offline_backbone as ob
-from ocplace.models import trained_adapters, weights_file
+from ocplace.models import offline_config, trained_adapters, weights_file
 from ocplace.models.adapters import AdapterConfig, init_adapters
 from ocplace.models.backbone import PromptConfig
-from ocplace.models.baselines import cliport, grids
+from ocplace.models.baselines import cliport, cliport_config, grid_config, grids
 from ocplace.models.grounding import GroundingModel
 from ocplace.models.no_llm import NoLlmConfig, NoLlmModel
 from ocplace.models.no_llm import init_params as init_no_llm
@@ -79,7 +79,7 @@ def _adapters(run_dir):
 
 
 def _grids(run_dir):
-    config = grids.smoke_grid_config()
+    config = grid_config.smoke_grid_config()
     checkpoints.claim_run_dir(run_dir, {"grid": serial.to_dict(config)})
     params = _random_like(lambda: grids.init_grids(config, DIM, KEY))
     path = baseline_runs.save_weights(run_dir, params, {"run": "test"})
@@ -87,7 +87,7 @@ def _grids(run_dir):
 
 
 def _cliport(run_dir):
-    config = cliport.smoke_config()
+    config = cliport_config.smoke_config()
     checkpoints.claim_run_dir(run_dir, {"network": serial.to_dict(config), "dim": DIM})
     params = _random_like(lambda: cliport.init_network(config, DIM, KEY))
     path = baseline_runs.save_weights(run_dir, params, {"run": "test"})
@@ -106,7 +106,7 @@ def _no_llm(run_dir):
 
 @pytest.fixture(scope="module")
 def saved_backbone(tmp_path_factory):
-    config = ob.smoke_config()
+    config = offline_config.smoke_config()
     params = ob.init_params(config, KEY)
     directory = ob.save_backbone(
         tmp_path_factory.mktemp("backbone") / "backbone",

@@ -15,46 +15,17 @@ are functions of (seed, step) alone, so a resumed run ends where an uninterrupte
 
 from __future__ import annotations
 
-import dataclasses
 import json
 from collections.abc import Callable
 from pathlib import Path
 
 import jax
 import numpy as np
-import optax
 
-from ocplace.errors import TrainingError
 from ocplace.models import weights_file
 from ocplace.paths import WEIGHTS_FILE
-from ocplace.train import checkpoints, optim, runner
-
-
-@dataclasses.dataclass(frozen=True)
-class Schedule:
-    """Optimisation budget of a recipe: Adam, linear warm-up then cosine decay to 0."""
-
-    steps: int
-    batch_size: int
-    learning_rate: float
-    warmup_steps: int
-    chunk_steps: int  # steps fused into one jitted lax.scan call
-    checkpoint_every: int  # a multiple of chunk_steps
-    keep_checkpoints: int = 2
-
-    def validate(self) -> None:
-        if (
-            min(self.steps, self.batch_size, self.chunk_steps, self.keep_checkpoints) < 1
-            or self.checkpoint_every % self.chunk_steps
-        ):
-            raise TrainingError(f"invalid schedule {self}: positive sizes, checkpoint_every a multiple of chunk_steps")
-
-    def learning_rate_schedule(self) -> optax.Schedule:
-        return optim.warmup_cosine(self.learning_rate, self.warmup_steps, self.steps)
-
-    def optimizer(self):
-        """`train/optim.py`'s Adam on this learning-rate schedule."""
-        return optim.adam(self.learning_rate_schedule())
+from ocplace.train import checkpoints, runner
+from ocplace.train.recipes import Schedule
 
 
 def is_finished(run_dir: Path) -> bool:

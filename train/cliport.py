@@ -29,16 +29,10 @@ from ocplace.sim.dataset.job import listed_scenes
 from ocplace.train import baseline_runs
 from ocplace.train.baseline_runs import Schedule
 from ocplace.train.batches import batch_indices, subset_indices
+from ocplace.train.recipes import CliportRecipe
 
 CACHE_FORMAT = "ocplace-cliport-data-v1"
 DATA_ARRAYS = ("rgb", "height", "text", "targets")
-
-
-@dataclasses.dataclass(frozen=True)
-class CliportRecipe:
-    network: cliport.CliportConfig
-    schedule: Schedule
-    num_targets: int = 16  # feasible pixels cached per scene
 
 
 def target_pixels(record, num_targets: int, seed: int, config: cliport.CliportConfig) -> np.ndarray:

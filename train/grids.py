@@ -32,13 +32,8 @@ from ocplace.sim.dataset.loader import letterbox
 from ocplace.train import baseline_runs
 from ocplace.train.baseline_runs import Schedule
 from ocplace.train.batches import batch_indices, subset_indices
+from ocplace.train.recipes import GridsRecipe
 from ocplace.vocabulary import MAX_INSTRUCTION_TUPLES
-
-
-@dataclasses.dataclass(frozen=True)
-class GridsRecipe:
-    grid: grids.GridConfig
-    schedule: Schedule
 
 
 def scene_examples(dataset_dir: Path, split: str, config: grids.GridConfig) -> Iterator[feature_cache.SceneToFeaturize]:

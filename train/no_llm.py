@@ -29,7 +29,7 @@ import numpy as np
 import optax
 
 from ocplace import serial
-from ocplace.errors import FeaturesError, TrainingError
+from ocplace.errors import FeaturesError
 from ocplace.models.backbone import Backbone
 from ocplace.models.features import Features, featurize_split, load_features
 from ocplace.models.no_llm import NoLlmConfig, NoLlmModel, encode_sentences, init_params, loss_terms
@@ -38,38 +38,10 @@ from ocplace.paths import WEIGHTS_FILE, atomic_path, features_cache
 from ocplace.sim.relations import relation_index
 from ocplace.train import checkpoints, optim, runner
 from ocplace.train.batches import batch_indices, subset_indices
+from ocplace.train.recipes import NoLlmTrainConfig
 
 # The paper's name in the cache key: renaming it would orphan every cached sentence file.
 SENTENCES_FORMAT = "ocplace-gtref-sentences-v1"
-
-
-@dataclasses.dataclass(frozen=True)
-class NoLlmTrainConfig:
-    steps: int = 10_000
-    batch_size: int = 32
-    learning_rate: float = 1e-3  # Adam peak, linear warm-up then cosine decay to 0
-    warmup_steps: int = 500
-    relation_weight: float = 1.0  # loss = reference CE + relation_weight * relation CE
-    hidden: int = 256  # relation MLP width
-    reduction: int = 4
-    residual_ratio: float = 0.2
-    seed: int = 0  # initial weights and example order
-    fraction: float = 1.0
-    subset_seed: int = 0  # nested subsets, as train.ours
-    chunk_steps: int = 1_000
-    checkpoint_every: int = 5_000
-    keep_checkpoints: int = 2
-
-    def validate(self) -> None:
-        if self.steps < 1 or self.batch_size < 1 or self.chunk_steps < 1:
-            raise TrainingError("steps, batch_size and chunk_steps must be positive")
-        if not 0.0 < self.fraction <= 1.0:
-            raise TrainingError(f"fraction must be in (0, 1], got {self.fraction}")
-        if self.checkpoint_every % self.chunk_steps:
-            raise TrainingError("checkpoint_every must be a multiple of chunk_steps")
-
-    def model_config(self, dim: int) -> NoLlmConfig:
-        return NoLlmConfig(dim=dim, reduction=self.reduction, residual_ratio=self.residual_ratio, hidden=self.hidden)
 
 
 # ----------------------------------------------------------------------------- cached inputs

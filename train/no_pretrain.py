@@ -30,47 +30,19 @@ import numpy as np
 import optax
 
 from ocplace import serial
-from ocplace.errors import TrainingError
-from ocplace.models import no_pretrain, trained_adapters
+from ocplace.models import no_pretrain, offline_config, trained_adapters
 from ocplace.models import offline_backbone as ob
 from ocplace.models.backbone import PromptConfig
 from ocplace.models.no_pretrain import BACKBONE_DIR
 from ocplace.paths import WEIGHTS_FILE, atomic_path, scratch_cache
 from ocplace.train import checkpoints, optim, runner
 from ocplace.train.batches import batch_indices, subset_indices
+from ocplace.train.recipes import NoPretrainRecipe, NoPretrainTrainConfig
 from ocplace.vocabulary import MAX_INSTRUCTION_TUPLES as MAX_TUPLES
 
 # The format and its cache folder (`paths.scratch_cache`) keep their old name: renaming would orphan every cached input.
 INPUTS_FORMAT = "ocplace-scratch-inputs-v1"
 MAX_TOKENS = 6  # 5 crops + the workspace
-
-
-@dataclasses.dataclass(frozen=True)
-class NoPretrainTrainConfig:
-    steps: int = 600  # 28,800 crops through the trunk: ~10 min on 2 cores at 128 px
-    batch_size: int = 8  # scenes per step (each with all its visual tokens)
-    learning_rate: float = 1e-3  # AdamW peak; linear warm-up, cosine decay to 2% (as the backbone pretraining)
-    warmup_steps: int = 50
-    weight_decay: float = 0.05  # matrices only
-    augment: bool = True  # a random symmetry of the square per image
-    seed: int = 0
-    fraction: float = 1.0
-    subset_seed: int = 0
-    log_every: int = 50
-    checkpoint_every: int = 200
-    keep_checkpoints: int = 2
-
-    def validate(self) -> None:
-        if min(self.steps, self.batch_size, self.log_every, self.checkpoint_every) < 1:
-            raise TrainingError("steps, batch_size, log_every and checkpoint_every must be positive")
-        if not 0.0 < self.fraction <= 1.0:
-            raise TrainingError(f"fraction must be in (0, 1], got {self.fraction}")
-
-
-@dataclasses.dataclass(frozen=True)
-class NoPretrainRecipe:
-    model: no_pretrain.NoPretrainConfig
-    train: NoPretrainTrainConfig
 
 
 # ----------------------------------------------------------------------------- cached inputs
@@ -85,7 +57,7 @@ class NoPretrainInputs:
     key: str
 
 
-def visual_pixels(config: ob.OfflineConfig, crops: np.ndarray, workspace: np.ndarray) -> np.ndarray:
+def visual_pixels(config: offline_config.OfflineConfig, crops: np.ndarray, workspace: np.ndarray) -> np.ndarray:
     """uint8 `(N + 1, S, S, 3)`: the crops then the workspace, preprocessed like `OfflineBackbone.encode_images`."""
     return ob.preprocess_images(config, np.concatenate([crops, workspace[None]]))
 
@@ -93,7 +65,7 @@ def visual_pixels(config: ob.OfflineConfig, crops: np.ndarray, workspace: np.nda
 def no_pretrain_inputs(
     dataset_dir: Path,
     split: str,
-    config: ob.OfflineConfig,
+    config: offline_config.OfflineConfig,
     prompt: PromptConfig = PromptConfig(),
     progress: bool = False,
 ) -> NoPretrainInputs:

@@ -17,7 +17,6 @@ flat index is `v * width + u`.
 
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 
 import cv2
@@ -28,31 +27,11 @@ import numpy as np
 import optax
 
 from ocplace import serial
+from ocplace.models.baselines.cliport_config import CliportConfig
 from ocplace.models.baselines.trained_run import load_run
 from ocplace.models.weights_file import unflatten_state
 from ocplace.sim.camera import Camera
-from ocplace.sim.workspace import DEFAULT_TABLE, Table
 from ocplace.vocabulary import CLIP_IMAGE_MEAN, CLIP_IMAGE_STD
-
-
-@dataclasses.dataclass(frozen=True)
-class CliportConfig:
-    width: int = 160  # input and output resolution (pixels)
-    height: int = 120
-    channels: tuple[int, ...] = (16, 32, 64, 64)  # U-Net widths, full resolution first; each next halves it
-    height_unit: float = 0.10  # metres per unit of the height channel
-    max_height: float = 0.40  # heights are clipped to [0, max_height]
-    table: Table = DEFAULT_TABLE
-
-    @property
-    def num_pixels(self) -> int:
-        return self.width * self.height
-
-
-def smoke_config() -> CliportConfig:
-    """40 x 30 pixels, two narrow levels: compiles and trains in seconds."""
-    return CliportConfig(width=40, height=30, channels=(8, 16))
-
 
 # ----------------------------------------------------------------------------- pixels and the table
 

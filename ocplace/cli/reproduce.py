@@ -98,7 +98,8 @@ def _reproduce(args: argparse.Namespace) -> int:
     from ocplace.cli.options import apply_overrides
     from ocplace.errors import ConfigError
     from ocplace.experiments.experiment import refuse_run_keys
-    from ocplace.experiments.pipeline import PipelineConfig, run_pipeline
+    from ocplace.methods.registry import registered_names
+    from ocplace.paths import check_writable
 
     experiment = configs.get(args.experiment)
     plan, sizes = experiment.evaluation, experiment.dataset
@@ -116,6 +117,14 @@ def _reproduce(args: argparse.Namespace) -> int:
         sizes = dataclasses.replace(sizes, physical_scenes=physical_setting(args.physical, sizes.physical_scenes))
     refuse_run_keys([item.partition("=")[0].strip() for item in args.overrides])
     experiment = apply_overrides(dataclasses.replace(experiment, evaluation=plan, dataset=sizes), args.overrides)
+    # Checked before the pipeline (and JAX behind it) is imported: a value that cannot work fails at once.
+    experiment.validate()
+    unknown = experiment.evaluation.unknown_methods(registered_names())
+    if unknown:
+        raise ConfigError(f"experiment {experiment.name!r} cannot run: {'; '.join(unknown)}")
+    check_writable(args.out or experiment.out, as_folder=True)
+    from ocplace.experiments.pipeline import PipelineConfig, run_pipeline
+
     config = PipelineConfig(
         experiment,
         backbone=args.backbone or None,

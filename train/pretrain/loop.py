@@ -34,7 +34,6 @@ from ocplace.models.offline_backbone import (
     FINGERPRINT_FILE,
     FrozenTextTower,
     OfflineBackbone,
-    OfflineConfig,
     image_embeddings,
     init_params,
     join_params,
@@ -44,6 +43,7 @@ from ocplace.models.offline_backbone import (
     text_embeddings,
     trainable_mask,
 )
+from ocplace.models.offline_config import OfflineConfig
 from ocplace.models.offline_recipes import OptimConfig, PretrainConfig, output_dir
 from ocplace.sim.corpus.build import build_corpus
 from ocplace.train import checkpoints, runner

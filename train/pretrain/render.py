@@ -26,7 +26,8 @@ import cv2
 import numpy as np
 
 from ocplace.errors import SceneError, TrainingError
-from ocplace.models.offline_backbone import OfflineConfig, preprocess_images
+from ocplace.models.offline_backbone import preprocess_images
+from ocplace.models.offline_config import OfflineConfig
 from ocplace.models.offline_recipes import RenderConfig
 from ocplace.paths import atomic_path, primitives_cache
 from ocplace.sim.boxes import boxes_from_segmentation, square_crop

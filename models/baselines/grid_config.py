@@ -1,0 +1,35 @@
+"""Raw Image Grids' configuration (`GridConfig`), without JAX: a recipe holds one."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from ocplace.sim.workspace import DEFAULT_TABLE, Table
+
+
+@dataclasses.dataclass(frozen=True)
+class GridConfig:
+    columns: int = 8  # cells along x (10 cm each on the 0.8 m table)
+    rows: int = 6  # cells along y (10 cm each on the 0.6 m table)
+    table: Table = DEFAULT_TABLE
+    crop_size: int = 224  # cell images are resized to this, like object crops
+    num_frequencies: int = 4  # NeRF bands: sin/cos(2^k pi p), k < num_frequencies
+    position_hidden: int = 64  # width of the positional MLP's hidden layer
+    reduction: int = 4  # adapter hidden width = D / reduction (as ours)
+    residual_ratio: float = 0.2  # adapter blend (as ours)
+
+    @property
+    def num_cells(self) -> int:
+        return self.columns * self.rows
+
+    @property
+    def cell_size(self) -> np.ndarray:
+        """`(2,)` metres."""
+        return 2.0 * np.asarray(self.table.half_extents) / np.array([self.columns, self.rows])
+
+
+def smoke_grid_config() -> GridConfig:
+    """A coarse 4 x 3 grid with small crops, for tests."""
+    return GridConfig(columns=4, rows=3, crop_size=32, num_frequencies=2, position_hidden=16)
