@@ -284,15 +284,15 @@ def task_graph(
 ) -> list[Node]:
     """backbone -> each method's shared inputs -> (train method x fraction x seed) -> evaluate each run.
 
-    Every task runs in a fresh process and declares its CPUs (the experiment's `cpus`; an evaluation one),
-    so JAX compiles for that many wherever it runs and the results are the same bits on any executor
+    Every task is pinned to the CPUs it declares (the experiment's `cpus`; an evaluation one), so JAX
+    compiles for that many wherever it runs and the results are the same bits on any executor
     (ocplace/runtime/width.py).
     """
     nodes = []
     cpus = config.experiment.cpus
     if config.backbone is None:
         recipe = config.experiment.backbone
-        task = Task(pretrain_task, (recipe, False), cpus=cpus.pretrain, fresh_process=True)
+        task = Task(pretrain_task, (recipe, False), cpus=cpus.pretrain, pinned=True)
         nodes.append(Node("backbone", lambda done: task))
         backbone_after, backbone_of = ("backbone",), (lambda done: done["backbone"])
     else:
@@ -303,7 +303,7 @@ def task_graph(
 
         def make(done):
             context = train_context(run, config, dataset_dir, backbone_of(done), out)
-            return Task(function, (specs[run.method], context), cpus=cpus.train, fresh_process=True)
+            return Task(function, (specs[run.method], context), cpus=cpus.train, pinned=True)
 
         return Node(key, make, after)
 
@@ -335,7 +335,7 @@ def _evaluate_maker(config, spec, run, dataset_dir, out, dataset_hash, backbone_
         trained = done.get(f"train {run.key}")
         ready = run if trained is None else dataclasses.replace(run, run_dir=trained[0])
         settings = evaluation_settings(config, backbone)
-        return Task(evaluate_task, (spec, ready, settings, dataset_dir, dataset_hash, out), fresh_process=True)
+        return Task(evaluate_task, (spec, ready, settings, dataset_dir, dataset_hash, out), pinned=True)
 
     return make
 
@@ -393,7 +393,7 @@ def _run(config, executor, out, specs, command, library) -> PipelineSummary:
         step.detail = library.summary()
     with _Timer(summary, "dataset", executor.capacity) as step:
         step.detail = dataset_step(config, dataset_dir, executor)
-    executor.release_workers()  # the generators they hold are not needed by the graph's fresh processes
+    executor.release_workers()  # the generators they hold are not needed by the graph's pinned workers
     if config.backbone is not None:
         with _Timer(summary, "backbone") as step:
             step.detail = f"{config.backbone} (given)"

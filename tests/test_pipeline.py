@@ -251,9 +251,7 @@ def test_task_graph_of_the_demo(tmp_path):
     task = nodes["train ours~seed1"].make({"backbone": "offline:/b", "prepare ours+no_llm": "ready"})
     spec, context = task.args
     assert spec.name == "ours" and context.backbone == "offline:/b"
-    assert (
-        task.fresh_process and task.cpus == 2 and context.seed == 1 and context.out_dir.name == "fraction-1.00-seed-1"
-    )
+    assert task.pinned and task.cpus == 2 and context.seed == 1 and context.out_dir.name == "fraction-1.00-seed-1"
     assert nodes["prepare ours+no_llm"].make({"backbone": "offline:/b"}).cpus == 2
     assert (
         nodes["evaluate ours~seed1"].make({"backbone": "offline:/b", "train ours~seed1": (tmp_path, False)}).cpus == 1
