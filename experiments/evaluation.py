@@ -33,13 +33,11 @@ def evaluate_runs(
     executor,
     progress: bool = True,
 ) -> list[Evaluation]:
-    """Every run scored as one task of `executor` (a fresh process each, JAX one CPU wide); in `runs` order.
+    """Every run scored as one task of `executor` (on a worker whose JAX is one CPU wide); in `runs` order.
     `specs` holds the spec of each run's method."""
     from ocplace.runtime import Task, map_tasks
 
-    tasks = [
-        Task(evaluate_in_worker, (specs[run.method], run, dataset_dir, settings), fresh_process=True) for run in runs
-    ]
+    tasks = [Task(evaluate_in_worker, (specs[run.method], run, dataset_dir, settings), pinned=True) for run in runs]
     evaluations: list[Evaluation | None] = [None] * len(runs)
     for index, evaluation in map_tasks(executor, tasks):
         evaluations[index] = evaluation

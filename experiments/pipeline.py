@@ -59,6 +59,7 @@ class Step:
     name: str
     wall_s: float
     detail: str
+    cpus: int = 1  # what the step held: its task's declared width, or the pool's workers for library and dataset
 
     def line(self) -> str:
         return f"[{self.name}] {self.wall_s:7.1f} s  {self.detail}"
@@ -85,15 +86,16 @@ class PipelineSummary:
 class _Timer:
     """Records a step's wall time into the summary and prints its line when the step ends."""
 
-    def __init__(self, summary: PipelineSummary, name: str):
-        self.summary, self.name, self.detail = summary, name, ""
+    def __init__(self, summary: PipelineSummary, name: str, cpus: int = 1):
+        self.summary, self.name, self.detail, self.cpus = summary, name, "", cpus
 
     def __enter__(self):
         self.began = time.perf_counter()
         return self
 
     def __exit__(self, *exc):
-        step = Step(self.name, time.perf_counter() - self.began, self.detail if exc[0] is None else "failed")
+        detail = self.detail if exc[0] is None else "failed"
+        step = Step(self.name, time.perf_counter() - self.began, detail, self.cpus)
         self.summary.steps.append(step)
         print(step.line(), flush=True)
 
@@ -282,15 +284,15 @@ def task_graph(
 ) -> list[Node]:
     """backbone -> each method's shared inputs -> (train method x fraction x seed) -> evaluate each run.
 
-    Every task runs in a fresh process and declares its CPUs (the experiment's `cpus`; an evaluation one),
-    so JAX compiles for that many wherever it runs and the results are the same bits on any executor
+    Every task is pinned to the CPUs it declares (the experiment's `cpus`; an evaluation one), so JAX
+    compiles for that many wherever it runs and the results are the same bits on any executor
     (ocplace/runtime/width.py).
     """
     nodes = []
     cpus = config.experiment.cpus
     if config.backbone is None:
         recipe = config.experiment.backbone
-        task = Task(pretrain_task, (recipe, False), cpus=cpus.pretrain, fresh_process=True)
+        task = Task(pretrain_task, (recipe, False), cpus=cpus.pretrain, pinned=True)
         nodes.append(Node("backbone", lambda done: task))
         backbone_after, backbone_of = ("backbone",), (lambda done: done["backbone"])
     else:
@@ -301,7 +303,7 @@ def task_graph(
 
         def make(done):
             context = train_context(run, config, dataset_dir, backbone_of(done), out)
-            return Task(function, (specs[run.method], context), cpus=cpus.train, fresh_process=True)
+            return Task(function, (specs[run.method], context), cpus=cpus.train, pinned=True)
 
         return Node(key, make, after)
 
@@ -333,7 +335,7 @@ def _evaluate_maker(config, spec, run, dataset_dir, out, dataset_hash, backbone_
         trained = done.get(f"train {run.key}")
         ready = run if trained is None else dataclasses.replace(run, run_dir=trained[0])
         settings = evaluation_settings(config, backbone)
-        return Task(evaluate_task, (spec, ready, settings, dataset_dir, dataset_hash, out), fresh_process=True)
+        return Task(evaluate_task, (spec, ready, settings, dataset_dir, dataset_hash, out), pinned=True)
 
     return make
 
@@ -386,12 +388,12 @@ def _run(config, executor, out, specs, command, library) -> PipelineSummary:
     dataset_dir = Path(config.dataset or out / "dataset")
     print(f"running on a {config.executor.describe()}", flush=True)
 
-    with _Timer(summary, "library") as step:
+    with _Timer(summary, "library", executor.capacity) as step:
         library = library or build_library_step(executor, config.progress)
         step.detail = library.summary()
-    with _Timer(summary, "dataset") as step:
+    with _Timer(summary, "dataset", executor.capacity) as step:
         step.detail = dataset_step(config, dataset_dir, executor)
-    executor.release_workers()  # the generators they hold are not needed by the graph's fresh processes
+    executor.release_workers()  # the generators they hold are not needed by the graph's pinned workers
     if config.backbone is not None:
         with _Timer(summary, "backbone") as step:
             step.detail = f"{config.backbone} (given)"
@@ -401,7 +403,7 @@ def _run(config, executor, out, specs, command, library) -> PipelineSummary:
 
     backbone = config.backbone or f"offline:{output_dir(config.experiment.backbone)}"
     evaluations = _evaluations(runs, outcomes)
-    _write_results(summary, config, evaluations, dataset_dir, evaluation_settings(config, backbone), command)
+    results = _write_results(summary, config, evaluations, dataset_dir, evaluation_settings(config, backbone), command)
     trained_ours = [
         outcomes[f"train {run.key}"].value[0]
         for run in runs
@@ -418,16 +420,17 @@ def _run(config, executor, out, specs, command, library) -> PipelineSummary:
                 summary.errors.append(_error("ours", "figure", error))
                 step.detail = f"FAILED: {type(error).__name__}: {error}"
     summary.wall_s = time.perf_counter() - began
+    _record_pipeline(summary, config, results)  # again, now with the figures' steps and the total
     return summary
 
 
 def _run_graph(summary: PipelineSummary, executor: Executor, nodes: list[Node]) -> dict:
     """Runs the graph, printing each step as it starts and ends; records steps and errors in graph order
     (not the order they happened to end in), so results.json does not depend on the executor."""
-    started, steps, errors = {}, {}, {}
+    started, cpus, steps, errors = {}, {}, {}, {}
 
-    def on_start(key):
-        started[key] = time.perf_counter()
+    def on_start(key, task):
+        started[key], cpus[key] = time.perf_counter(), task.cpus
         print(f"[{key}] started", flush=True)
 
     def on_outcome(outcome):
@@ -441,7 +444,7 @@ def _run_graph(summary: PipelineSummary, executor: Executor, nodes: list[Node]) 
             stage, _, key = outcome.key.partition(" ")
             errors[outcome.key] = _error(key or stage, stage, outcome.error)
             detail = f"FAILED: {type(outcome.error).__name__}: {outcome.error}"
-        steps[outcome.key] = Step(outcome.key, wall, detail)
+        steps[outcome.key] = Step(outcome.key, wall, detail, cpus[outcome.key])
         print(steps[outcome.key].line(), flush=True)
 
     outcomes = run_graph(executor, nodes, on_outcome, on_start)
@@ -457,17 +460,13 @@ def _evaluations(runs: list[MethodRun], outcomes: dict) -> list[Evaluation]:
     return [evaluation_from_json(json.loads(o.value[0].read_text())) for o in evaluated if o.ok]
 
 
-def _write_results(summary, config, evaluations, dataset_dir, settings, command) -> None:
+def _write_results(summary, config, evaluations, dataset_dir, settings, command) -> dict:
     from ocplace.eval.results import build_results, summarise, write_outputs, write_results
 
     out = summary.out
     with _Timer(summary, "results") as step:
         results = build_results(evaluations, dataset_dir, settings, command)
-        results["pipeline"] = {
-            "config": _config_json(config),
-            "steps": [dataclasses.asdict(s) for s in summary.steps],
-            "errors": summary.errors,
-        }
+        results["pipeline"] = _pipeline_json(summary, config)
         summary.results_path = out / "results.json"
         summary.markdown = write_outputs(results, summary.results_path)
         write_results(out / SUMMARY_FILE, summarise(results))
@@ -482,6 +481,27 @@ def _write_results(summary, config, evaluations, dataset_dir, settings, command)
             except Exception as error:
                 summary.errors.append(_error("figures", "figures", error))
                 step.detail = f"FAILED: {type(error).__name__}: {error}"
+    return results
+
+
+def _pipeline_json(summary: PipelineSummary, config: PipelineConfig) -> dict:
+    """The run itself: its config, each step's wall and CPUs, its errors and, once it ended, its total wall."""
+    recorded = {
+        "config": _config_json(config),
+        "steps": [dataclasses.asdict(s) for s in summary.steps],
+        "errors": summary.errors,
+    }
+    return recorded | ({"total_wall_s": summary.wall_s} if summary.wall_s else {})
+
+
+def _record_pipeline(summary: PipelineSummary, config: PipelineConfig, results: dict) -> None:
+    """Rewrites results.json and its summary with the whole run's steps and `total_wall_s`, known only at
+    its end (the figures come after the results they draw); the tables do not show them."""
+    from ocplace.eval.results import summarise, write_results
+
+    results["pipeline"] = _pipeline_json(summary, config)
+    write_results(summary.results_path, results)
+    write_results(summary.out / SUMMARY_FILE, summarise(results))
 
 
 def _error(key: str, stage: str, error: BaseException) -> dict:

@@ -146,6 +146,7 @@ def load(ctx: LoadContext) -> NoLlmMethod:
     from ocplace.models.no_llm import load_model
     from ocplace.models.placement.sampler import SamplerConfig
     from ocplace.models.policy import PlacementPolicy
+    from ocplace.models.shared_features import SharedFeatures
 
     if ctx.run_dir is None:
         raise TrainingError("no_llm needs a run directory; train it first")
@@ -156,9 +157,10 @@ def load(ctx: LoadContext) -> NoLlmMethod:
             f"the no_llm model in {ctx.run_dir} was trained on another backbone (fingerprint "
             f"{trained.backbone_fingerprint[:12]}, {ctx.backbone} is {backbone.fingerprint[:12]})"
         )
-    # Grounding and parsing are the model's own; the policy only prepares scenes and samples.
+    # Grounding and parsing are the model's own; the policy only prepares scenes and samples. Its backbone
+    # reads the test features Ours' evaluations encoded in the same batches (models/shared_features.py).
     policy = PlacementPolicy(
-        backbone,
+        SharedFeatures(backbone),
         GroundingModel.zero_shot(backbone.dim, backbone.logit_scale),
         PromptConfig(),
         parser=None,

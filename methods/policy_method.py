@@ -126,13 +126,15 @@ def describe_policy(policy, name: str, backbone_spec: str, adapters_file: Path |
 
 
 def policy_of(ctx: LoadContext, adapters_file: Path | None):
-    """The placement policy on `ctx`'s backbone, parser and sample count, with these adapters (None: zero-shot)."""
+    """The placement policy on `ctx`'s backbone, parser and sample count, with these adapters (None: zero-shot).
+    Its backbone reads the test features that another evaluation on it encoded (models/shared_features.py)."""
     from ocplace.models.backbone import load_backbone
     from ocplace.models.placement.sampler import SamplerConfig
     from ocplace.models.policy import PlacementPolicy
+    from ocplace.models.shared_features import SharedFeatures
 
     return PlacementPolicy.from_run(
-        load_backbone(ctx.backbone),
+        SharedFeatures(load_backbone(ctx.backbone)),
         adapters_file,
         parser=ctx.parser,
         sampler=SamplerConfig(num_samples=ctx.num_samples),

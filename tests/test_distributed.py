@@ -7,6 +7,7 @@ cluster) and the reproduce runs are slow tests (`make test-all`), to keep the de
 15 minutes on 2 cores.
 """
 
+import concurrent.futures
 import contextlib
 import dataclasses
 import hashlib
@@ -14,6 +15,7 @@ import json
 import logging
 import os
 import shutil
+import signal
 import socket
 import subprocess
 import sys
@@ -25,6 +27,7 @@ import pytest
 
 from ocplace.errors import ClusterError, ConfigError, DatasetError
 from ocplace.runtime import ExecutorConfig, Task, map_tasks, open_executor
+from ocplace.runtime.executor import run_task
 from ocplace.runtime.graph import Node, run_graph
 from ocplace.runtime.width import compiled_folder
 from ocplace.sim.dataset import job
@@ -48,6 +51,27 @@ def jitted_sum_digest(seed: int) -> str:
 
     values = jax.random.normal(jax.random.key(seed), (512, 4096))
     return hashlib.sha256(np.asarray(jax.jit(lambda x: x.sum())(values)).tobytes()).hexdigest()
+
+
+def worker_and_digest(seed: int) -> tuple[int, str]:
+    """The process a task ran in, and its JAX width's bits."""
+    return os.getpid(), jitted_sum_digest(seed)
+
+
+def die_the_first_time(marker: Path) -> tuple[int, str]:
+    """SIGKILLs its worker the first time (writing the worker's pid to `marker` first); then as worker_and_digest."""
+    if not marker.exists():
+        marker.write_text(str(os.getpid()))
+        os.kill(os.getpid(), signal.SIGKILL)
+    return worker_and_digest(0)
+
+
+def in_a_fresh_process(task: Task):
+    """`task` the way every pinned task ran before long-lived workers: pinned in a process of its own."""
+    import multiprocessing
+
+    with concurrent.futures.ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as fresh:
+        return fresh.submit(run_task, task).result()
 
 
 def fail_with_dataset_error(message: str):
@@ -154,6 +178,7 @@ def test_a_local_ray_instance_retries_a_killed_worker_and_reraises_task_errors(r
 KILLED_DRIVER = """
 import os, signal
 from ocplace.runtime import ExecutorConfig, Task, map_tasks, open_executor
+from ocplace.runtime.executor import run_task
 with open_executor(ExecutorConfig(kind="ray", workers=1)) as executor:
     print(executor._temp_dir, list(map_tasks(executor, [Task(os.getpid)])), flush=True)
     os.kill(os.getpid(), signal.SIGKILL)
@@ -181,13 +206,37 @@ def test_the_next_ray_start_reaps_what_a_killed_command_left():
                 os.kill(pid, 9)
 
 
-def test_fresh_tasks_reuse_what_an_earlier_one_compiled_at_the_same_width(tmp_path, monkeypatch):
+def test_pinned_tasks_run_on_long_lived_workers_of_their_width_with_a_fresh_processs_bits(tmp_path, monkeypatch):
+    monkeypatch.setenv("OCPLACE_CACHE", str(tmp_path))
+    tasks = [Task(worker_and_digest, (0,), cpus=cpus, pinned=True) for cpus in (1, 1, 1, 2, 2)]
+    fresh = {cpus: in_a_fresh_process(Task(jitted_sum_digest, (0,), cpus=cpus, pinned=True)) for cpus in (1, 2)}
+    with open_executor(LOCAL) as pool:
+        ran = dict(map_tasks(pool, tasks))
+    workers = {cpus: {ran[i][0] for i, task in enumerate(tasks) if task.cpus == cpus} for cpus in (1, 2)}
+    assert len(workers[1]) <= 2 and len(workers[2]) == 1 and not workers[1] & workers[2]  # 2 one-wide, 1 two-wide
+    assert all(ran[i][1] == fresh[task.cpus] for i, task in enumerate(tasks)), "a reused worker gave other bits"
+
+
+def test_a_killed_worker_fails_its_task_and_is_replaced_by_a_pinned_one(tmp_path, monkeypatch):
+    monkeypatch.setenv("OCPLACE_CACHE", str(tmp_path))
+    marker = tmp_path / "killed-worker"
+    task = Task(die_the_first_time, (marker,), cpus=2, pinned=True)
+    with open_executor(LOCAL) as pool:
+        with pytest.raises(ClusterError, match="a worker process died"):
+            dict(map_tasks(pool, [task]))
+        worker, digest = dict(map_tasks(pool, [task]))[0]  # the same task again, as rerunning the command would
+    assert worker != int(marker.read_text())
+    assert digest == in_a_fresh_process(Task(jitted_sum_digest, (0,), cpus=2, pinned=True))
+
+
+def test_new_workers_reuse_what_an_earlier_one_compiled_at_the_same_width(tmp_path, monkeypatch):
     monkeypatch.setenv("OCPLACE_CACHE", str(tmp_path))  # the pool's processes start after this
-    task = Task(jitted_sum_digest, (0,), fresh_process=True)
+    task = Task(jitted_sum_digest, (0,), pinned=True)
     with open_executor(LOCAL) as pool:
         first = dict(map_tasks(pool, [task]))[0]
-        compiled = {path: path.read_bytes() for path in compiled_folder(1).glob("*-atime")}
-        assert compiled, "nothing was written to the compilation cache"
+    compiled = {path: path.read_bytes() for path in compiled_folder(1).glob("*-atime")}
+    assert compiled, "nothing was written to the compilation cache"
+    with open_executor(LOCAL) as pool:  # new workers: the earlier one's in-memory executables went with it
         finished = dict(map_tasks(pool, [task, dataclasses.replace(task, cpus=2)]))  # in the order they ended
         again, wider = finished[0], finished[1]
     assert again == first
@@ -199,11 +248,11 @@ def test_fresh_tasks_reuse_what_an_earlier_one_compiled_at_the_same_width(tmp_pa
 # Slow (`make test-all`): a cluster start and four fresh processes per executor, over a minute.
 @pytest.mark.slow
 def test_jax_and_datasets_give_the_same_bits_on_every_executor(reference, two_nodes, tmp_path):
-    digests = [Task(jitted_sum_digest, (seed,), fresh_process=True) for seed in range(2)]
+    digests = [Task(jitted_sum_digest, (seed,), pinned=True) for seed in range(2)]
     with open_executor(ExecutorConfig(workers=1)) as one:
         expected = dict(map_tasks(one, digests))
     with open_executor(LOCAL) as pool:  # the control: a reused process is not pinned and sees every CPU
-        unpinned = dict(map_tasks(pool, [dataclasses.replace(task, fresh_process=False) for task in digests]))
+        unpinned = dict(map_tasks(pool, [dataclasses.replace(task, pinned=False) for task in digests]))
         assert dict(map_tasks(pool, digests)) == expected  # the pool's dataset bytes: test_dataset.py
     if len(os.sched_getaffinity(0)) > 1:
         assert unpinned != expected, "JAX gives the same bits on 1 and 2 CPUs here: the pin is not tested"

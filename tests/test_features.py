@@ -18,6 +18,7 @@ from ocplace.models.features import (
     read_info,
     save_features,
 )
+from ocplace.models.shared_features import SharedFeatures
 
 CONFIG = FeaturizeConfig(chunk_scenes=2)
 
@@ -258,3 +259,68 @@ def test_featurize_command_keys_by_the_split_files(tmp_path, backbone, monkeypat
     assert read_info(out).dataset_hash == dataset_hash(dataset, "train")
     with pytest.raises(FeaturesError, match="no scenes in split"):
         dataset_hash(dataset, "unseen_obj")
+
+
+# ----------------------------------------------------------------------------- test features shared by evaluations
+
+
+def test_shared_features_are_encoded_once_and_read_back_bit_for_bit(tmp_path, backbone):
+    images = np.random.default_rng(0).integers(0, 256, (3, 24, 24, 3), dtype=np.uint8)
+    texts = ["a photo of a red bowl.", "a photo of a table."]
+    first, second = Counting(backbone), Counting(backbone)
+    encoded = SharedFeatures(first, tmp_path).encode_images(images)
+    assert first.images == 3 and np.array_equal(encoded, backbone.encode_images(images))
+    assert np.array_equal(SharedFeatures(second, tmp_path).encode_images(images), encoded)  # another evaluation
+    assert np.array_equal(SharedFeatures(second, tmp_path).encode_texts(texts), backbone.encode_texts(texts))
+    assert np.array_equal(SharedFeatures(first, tmp_path).encode_texts(texts), backbone.encode_texts(texts))
+    assert second.images == 0 and len(list(tmp_path.glob("*.safetensors"))) == 2  # one batch of images, one of texts
+    SharedFeatures(second, tmp_path).encode_images(images[:2])  # another batch is encoded, not cut from a stored one
+    assert second.images == 2
+
+
+def test_a_shared_feature_file_that_does_not_verify_is_encoded_again(tmp_path, backbone, other_backbone):
+    images = np.random.default_rng(1).integers(0, 256, (2, 24, 24, 3), dtype=np.uint8)
+    SharedFeatures(backbone, tmp_path).encode_images(images)
+    [stored] = tmp_path.glob("images-*.safetensors")
+    other = Counting(other_backbone)  # another fingerprint: the file is not its features
+    assert np.array_equal(SharedFeatures(other, tmp_path).encode_images(images), other_backbone.encode_images(images))
+    assert other.images == 2
+    stored.write_bytes(b"not a safetensors file")  # corrupt (the other backbone's file replaced the first)
+    again = Counting(other_backbone)
+    assert np.array_equal(SharedFeatures(again, tmp_path).encode_images(images), other_backbone.encode_images(images))
+    third = Counting(other_backbone)
+    assert np.array_equal(SharedFeatures(third, tmp_path).encode_images(images), other_backbone.encode_images(images))
+    assert again.images == 2 and third.images == 0  # the file written again verifies
+
+
+def test_two_evaluations_asking_for_a_batch_at_once_encode_it_once(tmp_path, backbone):
+    images = np.random.default_rng(2).integers(0, 256, (2, 24, 24, 3), dtype=np.uint8)
+    encoding, may_finish = threading.Event(), threading.Event()
+
+    class Held(Counting):  # the first evaluation stops while encoding, holding the lock, until told to go on
+        def encode_images(self, images):
+            encoding.set()
+            assert may_finish.wait(120)
+            return super().encode_images(images)
+
+    first, second = Held(backbone), Counting(backbone)
+    results = {}
+
+    def encode(name, counting):
+        results[name] = SharedFeatures(counting, tmp_path).encode_images(images)
+
+    one = threading.Thread(target=encode, args=("first", first))
+    one.start()
+    assert encoding.wait(120)
+    two = threading.Thread(target=encode, args=("second", second))
+    two.start()
+    [lock] = tmp_path.glob(".images-*.lock")
+    deadline = time.monotonic() + 120
+    while not _waits_for_lock(lock):  # a condition, not a sleep: the second is blocked on the lock
+        assert time.monotonic() < deadline, "the second request never waited for the first"
+        time.sleep(0.01)
+    may_finish.set()
+    one.join(120)
+    two.join(120)
+    assert first.images == 2 and second.images == 0
+    assert np.array_equal(results["first"], results["second"])

@@ -229,6 +229,18 @@ def test_corrupt_weights_are_refused(smoke_run, tmp_path):
         load_saved_backbone(copy)
 
 
+def test_a_saved_backbone_is_loaded_once_per_process_until_its_fingerprint_changes(smoke_run, tmp_path):
+    import shutil
+
+    copy = tmp_path / "copy"
+    shutil.copytree(smoke_run[0].directory, copy, ignore=shutil.ignore_patterns("run"))
+    loaded = load_saved_backbone(copy)
+    assert load_saved_backbone(copy) is loaded  # what a long-lived worker's next task gets
+    (copy / FINGERPRINT_FILE).write_text("0" * 64 + "\n")  # another backbone saved there: read and verified again
+    with pytest.raises(BackboneError, match="fingerprint"):
+        load_saved_backbone(copy)
+
+
 def test_text_tower_stays_frozen(smoke_run):
     from ocplace.models.parsing.encoder import load_minilm
     from ocplace.train.checkpoints import list_checkpoints

@@ -75,6 +75,18 @@ def test_smoke_pipeline_trains_and_evaluates_every_method(first_run, specs):
     assert "already complete" in first_run.steps[1].detail
 
 
+def test_results_record_each_steps_cpus_and_the_total_wall(first_run, config):
+    recorded = results.read_results(first_run.results_path)["pipeline"]
+    assert [step["name"] for step in recorded["steps"]] == [step.name for step in first_run.steps]  # figures too
+    cpus = {step["name"]: step["cpus"] for step in recorded["steps"]}
+    assert cpus["library"] == cpus["dataset"] == ExecutorConfig().cpus()  # the pool's workers
+    trains = [name for name in cpus if name.startswith("train ")]
+    assert trains and all(cpus[name] == config.experiment.cpus.train for name in trains)
+    assert all(cpus[name] == 1 for name in cpus if name.startswith("evaluate "))
+    assert recorded["total_wall_s"] == first_run.wall_s
+    assert results.read_results(first_run.out / pipeline.SUMMARY_FILE)["pipeline"] == recorded
+
+
 def test_smoke_pipeline_resumes_without_redoing_work(first_run, config, specs, library):
     again = pipeline.run_pipeline(config, first_run.out, specs=specs, library=library, command=["pytest"])
     assert again.errors == []
@@ -239,9 +251,7 @@ def test_task_graph_of_the_demo(tmp_path):
     task = nodes["train ours~seed1"].make({"backbone": "offline:/b", "prepare ours+no_llm": "ready"})
     spec, context = task.args
     assert spec.name == "ours" and context.backbone == "offline:/b"
-    assert (
-        task.fresh_process and task.cpus == 2 and context.seed == 1 and context.out_dir.name == "fraction-1.00-seed-1"
-    )
+    assert task.pinned and task.cpus == 2 and context.seed == 1 and context.out_dir.name == "fraction-1.00-seed-1"
     assert nodes["prepare ours+no_llm"].make({"backbone": "offline:/b"}).cpus == 2
     assert (
         nodes["evaluate ours~seed1"].make({"backbone": "offline:/b", "train ours~seed1": (tmp_path, False)}).cpus == 1

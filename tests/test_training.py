@@ -223,7 +223,7 @@ def test_train_command_gives_the_bits_of_a_reproduce_training_task(tmp_path, fea
     subprocess.run([sys.executable, "-m", "ocplace.cli", *command], check=True, capture_output=True)
     assert list(compiled_folder(min(TaskCpus().train, len(os.sched_getaffinity(0)))).glob("*-cache"))
     config = dataclasses.replace(smoke_config(), steps=100)
-    task = Task(train, (features, tmp_path / "task", config), cpus=TaskCpus().train, fresh_process=True)
+    task = Task(train, (features, tmp_path / "task", config), cpus=TaskCpus().train, pinned=True)
     with open_executor(ExecutorConfig(workers=1)) as executor:
         next(map_tasks(executor, [task]))
     by_command, by_task = adapter_arrays(tmp_path / "command"), adapter_arrays(tmp_path / "task")

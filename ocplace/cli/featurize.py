@@ -62,6 +62,6 @@ def _featurize_on_ray(args, config, executor) -> Path:
     from ocplace.runtime import Task, map_tasks, open_executor
 
     arguments = (args.dataset, args.split, args.backbone, args.out, config)
-    task = Task(featurize_split_task, arguments, cpus=TRAIN_CPUS, fresh_process=True)
+    task = Task(featurize_split_task, arguments, cpus=TRAIN_CPUS, pinned=True)
     with open_executor(executor) as running:
         return next(map_tasks(running, [task]))[1]

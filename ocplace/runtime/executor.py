@@ -6,11 +6,13 @@
 
 A `Task` is a module-level function and its arguments (both picklable) plus the CPUs it needs.
 `local` runs tasks on this machine: in a spawn process pool, or, with one worker, in the calling
-process (except tasks that ask for a fresh process); a worker that dies fails the tasks it had with
-ClusterError, and rerunning the command resumes. `ray` runs them as
-Ray tasks, each declaring its CPUs as a Ray resource; a worker that dies has its task retried
-(`task_retries`). Tasks write their files themselves, so every worker must see the same paths
-(docs/distributed.md).
+process; a task whose JAX width is pinned (`Task.pinned`) runs on a long-lived worker of a pool for
+its width, which pinned that width when it started and keeps its imports, loaded backbones and
+compiled functions from task to task. A worker that dies fails the tasks its pool had with
+ClusterError, the pool is replaced for later tasks, and rerunning the command resumes. `ray` runs
+them as Ray tasks, each declaring its CPUs as a Ray resource (a pinned task in a new Ray worker
+process); a worker that dies has its task retried (`task_retries`). Tasks write their files
+themselves, so every worker must see the same paths (docs/distributed.md).
 """
 
 from __future__ import annotations
@@ -92,18 +94,18 @@ def _available_memory_bytes() -> int:
 
 @dataclasses.dataclass(frozen=True)
 class Task:
-    """`fn(*args)` on a worker. `fresh_process`: run in a new process whose JAX uses exactly `cpus` CPUs,
-    so jitted results are the same bits on any executor (ocplace/runtime/width.py)."""
+    """`fn(*args)` on a worker. `pinned`: run where JAX was started exactly `cpus` CPUs wide, so jitted
+    results are the same bits on any executor (ocplace/runtime/width.py)."""
 
     fn: Callable[..., Any]
     args: tuple = ()
     cpus: int = 1
-    fresh_process: bool = False
+    pinned: bool = False
 
 
 def run_task(task: Task) -> Any:
-    """What a worker runs: the task, with JAX pinned to its CPUs first when it asked for a fresh process."""
-    if task.fresh_process:
+    """What a new process runs: the task, with JAX pinned to its CPUs first when it asks for that."""
+    if task.pinned:
         from ocplace.runtime.width import pin_jax_width
 
         pin_jax_width(task.cpus)
@@ -157,26 +159,31 @@ class _Inline:
 
 
 class LocalExecutor(Executor):
-    """This machine. One worker runs tasks in the calling process unless they need a fresh one."""
+    """This machine. Unpinned tasks run in one pool (with one worker: in the calling process); pinned
+    tasks in one pool per width, whose workers pin JAX to that width as they start and then run task
+    after task, so a task finds the imports, backbones and compiled functions of the ones before it."""
 
     def __init__(self, workers: int):
         self.capacity = workers
-        self._pools: dict[bool, concurrent.futures.ProcessPoolExecutor] = {}
+        self._pools: dict[int | None, concurrent.futures.ProcessPoolExecutor] = {}  # JAX width (None: unpinned)
 
-    def _pool(self, fresh: bool) -> concurrent.futures.ProcessPoolExecutor:
-        if fresh not in self._pools:
-            self._pools[fresh] = concurrent.futures.ProcessPoolExecutor(
-                self.capacity,
+    def _pool(self, width: int | None) -> concurrent.futures.ProcessPoolExecutor:
+        if width not in self._pools:
+            self._pools[width] = concurrent.futures.ProcessPoolExecutor(
+                # the graph never runs more than capacity // width tasks of one width at once
+                self.capacity if width is None else max(1, self.capacity // width),
                 mp_context=multiprocessing.get_context("spawn"),  # forking after JAX or EGL start-up is unsafe
                 initializer=_init_local_worker,
-                max_tasks_per_child=1 if fresh else None,
+                initargs=(width,),
             )
-        return self._pools[fresh]
+        return self._pools[width]
 
     def submit(self, task: Task):
-        if self.capacity == 1 and not task.fresh_process:
+        if task.pinned:
+            return self._pool(task.cpus).submit(task.fn, *task.args)  # the worker pinned its width at start
+        if self.capacity == 1:
             return _Inline(task)
-        return self._pool(task.fresh_process).submit(run_task, task)
+        return self._pool(None).submit(run_task, task)
 
     def wait(self, handles):
         inline = next((h for h in handles if isinstance(h, _Inline)), None)
@@ -201,14 +208,14 @@ class LocalExecutor(Executor):
 
     def _drop_broken_pools(self) -> None:
         """A pool whose worker died refuses every later task: later tasks get a new one."""
-        for fresh, pool in list(self._pools.items()):
+        for width, pool in list(self._pools.items()):
             if pool._broken:  # set by concurrent.futures when a worker dies; there is no public flag
                 pool.shutdown(wait=False, cancel_futures=True)
-                del self._pools[fresh]
+                del self._pools[width]
 
     def release_workers(self):
-        if False in self._pools:
-            self._pools.pop(False).shutdown()
+        if None in self._pools:
+            self._pools.pop(None).shutdown()
 
     def close(self):
         for pool in self._pools.values():
@@ -216,8 +223,13 @@ class LocalExecutor(Executor):
         self._pools.clear()
 
 
-def _init_local_worker() -> None:
+def _init_local_worker(width: int | None) -> None:
+    """Starts a worker; one for pinned tasks starts JAX `width` CPUs wide before any task can import it."""
     os.environ["OMP_NUM_THREADS"] = "1"  # one task per CPU; OpenMP (coacd) would oversubscribe
+    if width is not None:
+        from ocplace.runtime.width import pin_jax_width
+
+        pin_jax_width(width)
 
 
 @contextlib.contextmanager

@@ -51,7 +51,7 @@ def run_graph(
     executor: Executor,
     nodes: Iterable[Node],
     on_outcome: Callable[[Outcome], None] = lambda outcome: None,
-    on_start: Callable[[str], None] = lambda key: None,
+    on_start: Callable[[str, Task], None] = lambda key, task: None,
 ) -> dict[str, Outcome]:
     """Runs every node (listed after its dependencies); returns each node's outcome by key.
 
@@ -89,7 +89,7 @@ def run_graph(
                 continue
             waiting.remove(node)
             ready.pop(node.key, None)
-            on_start(node.key)
+            on_start(node.key, task)
             try:
                 handle = executor.submit(task)
             except Exception as error:

@@ -166,7 +166,7 @@ class RayExecutor(Executor):
         env = worker_env()
         if env != self._env:  # e.g. a test hook set after Ray started: workers with this environment run it
             options["runtime_env"] = {"env_vars": env}
-        handle = self._run[task.fresh_process].options(**options).remote(task)
+        handle = self._run[task.pinned].options(**options).remote(task)
         self._tasks[handle] = task
         return handle
 

@@ -41,7 +41,7 @@ def pin_jax_width(cpus: int) -> None:
     if _started():
         raise ClusterError(
             "JAX already runs in this process, so its CPU count can no longer be fixed; run the task in a "
-            "fresh process (Task(fresh_process=True))"
+            "process of its own (Task(pinned=True))"
         )
     allowed = sorted(os.sched_getaffinity(0))
     os.sched_setaffinity(0, allowed[:cpus])
