@@ -12,6 +12,7 @@ import pytest
 from ocplace.errors import MissingAssetPackage, WeightsError
 from ocplace.models import efficientnet as en
 from ocplace.models import imagenet_weights as iw
+from ocplace.models.efficientnet_config import block_names
 from ocplace.models.torch_legacy import read_legacy
 from ocplace.paths import file_sha256
 
@@ -161,7 +162,7 @@ def test_variants_have_the_published_sizes():
     counts = {v: en.count_params(en.variable_shapes(v)["params"]) for v in ("lite0", "lite1", "lite2")}
     assert counts["lite0"] == 4_652_008
     assert round(counts["lite1"] / 1e5) == 54 and round(counts["lite2"] / 1e5) == 61  # 5.4M, 6.1M
-    assert len(en.block_names("lite0")) == 16 + 3 and len(en.block_names("lite1")) == 21 + 3
+    assert len(block_names("lite0")) == 16 + 3 and len(block_names("lite1")) == 21 + 3
 
 
 def test_trainable_mask_freezes_a_prefix_in_forward_order():
@@ -201,7 +202,7 @@ def portrait(size=224):
 
 def test_packaged_lite0_has_every_parameter(lite0):
     assert en.count_params(lite0["params"]) == 4_652_008
-    assert set(lite0["params"]) == set(en.block_names("lite0"))
+    assert set(lite0["params"]) == set(block_names("lite0"))
     assert lite0["params"]["blocks_03"]["depthwise_conv"]["kernel"].shape == (5, 5, 144)  # stage 3: k5, 24 * 6
 
 
