@@ -27,7 +27,17 @@ def test_a_bare_kind_that_is_not_built_says_how_to_build_it(tmp_path, monkeypatc
 
 def test_featurize(default_offline_backbone, smoke_dataset, tmp_path):
     out = tmp_path / "seen.safetensors"
-    command = ["featurize", str(smoke_dataset), "--split", "seen", "--backbone", "offline", "--out", str(out)]
+    command = [
+        "featurize",
+        "--dataset",
+        str(smoke_dataset),
+        "--split",
+        "seen",
+        "--backbone",
+        "offline",
+        "--out",
+        str(out),
+    ]
     assert main(command) == 0 and out.is_file()
 
 

@@ -250,7 +250,7 @@ def test_featurize_command_keys_by_the_split_files(tmp_path, backbone, monkeypat
     parser = argparse.ArgumentParser()
     featurize_cli.register(parser.add_subparsers())
     out = tmp_path / "train.safetensors"
-    args = parser.parse_args(["featurize", str(dataset), "--backbone", "tiny", "--out", str(out)])
+    args = parser.parse_args(["featurize", "--dataset", str(dataset), "--backbone", "tiny", "--out", str(out)])
     assert args.func(args) == 0 and args.func(args) == 0
     assert read == ["train"]  # the second run found the file up to date and read nothing
     assert read_info(out).dataset_hash == dataset_hash(dataset, "train")

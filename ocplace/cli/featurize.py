@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ocplace.cli.executor_options import add_executor_arguments, executor_config
-from ocplace.cli.options import config_from_arguments
+from ocplace.cli.options import add_dataset_argument, config_from_arguments, dataset_of
 from ocplace.runtime.width import TRAIN_CPUS
 
 
@@ -17,7 +17,7 @@ def register(subparsers) -> None:
         "keyed by the backbone fingerprint and the dataset manifest; a second run is a no-op, an "
         "interrupted one resumes.",
     )
-    parser.add_argument("dataset", type=Path, help="dataset directory (written by `ocplace generate`)")
+    add_dataset_argument(parser, "dataset directory (written by `ocplace generate`)", required=True)
     parser.add_argument(
         "--backbone",
         default="offline",
@@ -36,18 +36,19 @@ def run_featurize(args) -> int:
     from ocplace.sim.dataset.identity import dataset_hash, split_features_path, split_files
     from ocplace.sim.dataset.loader import iter_examples
 
+    dataset = dataset_of(args)
     executor = executor_config(args)
     config = config_from_arguments(args, FeaturizeConfig(), fields=("chunk_scenes",))
     if executor.kind == "ray":
-        print(_featurize_on_ray(args, config, executor))
+        print(_featurize_on_ray(args, dataset, config, executor))
         return 0
     backbone = load_backbone(args.backbone)
-    num_scenes = len({Path(name).parent for name, _ in split_files(args.dataset, args.split)})
+    num_scenes = len({Path(name).parent for name, _ in split_files(dataset, args.split)})
     path = featurize(
-        iter_examples(args.dataset, args.split),
+        iter_examples(dataset, args.split),
         backbone,
-        args.out or split_features_path(args.dataset, args.split, backbone.fingerprint),
-        dataset_hash=dataset_hash(args.dataset, args.split),
+        args.out or split_features_path(dataset, args.split, backbone.fingerprint),
+        dataset_hash=dataset_hash(dataset, args.split),
         config=config,
         total=num_scenes,
     )
@@ -55,13 +56,13 @@ def run_featurize(args) -> int:
     return 0
 
 
-def _featurize_on_ray(args, config, executor) -> Path:
+def _featurize_on_ray(args, dataset: Path, config, executor) -> Path:
     """The split encoded by one Ray task: a fresh worker process whose JAX is as wide as the trainings of
     `reproduce` at demo and default scale, so the features are the same bits."""
     from ocplace.models.features import featurize_split_task
     from ocplace.runtime import Task, map_tasks, open_executor
 
-    arguments = (args.dataset, args.split, args.backbone, args.out, config)
+    arguments = (dataset, args.split, args.backbone, args.out, config)
     task = Task(featurize_split_task, arguments, cpus=TRAIN_CPUS, pinned=True)
     with open_executor(executor) as running:
         return next(map_tasks(running, [task]))[1]
