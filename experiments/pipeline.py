@@ -403,7 +403,8 @@ def _run(config, executor, out, specs, command, library) -> PipelineSummary:
 
     backbone = config.backbone or f"offline:{output_dir(config.experiment.backbone)}"
     evaluations = _evaluations(runs, outcomes)
-    results = _write_results(summary, config, evaluations, dataset_dir, evaluation_settings(config, backbone), command)
+    settings = evaluation_settings(config, backbone)
+    results = _results_and_figures(summary, config, evaluations, dataset_dir, settings, command)
     trained_ours = [
         outcomes[f"train {run.key}"].value[0]
         for run in runs
@@ -420,7 +421,7 @@ def _run(config, executor, out, specs, command, library) -> PipelineSummary:
                 summary.errors.append(_error("ours", "figure", error))
                 step.detail = f"FAILED: {type(error).__name__}: {error}"
     summary.wall_s = time.perf_counter() - began
-    _record_pipeline(summary, config, results)  # again, now with the figures' steps and the total
+    _write_results(summary, config, results)
     return summary
 
 
@@ -460,16 +461,15 @@ def _evaluations(runs: list[MethodRun], outcomes: dict) -> list[Evaluation]:
     return [evaluation_from_json(json.loads(o.value[0].read_text())) for o in evaluated if o.ok]
 
 
-def _write_results(summary, config, evaluations, dataset_dir, settings, command) -> dict:
-    from ocplace.eval.results import build_results, summarise, write_outputs, write_results
+def _results_and_figures(summary, config, evaluations, dataset_dir, settings, command) -> dict:
+    """The results (written by `_write_results` once the run's steps and total wall are known) and the
+    paper's figures drawn from them."""
+    from ocplace.eval.results import build_results
 
     out = summary.out
     with _Timer(summary, "results") as step:
         results = build_results(evaluations, dataset_dir, settings, command)
-        results["pipeline"] = _pipeline_json(summary, config)
         summary.results_path = out / "results.json"
-        summary.markdown = write_outputs(results, summary.results_path)
-        write_results(out / SUMMARY_FILE, summarise(results))
         step.detail = f"{summary.results_path}, {summary.results_path.with_suffix('.md')}, {out / SUMMARY_FILE}"
     if evaluations:
         with _Timer(summary, "paper figures") as step:
@@ -484,23 +484,19 @@ def _write_results(summary, config, evaluations, dataset_dir, settings, command)
     return results
 
 
-def _pipeline_json(summary: PipelineSummary, config: PipelineConfig) -> dict:
-    """The run itself: its config, each step's wall and CPUs, its errors and, once it ended, its total wall."""
-    recorded = {
+def _write_results(summary: PipelineSummary, config: PipelineConfig, results: dict) -> None:
+    """results.json, its tables and its summary, once, with the run itself: its config, each step's wall
+    and CPUs, its errors and its total wall (known only at the end: the figures come after the results
+    they draw)."""
+    from ocplace.eval.results import summarise, write_outputs, write_results
+
+    results["pipeline"] = {
         "config": _config_json(config),
         "steps": [dataclasses.asdict(s) for s in summary.steps],
         "errors": summary.errors,
+        "total_wall_s": summary.wall_s,
     }
-    return recorded | ({"total_wall_s": summary.wall_s} if summary.wall_s else {})
-
-
-def _record_pipeline(summary: PipelineSummary, config: PipelineConfig, results: dict) -> None:
-    """Rewrites results.json and its summary with the whole run's steps and `total_wall_s`, known only at
-    its end (the figures come after the results they draw); the tables do not show them."""
-    from ocplace.eval.results import summarise, write_results
-
-    results["pipeline"] = _pipeline_json(summary, config)
-    write_results(summary.results_path, results)
+    summary.markdown = write_outputs(results, summary.results_path)
     write_results(summary.out / SUMMARY_FILE, summarise(results))
 
 
