@@ -38,6 +38,8 @@ from ocplace.runtime import Executor, ExecutorConfig, Task, open_executor
 from ocplace.runtime.graph import Node, run_graph
 
 SUMMARY_FILE = "results.summary.json"  # aggregates, no per-scene outcomes: small enough to commit
+PLACEMENT_FIGURE = "placement.png"
+FIGURE_NODE = "figure ours"  # a failure is reported as stage "figure" of "ours"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -169,8 +171,8 @@ def evaluation_settings(config: PipelineConfig, backbone: str) -> EvalSettings:
     )
 
 
-def placement_figure_step(run_dir: Path, config: PipelineConfig, dataset_dir: Path, backbone: str, path: Path) -> str:
-    """Draws Ours on the first `seen` test scene: what a user looks at first."""
+def placement_figure_task(run_dir: Path, parser: str, seed: int, dataset_dir: Path, backbone: str, path: Path) -> str:
+    """Draws Ours (trained in `run_dir`) on the first `seen` test scene: what a user looks at first."""
     import jax
 
     from ocplace.methods.policy_method import scene_input
@@ -180,9 +182,8 @@ def placement_figure_step(run_dir: Path, config: PipelineConfig, dataset_dir: Pa
     from ocplace.sim.dataset.job import listed_scenes
 
     scene = listed_scenes(dataset_dir, "seen")[0]
-    experiment = config.experiment
-    policy = PlacementPolicy.from_run(load_backbone(backbone), run_dir, parser=experiment.evaluation.parser)
-    placement = save_placement(policy, scene_input(scene.read()), jax.random.key(experiment.seed), path)
+    policy = PlacementPolicy.from_run(load_backbone(backbone), run_dir, parser=parser)
+    placement = save_placement(policy, scene_input(scene.read()), jax.random.key(seed), path)
     print(placement.summary(), flush=True)
     return f"{path} ({scene.name}, {'placed' if placement.error is None else placement.failure})"
 
@@ -322,11 +323,27 @@ def task_graph(
         if specs[run.method].train is not None:
             after = backbone_after + ((prepare_key[run.method],) if run.method in prepare_key else ())
             nodes.append(method_node(f"train {run.key}", train_task, run, after))
-    for run in runs:
+    for run in evaluation_order(runs, specs):
         after = backbone_after + ((f"train {run.key}",) if specs[run.method].train is not None else ())
         evaluate = _evaluate_maker(config, specs[run.method], run, dataset_dir, out, dataset_hash, backbone_of)
         nodes.append(Node(f"evaluate {run.key}", evaluate, after))
+    drawn = next((run for run in runs if run.method == "ours" and run.fraction == 1.0 and run.seed is None), None)
+    if drawn is not None and specs["ours"].train is not None and "seen" in config.experiment.evaluation.subsets:
+        draw = _figure_maker(config, dataset_dir, out, backbone_of, f"train {drawn.key}")
+        nodes.append(Node(FIGURE_NODE, draw, backbone_after + (f"train {drawn.key}",)))
     return nodes
+
+
+def evaluation_order(runs: list[MethodRun], specs: Mapping[str, MethodSpec]) -> list[MethodRun]:
+    """The order the graph starts evaluations in, when their CPUs free up: the first that encodes the
+    backbone's shared test features, then those that encode their own, then those that read the shared ones.
+
+    The encoder then works beside independent work, instead of beside evaluations that wait for its
+    features (models/shared_features.py); each evaluation computes the same bits in any order.
+    """
+    sharing = [run for run in runs if specs[run.method].shares_test_features]
+    own = [run for run in runs if not specs[run.method].shares_test_features]
+    return sharing[:1] + own + sharing[1:]
 
 
 def _evaluate_maker(config, spec, run, dataset_dir, out, dataset_hash, backbone_of):
@@ -340,8 +357,18 @@ def _evaluate_maker(config, spec, run, dataset_dir, out, dataset_hash, backbone_
     return make
 
 
+def _figure_maker(config, dataset_dir, out, backbone_of, trained_key):
+    def make(done):
+        run_dir = done[trained_key][0]
+        experiment = config.experiment
+        arguments = (run_dir, experiment.evaluation.parser, experiment.seed, dataset_dir, backbone_of(done))
+        return Task(placement_figure_task, (*arguments, out / PLACEMENT_FIGURE), pinned=True)
+
+    return make
+
+
 def _node_detail(key: str, value) -> str:
-    if key == "backbone" or key.startswith("prepare "):
+    if key == "backbone" or key.startswith("prepare ") or key == FIGURE_NODE:
         return str(value)
     if key.startswith("train "):
         run_dir, reused = value
@@ -405,21 +432,9 @@ def _run(config, executor, out, specs, command, library) -> PipelineSummary:
     evaluations = _evaluations(runs, outcomes)
     settings = evaluation_settings(config, backbone)
     results = _results_and_figures(summary, config, evaluations, dataset_dir, settings, command)
-    trained_ours = [
-        outcomes[f"train {run.key}"].value[0]
-        for run in runs
-        if run.method == "ours" and run.fraction == 1.0 and run.seed is None and outcomes[f"train {run.key}"].ok
-    ]
-    if trained_ours and "seen" in config.experiment.evaluation.subsets:
-        with _Timer(summary, "figure") as step:
-            try:
-                step.detail = placement_figure_step(
-                    trained_ours[0], config, dataset_dir, backbone, out / "placement.png"
-                )
-                summary.placement_figure = out / "placement.png"
-            except Exception as error:
-                summary.errors.append(_error("ours", "figure", error))
-                step.detail = f"FAILED: {type(error).__name__}: {error}"
+    figure = outcomes.get(FIGURE_NODE)
+    if figure is not None and figure.ok:
+        summary.placement_figure = out / PLACEMENT_FIGURE
     summary.wall_s = time.perf_counter() - began
     _write_results(summary, config, results)
     return summary

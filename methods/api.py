@@ -49,3 +49,6 @@ class MethodSpec(Generic[Recipe]):
     # Makes the cached inputs that all of this method's trainings read (e.g. the training split's features)
     # once, before those trainings run side by side; None: nothing shared to make.
     prepare: Callable[[TrainContext[Recipe]], object] | None = None
+    # Its evaluations encode the test scenes with the experiment's backbone through the shared store
+    # (models/shared_features.py), so one evaluation's features serve the others.
+    shares_test_features: bool = False

@@ -10,4 +10,4 @@ def load(ctx: LoadContext) -> PolicyMethod:
     return PolicyMethod("no_adapter", policy_of(ctx, None), ctx.backbone, None)
 
 
-SPEC: MethodSpec[None] = MethodSpec("no_adapter", "Ours w/o Adapter", load=load)
+SPEC: MethodSpec[None] = MethodSpec("no_adapter", "Ours w/o Adapter", load=load, shares_test_features=True)

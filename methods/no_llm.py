@@ -169,4 +169,6 @@ def load(ctx: LoadContext) -> NoLlmMethod:
     return NoLlmMethod("no_llm", policy, trained, ctx.backbone, Path(ctx.run_dir))
 
 
-SPEC: MethodSpec[Recipe] = MethodSpec("no_llm", "Ours w/o LLM", load=load, train=train, prepare=prepare_train_features)
+SPEC: MethodSpec[Recipe] = MethodSpec(
+    "no_llm", "Ours w/o LLM", load=load, train=train, prepare=prepare_train_features, shares_test_features=True
+)

@@ -32,4 +32,6 @@ def load(ctx: LoadContext) -> PolicyMethod:
     return PolicyMethod("ours", policy_of(ctx, adapters_file), ctx.backbone, adapters_file)
 
 
-SPEC: MethodSpec[Recipe] = MethodSpec("ours", "Ours", load=load, train=train, prepare=prepare_train_features)
+SPEC: MethodSpec[Recipe] = MethodSpec(
+    "ours", "Ours", load=load, train=train, prepare=prepare_train_features, shares_test_features=True
+)

@@ -113,8 +113,7 @@ def test_pipeline_draws_ours_on_the_first_seen_scene(trained_run, smoke_dataset,
     from ocplace.experiments import pipeline
 
     path = tmp_path / "placement.png"
-    config = pipeline.PipelineConfig(smoke.get_config())
-    detail = pipeline.placement_figure_step(trained_run[0], config, smoke_dataset, tiny_backbone_spec, path)
+    detail = pipeline.placement_figure_task(trained_run[0], "offline", 0, smoke_dataset, tiny_backbone_spec, path)
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert detail.startswith(f"{path} (seen-00000, ")
 

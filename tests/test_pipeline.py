@@ -256,6 +256,22 @@ def test_task_graph_of_the_demo(tmp_path):
     assert (
         nodes["evaluate ours~seed1"].make({"backbone": "offline:/b", "train ours~seed1": (tmp_path, False)}).cpus == 1
     )
+    evaluations = [key.removeprefix("evaluate ") for key in nodes if key.startswith("evaluate ")]
+    # The first evaluation to encode the shared test features starts beside no_pretrain (its own backbone),
+    # not beside the evaluations that read those features.
+    assert evaluations[:3] == ["ours", "no_pretrain", "no_pretrain~seed1"]
+    assert sorted(evaluations) == sorted(run.key for run in runs)
+    assert list(nodes)[-1] == "figure ours" and nodes["figure ours"].after == ("backbone", "train ours")
+    figure = nodes["figure ours"].make({"backbone": "offline:/b", "train ours": (tmp_path / "run", False)})
+    assert figure.pinned and figure.cpus == 1 and figure.args[0] == tmp_path / "run"
+
+
+def test_evaluation_order_puts_one_encoder_of_the_shared_features_first():
+    specs = registry.method_specs()
+    runs = [registry.method_run(specs[name], None, 1.0, None) for name in ("no_adapter", "ours", "grids", "no_llm")]
+    assert [run.method for run in pipeline.evaluation_order(runs, specs)] == ["no_adapter", "grids", "ours", "no_llm"]
+    own = [run for run in runs if run.method == "grids"]
+    assert pipeline.evaluation_order(own, specs) == own
 
 
 def test_task_widths_are_part_of_the_experiment():
