@@ -217,6 +217,29 @@ def test_pinned_tasks_run_on_long_lived_workers_of_their_width_with_a_fresh_proc
     assert all(ran[i][1] == fresh[task.cpus] for i, task in enumerate(tasks)), "a reused worker gave other bits"
 
 
+def test_pinned_tasks_on_ray_run_on_long_lived_actors_of_their_width_with_a_fresh_processs_bits(tmp_path, monkeypatch):
+    monkeypatch.setenv("OCPLACE_CACHE", str(tmp_path))
+    tasks = [Task(worker_and_digest, (0,), cpus=cpus, pinned=True) for cpus in (1, 1, 1, 2, 2)]
+    fresh = {cpus: in_a_fresh_process(Task(jitted_sum_digest, (0,), cpus=cpus, pinned=True)) for cpus in (1, 2)}
+    with open_executor(RAY) as executor:
+        ran = dict(map_tasks(executor, tasks))  # more than the instance's 2 CPUs: the executor queues them
+        # Idle actors hold their CPUs: an unpinned task still runs, once the idle two-wide actor is ended.
+        assert dict(map_tasks(executor, [Task(add, (1, 2)), Task(add, (3, 4))])) == {0: 3, 1: 7}
+    workers = {cpus: {ran[i][0] for i, task in enumerate(tasks) if task.cpus == cpus} for cpus in (1, 2)}
+    assert len(workers[1]) <= 2 and len(workers[2]) == 1 and not workers[1] & workers[2]
+    assert all(ran[i][1] == fresh[task.cpus] for i, task in enumerate(tasks)), "a reused actor gave other bits"
+
+
+def test_a_killed_ray_actor_is_restarted_and_its_task_retried(tmp_path, monkeypatch):
+    monkeypatch.setenv("OCPLACE_CACHE", str(tmp_path))
+    marker = tmp_path / "killed-actor"
+    with open_executor(RAY) as executor:
+        worker, digest = dict(map_tasks(executor, [Task(die_the_first_time, (marker,), cpus=2, pinned=True)]))[0]
+    assert marker.exists(), "no actor was killed: the test proved nothing"
+    assert worker != int(marker.read_text())
+    assert digest == in_a_fresh_process(Task(jitted_sum_digest, (0,), cpus=2, pinned=True))
+
+
 def test_a_killed_worker_fails_its_task_and_is_replaced_by_a_pinned_one(tmp_path, monkeypatch):
     monkeypatch.setenv("OCPLACE_CACHE", str(tmp_path))
     marker = tmp_path / "killed-worker"

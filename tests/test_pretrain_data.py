@@ -306,3 +306,29 @@ def test_render_knobs_are_validated():
         {"primitive_shapes": ("star",)},
     ):
         assert dataclasses.replace(RENDER, **bad).validate(), bad
+
+
+# ----------------------------------------------------------------------------- captions a run reads
+
+
+def test_a_run_encodes_only_the_captions_it_draws_with_the_bits_of_the_whole_bank(setup):
+    from ocplace.models.offline_backbone import FrozenTextTower
+    from ocplace.train.pretrain.loop import caption_sentences, draw_batch, probe_rng, step_rng, used_captions
+    from ocplace.train.pretrain.render import RenderedImages
+
+    _, classes, _ = setup
+    bank = caption_bank(classes)
+    labels = np.repeat(np.arange(len(bank.class_names), dtype=np.int32), 2)  # two images of every class
+    images = RenderedImages(np.zeros((len(labels), 4, 4, 3), np.uint8), labels, np.zeros_like(labels))
+    by_class = [np.flatnonzero(labels == k) for k in range(len(bank.class_names))]
+    optim = dataclasses.replace(smoke_config().optim, steps=3, batch_size=16)
+    used = used_captions(images, by_class, bank, optim)
+    steps = [draw_batch(images, by_class, bank, optim, step_rng(optim.seed, step)).captions for step in range(3)]
+    probe = draw_batch(images, by_class, bank, optim, probe_rng(optim.seed), augment=False).captions
+    assert set(used) == set(np.concatenate([*steps, probe])) and 0 < len(used) < len(bank.texts)
+
+    tower = FrozenTextTower.load(MODEL.text_max_length)
+    sentences = caption_sentences(tower, bank.texts, used)
+    whole = np.concatenate([tower.encode(list(bank.texts[i : i + 64])) for i in range(0, len(bank.texts), 64)])
+    assert np.array_equal(sentences[used], whole[used])  # other neighbours in the batch, the same bits
+    assert not sentences[np.setdiff1d(np.arange(len(bank.texts)), used)].any()

@@ -10,9 +10,10 @@ process; a task whose JAX width is pinned (`Task.pinned`) runs on a long-lived w
 its width, which pinned that width when it started and keeps its imports, loaded backbones and
 compiled functions from task to task. A worker that dies fails the tasks its pool had with
 ClusterError, the pool is replaced for later tasks, and rerunning the command resumes. `ray` runs
-them as Ray tasks, each declaring its CPUs as a Ray resource (a pinned task in a new Ray worker
-process); a worker that dies has its task retried (`task_retries`). Tasks write their files
-themselves, so every worker must see the same paths (docs/distributed.md).
+them as Ray tasks, each declaring its CPUs as a Ray resource, and a pinned task on a long-lived Ray
+actor of its width (ocplace/runtime/ray_executor.py); a worker that dies has its task retried
+(`task_retries`). Tasks write their files themselves, so every worker must see the same paths
+(docs/distributed.md).
 """
 
 from __future__ import annotations
@@ -112,12 +113,6 @@ def run_task(task: Task) -> Any:
     return task.fn(*task.args)
 
 
-def run_task_in_fresh_process(task: Task) -> Any:
-    """`run_task` under another name: Ray keys a remote function by its name, so one function cannot be
-    registered both with and without a new worker process per call (max_calls=1)."""
-    return run_task(task)
-
-
 class Executor(abc.ABC):
     """Runs tasks concurrently on up to `capacity` CPUs; handles are opaque."""
 
@@ -173,7 +168,7 @@ class LocalExecutor(Executor):
                 # the graph never runs more than capacity // width tasks of one width at once
                 self.capacity if width is None else max(1, self.capacity // width),
                 mp_context=multiprocessing.get_context("spawn"),  # forking after JAX or EGL start-up is unsafe
-                initializer=_init_local_worker,
+                initializer=init_worker,
                 initargs=(width,),
             )
         return self._pools[width]
@@ -223,8 +218,9 @@ class LocalExecutor(Executor):
         self._pools.clear()
 
 
-def _init_local_worker(width: int | None) -> None:
-    """Starts a worker; one for pinned tasks starts JAX `width` CPUs wide before any task can import it."""
+def init_worker(width: int | None) -> None:
+    """Starts a worker (a local pool's process, a Ray actor); one for pinned tasks starts JAX `width` CPUs
+    wide before any task can import it."""
     os.environ["OMP_NUM_THREADS"] = "1"  # one task per CPU; OpenMP (coacd) would oversubscribe
     if width is not None:
         from ocplace.runtime.width import pin_jax_width

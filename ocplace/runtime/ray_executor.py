@@ -7,11 +7,19 @@ RuntimeEnvAgent outlive it, with the folder. The next start reaps them: it ends 
 files in the folder of an instance whose command is gone, and removes the folder.
 Joining a cluster first probes the head's port, so an unreachable head fails within
 `connect_timeout_s` instead of hanging (ray.init itself has no timeout).
+
+A pinned task runs on a long-lived worker of its JAX width, as on the local pool: a Ray actor that pinned
+its width when it started and keeps its imports, loaded backbones and compiled functions from task to
+task. An actor holds its CPUs while it lives, idle or not (Ray's resources are per actor, not per call),
+so the executor queues calls itself: a call waits for an idle actor of its width, or for room to start
+one, and idle actors of another width are ended to make that room. A killed actor is restarted, and
+the call it was running retried, up to `task_retries` times.
 """
 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import logging
 import os
 import shutil
@@ -24,7 +32,7 @@ from pathlib import Path
 
 from ocplace.errors import ClusterError, ConfigError
 from ocplace.paths import cache_dir, pid_alive
-from ocplace.runtime.executor import Executor, ExecutorConfig, Task, run_task, run_task_in_fresh_process
+from ocplace.runtime.executor import Executor, ExecutorConfig, Task, run_task
 
 TEMP_ROOT = "/tmp"
 TEMP_PREFIX = "ocray-"  # then the pid of the command that started the instance, "-", random characters
@@ -118,12 +126,43 @@ def _processes_using(folder: Path) -> list[int]:
     return found
 
 
+class PinnedWorker:
+    """A Ray actor that starts JAX `width` CPUs wide and then runs pinned task after task."""
+
+    def __init__(self, width: int):
+        from ocplace.runtime.executor import init_worker
+
+        init_worker(width)
+
+    def run(self, task: Task):
+        return task.fn(*task.args)
+
+
+@dataclasses.dataclass(eq=False)
+class _Call:
+    """A submitted task: queued here until it has CPUs (and, when pinned, an actor), then running on Ray."""
+
+    task: Task
+    cpus: int  # what it holds on the cluster: its width, at most the largest node's CPUs
+    ref: object = None  # Ray's object ref, once started
+    actor: object = None  # the actor it runs on (pinned tasks)
+    key: tuple = ()  # an actor's kind: (JAX width, worker environment)
+    done: bool = False
+    value: object = None
+    error: BaseException | None = None
+
+
 class RayExecutor(Executor):
     def __init__(self, config: ExecutorConfig):
         import ray
 
         os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")  # no usage report from an offline machine
-        self._ray, self._config, self._tasks = ray, config, {}
+        self._ray, self._config = ray, config
+        self._queued: list[_Call] = []
+        self._running: dict[object, _Call] = {}  # by object ref
+        self._idle: dict[tuple, list] = {}  # (width, worker environment) -> idle actors, oldest first
+        self._actor_cpus: dict[object, int] = {}  # every live actor -> the CPUs it holds
+        self._held = 0  # CPUs held by live actors and running unpinned tasks
         self._temp_dir, self._env = None, worker_env()
         options = dict(
             include_dashboard=False,
@@ -146,7 +185,8 @@ class RayExecutor(Executor):
             self._largest_node = max(
                 (node["Resources"].get("CPU", 0) for node in ray.nodes() if node["Alive"]), default=1
             )
-            self._run = {False: ray.remote(run_task), True: ray.remote(max_calls=1)(run_task_in_fresh_process)}
+            self._remote_task = ray.remote(run_task)
+            self._actor_class = ray.remote(PinnedWorker)
         except BaseException:
             self.close()
             raise
@@ -162,38 +202,97 @@ class RayExecutor(Executor):
             raise ClusterError(f"could not start or join Ray at {where}: {error}") from error
 
     def submit(self, task: Task):
-        options = dict(num_cpus=min(task.cpus, self._largest_node), max_retries=self._config.task_retries)
-        env = worker_env()
-        if env != self._env:  # e.g. a test hook set after Ray started: workers with this environment run it
-            options["runtime_env"] = {"env_vars": env}
-        handle = self._run[task.pinned].options(**options).remote(task)
-        self._tasks[handle] = task
-        return handle
+        call = _Call(task, max(1, min(task.cpus, self._largest_node)))
+        self._queued.append(call)
+        self._start_queued()
+        return call
+
+    def _start_queued(self) -> None:
+        """Starts every queued call that has CPUs now, in the order they were submitted."""
+        for call in list(self._queued):
+            env = worker_env()
+            runtime = {} if env == self._env else {"runtime_env": {"env_vars": env}}  # e.g. a test hook set late
+            call.key = (call.task.cpus, tuple(sorted(env.items())))
+            if call.task.pinned and self._idle.get(call.key):
+                call.actor = self._idle[call.key].pop(0)
+            elif self._make_room(call.cpus):
+                self._held += call.cpus
+                if call.task.pinned:
+                    call.actor = self._actor_class.options(
+                        num_cpus=call.cpus,
+                        max_restarts=self._config.task_retries,
+                        max_task_retries=self._config.task_retries,
+                        **runtime,
+                    ).remote(call.task.cpus)
+                    self._actor_cpus[call.actor] = call.cpus
+            else:
+                continue
+            if call.task.pinned:
+                call.ref = call.actor.run.remote(call.task)
+            else:
+                options = dict(num_cpus=call.cpus, max_retries=self._config.task_retries, **runtime)
+                call.ref = self._remote_task.options(**options).remote(call.task)
+            self._queued.remove(call)
+            self._running[call.ref] = call
+
+    def _make_room(self, cpus: int) -> bool:
+        """Whether `cpus` more CPUs can be held, after ending idle actors (oldest first) as needed."""
+        idle = [(key, actor) for key, actors in self._idle.items() for actor in actors]
+        if self._held + cpus - sum(self._actor_cpus[actor] for _, actor in idle) > self.capacity:
+            return False  # not even with every idle actor ended: wait for a running call
+        for key, actor in idle:
+            if self._held + cpus <= self.capacity:
+                break
+            self._idle[key].remove(actor)
+            self._end_actor(actor)
+        return True
+
+    def _end_actor(self, actor) -> None:
+        self._held -= self._actor_cpus.pop(actor)
+        with contextlib.suppress(Exception):  # already dead: nothing to end
+            self._ray.kill(actor)
 
     def wait(self, handles):
-        done, pending = self._ray.wait(handles, num_returns=1)
-        if pending:  # collect whatever else has finished too: one wait per task would be quadratic
-            more, pending = self._ray.wait(pending, num_returns=len(pending), timeout=0)
-            done += more
-        return done, pending
+        while not any(call.done for call in handles):
+            refs = list(self._running)
+            if not refs:
+                raise ClusterError("no task is running or can start on the Ray cluster: its CPUs are held elsewhere")
+            ready, _ = self._ray.wait(refs, num_returns=1)
+            more, _ = self._ray.wait(refs, num_returns=len(refs), timeout=0)  # one wait per task would be quadratic
+            for ref in dict.fromkeys(ready + more):
+                self._finish(self._running.pop(ref))
+            self._start_queued()
+        return [call for call in handles if call.done], [call for call in handles if not call.done]
 
-    def result(self, handle):
+    def _finish(self, call: _Call) -> None:
+        """Collects a finished call's value or error and frees what it held."""
         exceptions = self._ray.exceptions
-        task = self._tasks.pop(handle)
+        call.done = True
         try:
-            return self._ray.get(handle)
+            call.value = self._ray.get(call.ref)
         except exceptions.RayTaskError as error:
-            if isinstance(error.cause, Exception):
-                raise error.cause from None
-            raise
+            call.error = error.cause if isinstance(error.cause, Exception) else error
         except exceptions.RayError as error:
-            raise ClusterError(
+            task = call.task
+            call.error = ClusterError(
                 f"Ray lost task {task.fn.__module__}.{task.fn.__qualname__} after "
                 f"{self._config.task_retries} retries: {type(error).__name__}: {error}"
-            ) from None
+            )
+            if call.actor is not None:  # its actor is gone for good
+                self._end_actor(call.actor)
+                return
+        if call.actor is None:
+            self._held -= call.cpus
+        else:
+            self._idle.setdefault(call.key, []).append(call.actor)
+
+    def result(self, handle):
+        if handle.error is not None:
+            raise handle.error
+        return handle.value
 
     def release_workers(self):
-        """Ray ends idle workers itself."""
+        """Ray ends idle unpinned workers itself; idle actors stay for the pinned tasks to come."""
 
     def close(self):
         if self._ray.is_initialized():

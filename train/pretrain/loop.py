@@ -139,14 +139,26 @@ class Batch:
     positives: np.ndarray  # bool (B, B) caption j describes image i
 
 
-def sample_batch(
+@dataclasses.dataclass(frozen=True)
+class BatchDraw:
+    """What a step draws from its random stream, before any pixel is gathered."""
+
+    indices: np.ndarray  # int (B,) rows of the rendered images
+    turns: np.ndarray | None  # int (B,) quarter turns; None: not rotated
+    flips: np.ndarray | None  # bool (B,) mirrored before turning
+    factors: np.ndarray  # float32 (B, 3) saturation, contrast, brightness
+    labels: np.ndarray  # int32 (B,)
+    captions: np.ndarray  # int32 (B,)
+
+
+def draw_batch(
     images: RenderedImages,
     by_class: list[np.ndarray],
     bank: CaptionBank,
     optim: OptimConfig,
     rng: np.random.Generator,
     augment: bool = True,
-) -> Batch:
+) -> BatchDraw:
     """A kind of class per image (`optim.kind_shares`: real objects, recoloured ones, primitives),
     then a class of that kind uniformly (so rarely visible objects are not starved), plus a share
     of workspace images; one caption per image. Augmentation: quarter turns, flips, colour factors."""
@@ -158,24 +170,34 @@ def sample_batch(
         [sample_classes(by_class, bank, optim, rng, optim.batch_size - num_table), np.full(num_table, table)]
     )
     indices = np.array([by_class[k][rng.integers(len(by_class[k]))] for k in classes])
-    pixels = images.images[indices]
+    turns = flips = None
     factors = np.ones((len(indices), 3), np.float32)
     if augment:
         if optim.rotate:
-            pixels = np.stack(
-                [
-                    np.rot90(p[:, ::-1] if flip else p, turns)
-                    for p, turns, flip in zip(
-                        pixels, rng.integers(4, size=len(pixels)), rng.random(len(pixels)) < 0.5, strict=True
-                    )
-                ]
-            )
+            turns, flips = rng.integers(4, size=len(indices)), rng.random(len(indices)) < 0.5
         amplitude = optim.colour_jitter
         factors = rng.uniform(1 - amplitude, 1 + amplitude, size=(len(indices), 3)).astype(np.float32)
     labels = images.labels[indices]
-    captions = bank.sample(rng, labels)
-    positives = bank.applies[captions][:, labels].T
-    return Batch(np.ascontiguousarray(pixels), factors, labels, captions, positives)
+    return BatchDraw(indices, turns, flips, factors, labels, bank.sample(rng, labels))
+
+
+def sample_batch(
+    images: RenderedImages,
+    by_class: list[np.ndarray],
+    bank: CaptionBank,
+    optim: OptimConfig,
+    rng: np.random.Generator,
+    augment: bool = True,
+) -> Batch:
+    """`draw_batch`'s images gathered and turned, with their positives."""
+    draw = draw_batch(images, by_class, bank, optim, rng, augment)
+    pixels = images.images[draw.indices]
+    if draw.turns is not None:
+        pixels = np.stack(
+            [np.rot90(p[:, ::-1] if flip else p, turns) for p, turns, flip in zip(pixels, draw.turns, draw.flips)]
+        )
+    positives = bank.applies[draw.captions][:, draw.labels].T
+    return Batch(np.ascontiguousarray(pixels), draw.factors, draw.labels, draw.captions, positives)
 
 
 def sample_classes(
@@ -193,13 +215,47 @@ def sample_classes(
     return np.array([rng.choice(present[kinds[d]]) for d in drawn])
 
 
+CAPTION_BATCH = 64
+
+
 def step_rng(seed: int, step: int) -> np.random.Generator:
     return np.random.default_rng([seed, step])
 
 
+def probe_rng(seed: int) -> np.random.Generator:
+    return np.random.default_rng([seed, 2**31])
+
+
 def probe_batch(images, by_class, bank, optim: OptimConfig) -> Batch:
     """A fixed, unaugmented batch (its own seed stream) to compare the loss before and after training."""
-    return sample_batch(images, by_class, bank, optim, np.random.default_rng([optim.seed, 2**31]), augment=False)
+    return sample_batch(images, by_class, bank, optim, probe_rng(optim.seed), augment=False)
+
+
+def used_captions(images, by_class, bank: CaptionBank, optim: OptimConfig) -> np.ndarray:
+    """Sorted caption indices the probe and the run's steps draw: the only rows of the bank a run reads."""
+    drawn = [
+        draw_batch(images, by_class, bank, optim, step_rng(optim.seed, step)).captions for step in range(optim.steps)
+    ]
+    drawn.append(draw_batch(images, by_class, bank, optim, probe_rng(optim.seed), augment=False).captions)
+    return np.unique(np.concatenate(drawn))
+
+
+def caption_sentences(text_tower: FrozenTextTower, texts: tuple[str, ...], used: np.ndarray) -> np.ndarray:
+    """float32 `(C, D)`: the text tower's embedding of each caption in `used`, zeros in the other rows.
+
+    The bank has many more captions than a short run draws (the demo's 75 steps draw under a third
+    of 16,813), and a step only gathers its batch's rows, so the others are never encoded. Each
+    caption is encoded in a padded batch of 64 as before; its row does not depend on its neighbours
+    (tested bit for bit: `test_pretrain_data.py`).
+    """
+    sentences = None
+    for start in range(0, len(used), CAPTION_BATCH):
+        rows = used[start : start + CAPTION_BATCH]
+        encoded = text_tower.encode([texts[i] for i in rows])
+        if sentences is None:
+            sentences = np.zeros((len(texts), encoded.shape[1]), np.float32)
+        sentences[rows] = encoded
+    return sentences
 
 
 # ----------------------------------------------------------------------------- the run
@@ -231,10 +287,6 @@ def pretrain(
         return PretrainResult(out_dir, backbone, summary["probe_loss_before"], summary["probe_loss_after"], {})
     checkpoints.claim_run_dir(run_dir, run_meta)
 
-    text_tower = FrozenTextTower.load(config.model.text_max_length)
-    bank_sentences = jnp.asarray(
-        np.concatenate([text_tower.encode(list(bank.texts[i : i + 64])) for i in range(0, len(bank.texts), 64)])
-    )
     timings = {"setup_s": time.perf_counter() - began}
 
     mark, cpu_mark = time.perf_counter(), time.process_time()
@@ -245,8 +297,15 @@ def pretrain(
     if not len(by_class[bank.table_class]) or not any(len(c) for c in by_class[: bank.table_class]):
         raise TrainingError("rendering produced no object crops; check the library with `ocplace scene`")
 
-    mark, cpu_mark = time.perf_counter(), time.process_time()
     optim = config.optim
+    mark = time.perf_counter()
+    text_tower = FrozenTextTower.load(config.model.text_max_length)
+    bank_sentences = jnp.asarray(
+        caption_sentences(text_tower, bank.texts, used_captions(images, by_class, bank, optim))
+    )
+    timings["captions_s"] = time.perf_counter() - mark
+
+    mark, cpu_mark = time.perf_counter(), time.process_time()
     params = init_params(config.model, jax.random.key(optim.seed))
     trainable, frozen = split_trainable(trainable_mask(config.model, params), params)
     probe = probe_batch(images, by_class, bank, optim)
