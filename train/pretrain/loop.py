@@ -181,16 +181,8 @@ def draw_batch(
     return BatchDraw(indices, turns, flips, factors, labels, bank.sample(rng, labels))
 
 
-def sample_batch(
-    images: RenderedImages,
-    by_class: list[np.ndarray],
-    bank: CaptionBank,
-    optim: OptimConfig,
-    rng: np.random.Generator,
-    augment: bool = True,
-) -> Batch:
-    """`draw_batch`'s images gathered and turned, with their positives."""
-    draw = draw_batch(images, by_class, bank, optim, rng, augment)
+def gather_batch(images: RenderedImages, bank: CaptionBank, draw: BatchDraw) -> Batch:
+    """The images `draw` picked, gathered and turned, with their positives."""
     pixels = images.images[draw.indices]
     if draw.turns is not None:
         pixels = np.stack(
@@ -228,7 +220,7 @@ def probe_rng(seed: int) -> np.random.Generator:
 
 def probe_batch(images, by_class, bank, optim: OptimConfig) -> Batch:
     """A fixed, unaugmented batch (its own seed stream) to compare the loss before and after training."""
-    return sample_batch(images, by_class, bank, optim, probe_rng(optim.seed), augment=False)
+    return gather_batch(images, bank, draw_batch(images, by_class, bank, optim, probe_rng(optim.seed), augment=False))
 
 
 def used_captions(images, by_class, bank: CaptionBank, optim: OptimConfig) -> np.ndarray:
@@ -317,7 +309,7 @@ def pretrain(
     def chunk(state, start: int, count: int):
         losses = []
         for step in range(start, start + count):
-            batch = sample_batch(images, by_class, bank, optim, step_rng(optim.seed, step))
+            batch = gather_batch(images, bank, draw_batch(images, by_class, bank, optim, step_rng(optim.seed, step)))
             state, loss = train_step(
                 state, frozen, batch.pixels, batch.factors, batch.captions, batch.positives, bank_sentences
             )
