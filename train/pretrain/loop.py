@@ -237,13 +237,16 @@ def caption_sentences(text_tower: FrozenTextTower, texts: tuple[str, ...], used:
 
     The bank has many more captions than a short run draws (the demo's 75 steps draw under a third
     of 16,813), and a step only gathers its batch's rows, so the others are never encoded. Each
-    caption is encoded in a padded batch of 64 as before; its row does not depend on its neighbours
-    (tested bit for bit: `test_pretrain_data.py`).
+    caption is encoded in a batch of 64 as before; its row does not depend on its neighbours, but
+    does on the batch's shape (tested bit for bit: `test_pretrain_data.py`).
     """
     sentences = None
     for start in range(0, len(used), CAPTION_BATCH):
         rows = used[start : start + CAPTION_BATCH]
-        encoded = text_tower.encode([texts[i] for i in rows])
+        batch = [texts[i] for i in rows]
+        # Always a full batch: the tower pads a short one to a power of two, and another batch shape
+        # gives other bits (as the whole bank's last, partial batch was padded to 64, so is this one).
+        encoded = text_tower.encode(batch + batch[-1:] * (CAPTION_BATCH - len(batch)))[: len(batch)]
         if sentences is None:
             sentences = np.zeros((len(texts), encoded.shape[1]), np.float32)
         sentences[rows] = encoded
