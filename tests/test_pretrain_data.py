@@ -313,7 +313,14 @@ def test_render_knobs_are_validated():
 
 def test_a_run_encodes_only_the_captions_it_draws_with_the_bits_of_the_whole_bank(setup):
     from ocplace.models.offline_backbone import FrozenTextTower
-    from ocplace.train.pretrain.loop import caption_sentences, draw_batch, probe_rng, step_rng, used_captions
+    from ocplace.train.pretrain.loop import (
+        caption_sentences,
+        draw_batch,
+        probe_rng,
+        run_draws,
+        step_rng,
+        used_captions,
+    )
     from ocplace.train.pretrain.render import RenderedImages
 
     _, classes, _ = setup
@@ -322,7 +329,8 @@ def test_a_run_encodes_only_the_captions_it_draws_with_the_bits_of_the_whole_ban
     images = RenderedImages(np.zeros((len(labels), 4, 4, 3), np.uint8), labels, np.zeros_like(labels))
     by_class = [np.flatnonzero(labels == k) for k in range(len(bank.class_names))]
     optim = dataclasses.replace(smoke_config().optim, steps=3, batch_size=16)
-    used = used_captions(images, by_class, bank, optim)
+    draws, probe_draw = run_draws(images, by_class, bank, optim)
+    used = used_captions([*draws, probe_draw])
     steps = [draw_batch(images, by_class, bank, optim, step_rng(optim.seed, step)).captions for step in range(3)]
     probe = draw_batch(images, by_class, bank, optim, probe_rng(optim.seed), augment=False).captions
     assert set(used) == set(np.concatenate([*steps, probe])) and 0 < len(used) < len(bank.texts)

@@ -209,9 +209,9 @@ class RayExecutor(Executor):
 
     def _start_queued(self) -> None:
         """Starts every queued call that has CPUs now, in the order they were submitted."""
+        env = worker_env()
+        runtime = {} if env == self._env else {"runtime_env": {"env_vars": env}}  # e.g. a test hook set late
         for call in list(self._queued):
-            env = worker_env()
-            runtime = {} if env == self._env else {"runtime_env": {"env_vars": env}}  # e.g. a test hook set late
             call.key = (call.task.cpus, tuple(sorted(env.items())))
             if call.task.pinned and self._idle.get(call.key):
                 call.actor = self._idle[call.key].pop(0)

@@ -218,18 +218,17 @@ def probe_rng(seed: int) -> np.random.Generator:
     return np.random.default_rng([seed, 2**31])
 
 
-def probe_batch(images, by_class, bank, optim: OptimConfig) -> Batch:
-    """A fixed, unaugmented batch (its own seed stream) to compare the loss before and after training."""
-    return gather_batch(images, bank, draw_batch(images, by_class, bank, optim, probe_rng(optim.seed), augment=False))
+def run_draws(images, by_class, bank: CaptionBank, optim: OptimConfig) -> tuple[list[BatchDraw], BatchDraw]:
+    """Every step's draw (indexed by step) and the probe's: a fixed, unaugmented batch on its own seed
+    stream, to compare the loss before and after training. Each comes from its own seeded stream, so
+    all are known before the first step."""
+    steps = [draw_batch(images, by_class, bank, optim, step_rng(optim.seed, step)) for step in range(optim.steps)]
+    return steps, draw_batch(images, by_class, bank, optim, probe_rng(optim.seed), augment=False)
 
 
-def used_captions(images, by_class, bank: CaptionBank, optim: OptimConfig) -> np.ndarray:
-    """Sorted caption indices the probe and the run's steps draw: the only rows of the bank a run reads."""
-    drawn = [
-        draw_batch(images, by_class, bank, optim, step_rng(optim.seed, step)).captions for step in range(optim.steps)
-    ]
-    drawn.append(draw_batch(images, by_class, bank, optim, probe_rng(optim.seed), augment=False).captions)
-    return np.unique(np.concatenate(drawn))
+def used_captions(draws: list[BatchDraw]) -> np.ndarray:
+    """Sorted caption indices `draws` hold: of a run's steps and probe, the only rows of the bank it reads."""
+    return np.unique(np.concatenate([draw.captions for draw in draws]))
 
 
 def caption_sentences(text_tower: FrozenTextTower, texts: tuple[str, ...], used: np.ndarray) -> np.ndarray:
@@ -295,15 +294,14 @@ def pretrain(
     optim = config.optim
     mark = time.perf_counter()
     text_tower = FrozenTextTower.load(config.model.text_max_length)
-    bank_sentences = jnp.asarray(
-        caption_sentences(text_tower, bank.texts, used_captions(images, by_class, bank, optim))
-    )
+    draws, probe_draw = run_draws(images, by_class, bank, optim)
+    bank_sentences = jnp.asarray(caption_sentences(text_tower, bank.texts, used_captions([*draws, probe_draw])))
     timings["captions_s"] = time.perf_counter() - mark
 
     mark, cpu_mark = time.perf_counter(), time.process_time()
     params = init_params(config.model, jax.random.key(optim.seed))
     trainable, frozen = split_trainable(trainable_mask(config.model, params), params)
-    probe = probe_batch(images, by_class, bank, optim)
+    probe = gather_batch(images, bank, probe_draw)
     probe_args = (probe.pixels, bank_sentences[probe.captions], probe.positives)
     loss_before = float(probe_loss(config.model, params, *probe_args))
     train_step = make_train_step(config.model, optim)
@@ -312,7 +310,7 @@ def pretrain(
     def chunk(state, start: int, count: int):
         losses = []
         for step in range(start, start + count):
-            batch = gather_batch(images, bank, draw_batch(images, by_class, bank, optim, step_rng(optim.seed, step)))
+            batch = gather_batch(images, bank, draws[step])
             state, loss = train_step(
                 state, frozen, batch.pixels, batch.factors, batch.captions, batch.positives, bank_sentences
             )
