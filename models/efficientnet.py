@@ -189,6 +189,13 @@ def logits(params: dict, pixels: jax.Array, variant: str = "lite0") -> jax.Array
     return module(variant).apply(params, pixels, classify=True)
 
 
+# XLA's fusion changes how the batch-norm statistics' reductions round, so the calibration is compiled
+# unfused: one executable with the bits of the op-by-op (eager) run it replaced, instead of some 500
+# single-op executables, each compiled on a fresh cache (docs/performance.md).
+UNFUSED = {"xla_disable_hlo_passes": "fusion,cpu-instruction-fusion"}
+
+
+@functools.partial(jax.jit, static_argnames=("variant",), compiler_options=UNFUSED)
 def calibrate_batch_stats(variables: dict, pixels, variant: str = "lite0") -> dict:
     """`variables` with every batch-norm statistic set to the mean and variance its layer sees on
     `pixels (B, H, W, 3)`, layer after layer (each normalised by its own new statistics).
@@ -210,8 +217,10 @@ def variable_shapes(variant: str = "lite0", image_size: int | None = None) -> di
     return jax.eval_shape(module(variant).init, jax.random.key(0), pixels)
 
 
+@functools.partial(jax.jit, static_argnames=("variant",))
 def init(key: jax.Array, variant: str = "lite0") -> dict:
-    """Randomly initialised variables (ImageNet weights: `imagenet_weights.load_pretrained`)."""
+    """Randomly initialised variables (ImageNet weights: `imagenet_weights.load_pretrained`); jitted,
+    the same bits as op by op."""
     return module(variant).init(key, jnp.zeros((1, 32, 32, 3), jnp.uint8))
 
 

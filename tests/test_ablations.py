@@ -50,9 +50,7 @@ class Lazy(dict):
         return self[name]
 
 
-# no_pretrain's smoke training takes about 90 s (its random EfficientNet trunk runs eagerly at init and
-# calibration, one compile per operation): its tests are slow ones, `make test-all`.
-METHOD_NAMES = ["no_llm", pytest.param("no_pretrain", marks=pytest.mark.slow)]
+METHOD_NAMES = ["no_llm", "no_pretrain"]
 
 
 @pytest.fixture(scope="module")
@@ -207,7 +205,6 @@ def test_training_is_deterministic_and_idempotent(runs, specs, smoke_dataset, ti
     assert model_file.stat().st_mtime_ns == before
 
 
-@pytest.mark.slow
 def test_from_scratch_tower_is_deterministic(runs, specs, smoke_dataset, tiny_backbone_spec, tmp_path):
     again = specs["no_pretrain"].train(
         TrainContext(smoke_dataset, tiny_backbone_spec, tmp_path / "again", RECIPES.no_pretrain)
@@ -276,7 +273,6 @@ def test_methods_are_registered():
     assert specs["no_llm"].label == "Ours w/o LLM" and specs["no_pretrain"].label == "Ours w/o CLIP pre-train"
 
 
-@pytest.mark.slow  # no_pretrain's eager trunk: see METHOD_NAMES
 def test_no_pretrain_is_ours_architecture_from_random_weights():
     import dataclasses
 
@@ -295,7 +291,6 @@ def test_no_pretrain_is_ours_architecture_from_random_weights():
     assert not any(np.array_equal(random_trunk[k], imagenet[k]) for k in random_trunk if k.endswith("kernel"))
 
 
-@pytest.mark.slow  # no_pretrain's eager trunk: see METHOD_NAMES
 def test_calibration_keeps_a_random_trunk_alive(smoke_dataset):
     """A random EfficientNet with identity batch-norm statistics gives near-constant features;
     statistics measured on training images restore their spread across images."""
