@@ -57,6 +57,25 @@ class EvalSettings:
     seed: int = 0
     chunk_size: int = 32  # scenes per `Method.run` call
 
+    def validate(self) -> None:
+        """Raises EvaluationError naming every setting no evaluation can run with."""
+        problems = [
+            f"{name} must be at least {least}, got {value}"
+            for name, least, value in (("num_samples", 1, self.num_samples), ("chunk_size", 1, self.chunk_size))
+            if value < least
+        ]
+        if self.limit is not None and self.limit < 1:
+            problems.append(f"limit must be at least 1 (none: every scene), got {self.limit}")
+        if self.physical_scenes is not None and self.physical_scenes < 0:
+            problems.append(f"physical_scenes must be at least 0 (none: every scene), got {self.physical_scenes}")
+        if self.seed < 0:
+            problems.append(f"seed must be at least 0, got {self.seed}")
+        known = set(TEST_SUBSETS)
+        if not self.subsets or len(set(self.subsets)) < len(self.subsets) or not set(self.subsets) <= known:
+            problems.append(f"subsets must name test subsets ({', '.join(TEST_SUBSETS)}) once each, got {self.subsets}")
+        if problems:
+            raise EvaluationError("cannot evaluate: " + "; ".join(problems))
+
 
 @dataclasses.dataclass(frozen=True)
 class MethodRun:

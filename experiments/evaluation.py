@@ -37,6 +37,7 @@ def evaluate_runs(
     `specs` holds the spec of each run's method."""
     from ocplace.runtime import Task, map_tasks
 
+    settings.validate()
     tasks = [Task(evaluate_in_worker, (specs[run.method], run, dataset_dir, settings), pinned=True) for run in runs]
     evaluations: list[Evaluation | None] = [None] * len(runs)
     for index, evaluation in map_tasks(executor, tasks):

@@ -189,7 +189,7 @@ class Experiment:
         problems += self.dataset.problems() + self.evaluation.problems() + self.recipes.problems()
         problems += [problem for problem in [_refusal("backbone", self.backbone.validate)] if problem]
         problems += [run_key_refusal(key) for key in RUN_KEYS if not _is_default(self, key.split("."))]
-        problems += _number_problems(self, "")
+        problems += number_problems(self, "")
         if problems:
             raise ConfigError(
                 f"experiment {self.name!r} cannot run: {'; '.join(problems)}. Change the value with "
@@ -206,7 +206,7 @@ def _refusal(key: str, validate) -> str | None:
     return None
 
 
-def _number_problems(node, key: str) -> list[str]:
+def number_problems(node, key: str) -> list[str]:
     """Rules every recipe shares, by field name, anywhere in the tree under `node`: every number is
     finite, every `learning_rate` positive (a negative one trains by gradient ascent), every
     `warmup_steps` at least 0."""
@@ -214,10 +214,10 @@ def _number_problems(node, key: str) -> list[str]:
         return [
             problem
             for field in dataclasses.fields(node)
-            for problem in _number_problems(getattr(node, field.name), f"{key}.{field.name}".lstrip("."))
+            for problem in number_problems(getattr(node, field.name), f"{key}.{field.name}".lstrip("."))
         ]
     if isinstance(node, tuple):
-        return [problem for index, item in enumerate(node) for problem in _number_problems(item, f"{key}[{index}]")]
+        return [problem for index, item in enumerate(node) for problem in number_problems(item, f"{key}[{index}]")]
     if isinstance(node, float) and not math.isfinite(node):
         return [f"{key} is {node}; numbers must be finite"]
     name = key.rsplit(".", 1)[-1]

@@ -189,20 +189,15 @@ def logits(params: dict, pixels: jax.Array, variant: str = "lite0") -> jax.Array
     return module(variant).apply(params, pixels, classify=True)
 
 
-# XLA's fusion changes how the batch-norm statistics' reductions round, so the calibration is compiled
-# unfused: one executable with the bits of the op-by-op (eager) run it replaced, instead of some 500
-# single-op executables, each compiled on a fresh cache (docs/performance.md).
-UNFUSED = {"xla_disable_hlo_passes": "fusion,cpu-instruction-fusion"}
-
-
-@functools.partial(jax.jit, static_argnames=("variant",), compiler_options=UNFUSED)
 def calibrate_batch_stats(variables: dict, pixels, variant: str = "lite0") -> dict:
     """`variables` with every batch-norm statistic set to the mean and variance its layer sees on
     `pixels (B, H, W, 3)`, layer after layer (each normalised by its own new statistics).
 
     A randomly initialised trunk with mean-0 / variance-1 statistics blows its activations up
     block after block until every ReLU6 saturates and the pooled features are constant; this
-    data-dependent initialisation keeps them normalised, as training-mode batch norm would.
+    data-dependent initialisation keeps them normalised, as training-mode batch norm would. It runs op
+    by op: jitted, XLA's fusion rounds the statistics otherwise, and unfused it holds some 17 GB at once
+    (docs/performance.md).
     """
     _, updated = EfficientNetLite(config(variant), calibrate=True).apply(
         variables, pixels, classify=False, mutable=["batch_stats"]

@@ -394,6 +394,58 @@ def test_train_refuses_a_flag_value_its_field_cannot_take(capsys):
     assert "argument --steps: expected an integer, got 'many'" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize(
+    "option, value, message",
+    [
+        ("--learning-rate", "-1", "learning_rate must be positive, got -1.0"),
+        ("--lr", "nan", "learning_rate is nan; numbers must be finite"),
+        ("--warmup-steps", "-5", "warmup_steps must be at least 0, got -5"),
+        ("--logit-scale", "0", "logit_scale must be positive (or none), got 0.0"),
+    ],
+)
+def test_train_refuses_a_bad_setting_before_reading_features(tmp_path, capsys, option, value, message):
+    code, _, err = _cli(capsys, "train", "--features", tmp_path / "missing", "--out", tmp_path / "run", option, value)
+    assert code == 2 and err.startswith("ocplace train: error: invalid training configuration: ") and message in err, (
+        err
+    )
+    assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize(
+    "option, value, message",
+    [
+        ("--num-samples", "0", "num_samples must be at least 1, got 0"),
+        ("--chunk-size", "-3", "chunk_size must be at least 1, got -3"),
+        ("--limit", "0", "limit must be at least 1 (none: every scene), got 0"),
+        ("--seed", "-1", "seed must be at least 0, got -1"),
+    ],
+)
+def test_evaluate_refuses_a_bad_setting_before_any_work(tmp_path, capsys, monkeypatch, option, value, message):
+    from ocplace import runtime
+
+    monkeypatch.setattr(runtime, "open_executor", lambda *args: pytest.fail("the evaluation started"))
+    out = tmp_path / "results.json"
+    code, _, err = _cli(capsys, "evaluate", "--dataset", tmp_path, "--out", out, "--methods", "oracle", option, value)
+    assert code == 2 and err.startswith(f"ocplace evaluate: error: cannot evaluate: {message}"), err
+    assert not out.exists()
+
+
+def test_evaluation_settings_are_checked_where_evaluations_start():
+    from ocplace.eval.harness import EvalSettings, EvaluationError
+    from ocplace.experiments.evaluation import evaluate_runs
+
+    EvalSettings().validate()
+    EvalSettings(limit=1, physical_scenes=None, subsets=("unseen_cat",)).validate()
+    for bad, message in (
+        (EvalSettings(subsets=("seen", "seen")), "subsets must name test subsets"),
+        (EvalSettings(subsets=()), "subsets must name test subsets"),
+        (EvalSettings(subsets=("train",)), "got ('train',)"),
+        (EvalSettings(physical_scenes=-1), "physical_scenes must be at least 0 (none: every scene), got -1"),
+    ):
+        with pytest.raises(EvaluationError, match=re.escape(message)):
+            evaluate_runs({}, [], "unused", bad, executor=None)
+
+
 # --- outputs ---------------------------------------------------------------------------------
 
 

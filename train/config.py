@@ -34,6 +34,8 @@ class TrainConfig:
         problems = []
         if self.steps < 1 or self.batch_size < 1 or self.chunk_steps < 1:
             problems.append("steps, batch_size and chunk_steps must be positive")
+        if self.logit_scale is not None and self.logit_scale <= 0:  # finite: `number_problems`, as every number
+            problems.append(f"logit_scale must be positive (or none), got {self.logit_scale}")
         if not 0.0 < self.fraction <= 1.0:
             problems.append(f"fraction must be in (0, 1], got {self.fraction}")
         if not 0.0 <= self.residual_ratio <= 1.0:

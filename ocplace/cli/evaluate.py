@@ -166,6 +166,7 @@ def _evaluate(args: argparse.Namespace) -> int:
         ),
         fields=EVAL_SETTINGS_OPTIONS,
     )
+    settings.validate()
     specs = method_specs()
     methods = args.methods or ("" if args.policy else "all")
     runs = method_runs(select_specs(methods, specs) if methods else [], parse_runs(args.run), args.runs_from)

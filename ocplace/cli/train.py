@@ -42,13 +42,19 @@ def train_config_from_args(args: argparse.Namespace) -> TrainConfig:
 
 
 def run_train(args) -> int:
+    from ocplace.errors import TrainingError
+    from ocplace.experiments.experiment import number_problems
+
+    config = train_config_from_args(args)
+    problems = number_problems(config, "")
+    if problems:
+        raise TrainingError("invalid training configuration: " + "; ".join(problems))
+    config.validate()
     if args.cpus:  # before JAX starts, as in each task of `reproduce`: the width decides the last bits
         pin_jax_width(args.cpus)
     from ocplace.models.features import load_features
     from ocplace.train.ours import train_ours as train
 
-    config = train_config_from_args(args)
-    config.validate()
     features = load_features(args.features)
     val_features = load_features(args.val_features, features.info.backbone_fingerprint) if args.val_features else None
     result = train(features, args.out, config, val_features=val_features)
