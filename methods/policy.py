@@ -43,6 +43,14 @@ def import_policy(reference: str):
     module_name, _, attributes = reference.partition(":")
     if not module_name or not attributes:
         raise EvaluationError(f"cannot read the policy reference {reference!r}: {REFERENCE_HELP}")
+    if module_name == "__main__" or any(part.startswith("<") for part in attributes.split(".")):
+        where = (
+            "in a script run directly (__main__)" if module_name == "__main__" else "inside a function, or as a lambda"
+        )
+        raise EvaluationError(
+            f"the policy {reference!r} was defined {where}, so no other process can import it again: "
+            "put it in a module (a .py file in the current folder will do) and name it MODULE:CALLABLE"
+        )
     try:
         target = importlib.import_module(module_name)
     except ImportError as error:

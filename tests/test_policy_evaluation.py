@@ -1,5 +1,6 @@
 """Any policy on the benchmark: `evaluate_policy`, `ocplace evaluate --policy`, and the environment agreeing."""
 
+import dataclasses
 import hashlib
 import sys
 
@@ -97,3 +98,29 @@ def test_cli_evaluates_a_policy_module_and_reruns_it(smoke_dataset, tmp_path, mo
     assert [s["mode"] for s in saved["evaluations"][0]["subsets"]["seen"]["scenes"]] == [[0.0, 0.0]] * 4
     assert main(["evaluate", "--rerun", "results.json", "--no-progress"]) == 0
     assert "reproduced exactly" in capsys.readouterr().out
+
+
+def test_a_policy_no_process_can_import_again_is_evaluated_and_its_rerun_refused(smoke_dataset, tmp_path, capsys):
+    from ocplace.eval.results import write_outputs
+
+    def place(observation):
+        return (0.0, 0.0)
+
+    settings = dataclasses.replace(SETTINGS, subsets=("seen",), limit=2)
+    local_name = place.__qualname__  # test_....<locals>.place
+    for module, qualname, message in (
+        ("__main__", "place", "in a script run directly (__main__)"),
+        (__name__, local_name, "inside a function"),
+    ):
+        place.__module__, place.__qualname__ = module, qualname
+        results = evaluate_policy(place, smoke_dataset, settings)
+        (entry,) = results["evaluations"]
+        assert entry["method"] == f"{module}:{qualname}"
+        assert [s["mode"] for s in entry["subsets"]["seen"]["scenes"]] == [[0.0, 0.0]] * 2
+        path = tmp_path / f"{module}.json"
+        write_outputs(results, path)
+        capsys.readouterr()
+        assert main(["evaluate", "--rerun", str(path), "--no-progress"]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith(f"ocplace evaluate: error: the policy '{entry['method']}' was defined {message}"), err
+        assert not path.with_name(path.stem + ".rerun.json").exists()
