@@ -33,7 +33,7 @@ from ocplace.errors import OcplaceError
 from ocplace.eval.api import Method, MethodOutput
 from ocplace.sim.boxes import Boxes
 from ocplace.sim.dataset.records import SceneRecord
-from ocplace.vocabulary import LEVELS, TEST_SUBSETS
+from ocplace.vocabulary import LEVELS, TEST_SUBSETS, subsets_problem
 
 STAGES = ("failure", "parse", "grounding", "sampling", "placement")
 DEFAULT_PHYSICAL_SCENES = 50
@@ -70,9 +70,7 @@ class EvalSettings:
             problems.append(f"physical_scenes must be at least 0 (none: every scene), got {self.physical_scenes}")
         if self.seed < 0:
             problems.append(f"seed must be at least 0, got {self.seed}")
-        known = set(TEST_SUBSETS)
-        if not self.subsets or len(set(self.subsets)) < len(self.subsets) or not set(self.subsets) <= known:
-            problems.append(f"subsets must name test subsets ({', '.join(TEST_SUBSETS)}) once each, got {self.subsets}")
+        problems += [problem for problem in [subsets_problem(self.subsets, "subsets")] if problem]
         if problems:
             raise EvaluationError("cannot evaluate: " + "; ".join(problems))
 

@@ -20,7 +20,7 @@ from ocplace.models.parsing.config import PARSER_NAMES
 from ocplace.runtime.width import TRAIN_CPUS
 from ocplace.train.config import TrainConfig
 from ocplace.train.recipes import CliportRecipe, GridsRecipe, NoLlmTrainConfig, NoPretrainRecipe
-from ocplace.vocabulary import TEST_SUBSETS
+from ocplace.vocabulary import subsets_problem
 
 
 @dataclasses.dataclass(frozen=True)
@@ -129,12 +129,7 @@ class EvalPlan:
             problems.append(
                 f"evaluation.parser {self.parser!r} is not a parser; choose one of {', '.join(PARSER_NAMES)}"
             )
-        unknown = [subset for subset in self.subsets if subset not in TEST_SUBSETS]
-        if unknown or not self.subsets or len(set(self.subsets)) < len(self.subsets):
-            problems.append(
-                f"evaluation.subsets must name each test subset at most once, some of {', '.join(TEST_SUBSETS)}; "
-                f"got {', '.join(self.subsets) or 'none'}"
-            )
+        problems += [problem for problem in [subsets_problem(self.subsets, "evaluation.subsets")] if problem]
         if self.seeds < 1:
             problems.append(f"evaluation.seeds must be at least 1, got {self.seeds}")
         trained = {*self.fractions, 1.0}

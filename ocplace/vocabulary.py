@@ -30,3 +30,14 @@ EXPERIMENT_NAMES = ("smoke", "demo", "default")
 # The named primitives of the backbone's pretraining arenas (`sim/primitives.py`): shapes and sizes.
 SHAPES = ("box", "cylinder", "sphere", "cone", "ring", "disc", "capsule", "pyramid")
 SIZES = ("small", "medium", "large")
+
+
+def subsets_problem(subsets, key: str) -> str | None:
+    """What is wrong with `subsets` as the test subsets to score (none, unknown or repeated), named by `key`."""
+    unknown = [subset for subset in subsets if subset not in TEST_SUBSETS]
+    if unknown or not subsets or len(set(subsets)) < len(subsets):
+        return (
+            f"{key} must name each test subset at most once, some of {', '.join(TEST_SUBSETS)}; "
+            f"got {', '.join(subsets) or 'none'}"
+        )
+    return None

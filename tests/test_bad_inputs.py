@@ -437,9 +437,9 @@ def test_evaluation_settings_are_checked_where_evaluations_start():
     EvalSettings().validate()
     EvalSettings(limit=1, physical_scenes=None, subsets=("unseen_cat",)).validate()
     for bad, message in (
-        (EvalSettings(subsets=("seen", "seen")), "subsets must name test subsets"),
-        (EvalSettings(subsets=()), "subsets must name test subsets"),
-        (EvalSettings(subsets=("train",)), "got ('train',)"),
+        (EvalSettings(subsets=("seen", "seen")), "subsets must name each test subset at most once"),
+        (EvalSettings(subsets=()), "subsets must name each test subset at most once"),
+        (EvalSettings(subsets=("train",)), "; got train"),
         (EvalSettings(physical_scenes=-1), "physical_scenes must be at least 0 (none: every scene), got -1"),
     ):
         with pytest.raises(EvaluationError, match=re.escape(message)):
