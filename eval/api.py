@@ -28,6 +28,9 @@ class MethodOutput:
     grounded: tuple[int, ...] | None = None  # visual-token index per parsed tuple (N = the table)
     failure: str | None = None  # why there is no placement (typed error message or flag), else None
     parse_note: str | None = None  # the LLM parser's fall-back reason or its disagreement with the offline parse
+    # The least top grounding probability over the references (what the policy's refusal gate compares
+    # with its threshold); None: the method does not ground references to tokens.
+    confidence: float | None = None
 
 
 class Method(Protocol):

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ocplace.eval.harness import EvaluationError
+from ocplace.errors import EvaluationError
 from ocplace.eval.table import full_runs
 
 FIG5, FIG6, FIG7 = "fig5_placement_distributions.png", "fig6_cases.png", "fig7_sample_efficiency.png"

@@ -21,6 +21,7 @@ import dataclasses
 import datetime
 import hashlib
 import json
+import os
 import platform
 import subprocess
 from collections.abc import Mapping, Sequence
@@ -28,8 +29,11 @@ from importlib import metadata
 from pathlib import Path
 
 from ocplace import serial
-from ocplace.eval.harness import EvalSettings, Evaluation, EvaluationError, SceneOutcome, aggregate_subset
+from ocplace.errors import ResultsError
+from ocplace.eval.harness import EvalSettings, Evaluation, SceneOutcome, aggregate_subset
+from ocplace.eval.statistics import derived
 from ocplace.paths import write_text_atomic
+from ocplace.vocabulary import GATE_THRESHOLD
 
 SCHEMA = "ocplace.evaluation/1"
 PACKAGES = ("jax", "jaxlib", "flax", "optax", "mujoco", "numpy", "transformers")
@@ -49,6 +53,7 @@ COMPARED_FIELDS = (
     "stage",
     "physical",
     "parse_note",
+    "confidence",
 )
 
 
@@ -56,10 +61,6 @@ COMPARED_FIELDS = (
 _DATASET_FIELDS = {"dir": str, "dataset_hash": str, "manifest_hash": str}
 _ENTRY_FIELDS = {"key": str, "method": str, "label": str, "fraction": (int, float), "subsets": dict}
 _SUBSET_FIELDS = {"aggregate": dict, "scenes": list}
-
-
-class ResultsError(EvaluationError):
-    """A results file that is missing, corrupt, of another schema, or cannot be re-run."""
 
 
 def git_state() -> dict:
@@ -81,6 +82,17 @@ def git_state() -> dict:
     }
 
 
+def cpu_model() -> str | None:
+    """The processor's model name: results may differ in their last bits between CPU types."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.partition(":")[2].strip()
+    except OSError:
+        pass
+    return platform.processor() or None
+
+
 def environment() -> dict:
     import ocplace
 
@@ -95,6 +107,7 @@ def environment() -> dict:
         "git": git_state(),
         "python": platform.python_version(),
         "platform": platform.platform(),
+        "cpu": {"model": cpu_model(), "count": os.cpu_count()},
         "packages": versions,
     }
 
@@ -160,6 +173,7 @@ def build_results(
         "environment": environment(),
         "dataset": dataset_identity(dataset_dir),
         "settings": serial.to_dict(settings),
+        "gate_threshold": GATE_THRESHOLD,  # the selective table's (eval/statistics.py)
         "evaluations": [evaluation_to_json(_with_absolute_run_dir(e)) for e in evaluations],
     }
 
@@ -186,7 +200,7 @@ def summarise(results: Mapping) -> dict:
         {**entry, "subsets": {subset: counts_only(body) for subset, body in entry["subsets"].items()}}
         for entry in results["evaluations"]
     ]
-    return {**results, "summary": True, "evaluations": evaluations}
+    return {**results, "summary": True, "derived": derived(results), "evaluations": evaluations}
 
 
 def write_results(path: str | Path, results: dict) -> Path:

@@ -2,28 +2,34 @@
 
 Table I: one row per method (runs on the whole training set), column groups seen / unseen obj /
 unseen inst (the paper's), then unseen cat (ours, not in the paper), each with Table / 1 Obj / 2 Obj /
-Overall success of the mode in percent. Markdown has one header row, so the group names form the
-header and the level names the first (bold) row.
+Obj (the object-referenced scenes: 1 Obj and 2 Obj pooled) / Overall success of the mode in percent,
+under the paper's protocol (always placed). Markdown has one header row, so the group names form the
+header and the level names the first (bold) row. Below it: a 95% interval for every cell, and the
+robot's refusal gate as a selective table (eval/statistics.py).
 
 With repeats over seeds (`ocplace reproduce --seeds N`), Table I and the mean-over-samples table
-show each cell's mean ± sample standard deviation over the seeds; the diagnostic tables, the
-sample-efficiency table and the figures show the experiment's own seed.
+show each cell's mean ± sample standard deviation over the seeds (its interval covers them); the
+diagnostic tables, the sample-efficiency table and the figures show the experiment's own seed.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
 
+from ocplace.errors import ResultsError
 from ocplace.eval.harness import STAGES
-from ocplace.vocabulary import LEVELS, PAPER_SUBSETS, TEST_SUBSETS
+from ocplace.eval.statistics import COLUMNS, base_runs, derived, full_runs, repeats
+from ocplace.vocabulary import PAPER_SUBSETS, SCORED_SPLITS
 
 SUBSET_TITLES = {
     "seen": "Seen",
     "unseen_obj": "Unseen obj",
     "unseen_inst": "Unseen inst",
     "unseen_cat": "Unseen cat (ours, not in the paper)",
+    "dev_seen": "Dev seen",
+    "dev_colour": "Dev colour",
 }
-LEVEL_TITLES = {"table": "Table", "1obj": "1 Obj", "2obj": "2 Obj", "overall": "Overall"}
+LEVEL_TITLES = {"table": "Table", "1obj": "1 Obj", "2obj": "2 Obj", "objects": "Obj", "overall": "Overall"}
 MISSING = "–"
 MAX_LISTED_FAILURES = 20
 
@@ -34,21 +40,6 @@ def percent(value: float | None, digits: int = 2) -> str:
 
 def _row(cells: Sequence[str]) -> str:
     return "| " + " | ".join(cells) + " |"
-
-
-def base_runs(results: Mapping) -> list[dict]:
-    """Evaluations with the experiment's own seed: every one unless `--seeds` added repeats."""
-    return [e for e in results["evaluations"] if e.get("seed") is None]
-
-
-def full_runs(results: Mapping) -> list[dict]:
-    """Evaluations of runs trained on the whole training set (Table I's rows), in results order."""
-    return [e for e in base_runs(results) if e["fraction"] == 1.0]
-
-
-def repeats(results: Mapping, entry: Mapping) -> list[dict]:
-    """`entry` and its repeats with other seeds (`--seeds`): the same method and fraction."""
-    return [e for e in results["evaluations"] if e["method"] == entry["method"] and e["fraction"] == entry["fraction"]]
 
 
 def spread(values: Sequence[float | None], digits: int = 2) -> str:
@@ -63,14 +54,14 @@ def spread(values: Sequence[float | None], digits: int = 2) -> str:
 
 def _subsets(results: Mapping) -> list[str]:
     evaluated = results["settings"]["subsets"]
-    return [s for s in TEST_SUBSETS if s in evaluated]
+    return [s for s in SCORED_SPLITS if s in evaluated]
 
 
 def level_table(results: Mapping, metric: str, title: str) -> str:
-    """Rows = methods; per subset Table / 1 Obj / 2 Obj / Overall of `metric` (an aggregate rate) in %;
-    with repeats over seeds, their mean ± sample standard deviation."""
+    """Rows = methods; per subset Table / 1 Obj / 2 Obj / Obj (1 and 2 Obj pooled) / Overall of `metric` (an
+    aggregate rate) in %; with repeats over seeds, their mean ± sample standard deviation."""
     subsets = _subsets(results)
-    columns = [*LEVELS, "overall"]
+    columns = COLUMNS
     counts = {len(repeats(results, entry)) for entry in full_runs(results)} or {1}
     note = f" (mean ± standard deviation over {max(counts)} seeds" + (
         ", where a row has them)" if len(counts) > 1 else ")"
@@ -86,13 +77,76 @@ def level_table(results: Mapping, metric: str, title: str) -> str:
         cells = [entry["label"]]
         for subset in subsets:
             aggregates = [e["subsets"].get(subset, {}).get("aggregate") for e in repeats(results, entry)]
-            cells += [spread([a[c][metric] for a in aggregates if a]) for c in columns]
+            cells += [spread([a[c][metric] for a in aggregates if a and c in a]) for c in columns]
         lines.append(_row(cells))
     return "\n".join(lines)
 
 
 def table_one(results: Mapping) -> str:
-    return level_table(results, "success", "Table I: success rate of the mode (%)")
+    return level_table(
+        results,
+        "success",
+        "Table I: success rate of the mode (%), the paper's protocol (every reference grounded at its argmax, "
+        "always placed)",
+    )
+
+
+def _interval(cell) -> str:
+    return MISSING if cell is None else f"{percent(cell[1], 1)}–{percent(cell[2], 1)}"
+
+
+def interval_table(results: Mapping) -> str:
+    """Table I's 95% intervals (eval/intervals.py: scenes and seeds), cell by cell."""
+    try:
+        intervals = derived(results)["intervals"]
+    except ResultsError as error:
+        return f"**95% intervals**: not available ({error})"
+    subsets = _subsets(results)
+    lines = [
+        "**95% intervals of Table I** (two-level bootstrap over scenes and runs, never narrower than the "
+        "Wilson interval of the scenes)",
+        "",
+        _row(["", *[SUBSET_TITLES[s] if i == 0 else "" for s in subsets for i in range(len(COLUMNS))]]),
+        _row(["---", *["---:"] * (len(subsets) * len(COLUMNS))]),
+        _row(["**Method**", *[f"**{LEVEL_TITLES[c]}**" for _ in subsets for c in COLUMNS]]),
+    ]
+    for entry in full_runs(results):
+        row = intervals.get(entry["key"], {})
+        lines.append(_row([entry["label"], *[_interval(row.get(s, {}).get(c)) for s in subsets for c in COLUMNS]]))
+    return "\n".join(lines)
+
+
+def _selective(cell: Mapping) -> str:
+    return f"{percent(cell['coverage'], 1)} / {percent(cell['success_when_placed'], 1)}"
+
+
+def selective_table(results: Mapping) -> str:
+    """The robot's refusal gate at its threshold: coverage and success when placed, per subset."""
+    try:
+        found = derived(results)
+    except ResultsError as error:
+        return f"**Selective placement**: not available ({error})"
+    rows = [(entry, found["selective"].get(entry["key"], {})) for entry in full_runs(results)]
+    rows = [(entry, row) for entry, row in rows if row]
+    if not rows:
+        return ""
+    subsets = _subsets(results)
+    lines = [
+        f"**Selective placement with the robot's gate** (a scene is refused when a reference's best token has "
+        f"P < {found['gate_threshold']:g}): coverage / success when placed (%)",
+        "",
+        _row(["Method", *[SUBSET_TITLES[s] for s in subsets]]),
+        _row(["---", *["---:"] * len(subsets)]),
+    ]
+    for entry, row in rows:
+        cells = [
+            MISSING
+            if s not in row
+            else f"{percent(row[s]['coverage'], 1)} / {percent(row[s]['success_when_placed'], 1)}"
+            for s in subsets
+        ]
+        lines.append(_row([entry["label"], *cells]))
+    return "\n".join(lines)
 
 
 def subset_table(results: Mapping, title: str, columns: Mapping[str, Callable[[dict], str]]) -> str:
@@ -234,6 +288,8 @@ def render(results: Mapping) -> str:
     parts = [
         header,
         table_one(results),
+        interval_table(results),
+        selective_table(results),
         level_table(results, "sample_success", "Mean success over samples (%)"),
         physical_table(results),
         diagnosis_table(results),

@@ -9,9 +9,10 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
+from ocplace.errors import ResultsError
 from ocplace.eval.api import Method
 from ocplace.eval.harness import EvalSettings, Evaluation, MethodRun, evaluate_in_own_arena, evaluate_run
-from ocplace.eval.results import ResultsError, build_results, dataset_identity, settings_of
+from ocplace.eval.results import build_results, dataset_identity, settings_of
 from ocplace.methods import registry
 from ocplace.methods.api import MethodSpec
 from ocplace.methods.registry import load_method, method_run

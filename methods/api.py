@@ -38,6 +38,7 @@ class LoadContext:
     backbone: str
     parser: str = "offline"  # parser name for methods that parse (models.parsing.make_parser)
     num_samples: int = 1024
+    threshold: float = 0.0  # EvalSettings.threshold: least grounding probability to place against (0: always)
 
 
 @dataclasses.dataclass(frozen=True)

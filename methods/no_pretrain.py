@@ -49,7 +49,11 @@ def load(ctx: LoadContext) -> NoPretrainMethod:
     run_dir = Path(ctx.run_dir)
     backbone = load_saved_backbone(run_dir / BACKBONE_DIR)
     policy = PlacementPolicy.from_run(
-        backbone, adapters_file, parser=ctx.parser, sampler=SamplerConfig(num_samples=ctx.num_samples)
+        backbone,
+        adapters_file,
+        parser=ctx.parser,
+        sampler=SamplerConfig(num_samples=ctx.num_samples),
+        threshold=ctx.threshold,
     )
     return NoPretrainMethod("no_pretrain", policy, f"offline:{run_dir / BACKBONE_DIR}", adapters_file, run_dir)
 

@@ -21,8 +21,9 @@ import inspect
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
+from ocplace.errors import EvaluationError
 from ocplace.eval.api import Method, MethodOutput
-from ocplace.eval.harness import EvalSettings, EvaluationError, evaluate_run, physical_arena
+from ocplace.eval.harness import EvalSettings, evaluate_run, physical_arena
 from ocplace.methods.api import LoadContext, MethodSpec
 from ocplace.methods.registry import method_run
 from ocplace.sim.dataset.records import SceneRecord

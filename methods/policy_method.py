@@ -57,6 +57,7 @@ def output_of(placement) -> MethodOutput:
         grounded=placement.tokens or None,
         failure=placement.failure,
         parse_note=parse_note(placement.parsed),
+        confidence=min((ref.probability for ref in placement.references), default=None),
     )
 
 
@@ -138,6 +139,7 @@ def policy_of(ctx: LoadContext, adapters_file: Path | None):
         adapters_file,
         parser=ctx.parser,
         sampler=SamplerConfig(num_samples=ctx.num_samples),
+        threshold=ctx.threshold,
     )
 
 

@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import importlib
 
+from ocplace.errors import EvaluationError
 from ocplace.eval.api import Method
-from ocplace.eval.harness import EvalSettings, EvaluationError, MethodRun
+from ocplace.eval.harness import EvalSettings, MethodRun
 from ocplace.methods.api import LoadContext, MethodSpec
 
 # One module per row of Table I. The order is the order of `all`, of runs and of results.json's evaluations.
@@ -56,4 +57,6 @@ def method_run(spec: MethodSpec, run_dir=None, fraction: float = 1.0, seed: int 
 
 def load_method(spec: MethodSpec, run: MethodRun, settings: EvalSettings) -> Method:
     """The `Method` of `run`, loaded by its spec with the settings' backbone, parser and sample count."""
-    return spec.load(LoadContext(run.run_dir, settings.backbone, settings.parser, settings.num_samples))
+    return spec.load(
+        LoadContext(run.run_dir, settings.backbone, settings.parser, settings.num_samples, settings.threshold)
+    )

@@ -40,8 +40,11 @@ class RenderConfig:
 
     pool: str = "corpus"
     protocol: str = "open"  # corpus: "open" keeps every model of the rule, "strict" drops test-noun names
-    validation_share: float = 0.2  # corpus names held out of pretraining to choose settings on
+    # Corpus categories (head-noun groups naming no benchmark object) held out of pretraining, by a seeded hash,
+    # to choose settings on; validation scenes show at most `validation_cap` models of one category.
+    validation_share: float = 0.2
     validation_seed: int = 0
+    validation_cap: int = 3
     scenes: int = 800
     objects_per_scene: int = 5  # as in the benchmark: occlusions come with the drops
     renders_per_scene: int = 2  # extra renders of a settled scene under new lighting and table colours
@@ -72,6 +75,8 @@ class RenderConfig:
             problems.append(f"protocol must be one of {', '.join(PROTOCOLS)}")
         if not 0.0 <= self.validation_share < 1.0:
             problems.append("validation_share must be in [0, 1)")
+        if self.validation_cap < 1:
+            problems.append("validation_cap must be positive")
         if self.scenes < 1 or self.renders_per_scene < 1 or self.chunk_scenes < 1:
             problems.append("scenes, renders_per_scene and chunk_scenes must be positive")
         if self.objects_per_scene < 1:

@@ -40,9 +40,9 @@ from ocplace.sim import metric
 from ocplace.sim.camera import DEFAULT_CAMERA
 from ocplace.sim.dataset.loader import CROP_SIZE, MAX_BOXES, letterbox
 from ocplace.sim.pinhole import PinholeCamera
-from ocplace.vocabulary import MAX_PARSED_TUPLES
+from ocplace.vocabulary import GATE_THRESHOLD, MAX_PARSED_TUPLES
 
-DEFAULT_THRESHOLD = 0.5
+DEFAULT_THRESHOLD = GATE_THRESHOLD
 TABLE_LABEL = "the table"
 
 

@@ -115,6 +115,14 @@ class OutputError(OcplaceError):
     """An output that cannot be written: a path under a file, a read-only folder, a full disk."""
 
 
+class EvaluationError(OcplaceError):
+    """An evaluation that cannot start: unknown method or subset, a missing run directory, bad settings."""
+
+
+class ResultsError(EvaluationError):
+    """A results file that is missing, corrupt, of another schema, or cannot be re-run or summarised."""
+
+
 class ConfigError(OcplaceError, ValueError):
     """A configuration override that names no setting or gives a value its setting cannot take."""
 

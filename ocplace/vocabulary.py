@@ -8,10 +8,23 @@ A leaf module, cheap to import (the CLI builds its choices from it); it imports 
 # (docs/library.md states the rule).
 LIBRARY_SPLITS = ("seen", "unseen", "unseen_cat")
 TEXTURE_SPLITS = ("seen", "unseen")  # table textures; unseen_cat scenes use the unseen ones
+# Object pools a dataset split draws from: the library splits, and the seen colour variants (the rule is
+# `sim.library.library.colour_variants`), the objects of the dev_colour split.
+COLOUR_VARIANTS = "seen_colour"
+OBJECT_POOLS = (*LIBRARY_SPLITS, COLOUR_VARIANTS)
 
 PAPER_SUBSETS = ("seen", "unseen_obj", "unseen_inst")  # Table I's three test subsets
 # Ours, not the paper's: objects of categories no training object belongs to (docs/dataset.md).
 TEST_SUBSETS = (*PAPER_SUBSETS, "unseen_cat")
+
+# Development splits: every setting is chosen on them (or on training data), never on a test subset. Their
+# scenes come from their own dataset seed (`DatasetConfig.dev_seed`); docs/dataset.md, docs/settings.md.
+# dev_seen: seen objects on seen tables; dev_colour: only the seen colour variants (a known-category,
+# new-instance proxy for unseen_obj when the selection run's adapters never saw them).
+DEV_SPLITS = ("dev_seen", "dev_colour")
+
+# What an evaluation may score: the test subsets (Table I) and the dev splits (choices).
+SCORED_SPLITS = (*TEST_SUBSETS, *DEV_SPLITS)
 
 LEVELS = ("table", "1obj", "2obj")  # instruction levels by number of object references, as in the paper
 
@@ -24,20 +37,36 @@ MAX_INSTRUCTION_TUPLES = 2
 CLIP_IMAGE_MEAN = (0.48145466, 0.4578275, 0.40821073)
 CLIP_IMAGE_STD = (0.26862954, 0.26130258, 0.27577711)
 
+# The robot's refusal gate (`PlacementPolicy.threshold`, `ocplace place`): a scene is refused when a reference's
+# best visual token has a lower probability. Table I places always (the paper's protocol); the gate is reported
+# beside it (eval/statistics.py). Chosen on the dev splits, never on a test subset: docs/settings.md.
+GATE_THRESHOLD = 0.5
+
 # The experiments of ocplace/configs by name (the keys of `ocplace.configs.EXPERIMENTS`), for the CLI's choices.
 EXPERIMENT_NAMES = ("smoke", "demo", "default")
 
 # The named primitives of the backbone's pretraining arenas (`sim/primitives.py`): shapes and sizes.
 SHAPES = ("box", "cylinder", "sphere", "cone", "ring", "disc", "capsule", "pyramid")
 SIZES = ("small", "medium", "large")
+# What captions call each shape (its first word is the shape's own name).
+SHAPE_WORDS = {
+    "box": ("box", "cube", "block"),
+    "cylinder": ("cylinder",),
+    "sphere": ("sphere", "ball"),
+    "cone": ("cone",),
+    "ring": ("ring", "torus"),
+    "disc": ("disc", "disk", "plate-like disc"),
+    "capsule": ("capsule", "pill"),
+    "pyramid": ("pyramid",),
+}
 
 
 def subsets_problem(subsets, key: str) -> str | None:
-    """What is wrong with `subsets` as the test subsets to score (none, unknown or repeated), named by `key`."""
-    unknown = [subset for subset in subsets if subset not in TEST_SUBSETS]
+    """What is wrong with `subsets` as the splits to score (none, unknown or repeated), named by `key`."""
+    unknown = [subset for subset in subsets if subset not in SCORED_SPLITS]
     if unknown or not subsets or len(set(subsets)) < len(subsets):
         return (
-            f"{key} must name each test subset at most once, some of {', '.join(TEST_SUBSETS)}; "
+            f"{key} must name each test subset or dev split at most once, some of {', '.join(SCORED_SPLITS)}; "
             f"got {', '.join(subsets) or 'none'}"
         )
     return None

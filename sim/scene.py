@@ -11,7 +11,8 @@ import dataclasses
 import numpy as np
 
 from ocplace.errors import SceneError
-from ocplace.vocabulary import LIBRARY_SPLITS
+from ocplace.sim.library.library import colour_variants
+from ocplace.vocabulary import COLOUR_VARIANTS, OBJECT_POOLS
 
 NUM_SCENE_OBJECTS = 5
 
@@ -142,15 +143,18 @@ def sample_drop_poses(
 
 
 def split_pools(library, split: str) -> tuple[list[str], list[str]]:
-    """Object names of a library split and the table textures that go with them.
+    """Object names of an object pool (a library split, or the seen colour variants) and the table textures
+    that go with them.
 
-    Textures are only seen or unseen: the unseen_cat objects lie on the unseen textures.
+    Textures are only seen or unseen: the unseen_cat objects lie on the unseen textures, the seen colour
+    variants on the seen ones.
     """
-    if split not in LIBRARY_SPLITS:
-        raise SceneError(f"unknown split {split!r}; choose one of {LIBRARY_SPLITS}")
-    texture_split = "seen" if split == "seen" else "unseen"
+    if split not in OBJECT_POOLS:
+        raise SceneError(f"unknown split {split!r}; choose one of {OBJECT_POOLS}")
+    texture_split = "seen" if split in ("seen", COLOUR_VARIANTS) else "unseen"
     textures = sorted(name for name, texture in library.textures.items() if texture.split == texture_split)
-    return library.names(split), textures
+    objects = colour_variants(library) if split == COLOUR_VARIANTS else library.names(split)
+    return objects, textures
 
 
 def render_sampled_scene(library, arena, seed: int, split: str) -> RenderedScene:

@@ -105,7 +105,8 @@ class FlakyMethod:
 
 @dataclasses.dataclass
 class RandomMethod:
-    """Uniform samples over the table from the key; the mode is the first sample."""
+    """Uniform samples over the table from the key; the mode is the first sample; as its confidence, the share of
+    samples right of the centre."""
 
     num_samples: int
     name: str = "random"
@@ -119,7 +120,7 @@ class RandomMethod:
         outputs = []
         for _ in scenes:
             samples = rng.uniform(low, high, size=(self.num_samples, 2))
-            outputs.append(MethodOutput(mode=samples[0], samples=samples))
+            outputs.append(MethodOutput(mode=samples[0], samples=samples, confidence=float(np.mean(samples[:, 0] > 0))))
         return outputs
 
 

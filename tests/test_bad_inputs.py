@@ -21,8 +21,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from ocplace.cli import main
-from ocplace.errors import OutputError, ParseError, PolicyInputError
-from ocplace.eval.results import ResultsError, read_results, settings_of
+from ocplace.errors import OutputError, ParseError, PolicyInputError, ResultsError
+from ocplace.eval.results import read_results, settings_of
 from ocplace.models.parsing import as_pairs, make_parser
 from ocplace.paths import atomic_path, check_writable
 from ocplace.sim.camera import DEFAULT_CAMERA
@@ -341,9 +341,9 @@ CANNOT_RUN = "experiment 'smoke' cannot run: "
         ),
         (
             "evaluation.subsets=seen,bogus",
-            CANNOT_RUN + "evaluation.subsets must name each test subset at most once, some of seen",
+            CANNOT_RUN + "evaluation.subsets must name each test subset or dev split at most once, some of seen",
         ),
-        ("evaluation.subsets=", CANNOT_RUN + "evaluation.subsets must name each test subset"),
+        ("evaluation.subsets=", CANNOT_RUN + "evaluation.subsets must name each test subset or dev split"),
         (
             "evaluation.parser=bogus",
             CANNOT_RUN + "evaluation.parser 'bogus' is not a parser; choose one of offline, offline-snap",
@@ -431,14 +431,15 @@ def test_evaluate_refuses_a_bad_setting_before_any_work(tmp_path, capsys, monkey
 
 
 def test_evaluation_settings_are_checked_where_evaluations_start():
-    from ocplace.eval.harness import EvalSettings, EvaluationError
+    from ocplace.errors import EvaluationError
+    from ocplace.eval.harness import EvalSettings
     from ocplace.experiments.evaluation import evaluate_runs
 
     EvalSettings().validate()
     EvalSettings(limit=1, physical_scenes=None, subsets=("unseen_cat",)).validate()
     for bad, message in (
-        (EvalSettings(subsets=("seen", "seen")), "subsets must name each test subset at most once"),
-        (EvalSettings(subsets=()), "subsets must name each test subset at most once"),
+        (EvalSettings(subsets=("seen", "seen")), "subsets must name each test subset or dev split at most once"),
+        (EvalSettings(subsets=()), "subsets must name each test subset or dev split at most once"),
         (EvalSettings(subsets=("train",)), "; got train"),
         (EvalSettings(physical_scenes=-1), "physical_scenes must be at least 0 (none: every scene), got -1"),
     ):

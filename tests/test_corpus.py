@@ -3,6 +3,7 @@ protocols and the validation split. Real catalogues (Debian's package) and hand-
 
 from __future__ import annotations
 
+import collections
 import json
 import logging
 import os
@@ -26,7 +27,14 @@ from ocplace.sim.corpus.build import (
     load_corpus,
 )
 from ocplace.sim.corpus.catalogue import member_name, parse_properties
-from ocplace.sim.corpus.selection import SelectionRule, head_noun, is_validation, names_test_noun
+from ocplace.sim.corpus.selection import (
+    SelectionRule,
+    eligible_groups,
+    head_noun,
+    is_validation_group,
+    names_test_noun,
+    noun_group,
+)
 from ocplace.sim.library.types import CORPUS_SPLIT
 from ocplace.train.pretrain.pool import strict_drops, training_pool, validation_assets
 
@@ -156,11 +164,17 @@ def test_nouns_and_the_validation_hash():
     assert head_noun("Salt shaker") == "shaker"
     assert names_test_noun("Sushi tray", ("tray",)) == "tray" and names_test_noun("Apples", ("apple",)) == "apple"
     assert names_test_noun("Apple iBook", ("book",)) == ""
-    names = [f"thing {i}" for i in range(2000)]
-    held = [n for n in names if is_validation(n, 0.2)]
-    assert 0.17 < len(held) / len(names) < 0.23
-    assert held == [n for n in names if is_validation(n, 0.2)]  # a pure function of the name
-    assert held != [n for n in names if is_validation(n, 0.2, seed=1)]
+    assert noun_group("Square dimmer switch") == noun_group("wall socket") == noun_group("rounded rj45 plug") == "plug"
+    assert noun_group("Sneakers") == noun_group("woman shoes") == "shoes" and noun_group("teapot") == "teapot"
+    groups = [f"thing {i}" for i in range(2000)]
+    held = [g for g in groups if is_validation_group(g, 0.2)]
+    assert 0.17 < len(held) / len(groups) < 0.23
+    assert held == [g for g in groups if is_validation_group(g, 0.2)]  # a pure function of the group
+    assert held != [g for g in groups if is_validation_group(g, 0.2, seed=1)]
+    names = ["coffee cup", "coffee mug", "teapot", "desk lamp", "flashlight", "wall socket", "soccer ball"]
+    nouns = frozenset({"cup", "ball"})
+    # A group with one member named by a benchmark noun (coffee mug -> cup) is not eligible as a whole.
+    assert eligible_groups(names, nouns) == {"teapot", "lamp", "plug"}
 
 
 # ----------------------------------------------------------------------------- the real corpus
@@ -212,13 +226,26 @@ def test_strict_drops_every_model_named_by_a_test_noun(corpus, library):
     assert {"teddy bear", "bread"} & {a.human_name for a in open_pool.assets}
 
 
-def test_validation_names_never_reach_pretraining(corpus, library):
+def test_validation_categories_never_reach_pretraining(corpus, library):
+    from ocplace.sim.corpus.selection import benchmark_nouns
+    from ocplace.train.pretrain.pool import validation_groups, validation_scene_assets
+    from ocplace.vocabulary import SHAPE_WORDS
+
+    nouns = benchmark_nouns(library.objects.values(), [word for words in SHAPE_WORDS.values() for word in words])
     for config in (default_config().render, strict_config().render):
         held = validation_assets(corpus, library, config)
         pool = training_pool(library, corpus, config)
-        assert len(held) >= 10
-        assert not {a.human_name for a in held} & {a.human_name for a in pool.assets}
+        assert len(validation_groups(corpus, library, config)) >= 10 and len(held) >= 10
+        held_nouns = {head_noun(a.human_name) for a in held} | {noun_group(a.human_name) for a in held}
+        pool_nouns = {head_noun(a.human_name) for a in pool.assets} | {noun_group(a.human_name) for a in pool.assets}
+        assert not held_nouns & pool_nouns  # not one category, nor one head noun, in both
+        assert not held_nouns & nouns  # nor a benchmark object's or a primitive's noun
         assert not set(pool.objects) & set(library.objects)
+        shown = validation_scene_assets(corpus, library, config)
+        per_group = collections.Counter(noun_group(a.human_name) for a in shown)
+        assert max(per_group.values()) <= config.validation_cap and set(per_group) == {
+            noun_group(a.human_name) for a in held
+        }
 
 
 # ----------------------------------------------------------------------------- bad input

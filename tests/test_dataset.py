@@ -12,7 +12,7 @@ import pytest
 
 from ocplace.errors import DatasetConfigError, DatasetError
 from ocplace.runtime import ExecutorConfig, open_executor
-from ocplace.sim.dataset.config import SPLIT_NAMES, SplitConfig, make_config, smoke_config
+from ocplace.sim.dataset.config import SplitConfig, make_config, smoke_config
 from ocplace.sim.dataset.job import (
     DIE_AFTER_SCENES_ENV,
     MANIFEST_FILE,
@@ -71,7 +71,7 @@ def test_ground_truth_matches_instruction_and_boxes(dataset, library):
 
 
 def test_oracle_placements_pass_the_metric(dataset):
-    for split in SPLIT_NAMES:
+    for split in (s.name for s in smoke_config().splits):
         for record in _records(dataset, split):
             placement = record.oracle.placement[None]
             assert placement_success(placement, record.problem()).all(), record.id
@@ -237,3 +237,64 @@ def test_a_scene_whose_objects_keep_falling_off_is_resampled(library, monkeypatc
 @pytest.mark.parametrize("scenes, workers, size", [(12, 2, 1), (100, 2, 12), (20_000, 2, SCENES_PER_TASK), (3, 8, 1)])
 def test_scenes_are_batched_into_tasks_with_four_per_worker_at_least(scenes, workers, size):
     assert scenes_per_task(scenes, workers) == size
+
+
+@pytest.fixture(scope="module")
+def dev_dataset(tmp_path_factory, library):
+    """Two scenes per test subset and four per dev split; the training split is left out."""
+    out = tmp_path_factory.mktemp("dev_dataset")
+    config = make_config(train=2, test=2, dev=4)
+    generate_dataset(out, config, ["seen", "unseen_obj", "dev_seen", "dev_colour"], progress=False)
+    return out, config
+
+
+def test_dev_splits_draw_their_own_pools_and_never_a_test_scene(dev_dataset, library):
+    from ocplace.sim.dataset.job import coinciding_scenes, read_manifest
+    from ocplace.sim.library.library import colour_variants
+
+    out, _ = dev_dataset
+    variants = set(colour_variants(library))
+    assert variants == {
+        "green_ketchup",
+        "blue_ketchup",
+        "red_salad_dressing",
+        "red_cream_cheese",
+        "green_chocolate_pudding",
+        "red_bowl",
+        "red_mug",
+    }
+    seen_textures = {name for name, texture in library.textures.items() if texture.split == "seen"}
+    for split, pool in (("dev_seen", set(library.names("seen"))), ("dev_colour", variants)):
+        for record in _records(out, split):
+            assert {obj.name for obj in record.objects} | {record.held_object.name} <= pool
+            assert record.table_texture in seen_textures and record.instruction_style == "seen"
+    manifest = read_manifest(out)
+    assert coinciding_scenes(manifest) == []
+    dev_specs = [r.spec for split in ("dev_seen", "dev_colour") for r in _records(out, split)]
+    test_specs = [r.spec for r in _records(out, "seen")]
+    assert not any(spec == other for spec in dev_specs for other in test_specs)
+
+
+def test_a_dev_scene_equal_to_a_test_scene_is_refused(dev_dataset, tmp_path):
+    import shutil
+
+    from ocplace.sim.dataset.job import write_manifest
+
+    source, config = dev_dataset
+    out = tmp_path / "copied"
+    shutil.copytree(source, out)
+    # A dev scene replaced by a test scene's files, listed consistently: no hash check can catch it.
+    dev_scene, test_scene = out / "dev_seen" / "dev_seen-00000", out / "seen" / "seen-00000"
+    for name in ("rgb.png", "depth.png", "segmentation.png"):
+        shutil.copy(test_scene / name, dev_scene / name)
+    write_manifest(out, config)
+    with pytest.raises(DatasetError, match="dev_seen/dev_seen-00000 is seen/seen-00000"):
+        generate_dataset(out, config, ["seen", "dev_seen"], progress=False)
+
+
+def test_dev_split_without_scenes_is_refused_with_what_to_do(tmp_path, capsys):
+    from ocplace.cli import main
+
+    assert main(["generate", "--out", str(tmp_path / "d"), "--split", "dev_colour"]) == 2
+    assert "dev_colour is a dev split: say how many scenes it holds with --dev N" in capsys.readouterr().err
+    assert not (tmp_path / "d").exists()

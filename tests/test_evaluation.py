@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from ocplace import serial
+from ocplace.errors import ResultsError
 from ocplace.eval import harness, results, table
 from ocplace.eval.api import MethodOutput
 from ocplace.eval.harness import EvalSettings
@@ -225,7 +226,7 @@ def test_results_json_round_trip(results_json, evaluations, tmp_path):
     assert [e.subsets for e in results.evaluations(loaded)] == [e.subsets for e in evaluations]
     assert results.settings_of(loaded) == SETTINGS
     (tmp_path / "bad.json").write_text(json.dumps({"schema": "other"}))
-    with pytest.raises(results.ResultsError, match="not an ocplace evaluation"):
+    with pytest.raises(ResultsError, match="not an ocplace evaluation"):
         results.read_results(tmp_path / "bad.json")
 
 
@@ -233,14 +234,18 @@ def test_table_one_layout(results_json):
     lines = table.table_one(results_json).splitlines()
     groups = [cell.strip() for cell in lines[2].split("|")[1:-1] if cell.strip()]
     assert groups == ["Seen", "Unseen obj", "Unseen inst", "Unseen cat (ours, not in the paper)"]  # the paper's first
-    assert lines[4].count("**Overall**") == 4 and lines[4].count("**1 Obj**") == 4
+    assert lines[4].count("**Overall**") == 4 and lines[4].count("**1 Obj**") == 4 and lines[4].count("**Obj**") == 4
     rows = {line.split("|")[1].strip(): [c.strip() for c in line.split("|")[2:-1]] for line in lines[5:]}
-    assert rows["Oracle"] == ["100.00"] * 16 and rows["Always fails"] == ["0.00"] * 16
-    centre = by_key(results_json, "centre")["subsets"]["seen"]["aggregate"]["overall"]["success"]
-    assert rows["Table centre"][3] == f"{100 * centre:.2f}"
+    assert rows["Oracle"] == ["100.00"] * 20 and rows["Always fails"] == ["0.00"] * 20
+    centre = by_key(results_json, "centre")["subsets"]["seen"]
+    assert rows["Table centre"][4] == f"{100 * centre['aggregate']['overall']['success']:.2f}"
+    objects = [s["success"] for s in centre["scenes"] if s["level"] != "table"]
+    assert rows["Table centre"][3] == f"{100 * sum(objects) / len(objects):.2f}"  # 1 Obj and 2 Obj pooled
     document = table.render(results_json)
     for title in (
         "Table I",
+        "95% intervals",
+        "Selective placement",
         "Mean success over samples",
         "Physical success",
         "Parse, grounding",

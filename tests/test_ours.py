@@ -72,20 +72,39 @@ def test_ours_trains_at_smoke_scale_and_places_every_scene(trained_run, tiny_bac
         assert output.parsed and len(output.grounded) == len(output.parsed)
         num_tokens = len(record.boxes) + 1
         assert all(0 <= token < num_tokens for token in output.grounded)
-        # An untrained tiny backbone is unsure of most things: the default threshold refuses to place
-        # blindly, and a confident wrong grounding ("the table" on an object) is a typed failure too.
+        # The paper's protocol never refuses: a wrong grounding may still leave no feasible region, or ask an
+        # object relation of "the table", which are typed failures.
         assert (output.mode is None) == (output.failure is not None)
+        assert 0.0 <= output.confidence <= 1.0
+        assert output.confidence == pytest.approx(min(max(row) for row in _probabilities(method, record)), abs=1e-4)
         if output.mode is None:
-            assert output.failure.split(":")[0] in ("GroundingUncertain", "InvalidPlacementProblem")
+            assert output.failure.split(":")[0] in ("NoFeasiblePlacement", "InvalidPlacementProblem")
             assert output.samples is None
         else:
             assert output.samples.shape == (128, 2)
+
+    # The robot's gate refuses exactly the scenes whose confidence is below its threshold.
+    gated = method_specs()["ours"].load(LoadContext(run, tiny_backbone_spec, num_samples=128, threshold=0.5))
+    for output, gated_output in zip(outputs, gated.run(seen_records, jax.random.key(0))):
+        refused = gated_output.failure is not None and gated_output.failure.startswith("GroundingUncertain")
+        assert refused == (output.confidence < 0.5)
 
     description = method.describe()
     text = json.dumps(description)
     assert description["adapters"]["steps"] == 300 and len(description["adapters"]["sha256"]) == 64
     assert description["backbone"]["fingerprint"] and description["parser"]["name"] == "offline"
     assert description["threshold"] == method.policy.threshold and "sampler" in text
+
+
+def _probabilities(method, record):
+    """Each parsed reference's P over the visual tokens, from the policy's own stages."""
+    from ocplace.methods.policy_method import scene_input
+
+    policy = method.policy
+    prepared = policy.prepare(scene_input(record))
+    parsed = policy.parse(record.instruction)
+    probabilities = policy.ground(policy.encode([prepared], [parsed]))[0]
+    return [probabilities[k, : len(prepared.boxes) + 1] for k in range(len(parsed))]
 
 
 def test_no_adapter_places_with_zero_threshold(tiny_backbone_spec, seen_records):

@@ -134,8 +134,8 @@ def test_table_one_shows_mean_and_spread_over_seeds(first_run):
     lines = table.table_one(saved).splitlines()
     assert lines[0].endswith("(mean ± standard deviation over 2 seeds, where a row has them)")  # centre only
     row = next(line for line in lines if line.startswith("| Table centre |")).split("|")[2:-1]
-    assert row[3].strip() == f"{100 * mean:.2f} ± {100 * spread:.2f}"
-    assert next(line for line in lines if line.startswith("| Oracle |")).count("100.00") == 4 * len(TEST_SUBSETS)
+    assert row[4].strip() == f"{100 * mean:.2f} ± {100 * spread:.2f}"
+    assert next(line for line in lines if line.startswith("| Oracle |")).count("100.00") == 5 * len(TEST_SUBSETS)
     assert [e["key"] for e in table.full_runs(saved)] == ["oracle", "centre", "failing"]  # repeats are not rows
 
 

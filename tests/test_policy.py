@@ -24,7 +24,7 @@ from ocplace.models.placement.sampler import SamplerConfig
 from ocplace.models.policy import PlacementPolicy, SceneInput
 from ocplace.sim import metric
 from ocplace.sim.camera import DEFAULT_CAMERA
-from ocplace.sim.dataset.config import SPLIT_NAMES
+from ocplace.sim.dataset.config import smoke_config
 from ocplace.sim.dataset.job import scene_dirs
 from ocplace.sim.dataset.loader import example_from_record
 from ocplace.sim.dataset.records import read_scene
@@ -163,7 +163,7 @@ def test_pixels_and_table_frame_round_trip(records):
 
 
 def test_detector_recall_on_the_smoke_dataset(smoke_dataset):
-    recall = detection.dataset_box_recall(smoke_dataset, SPLIT_NAMES)
+    recall = detection.dataset_box_recall(smoke_dataset, [split.name for split in smoke_config().splits])
     matched = sum(r.matched for r in recall.values())
     total = sum(r.total for r in recall.values())
     assert matched / total >= DETECTOR_RECALL_FLOOR, {k: (v.matched, v.total) for k, v in recall.items()}

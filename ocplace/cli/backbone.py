@@ -57,13 +57,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
     validate = actions.add_parser(
         "validate",
-        help="zero-shot grounding on the corpus' held-out names (the split pretraining choices are made on)",
-        description="Renders (once, cached) benchmark-like scenes of the corpus models whose names the "
-        "recipe holds out of pretraining, and grounds each of them among its scene's crops. No test "
-        "subset is involved.",
+        help="zero-shot grounding on the corpus' held-out categories (the split pretraining choices are made on)",
+        description="Renders (once, cached) benchmark-like scenes of the corpus models of the categories the "
+        "recipe holds out of pretraining (head-noun groups that name no benchmark object), and grounds each "
+        "of them among its scene's crops. No test subset is involved.",
     )
     validate.add_argument("--backbone", default="offline", help="backbone spec (default: offline, the default recipe)")
-    validate.add_argument("--recipe", choices=RECIPE_NAMES, default="default", help="whose held-out names and protocol")
+    validate.add_argument(
+        "--recipe", choices=RECIPE_NAMES, default="default", help="whose held-out categories and protocol"
+    )
     validate.add_argument("--scenes", type=int, default=100)
     validate.set_defaults(func=_validate)
 

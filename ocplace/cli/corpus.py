@@ -27,8 +27,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--show",
         choices=VIEWS,
         default="pool",
-        help="pool: what pretraining renders; validation: the held-out names; test-nouns: the models whose "
-        "names hold a test object's noun (kept by `open`, dropped by `strict`); skipped: models not converted",
+        help="pool: what pretraining renders; validation: the models of the held-out categories; test-nouns: the "
+        "models whose names hold a test object's noun (kept by `open`, dropped by `strict`); skipped: models not "
+        "converted",
     )
     listing.set_defaults(func=_list)
 

@@ -9,11 +9,20 @@ from pathlib import Path
 
 from ocplace.cli.executor_options import add_executor_arguments, executor_config
 from ocplace.cli.options import DeprecatedAlias, add_dataset_argument, config_from_arguments
-from ocplace.vocabulary import EXPERIMENT_NAMES, TEST_SUBSETS
+from ocplace.vocabulary import EXPERIMENT_NAMES, SCORED_SPLITS, TEST_SUBSETS
 
 # `ocplace evaluate` options named after EvalSettings fields: left out (None), they keep its defaults.
 # Written by hand, not generated: EvalSettings sits behind NumPy, too slow to import for `--help`.
-EVAL_SETTINGS_OPTIONS = ("backbone", "experiment", "parser", "num_samples", "limit", "seed", "chunk_size")
+EVAL_SETTINGS_OPTIONS = (
+    "backbone",
+    "experiment",
+    "parser",
+    "num_samples",
+    "limit",
+    "seed",
+    "chunk_size",
+    "threshold",
+)
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -61,7 +70,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     evaluate.add_argument("--backbone", help="backbone spec (default: offline)")
     evaluate.add_argument("--out", type=Path, help="results JSON (the markdown goes beside it, .md)")
-    evaluate.add_argument("--subsets", nargs="+", choices=TEST_SUBSETS, default=list(TEST_SUBSETS))
+    evaluate.add_argument(
+        "--subsets",
+        nargs="+",
+        choices=SCORED_SPLITS,
+        default=list(TEST_SUBSETS),
+        help="test subsets to score (default: all four), or dev splits to choose settings on",
+    )
     evaluate.add_argument("--limit", type=int, help="first N scenes of each subset")
     evaluate.add_argument(
         "--physical",
@@ -81,6 +96,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     evaluate.add_argument(
         "--scale", dest="experiment", choices=EXPERIMENT_NAMES, action=DeprecatedAlias, instead="--experiment"
     )
+    evaluate.add_argument(
+        "--threshold",
+        type=float,
+        metavar="P",
+        help="refuse a scene whose reference's best token has P below this (default 0: the paper's protocol, always "
+        "place; the robot's gate is reported beside Table I as a selective table)",
+    )
     evaluate.add_argument("--seed", type=int, help="default: 0")
     evaluate.add_argument("--chunk-size", type=int, help="scenes per method call (default: 32)")
     evaluate.add_argument(
@@ -95,7 +117,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def parse_runs(items: list[str]) -> dict[str, Path]:
-    from ocplace.eval.harness import EvaluationError
+    from ocplace.errors import EvaluationError
 
     runs = {}
     for item in items:
@@ -113,7 +135,7 @@ def physical_setting(value: int | None, default: int | None) -> int | None:
 
 
 def method_runs(specs: list, runs: dict[str, Path], runs_from: Path | None = None) -> list:
-    from ocplace.eval.harness import EvaluationError
+    from ocplace.errors import EvaluationError
     from ocplace.experiments.pipeline import run_directory
     from ocplace.methods.registry import method_run
 
@@ -151,7 +173,8 @@ def command_record(args: argparse.Namespace) -> dict:
 def _evaluate(args: argparse.Namespace) -> int:
     if args.rerun is not None:
         return _rerun(args)
-    from ocplace.eval.harness import DEFAULT_PHYSICAL_SCENES, EvalSettings, EvaluationError
+    from ocplace.errors import EvaluationError
+    from ocplace.eval.harness import DEFAULT_PHYSICAL_SCENES, EvalSettings
     from ocplace.eval.results import build_results, write_outputs
     from ocplace.experiments.evaluation import evaluate_runs
     from ocplace.methods.registry import method_run, method_specs, select_specs
@@ -183,7 +206,7 @@ def _evaluate(args: argparse.Namespace) -> int:
 
 def _policy_specs(references: list[str], labels: list[str]) -> list:
     """The spec of each `--policy`, imported here (the current folder first on the import path, as for `python -m`)."""
-    from ocplace.eval.harness import EvaluationError
+    from ocplace.errors import EvaluationError
     from ocplace.methods.policy import policy_spec
 
     if labels and len(labels) != len(references):

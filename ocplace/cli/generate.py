@@ -8,6 +8,7 @@ from pathlib import Path
 
 from ocplace.cli.executor_options import add_executor_arguments, executor_config
 from ocplace.sim.dataset.config import SPLIT_NAMES
+from ocplace.vocabulary import DEV_SPLITS
 
 SPLIT_CHOICES = ("all", *SPLIT_NAMES)
 
@@ -19,13 +20,21 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Drops objects in MuJoCo, renders them and writes scenes with instructions and "
         "ground truth. Defaults are the paper's: train 2000 scenes (450 table, 450 1obj, "
         "1100 2obj) and four test subsets of 400 (90/90/220): the paper's seen, unseen_obj, unseen_inst "
-        "and unseen_cat (objects of categories absent from training). Rerun to resume.",
+        "and unseen_cat (objects of categories absent from training); with --dev N, the dev splits dev_seen and "
+        "dev_colour that settings are chosen on. Rerun to resume.",
     )
     generate.add_argument("--out", type=Path, required=True, help="dataset folder")
     generate.add_argument("--split", choices=SPLIT_CHOICES, default="all")
     generate.add_argument("--seed", type=int, default=0)
     generate.add_argument("--train", type=int, default=2000, help="training scenes")
     generate.add_argument("--test", type=int, default=400, help="scenes per test subset")
+    generate.add_argument(
+        "--dev",
+        type=int,
+        default=0,
+        help="scenes per dev split (dev_seen, dev_colour; default 0: none, the paper's dataset); their scenes come "
+        "from streams of their own, never a test subset's",
+    )
     generate.add_argument("--smoke", action="store_true", help="a tiny dataset (12 train, 8 per test subset)")
     add_executor_arguments(generate, "batches of up to 16 scenes are tasks")
     generate.set_defaults(func=_generate)
@@ -34,12 +43,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def _generate(args: argparse.Namespace) -> int:
     from ocplace.errors import DatasetConfigError
     from ocplace.runtime import open_executor
-    from ocplace.sim.dataset.config import make_config, smoke_config
+    from ocplace.sim.dataset.config import SMOKE_SIZES, make_config
     from ocplace.sim.dataset.job import generate_dataset
 
-    if args.train < 0 or args.test < 0:
-        raise DatasetConfigError("--train and --test must be >= 0")
-    config = smoke_config() if args.smoke else make_config(args.train, args.test)
+    if min(args.train, args.test, args.dev) < 0:
+        raise DatasetConfigError("--train, --test and --dev must be >= 0")
+    if args.split in DEV_SPLITS and args.dev == 0:
+        raise DatasetConfigError(f"{args.split} is a dev split: say how many scenes it holds with --dev N")
+    config = make_config(*SMOKE_SIZES, dev=args.dev) if args.smoke else make_config(args.train, args.test, dev=args.dev)
     config = dataclasses.replace(config, seed=args.seed)
     splits = None if args.split == "all" else [args.split]
     with open_executor(executor_config(args)) as executor:

@@ -5,18 +5,20 @@ from __future__ import annotations
 import dataclasses
 
 from ocplace.errors import DatasetConfigError
-from ocplace.vocabulary import LEVELS, LIBRARY_SPLITS, TEST_SUBSETS, TEXTURE_SPLITS
+from ocplace.vocabulary import COLOUR_VARIANTS, DEV_SPLITS, LEVELS, OBJECT_POOLS, TEST_SUBSETS, TEXTURE_SPLITS
 
 LEVEL_REFERENCES = {"table": 0, "1obj": 1, "2obj": 2}  # object references per instruction
-# The position of a split here seeds its scenes: new splits go at the end, so old ones keep theirs.
-SPLIT_NAMES = ("train", *TEST_SUBSETS)
+# The position of a split here seeds its scenes (with the dataset seed and the scene index): new splits go at
+# the end, so old ones keep theirs, and no two splits draw from one stream. The dev splits come after every
+# test subset, so their scenes are never a test subset's.
+SPLIT_NAMES = ("train", *TEST_SUBSETS, *DEV_SPLITS)
 
 
 @dataclasses.dataclass(frozen=True)
 class SplitConfig:
     name: str
     levels: tuple[tuple[str, int], ...]  # (level, number of scenes)
-    objects: str  # library split the scene and held objects come from (LIBRARY_SPLITS)
+    objects: str  # object pool the scene and held objects come from (OBJECT_POOLS: a library split or seen_colour)
     textures: str  # table texture split (TEXTURE_SPLITS)
     instructions: str  # instruction style: "seen" or "unseen"
 
@@ -56,18 +58,23 @@ class DatasetConfig:
                     raise DatasetConfigError(f"{split.name}/{level}: negative scene count {count}")
             if split.num_scenes == 0:
                 raise DatasetConfigError(f"split {split.name!r} has zero scenes")
-            if split.objects not in LIBRARY_SPLITS or split.textures not in TEXTURE_SPLITS:
+            if split.objects not in OBJECT_POOLS or split.textures not in TEXTURE_SPLITS:
                 raise DatasetConfigError(
-                    f"{split.name}: object splits are {LIBRARY_SPLITS}, texture splits {TEXTURE_SPLITS}"
+                    f"{split.name}: object pools are {OBJECT_POOLS}, texture splits {TEXTURE_SPLITS}"
                 )
             if split.instructions not in ("seen", "unseen"):
                 raise DatasetConfigError(f"{split.name}: instruction style is 'seen' or 'unseen'")
 
 
-def make_config(train: int = 2000, test: int = 400, seed: int = 0) -> DatasetConfig:
-    """The paper's layout with `train` training scenes and `test` scenes per test subset (unseen_cat too)."""
+def make_config(train: int = 2000, test: int = 400, seed: int = 0, dev: int = 0) -> DatasetConfig:
+    """The paper's layout with `train` training scenes and `test` scenes per test subset (unseen_cat too), and
+    `dev` scenes per dev split (none by default: a dataset without them is the paper's)."""
     table = round(train * 450 / 2000)
     train_levels = (("table", table), ("1obj", table), ("2obj", train - 2 * table))
+    dev_splits = (
+        SplitConfig("dev_seen", _test_levels(dev), "seen", "seen", "seen"),
+        SplitConfig("dev_colour", _test_levels(dev), COLOUR_VARIANTS, "seen", "seen"),
+    )
     return DatasetConfig(
         splits=(
             SplitConfig("train", train_levels, "seen", "seen", "seen"),
@@ -75,6 +82,7 @@ def make_config(train: int = 2000, test: int = 400, seed: int = 0) -> DatasetCon
             SplitConfig("unseen_obj", _test_levels(test), "unseen", "unseen", "seen"),
             SplitConfig("unseen_inst", _test_levels(test), "seen", "seen", "unseen"),
             SplitConfig("unseen_cat", _test_levels(test), "unseen_cat", "unseen", "seen"),
+            *(dev_splits if dev > 0 else ()),
         ),
         seed=seed,
     )
@@ -86,6 +94,9 @@ def default_config() -> DatasetConfig:
     return make_config()
 
 
+SMOKE_SIZES = (12, 8)  # training scenes, scenes per test subset
+
+
 def smoke_config() -> DatasetConfig:
     """A few scenes of every split and level, for tests and CI."""
-    return make_config(train=12, test=8)
+    return make_config(*SMOKE_SIZES)

@@ -33,6 +33,7 @@ from ocplace.runtime import Executor, ExecutorConfig, Task, map_tasks, open_exec
 from ocplace.sim.dataset.config import DatasetConfig
 from ocplace.sim.dataset.generate import SceneGenerator, describe, level_schedule, scene_id
 from ocplace.sim.dataset.records import IMAGE_FILES, SCENE_FILE, SceneInfo, SceneRecord, read_meta, read_scene
+from ocplace.vocabulary import DEV_SPLITS, TEST_SUBSETS
 
 CONFIG_FILE = "dataset.json"
 MANIFEST_FILE = "manifest.json"
@@ -315,7 +316,29 @@ def generate_dataset(
         with tqdm(total=len(wanted), desc="scenes", unit="scene", disable=not progress) as bar:
             for _, made in map_tasks(executor, tasks):
                 bar.update(made)
-    return write_manifest(out, config, regenerated)
+    manifest = write_manifest(out, config, regenerated)
+    coinciding = coinciding_scenes(manifest)
+    if coinciding:
+        dev, test = coinciding[0]
+        raise DatasetError(
+            f"{out}: {len(coinciding)} dev scene(s) are test scenes (the same image), e.g. {dev} is {test}; a dev "
+            f"split never holds a test scene. Delete {out / dev.split('/')[0]} and generate it again"
+        )
+    return manifest
+
+
+def coinciding_scenes(manifest: Mapping) -> list[tuple[str, str]]:
+    """`(dev scene, test scene)` folders of a manifest whose images are the same file (sha256)."""
+    test_images = {
+        digest: name.rpartition("/")[0]
+        for name, digest in manifest["files"].items()
+        if name.endswith("/rgb.png") and name.split("/")[0] in TEST_SUBSETS
+    }
+    return [
+        (name.rpartition("/")[0], test_images[digest])
+        for name, digest in sorted(manifest["files"].items())
+        if name.endswith("/rgb.png") and name.split("/")[0] in DEV_SPLITS and digest in test_images
+    ]
 
 
 def write_manifest(out: Path, config: DatasetConfig, regenerated: int = 0) -> dict:

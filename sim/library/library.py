@@ -11,6 +11,8 @@ from pathlib import Path
 
 from ocplace.errors import LibraryNotBuilt, UnknownObject
 from ocplace.paths import inside, library_cache
+from ocplace.sim.colour_terms import COLOUR_TERMS
+from ocplace.sim.library.metadata import packaged_objects
 from ocplace.sim.library.records import (
     ASSET_FILE,
     MANIFEST_FILE,
@@ -59,6 +61,37 @@ class Library:
         """`"30 seen + 13 unseen + 10 unseen_cat objects, 6 table textures"`."""
         counts = " + ".join(f"{len(self.names(split))} {split}" for split in LIBRARY_SPLITS)
         return f"{counts} objects, {len(self.textures)} table textures"
+
+
+def colour_variants(library: Library) -> list[str]:
+    """The seen objects that are another colour of an earlier seen object: the rule of the `seen_colour` pool.
+
+    A seen object is a colour variant when its name or its human name, without a leading colour term, is that
+    of a seen object of the same category listed before it in objects.json (green_ketchup after ketchup, "red
+    bowl" after "white bowl", "red mug" after "white mug"). Written from the names alone, before any score.
+    """
+    order = {spec.name: index for index, spec in enumerate(packaged_objects())}
+    seen = sorted(
+        (asset for asset in library.objects.values() if asset.split == "seen"),
+        key=lambda asset: (order.get(asset.name, len(order)), asset.name),  # objects added with --gso come last
+    )
+    variants = []
+    for index, asset in enumerate(seen):
+        keys = _uncoloured(asset)
+        if any(earlier.category == asset.category and keys & _uncoloured(earlier) for earlier in seen[:index]):
+            variants.append(asset.name)
+    return sorted(variants)
+
+
+def _uncoloured(asset: ObjectAsset) -> set[str]:
+    """The asset's name and human name, each without a leading colour term (when it has one)."""
+    keys = set()
+    for words in (asset.name.split("_"), asset.human_name.lower().split()):
+        if words[0] in COLOUR_TERMS and len(words) > 1:
+            keys.add(" ".join(words[1:]))
+        else:
+            keys.add(" ".join(words))
+    return keys
 
 
 def _read_manifest(root: Path) -> dict:

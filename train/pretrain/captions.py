@@ -14,6 +14,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from ocplace.models.backbone import PromptConfig
+from ocplace.vocabulary import SHAPE_WORDS
 
 COLOUR_WORDS = (
     "red",
@@ -32,16 +33,6 @@ COLOUR_WORDS = (
     "golden",
 )
 NOT_COLOURS = ("orange juice",)  # phrases whose colour word names something else
-SHAPE_WORDS = {
-    "box": ("box", "cube", "block"),
-    "cylinder": ("cylinder",),
-    "sphere": ("sphere", "ball"),
-    "cone": ("cone",),
-    "ring": ("ring", "torus"),
-    "disc": ("disc", "disk", "plate-like disc"),
-    "capsule": ("capsule", "pill"),
-    "pyramid": ("pyramid",),
-}
 SIZE_WORDS = {"small": "small", "medium": "", "large": "large"}  # a medium primitive is just "a blue cone"
 OBJECT, RECOLOURED, PRIMITIVE, TABLE = "object", "recoloured", "primitive", "table"  # kinds of class
 NAME_TEMPLATES = (

@@ -1,8 +1,8 @@
-"""What pretraining may render: the objects of its pool, and the held-out corpus names it is validated on.
+"""What pretraining may render: the objects of its pool, and the held-out corpus categories it is validated on.
 
 Two pools (`RenderConfig.pool`):
 - `corpus` (the default, the foundation backbone): the furniture corpus (`sim/corpus/`) under the
-  recipe's protocol, minus the names held out for validation. No object of the benchmark library
+  recipe's protocol, minus the categories held out for validation. No object of the benchmark library
   (seen, unseen or unseen_cat) can be in it: the benchmark's training objects reach the model only
   through the adapters, as in the paper.
 - `task` (today's backbone of earlier results): the library's training split.
@@ -17,9 +17,17 @@ import dataclasses
 from ocplace.errors import TrainingError
 from ocplace.models.offline_recipes import RenderConfig
 from ocplace.sim.corpus.build import Corpus
-from ocplace.sim.corpus.selection import is_validation, names_test_noun, test_nouns
+from ocplace.sim.corpus.selection import (
+    benchmark_nouns,
+    eligible_groups,
+    is_validation_group,
+    names_test_noun,
+    noun_group,
+    test_nouns,
+)
 from ocplace.sim.library.types import CORPUS_SPLIT, ObjectAsset
 from ocplace.sim.scene import split_pools
+from ocplace.vocabulary import SHAPE_WORDS
 
 
 @dataclasses.dataclass(frozen=True)
@@ -47,13 +55,35 @@ def protocol_assets(corpus: Corpus, library, protocol: str) -> tuple[ObjectAsset
     return tuple(asset for key, asset in corpus.assets.items() if key not in dropped)
 
 
+def validation_groups(corpus: Corpus, library, config: RenderConfig) -> set[str]:
+    """The corpus categories (head-noun groups, `sim.corpus.selection.noun_group`) held out of pretraining: a
+    seeded hash over the groups that name no benchmark object and no primitive shape."""
+    nouns = benchmark_nouns(library.objects.values(), [word for words in SHAPE_WORDS.values() for word in words])
+    names = [asset.human_name for asset in protocol_assets(corpus, library, config.protocol)]
+    return {
+        group
+        for group in eligible_groups(names, nouns)
+        if is_validation_group(group, config.validation_share, config.validation_seed)
+    }
+
+
 def validation_assets(corpus: Corpus, library, config: RenderConfig) -> tuple[ObjectAsset, ...]:
-    """The corpus models whose names are held out for validation (never rendered in pretraining)."""
-    return tuple(
-        asset
-        for asset in protocol_assets(corpus, library, config.protocol)
-        if is_validation(asset.human_name, config.validation_share, config.validation_seed)
-    )
+    """Every corpus model of a held-out category (never rendered in pretraining)."""
+    groups = validation_groups(corpus, library, config)
+    return tuple(a for a in protocol_assets(corpus, library, config.protocol) if noun_group(a.human_name) in groups)
+
+
+def validation_scene_assets(corpus: Corpus, library, config: RenderConfig) -> tuple[ObjectAsset, ...]:
+    """The held-out models validation scenes show: at most `validation_cap` per category (by key), so that one
+    category of many near-identical models (wall plugs) does not fill the scenes."""
+    taken: dict[str, int] = {}
+    chosen = []
+    for asset in sorted(validation_assets(corpus, library, config), key=lambda a: a.name):
+        group = noun_group(asset.human_name)
+        if taken.get(group, 0) < config.validation_cap:
+            taken[group] = taken.get(group, 0) + 1
+            chosen.append(asset)
+    return tuple(chosen)
 
 
 def training_pool(library, corpus: Corpus | None, config: RenderConfig) -> TrainingPool:

@@ -1,11 +1,12 @@
-"""The validation split every pretraining choice is made on: corpus names held out of pretraining
-(`RenderConfig.validation_share`, a seeded hash of the name), rendered as benchmark-like scenes, and a
-zero-shot grounding score on them.
+"""The category-held-out validation split pretraining choices are made on: whole corpus categories
+(head-noun groups naming no benchmark object or primitive, `RenderConfig.validation_share` of them by a
+seeded hash) held out of pretraining, rendered as benchmark-like scenes, and a zero-shot grounding
+score on them: how well the backbone reaches categories it never saw.
 
-Scenes hold five held-out models dropped on a seen table, as the benchmark drops its objects; each
-visible model is a reference ("a photo of a teapot."), grounded among the scene's crops (cut as the
-pipeline cuts them) by cosine similarity. A prediction is right when the chosen crop's model has the
-reference's name. No benchmark object, test subset or test texture is involved.
+Scenes hold five held-out models (at most `validation_cap` per category) dropped on a seen table, as the
+benchmark drops its objects; each visible model is a reference ("a photo of a teapot."), grounded among
+the scene's crops (cut as the pipeline cuts them) by cosine similarity. A prediction is right when the
+chosen crop's model has the reference's name. No benchmark object, test subset or test texture is involved.
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ from ocplace.paths import atomic_path, corpus_cache
 from ocplace.sim.boxes import boxes_from_segmentation, square_crop
 from ocplace.sim.corpus.build import Corpus
 from ocplace.sim.scene import sample_scene_spec, split_pools
-from ocplace.train.pretrain.pool import validation_assets
+from ocplace.train.pretrain.pool import validation_scene_assets
 
 SCENES = 100
 OBJECTS_PER_SCENE = 5
@@ -60,8 +61,8 @@ def _cache_path(assets, config: RenderConfig, count: int) -> Path:
 
 
 def validation_scenes(library, corpus: Corpus, config: RenderConfig, count: int = SCENES) -> ValidationScenes:
-    """The validation scenes of `config`'s held-out names, rendered once and cached under the corpus."""
-    assets = validation_assets(corpus, library, config)
+    """The validation scenes of `config`'s held-out categories, rendered once and cached under the corpus."""
+    assets = validation_scene_assets(corpus, library, config)
     if len(assets) < OBJECTS_PER_SCENE:
         raise TrainingError(
             f"only {len(assets)} corpus models are held out for validation; raise validation_share above "
