@@ -90,15 +90,19 @@ class MethodRun:
     run_dir: Path | None = None
     fraction: float = 1.0
     seed: int | None = None  # a repeat's own training and evaluation seed; None: the settings' seed
+    backbone_seed: int | None = None  # a repeat on the backbone pretrained with this seed; None: the settings'
+    backbone: str | None = None  # that backbone's spec, once known; None: the settings' backbone
 
     @property
     def key(self) -> str:
         key = self.method if self.fraction == 1.0 else f"{self.method}@{self.fraction:g}"
-        return key if self.seed is None else f"{key}~seed{self.seed}"
+        key = key if self.seed is None else f"{key}~seed{self.seed}"
+        return key if self.backbone_seed is None else f"{key}~backbone{self.backbone_seed}"
 
     def settings(self, settings: EvalSettings) -> EvalSettings:
-        """The settings this run is scored with: its own seed, when it is a repeat."""
-        return settings if self.seed is None else dataclasses.replace(settings, seed=self.seed)
+        """The settings this run is scored with: its own seed and backbone, when it is a repeat."""
+        own = {"seed": self.seed, "backbone": self.backbone}
+        return dataclasses.replace(settings, **{name: value for name, value in own.items() if value is not None})
 
 
 @dataclasses.dataclass(frozen=True)
@@ -144,6 +148,8 @@ class Evaluation:
     subsets: dict[str, tuple[SceneOutcome, ...]]
     wall_s: float
     seed: int | None = None  # MethodRun.seed
+    backbone_seed: int | None = None  # MethodRun.backbone_seed
+    backbone: str | None = None  # MethodRun.backbone: the spec of a backbone repeat's own backbone
 
 
 # ----------------------------------------------------------------------------- keys and scenes
@@ -400,6 +406,8 @@ def evaluate_run(
         subsets=subsets,
         wall_s=time.perf_counter() - began,
         seed=run.seed,
+        backbone_seed=run.backbone_seed,
+        backbone=run.backbone,
     )
 
 

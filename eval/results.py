@@ -8,6 +8,7 @@
      "evaluations": [{"key", "method", "label", "fraction", "run_dir", "description" (the method's
                       describe(): configs, seeds, checkpoint hashes, backbone fingerprint, parser),
                       "seed" (only for a repeat of `--seeds`: its training and evaluation seed),
+                      "backbone_seed", "backbone" (only for a repeat on another pretraining seed's backbone),
                       "wall_s", "subsets": {subset: {"aggregate": {level|overall: rates},
                                                      "scenes": [SceneOutcome, ...]}}}]}
 
@@ -141,7 +142,15 @@ def evaluation_to_json(evaluation: Evaluation) -> dict:
             subset: {"aggregate": aggregate_subset(outcomes), "scenes": [serial.to_dict(o) for o in outcomes]}
             for subset, outcomes in evaluation.subsets.items()
         },
-    } | ({} if evaluation.seed is None else {"seed": evaluation.seed})
+    } | {
+        name: value
+        for name, value in (
+            ("seed", evaluation.seed),
+            ("backbone_seed", evaluation.backbone_seed),
+            ("backbone", evaluation.backbone),
+        )
+        if value is not None
+    }
 
 
 def evaluation_from_json(entry: dict) -> Evaluation:
@@ -158,6 +167,8 @@ def evaluation_from_json(entry: dict) -> Evaluation:
             for subset, body in entry["subsets"].items()
         },
         seed=entry.get("seed"),
+        backbone_seed=entry.get("backbone_seed"),
+        backbone=entry.get("backbone"),
     )
 
 

@@ -6,6 +6,7 @@ Each task loads its method (`ocplace.methods`) in the worker and scores it with 
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
@@ -70,7 +71,10 @@ def runs_of(results: Mapping, specs: Mapping[str, MethodSpec] | None = None) -> 
                     "folder `ocplace reproduce` or `evaluate` ran in: rerun from that folder)"
                 )
             )
-        runs.append(method_run(specs[entry["method"]], run_dir, entry["fraction"], entry.get("seed")))
+        run = method_run(
+            specs[entry["method"]], run_dir, entry["fraction"], entry.get("seed"), entry.get("backbone_seed")
+        )
+        runs.append(dataclasses.replace(run, backbone=entry.get("backbone")))
     return runs
 
 

@@ -113,6 +113,10 @@ class EvalPlan:
     seeds: int  # each run trained and scored with this many seeds (the experiment's, then the next ones)
     seed_methods: tuple[str, ...] | None = None  # the methods repeated over `seeds`; None: every method
     seed_fractions: tuple[float, ...] | None = None  # the fractions repeated over `seeds`; None: every one
+    # The backbone pretrained with this many seeds (the recipe's optimiser seed, then the next ones: the
+    # projections' initialisation and the batch order; the same renders); the `seed_methods` on `seed_fractions`
+    # that use the backbone are trained and scored on each, beside their own seeds.
+    backbone_seeds: int = 1
 
     def problems(self) -> list[str]:
         problems = []
@@ -132,6 +136,8 @@ class EvalPlan:
         problems += [problem for problem in [subsets_problem(self.subsets, "evaluation.subsets")] if problem]
         if self.seeds < 1:
             problems.append(f"evaluation.seeds must be at least 1, got {self.seeds}")
+        if self.backbone_seeds < 1:
+            problems.append(f"evaluation.backbone_seeds must be at least 1, got {self.backbone_seeds}")
         trained = {*self.fractions, 1.0}
         problems += [
             f"evaluation.seed_fractions holds {f}, which is not trained: choose among evaluation.fractions and 1.0"
@@ -173,6 +179,17 @@ class Experiment:
     recipes: MethodRecipes
     evaluation: EvalPlan
     cpus: TaskCpus = TaskCpus()
+
+    def backbone_recipe(self, seed: int | None = None) -> PretrainConfig:
+        """The backbone's pretraining recipe, with another optimiser seed for a backbone repeat (None: its own)."""
+        if seed is None:
+            return self.backbone
+        return dataclasses.replace(self.backbone, optim=dataclasses.replace(self.backbone.optim, seed=seed))
+
+    def backbone_seeds(self) -> list[int]:
+        """The optimiser seeds of the backbone's repeats (`evaluation.backbone_seeds`), after its own."""
+        first = self.backbone.optim.seed
+        return list(range(first + 1, first + self.evaluation.backbone_seeds))
 
     def validate(self) -> None:
         """Raises ConfigError, naming every key whose value cannot work, before any work starts: counts and

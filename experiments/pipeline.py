@@ -138,9 +138,11 @@ def selected_specs(config: PipelineConfig, specs: Mapping[str, MethodSpec]) -> l
 
 def planned_runs(config: PipelineConfig, specs: Sequence[MethodSpec]) -> list[MethodRun]:
     """Every run to train and evaluate: each method on the whole training set, the sample-efficiency
-    methods on every fraction, and each of those again per extra seed (`EvalPlan.seeds`; only the
-    `EvalPlan.seed_methods` and `seed_fractions` when they name some)."""
-    plan, base = config.experiment.evaluation, config.experiment.seed
+    methods on every fraction, and each of those again per extra seed (`EvalPlan.seeds`) and, if it uses the
+    backbone, on each extra backbone seed (`EvalPlan.backbone_seeds`); only the `EvalPlan.seed_methods` and
+    `seed_fractions` when they name some."""
+    experiment = config.experiment
+    plan, base = experiment.evaluation, experiment.seed
     runs = []
     for spec in specs:
         learns = spec.train is not None
@@ -149,12 +151,16 @@ def planned_runs(config: PipelineConfig, specs: Sequence[MethodSpec]) -> list[Me
         for fraction in sorted(set(fractions) | {1.0}):
             again = repeated and (plan.seed_fractions is None or fraction in plan.seed_fractions)
             seeds = [None, *range(base + 1, base + plan.seeds)] if again else [None]
-            runs += [method_run(spec, None, fraction, seed) for seed in seeds]
+            backbones = [None, *experiment.backbone_seeds()] if again and spec.uses_backbone else [None]
+            runs += [method_run(spec, None, fraction, seed, backbone) for backbone in backbones for seed in seeds]
     return runs
 
 
-def run_directory(out: Path, name: str, fraction: float, seed: int | None = None) -> Path:
+def run_directory(
+    out: Path, name: str, fraction: float, seed: int | None = None, backbone_seed: int | None = None
+) -> Path:
     folder = f"fraction-{fraction:.2f}" + ("" if seed is None else f"-seed-{seed}")
+    folder += "" if backbone_seed is None else f"-backbone-{backbone_seed}"
     return out / "runs" / name / folder
 
 
@@ -219,7 +225,7 @@ def train_context(run: MethodRun, config: PipelineConfig, dataset_dir: Path, bac
     return TrainContext(
         dataset_dir=dataset_dir,
         backbone=backbone,
-        out_dir=run_directory(out, run.method, run.fraction, run.seed),
+        out_dir=run_directory(out, run.method, run.fraction, run.seed, run.backbone_seed),
         recipe=experiment.recipes.of(run.method),
         fraction=run.fraction,
         seed=experiment.seed if run.seed is None else run.seed,
@@ -292,46 +298,64 @@ def task_graph(
     nodes = []
     cpus = config.experiment.cpus
     if config.backbone is None:
-        recipe = config.experiment.backbone
-        task = Task(pretrain_task, (recipe, False), cpus=cpus.pretrain, pinned=True)
-        nodes.append(Node("backbone", lambda done: task))
-        backbone_after, backbone_of = ("backbone",), (lambda done: done["backbone"])
+        for seed in dict.fromkeys(run.backbone_seed for run in [MethodRun("", ""), *runs]):  # the base one first
+            task = Task(
+                pretrain_task, (config.experiment.backbone_recipe(seed), False), cpus=cpus.pretrain, pinned=True
+            )
+            nodes.append(Node(backbone_key(seed), lambda done, task=task: task))
+
+        def backbone_after(run: MethodRun) -> tuple[str, ...]:
+            return (backbone_key(run.backbone_seed),)
+
+        def backbone_of(done, run: MethodRun) -> str:
+            return done[backbone_key(run.backbone_seed)]
     else:
-        backbone_after, backbone_of = (), (lambda done, spec=config.backbone: spec)
+
+        def backbone_after(run: MethodRun) -> tuple[str, ...]:
+            return ()
+
+        def backbone_of(done, run: MethodRun) -> str:
+            return config.backbone
 
     def method_node(key: str, function, run: MethodRun, after: tuple[str, ...]) -> Node:
         """A node running `function(spec, TrainContext)` for `run`, once its backbone is known."""
 
         def make(done):
-            context = train_context(run, config, dataset_dir, backbone_of(done), out)
+            context = train_context(run, config, dataset_dir, backbone_of(done, run), out)
             return Task(function, (specs[run.method], context), cpus=cpus.train, pinned=True)
 
         return Node(key, make, after)
 
-    sharing: dict = {}  # each prepare function -> the runs of the methods whose trainings need it
+    sharing: dict = {}  # (prepare function, backbone seed) -> the runs whose trainings need those inputs
     for run in runs:
         spec = specs[run.method]
         if spec.prepare is not None and spec.train is not None:
-            sharing.setdefault(spec.prepare, []).append(run)
-    prepare_key = {}  # method name -> the key of the node making its shared inputs, once for all who share them
-    for shared in sharing.values():
+            sharing.setdefault((spec.prepare, run.backbone_seed), []).append(run)
+    prepare_key = {}  # (method, backbone seed) -> the key of the node making its shared inputs, once for all
+    for (_, backbone_seed), shared in sharing.items():
         names = list(dict.fromkeys(run.method for run in shared))
-        key = f"prepare {'+'.join(names)}"
-        prepare_key |= dict.fromkeys(names, key)
-        nodes.append(method_node(key, prepare_task, shared[0], backbone_after))
+        key = f"prepare {'+'.join(names)}" + ("" if backbone_seed is None else f" ~backbone{backbone_seed}")
+        prepare_key |= {(name, backbone_seed): key for name in names}
+        nodes.append(method_node(key, prepare_task, shared[0], backbone_after(shared[0])))
     for run in runs:
         if specs[run.method].train is not None:
-            after = backbone_after + ((prepare_key[run.method],) if run.method in prepare_key else ())
+            prepared = prepare_key.get((run.method, run.backbone_seed))
+            after = backbone_after(run) + ((prepared,) if prepared else ())
             nodes.append(method_node(f"train {run.key}", train_task, run, after))
     for run in evaluation_order(runs, specs):
-        after = backbone_after + ((f"train {run.key}",) if specs[run.method].train is not None else ())
+        after = backbone_after(run) + ((f"train {run.key}",) if specs[run.method].train is not None else ())
         evaluate = _evaluate_maker(config, specs[run.method], run, dataset_dir, out, dataset_hash, backbone_of)
         nodes.append(Node(f"evaluate {run.key}", evaluate, after))
-    drawn = next((run for run in runs if run.method == "ours" and run.fraction == 1.0 and run.seed is None), None)
+    drawn = next((run for run in runs if run.method == "ours" and run.key == "ours"), None)
     if drawn is not None and specs["ours"].train is not None and "seen" in config.experiment.evaluation.subsets:
-        draw = _figure_maker(config, dataset_dir, out, backbone_of, f"train {drawn.key}")
-        nodes.append(Node(FIGURE_NODE, draw, backbone_after + (f"train {drawn.key}",)))
+        draw = _figure_maker(config, dataset_dir, out, backbone_of, drawn)
+        nodes.append(Node(FIGURE_NODE, draw, backbone_after(drawn) + (f"train {drawn.key}",)))
     return nodes
+
+
+def backbone_key(seed: int | None) -> str:
+    """The graph node pretraining the experiment's backbone (None) or its repeat with another optimiser seed."""
+    return "backbone" if seed is None else f"backbone seed {seed}"
 
 
 def evaluation_order(runs: list[MethodRun], specs: Mapping[str, MethodSpec]) -> list[MethodRun]:
@@ -348,27 +372,29 @@ def evaluation_order(runs: list[MethodRun], specs: Mapping[str, MethodSpec]) -> 
 
 def _evaluate_maker(config, spec, run, dataset_dir, out, dataset_hash, backbone_of):
     def make(done):
-        backbone = backbone_of(done)
+        backbone = backbone_of(done, run)
         trained = done.get(f"train {run.key}")
         ready = run if trained is None else dataclasses.replace(run, run_dir=trained[0])
+        if run.backbone_seed is not None:  # recorded with the evaluation, so a rerun loads this backbone
+            ready = dataclasses.replace(ready, backbone=backbone)
         settings = evaluation_settings(config, backbone)
         return Task(evaluate_task, (spec, ready, settings, dataset_dir, dataset_hash, out), pinned=True)
 
     return make
 
 
-def _figure_maker(config, dataset_dir, out, backbone_of, trained_key):
+def _figure_maker(config, dataset_dir, out, backbone_of, run: MethodRun):
     def make(done):
-        run_dir = done[trained_key][0]
+        run_dir = done[f"train {run.key}"][0]
         experiment = config.experiment
-        arguments = (run_dir, experiment.evaluation.parser, experiment.seed, dataset_dir, backbone_of(done))
+        arguments = (run_dir, experiment.evaluation.parser, experiment.seed, dataset_dir, backbone_of(done, run))
         return Task(placement_figure_task, (*arguments, out / PLACEMENT_FIGURE), pinned=True)
 
     return make
 
 
 def _node_detail(key: str, value) -> str:
-    if key == "backbone" or key.startswith("prepare ") or key == FIGURE_NODE:
+    if key.startswith(("backbone", "prepare ")) or key == FIGURE_NODE:
         return str(value)
     if key.startswith("train "):
         run_dir, reused = value
@@ -397,6 +423,11 @@ def run_pipeline(
     specs = method_specs() if specs is None else specs
     out = Path(out or config.experiment.out)
     unknown = config.experiment.evaluation.unknown_methods(specs)
+    if config.backbone is not None and config.experiment.evaluation.backbone_seeds > 1:
+        unknown.append(
+            f"evaluation.backbone_seeds is {config.experiment.evaluation.backbone_seeds}, but a given backbone "
+            f"({config.backbone}) has no pretraining to repeat: drop --backbone or set evaluation.backbone_seeds=1"
+        )
     if unknown:
         raise ConfigError(f"experiment {config.experiment.name!r} cannot run: {'; '.join(unknown)}")
     check_writable(out, as_folder=True)

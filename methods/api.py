@@ -53,3 +53,6 @@ class MethodSpec(Generic[Recipe]):
     # Its evaluations encode the test scenes with the experiment's backbone through the shared store
     # (models/shared_features.py), so one evaluation's features serve the others.
     shares_test_features: bool = False
+    # It trains or places on the experiment's pretrained backbone, so `reproduce` repeats it over backbone seeds
+    # (`EvalPlan.backbone_seeds`); False for a method that starts from random weights.
+    uses_backbone: bool = True

@@ -58,4 +58,6 @@ def load(ctx: LoadContext) -> NoPretrainMethod:
     return NoPretrainMethod("no_pretrain", policy, f"offline:{run_dir / BACKBONE_DIR}", adapters_file, run_dir)
 
 
-SPEC: MethodSpec[Recipe] = MethodSpec("no_pretrain", "Ours w/o CLIP pre-train", load=load, train=train)
+SPEC: MethodSpec[Recipe] = MethodSpec(
+    "no_pretrain", "Ours w/o CLIP pre-train", load=load, train=train, uses_backbone=False
+)

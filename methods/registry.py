@@ -50,13 +50,16 @@ def select_specs(names: str, specs: dict) -> list:
     return [specs[n] for n in wanted]
 
 
-def method_run(spec: MethodSpec, run_dir=None, fraction: float = 1.0, seed: int | None = None) -> MethodRun:
+def method_run(
+    spec: MethodSpec, run_dir=None, fraction: float = 1.0, seed: int | None = None, backbone_seed: int | None = None
+) -> MethodRun:
     """The harness's row for a run of `spec`."""
-    return MethodRun(spec.name, spec.label, run_dir, fraction, seed)
+    return MethodRun(spec.name, spec.label, run_dir, fraction, seed, backbone_seed)
 
 
 def load_method(spec: MethodSpec, run: MethodRun, settings: EvalSettings) -> Method:
     """The `Method` of `run`, loaded by its spec with the settings' backbone, parser and sample count."""
+    settings = run.settings(settings)
     return spec.load(
         LoadContext(run.run_dir, settings.backbone, settings.parser, settings.num_samples, settings.threshold)
     )

@@ -160,6 +160,33 @@ class Features:
         )
 
 
+def without_objects(features: Features, dataset_dir: str | Path, split: str, held_out: Iterable[str]) -> Features:
+    """`features` as if the `held_out` objects (library names) had never been seen: their crops leave the visual
+    tokens, the tuples that refer to them leave the text, and a scene left without a tuple is dropped. For
+    selection runs (the seen colour variants held out of the adapters' training, docs/settings.md); the
+    result's key says what was held out."""
+    from ocplace.sim.dataset.job import listed_scenes
+
+    held_out = sorted(set(held_out))
+    infos = {scene.name: scene.info() for scene in listed_scenes(dataset_dir, split)}
+    held = np.zeros(features.visual_mask.shape, bool)  # (num_scenes, max_tokens)
+    for row, scene_id in enumerate(features.scene_ids):
+        info = infos[scene_id]
+        names = {obj.object_id: obj.name for obj in info.objects}
+        for token, object_id in enumerate(info.boxes.object_ids):
+            held[row, token] = names[int(object_id)] in held_out
+    referred = np.take_along_axis(held, np.clip(features.targets, 0, held.shape[1] - 1), axis=1)
+    text_mask = features.text_mask & ~referred
+    payload = json.dumps([features.info.key, "without", held_out])
+    masked = dataclasses.replace(
+        features,
+        visual_mask=features.visual_mask & ~held,
+        text_mask=text_mask,
+        info=dataclasses.replace(features.info, key=hashlib.sha256(payload.encode()).hexdigest()),
+    )
+    return masked.subset(np.flatnonzero(text_mask.any(axis=1)))
+
+
 def features_key(backbone_fingerprint: str, dataset_hash: str, config: FeaturizeConfig) -> str:
     payload = json.dumps([FORMAT_VERSION, backbone_fingerprint, dataset_hash, config.content_json()])
     return hashlib.sha256(payload.encode()).hexdigest()

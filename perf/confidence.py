@@ -1,22 +1,35 @@
-"""How confident the grounding is, to choose the policy's low-confidence threshold.
+"""Choosing the robot's refusal gate (`ocplace.vocabulary.GATE_THRESHOLD`) on the dev splits: rule G of
+docs/settings.md, never a test subset.
 
-For every tuple of a test split: the top probability when the grounding is right, when it is
-wrong, and when the reference is absent (its phrase replaced by the name of an object from
-another scene that is not in this one). Prints quantiles and, per candidate threshold, the share
-of right groundings refused and of absent references caught.
-Usage: `python perf/confidence.py --dataset DIR --backbone SPEC [--adapters RUN] [--split seen]`.
+1. A selection run of Ours: the experiment's adapter recipe trained on the training split's features with
+   the seen colour variants held out (`models.features.without_objects`), so `dev_colour` shows objects its
+   adapters never saw (resumable, in --work).
+2. Every reference of `dev_seen` and `dev_colour` grounded at its argmax by the policy on that run (no
+   refusal); right = the reference's token. Also, per scene, one reference swapped for the name of an
+   object that is not in it (absent), which a gate should catch.
+3. The threshold: the largest of 0.05, 0.10, ..., 0.95 that refuses at most 5% of the right groundings,
+   pooled over the two splits. Printed with the share of wrong groundings and absent references it catches.
+
+Usage: `python perf/confidence.py --dataset DATA --dev DEV --backbone SPEC [--experiment default] --out
+gate.json` where DATA holds the training split and DEV the dev splits (`ocplace generate --out DEV --split
+dev_seen --dev 400`, then `--split dev_colour`).
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 from pathlib import Path
 
 import jax
 import numpy as np
 
-THRESHOLDS = (0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)
+import ocplace  # noqa: F401  (sets the headless OpenGL default before MuJoCo loads)
+
+THRESHOLDS = tuple(round(0.05 * k, 2) for k in range(1, 20))
+MAX_REFUSED = 0.05  # share of right groundings the gate may refuse
+DEV_SPLITS = ("dev_seen", "dev_colour")
 
 
 def absent_scene(scene, record, names: list[str], rng: np.random.Generator):
@@ -29,51 +42,88 @@ def absent_scene(scene, record, names: list[str], rng: np.random.Generator):
     return dataclasses.replace(scene, instruction=scene.instruction.replace(reference, str(rng.choice(choices)), 1))
 
 
+def choose(right: np.ndarray) -> float:
+    """Rule G: the largest threshold refusing at most `MAX_REFUSED` of the right groundings' probabilities."""
+    allowed = [t for t in THRESHOLDS if np.mean(right < t) <= MAX_REFUSED]
+    return max(allowed) if allowed else 0.0
+
+
+def selection_run(data: Path, backbone_spec: str, experiment: str, work: Path) -> Path:
+    """Ours' recipe trained without the seen colour variants; returns the run directory."""
+    from ocplace import configs
+    from ocplace.models.backbone import load_backbone
+    from ocplace.models.features import featurize_split, load_features, without_objects
+    from ocplace.sim.library import load_library
+    from ocplace.sim.library.library import colour_variants
+    from ocplace.train.ours import train_ours
+
+    backbone = load_backbone(backbone_spec)
+    features = load_features(featurize_split(data, "train", backbone), backbone.fingerprint)
+    held = without_objects(features, data, "train", colour_variants(load_library()))
+    train_ours(held, work, configs.get(experiment).recipes.ours)
+    return work
+
+
+def groundings(policy, dev: Path, key) -> dict[str, list[float]]:
+    """Top probabilities of right and wrong groundings, and of absent references, over the dev splits."""
+    from ocplace.methods.policy_method import scene_input
+    from ocplace.sim.dataset.job import listed_scenes
+
+    found: dict[str, list[float]] = {"right": [], "wrong": [], "absent": []}
+    rng = np.random.default_rng(0)
+    for split in DEV_SPLITS:
+        records = [scene.read() for scene in listed_scenes(dev, split)]
+        scenes = [scene_input(record) for record in records]
+        for record, placement in zip(records, policy.place_many(scenes, key, progress=True)):
+            for truth, reference in zip(record.tuples, placement.references):
+                found["right" if reference.token == truth.token_index else "wrong"].append(reference.probability)
+        names = sorted({obj.human_name for record in records for obj in record.objects})
+        absent = [absent_scene(scene, record, names, rng) for scene, record in zip(scenes, records)]
+        for placement in policy.place_many([s for s in absent if s is not None], key, progress=True):
+            if placement.references:
+                found["absent"].append(placement.references[0].probability)
+    return found
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--dataset", type=Path, required=True)
+    parser.add_argument("--dataset", type=Path, required=True, help="dataset folder holding the training split")
+    parser.add_argument("--dev", type=Path, required=True, help="dataset folder holding dev_seen and dev_colour")
     parser.add_argument("--backbone", default="offline")
-    parser.add_argument("--adapters", type=Path, help="run directory (default: zero-shot)")
-    parser.add_argument("--split", default="seen")
+    parser.add_argument("--experiment", default="default", help="whose adapter recipe the selection run trains")
+    parser.add_argument("--work", type=Path, default=Path("out/gate_selection"))
+    parser.add_argument("--out", type=Path, default=Path("gate.json"))
     args = parser.parse_args()
 
-    from ocplace.methods.policy_method import scene_input
     from ocplace.models.backbone import load_backbone
     from ocplace.models.placement.sampler import SamplerConfig
     from ocplace.models.policy import PlacementPolicy
-    from ocplace.sim.dataset.job import listed_scenes
 
-    records = [scene.read() for scene in listed_scenes(args.dataset, args.split)]
+    run = selection_run(args.dataset, args.backbone, args.experiment, args.work)
     policy = PlacementPolicy.from_run(
-        load_backbone(args.backbone), args.adapters, threshold=0.0, sampler=SamplerConfig(num_samples=16)
+        load_backbone(args.backbone), run, threshold=0.0, sampler=SamplerConfig(num_samples=16)
     )
-    scenes = [scene_input(r) for r in records]
-    names = sorted({obj.human_name for r in records for obj in r.objects})
-    rng = np.random.default_rng(0)
-    absent = [(i, absent_scene(s, r, names, rng)) for i, (s, r) in enumerate(zip(scenes, records))]
-    absent = [s for _, s in absent if s is not None]
-    right, wrong, missing = [], [], []
-    for record, placement in zip(records, policy.place_many(scenes, jax.random.key(0), progress=True)):
-        for truth, ref in zip(record.tuples, placement.references):
-            (right if ref.token == truth.token_index else wrong).append(ref.probability)
-    for placement in policy.place_many(absent, jax.random.key(1), progress=True):
-        if placement.references:
-            missing.append(placement.references[0].probability)
-    print(f"{args.split}: {len(right)} right, {len(wrong)} wrong groundings; {len(missing)} absent references")
-    for name, values in (("right", right), ("wrong", wrong), ("absent", missing)):
-        if values:
-            quantiles = np.percentile(values, [1, 5, 25, 50, 75])
-            print(
-                f"  top probability, {name:<6}: p1 {quantiles[0]:.3f} p5 {quantiles[1]:.3f} p25 {quantiles[2]:.3f} "
-                f"median {quantiles[3]:.3f} p75 {quantiles[4]:.3f}"
-            )
-    for threshold in THRESHOLDS:
-        refused = np.mean(np.asarray(right) < threshold) if right else float("nan")
-        caught = np.mean(np.asarray(missing) < threshold) if missing else float("nan")
+    found = {kind: np.asarray(values) for kind, values in groundings(policy, args.dev, jax.random.key(0)).items()}
+    threshold = choose(found["right"])
+    report = {
+        "threshold": threshold,
+        "rule": f"largest of {THRESHOLDS[0]}..{THRESHOLDS[-1]} refusing <= {MAX_REFUSED:.0%} of right groundings",
+        "counts": {kind: len(values) for kind, values in found.items()},
+        "per_threshold": {
+            str(t): {kind: float(np.mean(values < t)) if len(values) else None for kind, values in found.items()}
+            for t in THRESHOLDS
+        },
+        "backbone": args.backbone,
+        "run": str(run),
+    }
+    for t in THRESHOLDS:
+        shares = report["per_threshold"][str(t)]
         print(
-            f"  threshold {threshold:.1f}: refuses {refused:6.1%} of right groundings, catches {caught:6.1%} of "
-            "absent references"
+            f"threshold {t:.2f}: refuses {shares['right']:6.1%} of right groundings, catches {shares['wrong']:6.1%} "
+            f"of wrong ones and {shares['absent']:6.1%} of absent references"
         )
+    print(f"chosen: {threshold} ({report['counts']})")
+    args.out.write_text(json.dumps(report, indent=2) + "\n")
 
 
 if __name__ == "__main__":

@@ -71,11 +71,9 @@ _BORROWED_CACHE_FOLDERS = ("library", "sources", "corpus", "weights", "primitive
 
 
 @pytest.fixture
-def default_offline_backbone(tmp_path, tiny_backbone_spec, monkeypatch):
-    """Makes the bare spec `offline` (the default recipe's backbone) load the tiny backbone, in this process
-    and in the processes it starts: a cache of the test's own, holding it where the default recipe's
-    backbone is saved and borrowing the built library and corpus from the real cache."""
-    from ocplace.models.offline_recipes import recipe_dir
+def borrowed_cache(tmp_path, monkeypatch):
+    """A cache of the test's own, in this process and in the processes it starts, borrowing the built library,
+    corpus and converted weights from the real cache: what the test makes (backbones, features) stays in it."""
     from ocplace.paths import cache_dir
 
     real, own = cache_dir(), tmp_path / "cache"
@@ -84,6 +82,16 @@ def default_offline_backbone(tmp_path, tiny_backbone_spec, monkeypatch):
         if (real / name).exists():
             (own / name).symlink_to(real / name)
     monkeypatch.setenv("OCPLACE_CACHE", str(own))
+    return own
+
+
+@pytest.fixture
+def default_offline_backbone(borrowed_cache, tiny_backbone_spec):
+    """Makes the bare spec `offline` (the default recipe's backbone) load the tiny backbone, in this process
+    and in the processes it starts: a cache of the test's own, holding it where the default recipe's
+    backbone is saved and borrowing the built library and corpus from the real cache."""
+    from ocplace.models.offline_recipes import recipe_dir
+
     directory = recipe_dir("default")
     directory.parent.mkdir(parents=True)
     directory.symlink_to(tiny_backbone_spec.removeprefix("offline:"))

@@ -324,3 +324,34 @@ def test_two_evaluations_asking_for_a_batch_at_once_encode_it_once(tmp_path, bac
     two.join(120)
     assert first.images == 2 and second.images == 0
     assert np.array_equal(results["first"], results["second"])
+
+
+def test_without_objects_hides_their_crops_and_the_tuples_about_them(smoke_dataset, tiny_backbone_spec, library):
+    from ocplace.models.backbone import load_backbone
+    from ocplace.models.features import featurize_split, load_features, without_objects
+    from ocplace.sim.dataset.job import listed_scenes
+    from ocplace.sim.library.library import colour_variants
+
+    features = load_features(featurize_split(smoke_dataset, "train", load_backbone(tiny_backbone_spec), progress=False))
+    variants = set(colour_variants(library))
+    held = without_objects(features, smoke_dataset, "train", variants)
+    assert held.info.key != features.info.key and held.info.backbone_fingerprint == features.info.backbone_fingerprint
+    infos = {scene.name: scene.info() for scene in listed_scenes(smoke_dataset, "train")}
+    hidden_tuples = 0
+    for scene_id in features.scene_ids:
+        info = infos[scene_id]
+        names = {obj.object_id: obj.name for obj in info.objects}
+        token_names = [names[int(i)] for i in info.boxes.object_ids]
+        about_variants = [
+            t.token_index < len(token_names) and token_names[t.token_index] in variants for t in info.tuples
+        ]
+        hidden_tuples += sum(about_variants)
+        if all(about_variants):
+            assert scene_id not in held.scene_ids  # nothing left to learn from
+            continue
+        row = held.scene_ids.index(scene_id)
+        visible = [name not in variants for name in token_names] + [True]  # the table stays
+        assert held.visual_mask[row, : len(visible)].tolist() == visible
+        assert held.text_mask[row, : len(about_variants)].tolist() == [not v for v in about_variants]
+    assert hidden_tuples > 0  # the smoke scenes do show colour variants
+    assert held.text_mask.sum() == features.text_mask.sum() - hidden_tuples

@@ -344,7 +344,9 @@ def test_zero_shot_evaluation_on_generated_scenes(smoke_run, library, tmp_path):
     generate_dataset(tmp_path / "data", make_config(train=1, test=2), ["seen"], progress=False)
     result = evaluate_split(smoke_run[0].backbone, tmp_path / "data", "seen", library)
     grounding, retrieval = result["grounding"], result["retrieval"]
-    assert grounding["scenes"] == 2 and grounding["tuples"] >= 2
+    assert grounding["scenes"] == 2 and grounding["tuples"] >= 2 and grounding["counts"]["all"] == grounding["tuples"]
+    kinds = [grounding["counts"].get(kind, 0) for kind in ("object_tuples", "table_tuples")]
+    assert sum(kinds) == grounding["tuples"]
     assert 0.0 <= grounding["all"] <= 1.0 and 0.0 < grounding["chance"] < 1.0
     assert retrieval["library"]["pool_size"] == len(library.names())
     assert retrieval["library"]["top1"] <= retrieval["library"]["top5"]

@@ -400,3 +400,36 @@ def test_an_experiment_whose_recipe_sets_what_each_run_sets_is_refused():
     recipes = dataclasses.replace(smoke.recipes, ours=dataclasses.replace(smoke.recipes.ours, fraction=0.5))
     with pytest.raises(ConfigError, match=r"recipes.ours.fraction is set for each run from `evaluation.fractions`"):
         dataclasses.replace(smoke, recipes=recipes).validate()
+
+
+def test_backbone_seeds_pretrain_train_and_score_on_each_backbone(smoke_dataset, library, borrowed_cache, tmp_path):
+    from ocplace.eval import table
+    from ocplace.models.offline_recipes import output_dir
+    from ocplace.models.trained_adapters import load_adapters
+
+    smoke = configs.get("smoke")
+    plan = dataclasses.replace(
+        smoke.evaluation, methods=("ours", "no_adapter"), seed_methods=("ours",), backbone_seeds=2, subsets=("seen",)
+    )
+    dataset = dataclasses.replace(smoke.dataset, physical_scenes=0)
+    experiment = dataclasses.replace(smoke, evaluation=plan, dataset=dataset)
+    config = pipeline.PipelineConfig(experiment, dataset=smoke_dataset, progress=False)
+    summary = pipeline.run_pipeline(config, tmp_path / "out", library=library, command=["pytest"])
+    assert summary.errors == []
+    saved = results.read_results(summary.results_path)
+    entries = {entry["key"]: entry for entry in saved["evaluations"]}
+    assert sorted(entries) == ["no_adapter", "ours", "ours~backbone1"]  # only the seeded method is repeated
+    repeat_dir = output_dir(experiment.backbone_recipe(1))
+    assert repeat_dir != output_dir(experiment.backbone) and (repeat_dir / "fingerprint.txt").is_file()
+    assert (
+        entries["ours~backbone1"]["backbone"] == f"offline:{repeat_dir}"
+        and entries["ours~backbone1"]["backbone_seed"] == 1
+    )
+    fingerprints = {key: entry["description"]["backbone"]["fingerprint"] for key, entry in entries.items()}
+    assert fingerprints["ours"] == fingerprints["no_adapter"] != fingerprints["ours~backbone1"]
+    run_dir = Path(entries["ours~backbone1"]["run_dir"])
+    assert run_dir.name == "fraction-1.00-backbone-1"
+    assert load_adapters(run_dir / "weights.safetensors").backbone_fingerprint == fingerprints["ours~backbone1"]
+    row = next(line for line in table.table_one(saved).splitlines() if line.startswith("| Ours |"))
+    assert "±" in row and "over 2 seeds, where a row has them" in table.table_one(saved)
+    assert results.compare(saved, rerun(saved, progress=False)) == []  # the repeat reloads its own backbone

@@ -7,7 +7,7 @@ import json
 from pathlib import Path
 
 from ocplace.cli.options import add_dataset_argument, dataset_of
-from ocplace.vocabulary import TEST_SUBSETS
+from ocplace.vocabulary import SCORED_SPLITS
 
 # `models.offline_recipes.RECIPES`, spelled out so that building the parser imports no JAX (a test
 # checks the two agree).
@@ -47,7 +47,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     add_dataset_argument(evaluate, "dataset folder (`ocplace generate`)", required=True)
     evaluate.add_argument("--backbone", default="offline", help="backbone spec (default: offline)")
-    evaluate.add_argument("--splits", nargs="+", choices=TEST_SUBSETS, default=["seen", "unseen_obj"])
+    evaluate.add_argument("--splits", nargs="+", choices=SCORED_SPLITS, default=["seen", "unseen_obj"])
     evaluate.add_argument(
         "--no-random-init", action="store_true", help="skip the random-initialisation control (offline backbones only)"
     )

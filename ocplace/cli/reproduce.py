@@ -39,6 +39,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="N",
         help="train and evaluate every run with N seeds; Table I shows mean and spread (default: the experiment's, 1)",
     )
+    reproduce.add_argument(
+        "--backbone-seeds",
+        type=int,
+        metavar="N",
+        help="pretrain the backbone with N seeds and train and evaluate the seeded methods on each (default: 1)",
+    )
     add_dataset_argument(reproduce, "dataset folder to use, or to generate into (default: OUT/dataset)")
     reproduce.add_argument(
         "--fractions",
@@ -113,6 +119,8 @@ def _reproduce(args: argparse.Namespace) -> int:
         if args.seeds < 1:
             raise ConfigError(f"--seeds must be at least 1, got {args.seeds}")
         plan = dataclasses.replace(plan, seeds=args.seeds)
+    if args.backbone_seeds is not None:  # checked with the experiment, below
+        plan = dataclasses.replace(plan, backbone_seeds=args.backbone_seeds)
     if args.physical is not None:
         sizes = dataclasses.replace(sizes, physical_scenes=physical_setting(args.physical, sizes.physical_scenes))
     refuse_run_keys([item.partition("=")[0].strip() for item in args.overrides])

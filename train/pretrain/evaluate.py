@@ -69,6 +69,7 @@ def evaluate_split(
     pools["split"] = sorted(set(crop_names))
     grounding = {group: counts[group, "correct"] / counts[group, "tuples"] for group, key in counts if key == "tuples"}
     grounding["tuples"] = counts["all", "tuples"]
+    grounding["counts"] = {group: count for (group, key), count in counts.items() if key == "tuples"}
     grounding["scenes"] = len(scenes)
     grounding["chance"] = float(np.mean(chance))
     crops = np.concatenate(crop_features)
