@@ -13,13 +13,16 @@
                                                      "scenes": [SceneOutcome, ...]}}}]}
 
 `rerun` evaluates again from such a file and `compare` lists every difference in outcomes;
-`summarise` keeps the aggregates and counts of the scenes (`"summary": true`).
+`summarise` keeps the aggregates and counts of the scenes (`"summary": true`), and the intervals and
+selective table derived from the scenes (`"derived"`); `write_outcomes` keeps each scene's outcome in a
+small gzipped JSON-lines file, and `with_outcomes` puts them back into a summary.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import datetime
+import gzip
 import hashlib
 import json
 import os
@@ -33,7 +36,7 @@ from ocplace import serial
 from ocplace.errors import ResultsError
 from ocplace.eval.harness import EvalSettings, Evaluation, SceneOutcome, aggregate_subset
 from ocplace.eval.statistics import derived
-from ocplace.paths import write_text_atomic
+from ocplace.paths import atomic_path, write_text_atomic
 from ocplace.vocabulary import GATE_THRESHOLD
 
 SCHEMA = "ocplace.evaluation/1"
@@ -212,6 +215,65 @@ def summarise(results: Mapping) -> dict:
         for entry in results["evaluations"]
     ]
     return {**results, "summary": True, "derived": derived(results), "evaluations": evaluations}
+
+
+# What each line of an outcomes file holds: the evaluation it belongs to, then the scene's outcome fields.
+OUTCOME_ENTRY_FIELDS = ("key", "method", "fraction", "seed", "backbone_seed")
+OUTCOME_FIELDS = (
+    "id",
+    "level",
+    "success",
+    "sample_success",
+    "confidence",
+    "stage",
+    "failure",
+    "parse_ok",
+    "grounding_ok",
+    "grounded",
+    "mode",
+)
+
+
+def write_outcomes(path: str | Path, results: Mapping) -> Path:
+    """Every scene's outcome of `results` as gzipped JSON lines (the fields of `OUTCOME_FIELDS`), small enough
+    to keep beside a summary: `with_outcomes` puts them back, and the intervals are computed from them. The
+    bytes depend on the outcomes only (no time stamp in the gzip header)."""
+    lines = []
+    for entry in results["evaluations"]:
+        head = {name: entry.get(name) for name in OUTCOME_ENTRY_FIELDS}
+        for subset, body in entry["subsets"].items():
+            lines += [
+                json.dumps(head | {"subset": subset} | {name: scene.get(name) for name in OUTCOME_FIELDS})
+                for scene in body["scenes"]
+            ]
+    data = gzip.compress(("\n".join(lines) + "\n").encode(), mtime=0)
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(data)
+    return path
+
+
+def with_outcomes(summary: Mapping, path: str | Path) -> dict:
+    """A summary (`summarise`) with each scene's outcome read back from its outcomes file (`write_outcomes`)."""
+    try:
+        lines = [json.loads(line) for line in gzip.decompress(Path(path).read_bytes()).decode().splitlines()]
+    except (OSError, ValueError, EOFError) as error:
+        raise ResultsError(f"{path} is missing or not an outcomes file ({error})") from None
+    scenes: dict[tuple[str, str], list[dict]] = {}
+    for line in lines:
+        scenes.setdefault((line["key"], line["subset"]), []).append({name: line.get(name) for name in OUTCOME_FIELDS})
+    evaluations = []
+    for entry in summary["evaluations"]:
+        subsets = {}
+        for subset, body in entry["subsets"].items():
+            found = scenes.get((entry["key"], subset), [])
+            if len(found) != body["aggregate"]["overall"]["scenes"]:
+                raise ResultsError(f"{path} holds {len(found)} scenes of {entry['key']} on {subset}, not its results'")
+            subsets[subset] = {"aggregate": body["aggregate"], "scenes": found}
+        evaluations.append({**entry, "subsets": subsets})
+    return {key: value for key, value in summary.items() if key not in ("summary", "derived")} | {
+        "evaluations": evaluations
+    }
 
 
 def write_results(path: str | Path, results: dict) -> Path:

@@ -38,6 +38,7 @@ from ocplace.runtime import Executor, ExecutorConfig, Task, open_executor
 from ocplace.runtime.graph import Node, run_graph
 
 SUMMARY_FILE = "results.summary.json"  # aggregates, no per-scene outcomes: small enough to commit
+OUTCOMES_FILE = "results.outcomes.jsonl.gz"  # each scene's outcome, compact: small enough to commit
 PLACEMENT_FIGURE = "placement.png"
 FIGURE_NODE = "figure ours"  # a failure is reported as stage "figure" of "ours"
 
@@ -516,7 +517,10 @@ def _results_and_figures(summary, config, evaluations, dataset_dir, settings, co
     with _Timer(summary, "results") as step:
         results = build_results(evaluations, dataset_dir, settings, command)
         summary.results_path = out / "results.json"
-        step.detail = f"{summary.results_path}, {summary.results_path.with_suffix('.md')}, {out / SUMMARY_FILE}"
+        step.detail = (
+            f"{summary.results_path}, {summary.results_path.with_suffix('.md')}, {out / SUMMARY_FILE}, "
+            f"{out / OUTCOMES_FILE}"
+        )
     if evaluations:
         with _Timer(summary, "paper figures") as step:
             try:
@@ -534,7 +538,7 @@ def _write_results(summary: PipelineSummary, config: PipelineConfig, results: di
     """results.json, its tables and its summary, once, with the run itself: its config, each step's wall
     and CPUs, its errors and its total wall (known only at the end: the figures come after the results
     they draw)."""
-    from ocplace.eval.results import summarise, write_outputs, write_results
+    from ocplace.eval.results import summarise, write_outcomes, write_outputs, write_results
 
     results["pipeline"] = {
         "config": _config_json(config),
@@ -544,6 +548,7 @@ def _write_results(summary: PipelineSummary, config: PipelineConfig, results: di
     }
     summary.markdown = write_outputs(results, summary.results_path)
     write_results(summary.out / SUMMARY_FILE, summarise(results))
+    write_outcomes(summary.out / OUTCOMES_FILE, results)
 
 
 def _error(key: str, stage: str, error: BaseException) -> dict:

@@ -119,6 +119,25 @@ def test_summary_keeps_every_table_and_counts_the_scenes(first_run):
         rerun(summary)
 
 
+def test_outcomes_file_puts_every_scene_back_into_the_summary(first_run, tmp_path):
+    from ocplace.eval import statistics, table
+
+    full = results.read_results(first_run.results_path)
+    summary = results.read_results(first_run.out / pipeline.SUMMARY_FILE)
+    outcomes = first_run.out / pipeline.OUTCOMES_FILE
+    restored = results.with_outcomes(summary, outcomes)
+    assert statistics.derive(restored) == summary["derived"] == statistics.derive(full)
+    assert table.render(restored) == table.render(full)  # the failures listed again, too
+    for entry, back in zip(full["evaluations"], restored["evaluations"], strict=True):
+        for subset, body in entry["subsets"].items():
+            kept = [{name: scene[name] for name in results.OUTCOME_FIELDS} for scene in body["scenes"]]
+            assert back["subsets"][subset]["scenes"] == kept
+    assert results.write_outcomes(tmp_path / "again.jsonl.gz", full).read_bytes() == outcomes.read_bytes()
+    (tmp_path / "cut.jsonl.gz").write_bytes(outcomes.read_bytes()[:-40])
+    with pytest.raises(OcplaceError, match="not an outcomes file|scenes of"):
+        results.with_outcomes(summary, tmp_path / "cut.jsonl.gz")
+
+
 def test_table_one_shows_mean_and_spread_over_seeds(first_run):
     from ocplace.eval import table
 
