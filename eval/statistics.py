@@ -83,13 +83,15 @@ def row_intervals(runs: Sequence[Mapping], subsets: Sequence[str]) -> dict:
 
 def row_selective(runs: Sequence[Mapping], subsets: Sequence[str], threshold: float) -> dict:
     """`{subset: {coverage, success_when_placed, placed_success, scenes}}` at `threshold`, pooled over the
-    runs; a subset where no scene reports a confidence (the method does not ground) is left out."""
+    runs; a subset where no scene reports a confidence (the method does not ground) is left out. A scene
+    without one where others have it (nothing was grounded: the parse failed) is not placed."""
     selective = {}
     for subset in subsets:
         scenes = [scene for entry in runs for scene in subset_scenes(entry, subset)]
-        if not scenes or any(scene.get("confidence") is None for scene in scenes):
+        confidences = [scene.get("confidence") for scene in scenes]
+        if all(confidence is None for confidence in confidences):
             continue
-        placed = np.array([scene["confidence"] >= threshold for scene in scenes])
+        placed = np.array([confidence is not None and confidence >= threshold for confidence in confidences])
         succeeded = np.array([bool(scene["success"]) for scene in scenes])
         selective[subset] = {
             "coverage": float(placed.mean()),

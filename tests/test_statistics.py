@@ -82,6 +82,8 @@ def test_selective_table_counts_scenes_the_gate_lets_through():
 def test_a_method_without_confidence_has_no_selective_row():
     scenes = [("table", True, None), ("1obj", False, None)]
     assert statistics.derive(_results([scenes]))["selective"]["ours"] == {}
+    unparsed = [("table", True, 0.9), ("1obj", False, None)]  # nothing grounded: the gate lets nothing through
+    assert statistics.derive(_results([unparsed]))["selective"]["ours"]["seen"]["coverage"] == 0.5
 
 
 def test_repeats_on_other_scenes_are_refused():
