@@ -40,6 +40,9 @@ from ocplace.paths import atomic_path, write_text_atomic
 from ocplace.vocabulary import GATE_THRESHOLD
 
 SCHEMA = "ocplace.evaluation/1"
+# The refusal threshold every evaluation applied before Table I took the paper's protocol (2026-12-04);
+# a results file without `settings.threshold` was scored with it.
+LEGACY_THRESHOLD = 0.5
 PACKAGES = ("jax", "jaxlib", "flax", "optax", "mujoco", "numpy", "transformers")
 # Outcome fields that must agree for a rerun to count as a reproduction (wall times may not).
 COMPARED_FIELDS = (
@@ -256,7 +259,8 @@ def write_outcomes(path: str | Path, results: Mapping) -> Path:
 def with_outcomes(summary: Mapping, path: str | Path) -> dict:
     """A summary (`summarise`) with each scene's outcome read back from its outcomes file (`write_outcomes`)."""
     try:
-        lines = [json.loads(line) for line in gzip.decompress(Path(path).read_bytes()).decode().splitlines()]
+        text = gzip.decompress(Path(path).read_bytes()).decode()
+        lines = [json.loads(line) for line in text.splitlines() if line.strip()]
     except (OSError, ValueError, EOFError) as error:
         raise ResultsError(f"{path} is missing or not an outcomes file ({error})") from None
     scenes: dict[tuple[str, str], list[dict]] = {}
@@ -349,9 +353,11 @@ def evaluations(results: Mapping) -> list[Evaluation]:
 def settings_of(results: Mapping) -> EvalSettings:
     try:
         fields = results["settings"]
-        # Results written before the field's rename name the experiment `scale`.
+        # Results written before the field's rename name the experiment `scale`; before the paper's protocol,
+        # every method refused below the gate of then (`LEGACY_THRESHOLD`).
         renamed = {"experiment": fields["scale"]} if "scale" in fields else {}
-        return serial.from_dict(EvalSettings, fields | renamed)
+        gated = {} if "threshold" in fields else {"threshold": LEGACY_THRESHOLD}
+        return serial.from_dict(EvalSettings, fields | renamed | gated)
     except (TypeError, ValueError) as error:
         raise ResultsError(
             f"the results' settings are not those of this ocplace's evaluations ({error}); write them again with "
@@ -393,6 +399,6 @@ def _compare_scenes(key: str, subset: str, expected: list[dict], actual: list[di
         return [f"{key}/{subset}: different scenes ({len(expected)} vs {len(actual)})"]
     for old, new in zip(expected, actual):
         for field in COMPARED_FIELDS:
-            if old.get(field) != new.get(field):
+            if field in old and old[field] != new.get(field):  # a field added since `expected` was written is new
                 differences.append(f"{key}/{subset}/{old['id']}: {field} {old.get(field)!r} != {new.get(field)!r}")
     return differences

@@ -17,7 +17,8 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping, Sequence
 
 from ocplace.errors import ResultsError
-from ocplace.eval.harness import STAGES
+from ocplace.eval.harness import LEVEL_GROUPS, STAGES
+from ocplace.eval.results import LEGACY_THRESHOLD
 from ocplace.eval.statistics import COLUMNS, base_runs, derived, full_runs, repeats
 from ocplace.vocabulary import PAPER_SUBSETS, SCORED_SPLITS
 
@@ -77,7 +78,7 @@ def level_table(results: Mapping, metric: str, title: str) -> str:
         cells = [entry["label"]]
         for subset in subsets:
             aggregates = [e["subsets"].get(subset, {}).get("aggregate") for e in repeats(results, entry)]
-            cells += [spread([a[c][metric] for a in aggregates if a and c in a]) for c in columns]
+            cells += [spread([_rate(a, c, metric) for a in aggregates if a]) for c in columns]
         lines.append(_row(cells))
     return "\n".join(lines)
 
@@ -89,14 +90,27 @@ UNSEEN_INST_NOTE = (
 )
 
 
+def _rate(aggregate: Mapping, column: str, metric: str) -> float | None:
+    """A per-scene rate of one Table I column; `objects` pooled from its levels in results written before it
+    was stored."""
+    if column in aggregate:
+        return aggregate[column][metric]
+    parts = [aggregate[level] for level in LEVEL_GROUPS[column] if level in aggregate]
+    scenes = sum(part["scenes"] for part in parts)
+    if not scenes or any(part[metric] is None for part in parts if part["scenes"]):
+        return None
+    return sum(part[metric] * part["scenes"] for part in parts if part["scenes"]) / scenes
+
+
 def table_one(results: Mapping) -> str:
-    table = level_table(
-        results,
-        "success",
-        "Table I: success rate of the mode (%), the paper's protocol (every reference grounded at its argmax, "
-        "always placed)",
-    )
     settings = results["settings"]
+    threshold = settings.get("threshold", LEGACY_THRESHOLD)
+    protocol = (
+        "the paper's protocol (every reference grounded at its argmax, always placed)"
+        if threshold == 0
+        else f"a scene refused (a failure) when a reference's best token has P < {threshold:g}"
+    )
+    table = level_table(results, "success", f"Table I: success rate of the mode (%), {protocol}")
     if "unseen_inst" in settings["subsets"] and settings.get("parser") == "offline":
         table += f"\n\n{UNSEEN_INST_NOTE}"
     return table
@@ -106,12 +120,20 @@ def _interval(cell) -> str:
     return MISSING if cell is None else f"{percent(cell[1], 1)}–{percent(cell[2], 1)}"
 
 
-def interval_table(results: Mapping) -> str:
-    """Table I's 95% intervals (eval/intervals.py: scenes and seeds), cell by cell."""
+def _derived(results: Mapping) -> dict | ResultsError:
     try:
-        intervals = derived(results)["intervals"]
+        return derived(results)
     except ResultsError as error:
-        return f"**95% intervals**: not available ({error})"
+        return error
+
+
+def interval_table(results: Mapping, found: dict | ResultsError | None = None) -> str:
+    """Table I's 95% intervals (eval/intervals.py: scenes and seeds), cell by cell; `found`: `derived(results)`
+    when the caller has it."""
+    found = _derived(results) if found is None else found
+    if isinstance(found, ResultsError):
+        return f"**95% intervals**: not available ({found})"
+    intervals = found["intervals"]
     subsets = _subsets(results)
     lines = [
         "**95% intervals of Table I** (two-level bootstrap over scenes and runs, never narrower than the "
@@ -131,12 +153,11 @@ def _selective(cell: Mapping) -> str:
     return f"{percent(cell['coverage'], 1)} / {percent(cell['success_when_placed'], 1)}"
 
 
-def selective_table(results: Mapping) -> str:
+def selective_table(results: Mapping, found: dict | ResultsError | None = None) -> str:
     """The robot's refusal gate at its threshold: coverage and success when placed, per subset."""
-    try:
-        found = derived(results)
-    except ResultsError as error:
-        return f"**Selective placement**: not available ({error})"
+    found = _derived(results) if found is None else found
+    if isinstance(found, ResultsError):
+        return f"**Selective placement**: not available ({found})"
     rows = [(entry, found["selective"].get(entry["key"], {})) for entry in full_runs(results)]
     rows = [(entry, row) for entry, row in rows if row]
     if not rows:
@@ -150,12 +171,7 @@ def selective_table(results: Mapping) -> str:
         _row(["---", *["---:"] * len(subsets)]),
     ]
     for entry, row in rows:
-        cells = [
-            MISSING
-            if s not in row
-            else f"{percent(row[s]['coverage'], 1)} / {percent(row[s]['success_when_placed'], 1)}"
-            for s in subsets
-        ]
+        cells = [_selective(row[s]) if s in row else MISSING for s in subsets]
         lines.append(_row([entry["label"], *cells]))
     return "\n".join(lines)
 
@@ -291,6 +307,7 @@ def efficiency_table(results: Mapping) -> str:
 def render(results: Mapping) -> str:
     """Every table of a results JSON as one markdown document."""
     settings = results["settings"]
+    found = _derived(results)  # the bootstrap once for both tables
     header = (
         f"Dataset {results['dataset']['dataset_hash']} ({results['dataset']['dir']}), backbone "
         f"`{settings['backbone']}`, parser `{settings['parser']}`, {settings['num_samples']} samples, "
@@ -299,8 +316,8 @@ def render(results: Mapping) -> str:
     parts = [
         header,
         table_one(results),
-        interval_table(results),
-        selective_table(results),
+        interval_table(results, found),
+        selective_table(results, found),
         level_table(results, "sample_success", "Mean success over samples (%)"),
         physical_table(results),
         diagnosis_table(results),

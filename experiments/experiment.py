@@ -20,7 +20,7 @@ from ocplace.models.parsing.config import PARSER_NAMES
 from ocplace.runtime.width import TRAIN_CPUS
 from ocplace.train.config import TrainConfig
 from ocplace.train.recipes import CliportRecipe, GridsRecipe, NoLlmTrainConfig, NoPretrainRecipe
-from ocplace.vocabulary import subsets_problem
+from ocplace.vocabulary import TEST_SUBSETS, subsets_problem
 
 
 @dataclasses.dataclass(frozen=True)
@@ -133,7 +133,9 @@ class EvalPlan:
             problems.append(
                 f"evaluation.parser {self.parser!r} is not a parser; choose one of {', '.join(PARSER_NAMES)}"
             )
-        problems += [problem for problem in [subsets_problem(self.subsets, "evaluation.subsets")] if problem]
+        # `reproduce` generates the paper's dataset, without the dev splits (`ocplace evaluate` scores those).
+        problem = subsets_problem(self.subsets, "evaluation.subsets", TEST_SUBSETS)
+        problems += [problem] if problem else []
         if self.seeds < 1:
             problems.append(f"evaluation.seeds must be at least 1, got {self.seeds}")
         if self.backbone_seeds < 1:

@@ -57,7 +57,8 @@ def output_of(placement) -> MethodOutput:
         grounded=placement.tokens or None,
         failure=placement.failure,
         parse_note=parse_note(placement.parsed),
-        confidence=min((ref.probability for ref in placement.references), default=None),
+        # NaN-propagating: a NaN probability makes the scene's confidence no probability (harness: None).
+        confidence=float(np.min([ref.probability for ref in placement.references])) if placement.references else None,
     )
 
 

@@ -161,10 +161,11 @@ class Features:
 
 
 def without_objects(features: Features, dataset_dir: str | Path, split: str, held_out: Iterable[str]) -> Features:
-    """`features` as if the `held_out` objects (library names) had never been seen: their crops leave the visual
-    tokens, the tuples that refer to them leave the text, and a scene left without a tuple is dropped. For
-    selection runs (the seen colour variants held out of the adapters' training, docs/settings.md); the
-    result's key says what was held out."""
+    """`features` without the `held_out` objects (library names) as crops or references: their crop tokens leave
+    the visual tokens, the tuples that refer to them leave the text, and a scene left without a tuple is
+    dropped. For selection runs (the seen colour variants held out of the adapters' training,
+    docs/settings.md); the result's key says what was held out. Not everything of them goes: the workspace
+    token (the whole image, the table's) may still show them, as may a scene whose held object is one."""
     from ocplace.sim.dataset.job import listed_scenes
 
     held_out = sorted(set(held_out))

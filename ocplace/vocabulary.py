@@ -18,7 +18,7 @@ PAPER_SUBSETS = ("seen", "unseen_obj", "unseen_inst")  # Table I's three test su
 TEST_SUBSETS = (*PAPER_SUBSETS, "unseen_cat")
 
 # Development splits: every setting is chosen on them (or on training data), never on a test subset. Their
-# scenes come from their own dataset seed (`DatasetConfig.dev_seed`); docs/dataset.md, docs/settings.md.
+# scenes come from seed streams of their own (sim/dataset/config.py, SPLIT_NAMES); docs/dataset.md, docs/settings.md.
 # dev_seen: seen objects on seen tables; dev_colour: only the seen colour variants (a known-category,
 # new-instance proxy for unseen_obj when the selection run's adapters never saw them).
 DEV_SPLITS = ("dev_seen", "dev_colour")
@@ -61,12 +61,11 @@ SHAPE_WORDS = {
 }
 
 
-def subsets_problem(subsets, key: str) -> str | None:
+def subsets_problem(subsets, key: str, allowed: tuple[str, ...] = SCORED_SPLITS) -> str | None:
     """What is wrong with `subsets` as the splits to score (none, unknown or repeated), named by `key`."""
-    unknown = [subset for subset in subsets if subset not in SCORED_SPLITS]
+    unknown = [subset for subset in subsets if subset not in allowed]
     if unknown or not subsets or len(set(subsets)) < len(subsets):
-        return (
-            f"{key} must name each test subset or dev split at most once, some of {', '.join(SCORED_SPLITS)}; "
-            f"got {', '.join(subsets) or 'none'}"
-        )
+        kinds = "test subset or dev split" if allowed == SCORED_SPLITS else "test subset"
+        named = ", ".join(subsets) or "none"
+        return f"{key} must name each {kinds} at most once, some of {', '.join(allowed)}; got {named}"
     return None

@@ -7,8 +7,9 @@ docs/settings.md, never a test subset.
 2. Every reference of `dev_seen` and `dev_colour` grounded at its argmax by the policy on that run (no
    refusal); right = the reference's token. Also, per scene, one reference swapped for the name of an
    object that is not in it (absent), which a gate should catch.
-3. The threshold: the largest of 0.05, 0.10, ..., 0.95 that refuses at most 5% of the right groundings,
-   pooled over the two splits. Printed with the share of wrong groundings and absent references it catches.
+3. The threshold: the largest of 0.05, 0.10, ..., 0.95 that refuses at most 5% of the right groundings
+   (table references included), pooled over the two splits. Printed with the share of right object
+   references it refuses, and of wrong groundings and absent references it catches.
 
 Usage: `python perf/confidence.py --dataset DATA --dev DEV --backbone SPEC [--experiment default] --out
 gate.json` where DATA holds the training split and DEV the dev splits (`ocplace generate --out DEV --split
@@ -65,18 +66,25 @@ def selection_run(data: Path, backbone_spec: str, experiment: str, work: Path) -
 
 
 def groundings(policy, dev: Path, key) -> dict[str, list[float]]:
-    """Top probabilities of right and wrong groundings, and of absent references, over the dev splits."""
+    """Top probabilities of right and wrong groundings (also the right ones of object references alone), and of
+    absent references, over the dev splits. A parsed reference is matched to the scene's tuple of the same
+    phrase; one without such a tuple counts as wrong."""
+    from ocplace.eval.harness import reference_key
     from ocplace.methods.policy_method import scene_input
     from ocplace.sim.dataset.job import listed_scenes
 
-    found: dict[str, list[float]] = {"right": [], "wrong": [], "absent": []}
+    found: dict[str, list[float]] = {"right": [], "right_objects": [], "wrong": [], "absent": []}
     rng = np.random.default_rng(0)
     for split in DEV_SPLITS:
         records = [scene.read() for scene in listed_scenes(dev, split)]
         scenes = [scene_input(record) for record in records]
         for record, placement in zip(records, policy.place_many(scenes, key, progress=True)):
-            for truth, reference in zip(record.tuples, placement.references):
-                found["right" if reference.token == truth.token_index else "wrong"].append(reference.probability)
+            truth = {reference_key(t.reference_name): t.token_index for t in record.tuples}
+            for reference in placement.references:
+                right = truth.get(reference_key(reference.phrase)) == reference.token
+                found["right" if right else "wrong"].append(reference.probability)
+                if right and not reference.is_table:
+                    found["right_objects"].append(reference.probability)
         names = sorted({obj.human_name for record in records for obj in record.objects})
         absent = [absent_scene(scene, record, names, rng) for scene, record in zip(scenes, records)]
         for placement in policy.place_many([s for s in absent if s is not None], key, progress=True):
@@ -98,7 +106,9 @@ def main() -> None:
     from ocplace.models.backbone import load_backbone
     from ocplace.models.placement.sampler import SamplerConfig
     from ocplace.models.policy import PlacementPolicy
+    from ocplace.sim.dataset.job import check_dev_scenes, read_manifest
 
+    check_dev_scenes(args.dev, read_manifest(args.dev), read_manifest(args.dataset))  # no dev scene is a test one
     run = selection_run(args.dataset, args.backbone, args.experiment, args.work)
     policy = PlacementPolicy.from_run(
         load_backbone(args.backbone), run, threshold=0.0, sampler=SamplerConfig(num_samples=16)
@@ -119,8 +129,9 @@ def main() -> None:
     for t in THRESHOLDS:
         shares = report["per_threshold"][str(t)]
         print(
-            f"threshold {t:.2f}: refuses {shares['right']:6.1%} of right groundings, catches {shares['wrong']:6.1%} "
-            f"of wrong ones and {shares['absent']:6.1%} of absent references"
+            f"threshold {t:.2f}: refuses {shares['right']:6.1%} of right groundings ({shares['right_objects']:6.1%} "
+            f"of object ones), catches {shares['wrong']:6.1%} of wrong ones and {shares['absent']:6.1%} of absent "
+            "references"
         )
     print(f"chosen: {threshold} ({report['counts']})")
     args.out.write_text(json.dumps(report, indent=2) + "\n")

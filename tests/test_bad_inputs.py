@@ -341,9 +341,10 @@ CANNOT_RUN = "experiment 'smoke' cannot run: "
         ),
         (
             "evaluation.subsets=seen,bogus",
-            CANNOT_RUN + "evaluation.subsets must name each test subset or dev split at most once, some of seen",
+            CANNOT_RUN + "evaluation.subsets must name each test subset at most once, some of seen",
         ),
-        ("evaluation.subsets=", CANNOT_RUN + "evaluation.subsets must name each test subset or dev split"),
+        ("evaluation.subsets=", CANNOT_RUN + "evaluation.subsets must name each test subset at most once"),
+        ("evaluation.subsets=seen,dev_seen", CANNOT_RUN + "evaluation.subsets must name each test subset at most"),
         (
             "evaluation.parser=bogus",
             CANNOT_RUN + "evaluation.parser 'bogus' is not a parser; choose one of offline, offline-snap",

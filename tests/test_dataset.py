@@ -290,6 +290,15 @@ def test_a_dev_scene_equal_to_a_test_scene_is_refused(dev_dataset, tmp_path):
     write_manifest(out, config)
     with pytest.raises(DatasetError, match="dev_seen/dev_seen-00000 is seen/seen-00000"):
         generate_dataset(out, config, ["seen", "dev_seen"], progress=False)
+    # The same when the dev splits have a folder of their own and the test scenes are another dataset's.
+    alone = tmp_path / "dev-only"
+    alone.mkdir()
+    shutil.copy(out / "dataset.json", alone / "dataset.json")
+    shutil.copytree(out / "dev_seen", alone / "dev_seen")
+    write_manifest(alone, config)
+    assert generate_dataset(alone, config, ["dev_seen"], progress=False)  # nothing to compare with in its folder
+    with pytest.raises(DatasetError, match="dev_seen/dev_seen-00000 is seen/seen-00000"):
+        generate_dataset(alone, config, ["dev_seen"], progress=False, test_dataset=source)
 
 
 def test_dev_split_without_scenes_is_refused_with_what_to_do(tmp_path, capsys):

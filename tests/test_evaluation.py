@@ -361,3 +361,21 @@ def test_a_rerun_finds_runs_named_relative_to_another_folder(smoke_dataset, tmp_
     capsys.readouterr()
     assert main(["evaluate", "--rerun", str(tmp_path / "here" / "results.json"), "--no-progress"]) == 0
     assert "reproduced exactly" in capsys.readouterr().out
+
+
+def test_results_written_before_the_paper_protocol_render_as_they_were_scored(results_json):
+    """An older file: no `objects` aggregate, no `threshold` (every method then refused below 0.5)."""
+    old = json.loads(json.dumps(results_json))
+    del old["settings"]["threshold"]
+    for entry in old["evaluations"]:
+        for body in entry["subsets"].values():
+            del body["aggregate"]["objects"]
+            for scene in body["scenes"]:
+                del scene["confidence"]
+    lines = table.table_one(old).splitlines()
+    assert "P < 0.5" in lines[0] and "always placed" not in lines[0]
+    assert results.settings_of(old).threshold == results.LEGACY_THRESHOLD
+    new_rows = table.table_one(results_json).splitlines()[5:]
+    assert lines[5:] == new_rows  # the Obj column pooled from 1 Obj and 2 Obj, as stored now
+    fresh = json.loads(json.dumps(results_json))
+    assert results.compare(old, fresh) == [f"settings: {old['settings']} != {fresh['settings']}"]  # not confidence

@@ -36,6 +36,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "from streams of their own, never a test subset's",
     )
     generate.add_argument("--smoke", action="store_true", help="a tiny dataset (12 train, 8 per test subset)")
+    generate.add_argument(
+        "--test-dataset",
+        type=Path,
+        metavar="DIR",
+        help="also refuse a dev scene that is a test scene of this dataset (the dev splits in a folder of their own)",
+    )
     add_executor_arguments(generate, "batches of up to 16 scenes are tasks")
     generate.set_defaults(func=_generate)
 
@@ -54,7 +60,7 @@ def _generate(args: argparse.Namespace) -> int:
     config = dataclasses.replace(config, seed=args.seed)
     splits = None if args.split == "all" else [args.split]
     with open_executor(executor_config(args)) as executor:
-        manifest = generate_dataset(args.out, config, splits, executor=executor)
+        manifest = generate_dataset(args.out, config, splits, executor=executor, test_dataset=args.test_dataset)
     for split, counts in manifest["counts"].items():
         print(f"{split:>12}: {sum(counts.values())} scenes {counts}")
     stats = manifest["statistics"]

@@ -284,9 +284,11 @@ def generate_dataset(
     executor: Executor | None = None,
     cache: str | None = None,
     progress: bool = True,
+    test_dataset: str | Path | None = None,
 ) -> dict:
     """Generates (or completes) the dataset in `out` with `executor`'s workers (default: this process);
-    returns the manifest. Every worker writes its scenes into `out` itself, so they must all see it."""
+    returns the manifest. Every worker writes its scenes into `out` itself, so they must all see it. A dev
+    scene that is a test scene of `out` (or of `test_dataset`, a dataset folder) is a DatasetError."""
     out = Path(out)
     config.validate()
     splits = [s.name for s in config.splits] if splits is None else splits
@@ -317,21 +319,28 @@ def generate_dataset(
             for _, made in map_tasks(executor, tasks):
                 bar.update(made)
     manifest = write_manifest(out, config, regenerated)
-    coinciding = coinciding_scenes(manifest)
+    check_dev_scenes(out, manifest, read_manifest(test_dataset) if test_dataset is not None else None)
+    return manifest
+
+
+def check_dev_scenes(out: Path, manifest: Mapping, tests: Mapping | None = None) -> None:
+    """Raises DatasetError when a dev scene of `manifest` is a test scene of it or of `tests` (another dataset's
+    manifest): the same image."""
+    coinciding = coinciding_scenes(manifest, tests)
     if coinciding:
         dev, test = coinciding[0]
         raise DatasetError(
             f"{out}: {len(coinciding)} dev scene(s) are test scenes (the same image), e.g. {dev} is {test}; a dev "
             f"split never holds a test scene. Delete {out / dev.split('/')[0]} and generate it again"
         )
-    return manifest
 
 
-def coinciding_scenes(manifest: Mapping) -> list[tuple[str, str]]:
-    """`(dev scene, test scene)` folders of a manifest whose images are the same file (sha256)."""
+def coinciding_scenes(manifest: Mapping, tests: Mapping | None = None) -> list[tuple[str, str]]:
+    """`(dev scene, test scene)` folders whose images are the same file (sha256): the dev scenes of `manifest`
+    against the test scenes of `tests` (default: of `manifest` itself)."""
     test_images = {
         digest: name.rpartition("/")[0]
-        for name, digest in manifest["files"].items()
+        for name, digest in (tests or manifest)["files"].items()
         if name.endswith("/rgb.png") and name.split("/")[0] in TEST_SUBSETS
     }
     return [
