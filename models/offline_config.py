@@ -29,8 +29,10 @@ class OfflineConfig:
 
     trunk: str = "lite0"  # every recipe's; "vit" is kept for comparison (`vit_config`)
     trunk_init: str = "imagenet"  # "imagenet" (EfficientNet-Lite only) or "random"
-    frozen_blocks: int = 13  # the stem and first 12 blocks: measured in docs/offline_backbone.md
-    image_size: int = 128
+    # The stem and first 12 blocks frozen, 160 px input: rule T of docs/settings.md on the dev splits and the
+    # corpus' held-out categories (docs/offline_backbone.md, "Choosing the trunk").
+    frozen_blocks: int = 13
+    image_size: int = 160
     patch_size: int = 16
     width: int = 256  # the ViT's width; an EfficientNet-Lite trunk gives 1280 features
     layers: int = 6
