@@ -3,6 +3,12 @@
 A(x) = ReLU(W2 ReLU(W1 x)) with W1: D -> D/reduction and W2: D/reduction -> D, no biases, and
 x* = ratio * A(x) + (1 - ratio) * x. One adapter for the visual tokens, one for the text tokens;
 for D = 512 and reduction 4 the pair has 2 * 2 * 512 * 128 = 262,144 parameters.
+
+The paper's blend lets the ratio mean little: a trained A(x) may be several times the norm of x, so a
+ratio of 0.2 hands the adapter about half the blended vector. With `normalise`, A(x) is scaled to the
+norm of x first, so the ratio is the adapter's share by norm; each tower may have its own ratio
+(`text_ratio`), and the ratios of a trained pair can be changed after training (WiSE-FT's interpolation
+between the zero-shot and the adapted features), as `GroundingModel.with_ratios` does.
 """
 
 from __future__ import annotations
@@ -19,7 +25,14 @@ import jax.numpy as jnp
 class AdapterConfig:
     dim: int = 512  # D, the backbone's embedding width
     reduction: int = 4  # hidden width is dim // reduction
-    residual_ratio: float = 0.2  # weight of the adapter's output in the blend
+    residual_ratio: float = 0.2  # weight of the adapter's output in the blend (the text tower's too, unless set)
+    text_ratio: float | None = None  # the text tower's own weight; None: residual_ratio
+    normalise: bool = False  # scale A(x) to the norm of x before the blend (the paper's adapters do not)
+
+    @property
+    def ratios(self) -> tuple[float, float]:
+        """The (visual, text) towers' ratios in the blend."""
+        return self.residual_ratio, self.residual_ratio if self.text_ratio is None else self.text_ratio
 
 
 class ClipAdapter(nn.Module):
@@ -34,8 +47,16 @@ class ClipAdapter(nn.Module):
         return nn.relu(nn.Dense(self.dim, use_bias=False, name="up")(hidden))
 
 
-def blend(x: jax.Array, adapted: jax.Array, ratio: float) -> jax.Array:
-    """`ratio * adapted + (1 - ratio) * x`; with ratio 0 this is exactly `x`."""
+def _safe_norm(x: jax.Array) -> jax.Array:
+    """`(..., 1)` L2 norm over the last axis, differentiable at zero."""
+    return jnp.sqrt(jnp.sum(x * x, axis=-1, keepdims=True) + 1e-12)
+
+
+def blend(x: jax.Array, adapted: jax.Array, ratio: float, normalise: bool = False) -> jax.Array:
+    """`ratio * adapted + (1 - ratio) * x`, `adapted` first scaled to the norm of `x` when `normalise`; with
+    ratio 0 this is exactly `x`."""
+    if normalise:  # a vanishing A(x) (dead ReLUs, padded tokens) stays at zero, with a finite gradient
+        adapted = adapted * _safe_norm(x) / (_safe_norm(adapted) + 1e-6)
     return ratio * adapted + (1.0 - ratio) * x
 
 
@@ -49,7 +70,8 @@ class GroundingAdapters(nn.Module):
         cfg = self.config
         visual_out = ClipAdapter(cfg.dim, cfg.reduction, name="visual")(visual)
         text_out = ClipAdapter(cfg.dim, cfg.reduction, name="text")(text)
-        return blend(visual, visual_out, cfg.residual_ratio), blend(text, text_out, cfg.residual_ratio)
+        visual_ratio, text_ratio = cfg.ratios
+        return blend(visual, visual_out, visual_ratio, cfg.normalise), blend(text, text_out, text_ratio, cfg.normalise)
 
 
 @functools.partial(jax.jit, static_argnums=0)  # jitted: eager Flax initialisation is slow

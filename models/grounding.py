@@ -69,6 +69,13 @@ class GroundingModel:
         """`(..., L, T)` P: a distribution over the visual tokens per tuple."""
         return np.asarray(jax.nn.softmax(self.logits(text, visual, visual_mask), axis=-1))
 
+    def with_ratios(self, visual: float, text: float) -> GroundingModel:
+        """The same trained adapters blended with other ratios (visual, text): WiSE-FT's interpolation between
+        the zero-shot features (0) and the adapted ones, chosen after training."""
+        return dataclasses.replace(
+            self, config=dataclasses.replace(self.config, residual_ratio=visual, text_ratio=text)
+        )
+
     @classmethod
     def zero_shot(cls, dim: int, logit_scale: float) -> GroundingModel:
         """Plain CLIP similarity: residual ratio 0, so the adapters are bypassed exactly."""

@@ -49,9 +49,37 @@ def test_zero_residual_ratio_reproduces_zero_shot_logits_exactly():
     assert not np.allclose(trained.logits(text, visual, mask), zero_shot)
 
 
-def test_padded_tokens_get_zero_probability_and_finite_gradients():
+def test_normalised_blend_gives_the_adapter_its_ratio_of_the_norm_and_each_tower_its_own_ratio():
+    config = AdapterConfig(dim=8, reduction=2, residual_ratio=0.3, text_ratio=0.1, normalise=True)
+    params = jax.tree_util.tree_map(lambda w: 5.0 * w, init_adapters(config, jax.random.key(7)))  # a large A(x)
+    x, t = random_tokens(8, (5, 8)), random_tokens(9, (4, 8))
+    v_star, t_star = jax.jit(apply_adapters, static_argnums=0)(config, params, x, t)
+    adapted_v = np.asarray(v_star) - 0.7 * x  # the adapter's part of the blend
+    adapted_t = np.asarray(t_star) - 0.9 * t
+    live = np.linalg.norm(adapted_v, axis=-1) > 0  # a dead ReLU output stays zero
+    np.testing.assert_allclose(np.linalg.norm(adapted_v, axis=-1)[live], 0.3, rtol=1e-4)
+    np.testing.assert_allclose(
+        np.linalg.norm(adapted_t, axis=-1)[np.linalg.norm(adapted_t, axis=-1) > 0], 0.1, rtol=1e-4
+    )
+    plain = AdapterConfig(dim=8, reduction=2, residual_ratio=0.3)
+    assert np.linalg.norm(np.asarray(apply_adapters(plain, params, x, t)[0]) - 0.7 * x, axis=-1).max() > 0.5
+
+
+def test_ratios_chosen_after_training_interpolate_from_zero_shot():
     dim = 16
-    config = AdapterConfig(dim=dim)
+    config = AdapterConfig(dim=dim, normalise=True)
+    model = GroundingModel(config, init_adapters(config, jax.random.key(4)), 100.0)
+    text, visual = random_tokens(10, (3, 2, dim)), random_tokens(11, (3, 5, dim))
+    zero_shot = GroundingModel.zero_shot(dim, 100.0).logits(text, visual)
+    np.testing.assert_array_equal(model.with_ratios(0.0, 0.0).logits(text, visual), zero_shot)
+    assert model.with_ratios(0.3, 0.0).config.ratios == (0.3, 0.0)
+    assert not np.allclose(model.with_ratios(0.3, 0.0).logits(text, visual), zero_shot)
+
+
+@pytest.mark.parametrize("normalise", [False, True])
+def test_padded_tokens_get_zero_probability_and_finite_gradients(normalise):
+    dim = 16
+    config = AdapterConfig(dim=dim, normalise=normalise)
     params = init_adapters(config, jax.random.key(3))
     text = random_tokens(5, (1, 2, dim))
     visual = np.concatenate([random_tokens(6, (1, 3, dim)), np.zeros((1, 3, dim), np.float32)], axis=1)

@@ -161,6 +161,40 @@ def test_adam_matches_optax_adam():
     assert not np.allclose(ours["w"], 0.0)
 
 
+def test_weight_decay_is_adamw_decoupled_decay():
+    import jax.numpy as jnp
+    import optax
+
+    from ocplace.train import optim
+
+    params = {"w": jnp.full((4, 3), 2.0)}
+    zero = {"w": jnp.zeros((4, 3))}
+    plain, decayed = optim.adam(0.1), optim.adam(0.1, weight_decay=0.5)
+    assert np.all(plain.update(zero, plain.init(params), params)[0]["w"] == 0.0)
+    updates, _ = decayed.update(zero, decayed.init(params), params)
+    np.testing.assert_allclose(updates["w"], -0.1 * 0.5 * 2.0)  # what optax.adamw's decay term gives
+    reference, _ = optax.adamw(0.1, weight_decay=0.5).update(
+        zero, optax.adamw(0.1, weight_decay=0.5).init(params), params
+    )
+    np.testing.assert_allclose(updates["w"], reference["w"], rtol=1e-6)
+
+
+def test_the_anchor_keeps_the_adapted_features_near_the_backbones(tmp_path, features):
+    from ocplace.models.adapters import apply_adapters
+
+    def drift_and_accuracy(anchor: float) -> tuple[float, float]:
+        config = dataclasses.replace(short_config(), anchor=anchor)
+        result = train(features, tmp_path / f"anchor-{anchor}", config, progress=False)
+        visual, _ = apply_adapters(result.model.config, result.model.params, features.visual, features.text)
+        squared = np.sum((np.asarray(visual) - features.visual) ** 2, axis=-1)
+        return float(np.mean(squared[features.visual_mask])), result.train_accuracy.tuple_accuracy
+
+    free, _ = drift_and_accuracy(0.0)
+    pulled, accuracy = drift_and_accuracy(100.0)
+    assert pulled < free / 2
+    assert accuracy > 0.5  # it still learns the task
+
+
 def test_fraction_subsets_are_seeded_and_nested():
     quarter, half = subset_indices(100, 0.25, 0), subset_indices(100, 0.5, 0)
     assert len(quarter) == 25 and len(half) == 50
@@ -262,7 +296,8 @@ def test_train_flags_mirror_every_config_field_and_keep_the_old_names():
         *("--steps", "7", "--batch-size", "2", "--lr", "0.5", "--warmup-steps", "3", "--seed", "4"),
         *("--fraction", "0.25", "--subset-seed", "5", "--reduction", "8", "--residual-ratio", "0.3"),
         *("--logit-scale", "50", "--chunk-steps", "10", "--eval-every", "20", "--checkpoint-every", "30"),
-        *("--keep-checkpoints", "3"),
+        *("--keep-checkpoints", "3", "--text-ratio", "0.1", "--normalise", "--weight-decay", "0.01"),
+        *("--anchor", "2"),
     ]
     assert train_command.train_config_from_args(_train_args("--smoke", *every_field)) == TrainConfig(
         steps=7,
@@ -279,5 +314,9 @@ def test_train_flags_mirror_every_config_field_and_keep_the_old_names():
         eval_every=20,
         checkpoint_every=30,
         keep_checkpoints=3,
+        text_ratio=0.1,
+        normalise=True,
+        weight_decay=0.01,
+        anchor=2.0,
     )
     assert train_command.train_config_from_args(_train_args("--learning-rate", "0.25")).learning_rate == 0.25

@@ -21,7 +21,17 @@ class TrainConfig:
     )
     subset_seed: int = 0  # fixed apart from `seed`, so a 25% subset is part of the 50% one
     reduction: int = 4  # adapter hidden width = D / reduction
-    residual_ratio: float = 0.2
+    residual_ratio: float = 0.2  # the adapter's weight in the blend: the visual tower's, and the text's unless set
+    text_ratio: float | None = dataclasses.field(
+        default=None, metadata={"help": "the text adapter's own weight in the blend; none: residual_ratio"}
+    )
+    normalise: bool = dataclasses.field(
+        default=False, metadata={"help": "scale A(x) to the norm of x before the blend (models/adapters.py)"}
+    )
+    # Regularisers (0: the paper's adapters): decoupled weight decay, and a pull of the adapted features toward
+    # the backbone's own (KgCoOp's idea for prompts): anchor x the mean squared distance of x* from x.
+    weight_decay: float = 0.0
+    anchor: float = 0.0
     logit_scale: float | None = dataclasses.field(
         default=None, metadata={"help": "grounding logit scale; none means the backbone's own, from the feature file"}
     )
@@ -38,8 +48,12 @@ class TrainConfig:
             problems.append(f"logit_scale must be positive (or none), got {self.logit_scale}")
         if not 0.0 < self.fraction <= 1.0:
             problems.append(f"fraction must be in (0, 1], got {self.fraction}")
-        if not 0.0 <= self.residual_ratio <= 1.0:
-            problems.append(f"residual_ratio must be in [0, 1], got {self.residual_ratio}")
+        for name in ("residual_ratio", "text_ratio"):
+            value = getattr(self, name)
+            if value is not None and not 0.0 <= value <= 1.0:
+                problems.append(f"{name} must be in [0, 1], got {value}")
+        if self.weight_decay < 0 or self.anchor < 0:
+            problems.append(f"weight_decay and anchor must be at least 0, got {self.weight_decay}, {self.anchor}")
         for name in ("eval_every", "checkpoint_every"):
             value = getattr(self, name)
             if value < 1 or value % self.chunk_steps:
@@ -48,6 +62,16 @@ class TrainConfig:
             problems.append("keep_checkpoints must be at least 1")
         if problems:
             raise TrainingError("invalid training configuration: " + "; ".join(problems))
+
+    @property
+    def adapters(self) -> dict:
+        """The `AdapterConfig` fields this recipe sets (the width comes from the features)."""
+        return {
+            "reduction": self.reduction,
+            "residual_ratio": self.residual_ratio,
+            "text_ratio": self.text_ratio,
+            "normalise": self.normalise,
+        }
 
 
 def default_config() -> TrainConfig:

@@ -34,14 +34,19 @@ class AdamState(NamedTuple):
 
 
 def adam(
-    learning_rate: optax.ScalarOrSchedule, b1: float = 0.9, b2: float = 0.999, eps: float = 1e-8
+    learning_rate: optax.ScalarOrSchedule,
+    b1: float = 0.9,
+    b2: float = 0.999,
+    eps: float = 1e-8,
+    weight_decay: float = 0.0,
 ) -> optax.GradientTransformation:
+    """Adam; with `weight_decay`, AdamW's decoupled decay (`- lr_t * weight_decay * param`) on every leaf."""
+
     def init(params) -> AdamState:
         moments = jax.tree_util.tree_map(lambda p: jnp.zeros((2, *p.shape), p.dtype), params)
         return AdamState(jnp.zeros((), jnp.int32), moments)
 
     def update(grads, state: AdamState, params=None):
-        del params
         decay = jnp.array([b1, b2], jnp.float32)
 
         def moments_of(g, mv):
@@ -55,6 +60,8 @@ def adam(
         root = jnp.sqrt(1.0 - b2**t)
         step_size, eps_hat = lr * root / (1.0 - b1**t), eps * root
         updates = jax.tree_util.tree_map(lambda mv: -step_size * mv[0] / (jnp.sqrt(mv[1]) + eps_hat), moments)
+        if weight_decay:  # a Python branch: plain Adam compiles exactly as before
+            updates = jax.tree_util.tree_map(lambda u, p: u - lr * weight_decay * p, updates, params)
         return updates, AdamState(count, moments)
 
     return optax.GradientTransformation(init, update)

@@ -26,9 +26,9 @@ import optax
 
 from ocplace import serial
 from ocplace.models import trained_adapters
-from ocplace.models.adapters import AdapterConfig, init_adapters
+from ocplace.models.adapters import AdapterConfig, apply_adapters, init_adapters
 from ocplace.models.features import Features
-from ocplace.models.grounding import GroundingModel, adapted_logits, grounding_loss
+from ocplace.models.grounding import GroundingModel, cosine_logits, grounding_loss
 from ocplace.train import optim, runner
 from ocplace.train.batches import batch_indices, subset_indices
 from ocplace.train.config import TrainConfig
@@ -49,7 +49,14 @@ def learning_rate_schedule(config: TrainConfig) -> optax.Schedule:
 
 
 def make_optimizer(config: TrainConfig) -> optax.GradientTransformation:
-    return optim.adam(learning_rate_schedule(config))
+    return optim.adam(learning_rate_schedule(config), weight_decay=config.weight_decay)
+
+
+def anchor_penalty(adapted, original, mask) -> jax.Array:
+    """Mean over the real tokens of the squared distance of the adapted features from the backbone's:
+    `(..., N, D)` features, `(..., N)` mask."""
+    squared = jnp.sum((adapted - original) ** 2, axis=-1)
+    return jnp.sum(jnp.where(mask, squared, 0.0)) / jnp.maximum(jnp.sum(mask), 1)
 
 
 def train_step(adapter_config: AdapterConfig, config: TrainConfig, logit_scale: float, state, data, indices):
@@ -60,8 +67,12 @@ def train_step(adapter_config: AdapterConfig, config: TrainConfig, logit_scale: 
 
     def loss_fn(params, batch):
         visual, visual_mask, text, text_mask, targets = batch
-        logits = adapted_logits(adapter_config, params, text, visual, visual_mask, logit_scale)
-        return grounding_loss(logits, targets, text_mask)
+        visual_star, text_star = apply_adapters(adapter_config, params, visual, text)
+        loss = grounding_loss(cosine_logits(text_star, visual_star, visual_mask, logit_scale), targets, text_mask)
+        if config.anchor:  # a Python branch: the paper's recipe compiles exactly as before
+            pull = anchor_penalty(visual_star, visual, visual_mask) + anchor_penalty(text_star, text, text_mask)
+            loss = loss + config.anchor * pull
+        return loss
 
     params, opt_state = state
     loss, grads = jax.value_and_grad(loss_fn)(params, tuple(array[indices] for array in data))
@@ -101,7 +112,7 @@ def train_ours(
     recipe.validate()
     run_dir = Path(run_dir)
     train_set = features.subset(subset_indices(features.num_scenes, recipe.fraction, recipe.subset_seed))
-    adapter_config = AdapterConfig(features.dim, recipe.reduction, recipe.residual_ratio)
+    adapter_config = AdapterConfig(features.dim, **recipe.adapters)
     logit_scale = float(recipe.logit_scale or features.info.logit_scale)
     run_meta = _run_metadata(recipe, features, val_features, train_set)
     data = jax.device_put(train_set.arrays())
