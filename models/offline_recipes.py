@@ -26,6 +26,7 @@ from ocplace.sim.corpus.selection import PROTOCOLS
 from ocplace.vocabulary import SHAPES, SIZES
 
 POOLS = ("corpus", "task")
+BALANCES = ("class", "group")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -108,6 +109,9 @@ class OptimConfig:
     table_share: float = 1 / 16  # share of each batch that is whole-workspace images ("a table")
     # how the other images divide among the kinds of class (renormalised over the kinds rendered)
     kind_shares: tuple[tuple[str, float], ...] = (("object", 0.5), ("recoloured", 0.25), ("primitive", 0.25))
+    # Within a kind, a class uniformly (`class`), or a category group uniformly and then one of its classes
+    # (`group`: 33 near-identical wall plugs, switches and sockets weigh as one category, not as 33).
+    balance: str = "class"
     learning_rate: float = 1e-3
     warmup_steps: int = 50
     weight_decay: float = 0.05
@@ -124,6 +128,8 @@ class OptimConfig:
             problems.append("steps, checkpoint_every and keep_checkpoints must be positive, batch_size >= 2")
         if not 0.0 <= self.table_share < 1.0:
             problems.append("table_share must be in [0, 1)")
+        if self.balance not in BALANCES:
+            problems.append(f"balance must be one of {', '.join(BALANCES)}")
         if (
             not self.kind_shares
             or any(share < 0 for _, share in self.kind_shares)

@@ -2,7 +2,7 @@
 
 Each candidate is the default recipe with one change, pretrained at a selection size (fewer scenes
 and steps than the default, the same for every candidate) and scored by zero-shot grounding of the
-held-out corpus names (`ocplace backbone validate`; `train/pretrain/validation.py`). The random
+held-out corpus categories (`ocplace backbone validate`; `train/pretrain/validation.py`). The random
 initialisation of the same architecture is the floor.
 
 Usage: `python perf/corpus_selection.py --out selection.json [--candidates base frozen16 ...]
@@ -12,6 +12,7 @@ Usage: `python perf/corpus_selection.py --out selection.json [--candidates base 
     frozen10      the last seven blocks and head fine-tuned (10 frozen entries)
     objects70     70% of each batch corpus models as rendered (default 50%), 15% recoloured, 15% primitives
     no-extras     corpus models only: no recoloured objects, no primitives
+    balanced      within a kind, a category group first, then a class of it (`OptimConfig.balance`)
 """
 
 from __future__ import annotations
@@ -44,6 +45,8 @@ def candidate_config(base: PretrainConfig, name: str) -> PretrainConfig:
         optim = dataclasses.replace(optim, kind_shares=(("object", 0.7), ("recoloured", 0.15), ("primitive", 0.15)))
     elif name == "no-extras":
         render = dataclasses.replace(render, recolour_share=0.0, primitives_per_scene=0)
+    elif name == "balanced":
+        optim = dataclasses.replace(optim, balance="group")
     elif name != "base":
         raise SystemExit(f"unknown candidate {name!r}; see the module docstring")
     return dataclasses.replace(base, recipe=f"selection-{name}", model=model, render=render, optim=optim)

@@ -343,3 +343,26 @@ def test_a_run_encodes_only_the_captions_it_draws_with_the_bits_of_the_whole_ban
     # A last batch of 5 (which the tower alone would pad to 8 rows, not 64) gives the same bits too.
     odd = np.random.default_rng(0).choice(len(bank.texts), size=69, replace=False)
     assert np.array_equal(caption_sentences(tower, bank.texts, np.sort(odd))[odd], whole[odd])
+
+
+def test_group_balance_weighs_a_category_of_many_models_as_one():
+    from ocplace.train.pretrain.captions import OBJECT, TABLE, CaptionBank
+    from ocplace.train.pretrain.loop import sample_classes
+
+    groups = ("plug",) * 10 + ("teapot", "lamp", TABLE)
+    kinds = (OBJECT,) * 12 + (TABLE,)
+    bank = CaptionBank(
+        tuple(map(str, range(13))), ("a",), np.ones((1, 13), bool), (np.zeros(1, np.int32),) * 13, kinds, groups
+    )
+    by_class = [np.array([k]) for k in range(13)]
+    optim = dataclasses.replace(smoke_config().optim, kind_shares=(("object", 1.0),))
+    teapot_share = {}
+    for balance in ("class", "group"):
+        drawn = sample_classes(
+            by_class, bank, dataclasses.replace(optim, balance=balance), np.random.default_rng(0), 6000
+        )
+        assert set(drawn.tolist()) == set(range(12))  # every object class, never the table
+        teapot_share[balance] = float(np.mean(drawn == 10))
+    assert teapot_share["class"] == pytest.approx(1 / 12, abs=0.015)
+    assert teapot_share["group"] == pytest.approx(1 / 3, abs=0.03)
+    assert dataclasses.replace(optim, balance="category").validate()

@@ -14,6 +14,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from ocplace.models.backbone import PromptConfig
+from ocplace.sim.corpus.selection import NOUN_GROUPS
 from ocplace.vocabulary import SHAPE_WORDS
 
 COLOUR_WORDS = (
@@ -155,7 +156,9 @@ class CaptionBank:
 
     texts: `C` distinct captions; applies: bool `(C, K)`, caption c describes class k;
     own: per class, the caption indices generated for it (sampled for its images);
-    kinds: per class, `OBJECT`, `TABLE`, `RECOLOURED` or `PRIMITIVE`.
+    kinds: per class, `OBJECT`, `TABLE`, `RECOLOURED` or `PRIMITIVE`;
+    groups: per class, its category's group (`sim.corpus.selection.NOUN_GROUPS`: wall plugs, switches and
+    sockets one group; a primitive's shape), which group-balanced sampling draws first.
     """
 
     class_names: tuple[str, ...]
@@ -163,6 +166,7 @@ class CaptionBank:
     applies: np.ndarray
     own: tuple[np.ndarray, ...]
     kinds: tuple[str, ...]
+    groups: tuple[str, ...]
 
     @property
     def table_class(self) -> int:
@@ -195,4 +199,6 @@ def build_caption_bank(
         own.append(rows)
     names = tuple(obj.name for obj in objects) + ("table",) + tuple(obj.name for obj in extras)
     kinds = tuple(obj.kind for obj in objects) + (TABLE,) + tuple(obj.kind for obj in extras)
-    return CaptionBank(names, texts, applies, tuple(own), kinds)
+    groups = tuple(NOUN_GROUPS.get(obj.category, obj.category) for obj in objects)
+    groups += (TABLE,) + tuple(NOUN_GROUPS.get(obj.category, obj.category) for obj in extras)
+    return CaptionBank(names, texts, applies, tuple(own), kinds, groups)

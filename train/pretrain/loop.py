@@ -196,7 +196,8 @@ def sample_classes(
     by_class: list[np.ndarray], bank: CaptionBank, optim: OptimConfig, rng: np.random.Generator, count: int
 ) -> np.ndarray:
     """int `(count,)` non-table classes with images: a kind by its share (renormalised over the kinds
-    present), then a class of that kind uniformly."""
+    present), then a class of that kind uniformly, or (`optim.balance` "group") a category group of that kind
+    uniformly and then a class of it."""
     present = {
         kind: [k for k, own in enumerate(bank.kinds) if own == kind and len(by_class[k])]
         for kind, _ in optim.kind_shares
@@ -204,7 +205,22 @@ def sample_classes(
     kinds = [kind for kind, _ in optim.kind_shares if present[kind]]
     shares = np.array([share for kind, share in optim.kind_shares if present[kind]], np.float64)
     drawn = rng.choice(len(kinds), size=count, p=shares / shares.sum())
-    return np.array([rng.choice(present[kinds[d]]) for d in drawn])
+    if optim.balance == "class":
+        return np.array([rng.choice(present[kinds[d]]) for d in drawn])
+    grouped = {kind: list(_by_group(classes, bank.groups).values()) for kind, classes in present.items()}
+    picked = []
+    for d in drawn:
+        groups = grouped[kinds[d]]
+        picked.append(rng.choice(groups[rng.integers(len(groups))]))
+    return np.array(picked)
+
+
+def _by_group(classes: list[int], groups: tuple[str, ...]) -> dict[str, list[int]]:
+    """`classes` by their group, in first-seen order."""
+    found: dict[str, list[int]] = {}
+    for k in classes:
+        found.setdefault(groups[k], []).append(k)
+    return found
 
 
 CAPTION_BATCH = 64
