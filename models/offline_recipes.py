@@ -62,6 +62,10 @@ class RenderConfig:
     # (its own class: "a blue bowl"); its plain crop is kept.
     recolour_share: float = 0.3
     colours: tuple[str, ...] = BASIC_COLOURS  # colour terms of recoloured objects and of primitives
+    # `seen`: a recoloured object whose captions would name a test object ("a yellow bowl") is left out;
+    # `open` (corpus pool, `open` protocol only): corpus objects keep such colour-category captions, as
+    # CLIP's data holds yellow bowls.
+    colour_captions: str = "seen"
     primitives_per_scene: int = 2  # named primitives dropped with the objects; 0: no primitive classes
     primitive_shapes: tuple[str, ...] = SHAPES
     primitive_widths: tuple[float, ...] = (0.05, 0.075, 0.10)  # m, small, medium and large primitives
@@ -84,6 +88,10 @@ class RenderConfig:
             problems.append("objects_per_scene must be positive")
         if not all(0.0 <= p <= 1.0 for p in (self.canonical_share, self.table_jitter, self.recolour_share)):
             problems.append("canonical_share, table_jitter and recolour_share are probabilities")
+        if self.colour_captions not in ("seen", "open") or (
+            self.colour_captions == "open" and (self.pool, self.protocol) != ("corpus", "open")
+        ):
+            problems.append("colour_captions is 'seen', or 'open' with the corpus pool under the open protocol")
         if not self.colours or not set(self.colours) <= set(COLOUR_TERMS):
             problems.append(f"colours must be among {', '.join(COLOUR_TERMS)}")
         if not 0 <= self.primitives_per_scene <= len(SIZES) * len(self.primitive_shapes) or not set(

@@ -13,6 +13,7 @@ Usage: `python perf/corpus_selection.py --out selection.json [--candidates base 
     objects70     70% of each batch corpus models as rendered (default 50%), 15% recoloured, 15% primitives
     no-extras     corpus models only: no recoloured objects, no primitives
     balanced      within a kind, a category group first, then a class of it (`OptimConfig.balance`)
+    colour-open   recoloured corpus objects keep colour-category captions ("a yellow bowl"; `colour_captions`)
 """
 
 from __future__ import annotations
@@ -47,6 +48,8 @@ def candidate_config(base: PretrainConfig, name: str) -> PretrainConfig:
         render = dataclasses.replace(render, recolour_share=0.0, primitives_per_scene=0)
     elif name == "balanced":
         optim = dataclasses.replace(optim, balance="group")
+    elif name == "colour-open":
+        render = dataclasses.replace(render, colour_captions="open")
     elif name != "base":
         raise SystemExit(f"unknown candidate {name!r}; see the module docstring")
     return dataclasses.replace(base, recipe=f"selection-{name}", model=model, render=render, optim=optim)

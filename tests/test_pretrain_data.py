@@ -26,7 +26,7 @@ from ocplace.train.pretrain.captions import (
     recoloured,
     with_colour,
 )
-from ocplace.train.pretrain.classes import caption_bank, mentions, pretraining_classes, unseen_names
+from ocplace.train.pretrain.classes import caption_bank, leaks, mentions, pretraining_classes, unseen_names
 from ocplace.train.pretrain.colours import recolour_objects
 from ocplace.train.pretrain.pool import training_pool
 from ocplace.train.pretrain.render import (
@@ -366,3 +366,22 @@ def test_group_balance_weighs_a_category_of_many_models_as_one():
     assert teapot_share["class"] == pytest.approx(1 / 12, abs=0.015)
     assert teapot_share["group"] == pytest.approx(1 / 3, abs=0.03)
     assert dataclasses.replace(optim, balance="category").validate()
+
+
+def test_open_colour_captions_keep_corpus_recolourings_that_name_a_test_object(library, corpus):
+    from ocplace.train.pretrain.pool import training_pool
+
+    seen_rule = default_config().render
+    open_rule = dataclasses.replace(seen_rule, colour_captions="open")
+    assets = training_pool(library, corpus, seen_rule).assets
+    kept = {extra.description.name for extra in pretraining_classes(library, assets, seen_rule).extras}
+    widened = {extra.description.name for extra in pretraining_classes(library, assets, open_rule).extras}
+    forbidden = unseen_names(library)
+    added = [
+        extra for extra in pretraining_classes(library, assets, open_rule).extras if extra.description.name not in kept
+    ]
+    assert kept < widened and added
+    assert all(leaks(extra.description, forbidden) for extra in added)  # exactly the ones the rule dropped
+    for bad in ({"protocol": "strict"}, {"pool": "task"}):
+        assert dataclasses.replace(open_rule, **bad).validate()
+    assert not open_rule.validate()

@@ -90,8 +90,9 @@ def leaks(description: ObjectDescription, forbidden: tuple[str, ...], prompt: Pr
 
 def pretraining_classes(library, assets: Sequence, config: RenderConfig) -> PretrainClasses:
     """The classes of the pool's `assets` under `config`: recolourings to each of `config.colours`
-    other than the object's own, then each primitive in each colour, minus any that `leaks`."""
-    forbidden = unseen_names(library)
+    other than the object's own, then each primitive in each colour, minus any that `leaks` (unless
+    `config.colour_captions` is `open`)."""
+    forbidden = () if config.colour_captions == "open" else unseen_names(library)
     descriptions = tuple(ObjectDescription.of(asset) for asset in assets)
     extras = [
         ExtraClass(recoloured(obj, colour), obj.name, colour)
