@@ -5,8 +5,10 @@ and steps than the default, the same for every candidate) and scored by zero-sho
 held-out corpus categories (`ocplace backbone validate`; `train/pretrain/validation.py`). The random
 initialisation of the same architecture is the floor.
 
-Usage: `python perf/corpus_selection.py --out selection.json [--candidates base frozen16 ...]
-[--scenes 200 --steps 200]`. Candidates:
+Usage: `python perf/corpus_selection.py --dev DEV --out selection.json [--candidates base balanced ...]
+[--scenes 200 --steps 200]`, DEV holding dev_seen and dev_colour; each candidate is also scored on their
+object tuples, and rule C of docs/settings.md (written before the run) says which changes are kept.
+Candidates:
     base          the default recipe
     frozen16      only the trunk's last block and head fine-tuned (16 frozen entries; default 13)
     frozen10      the last seven blocks and head fine-tuned (10 frozen entries)
@@ -21,11 +23,13 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import math
 import os
 import time
 from pathlib import Path
 
 import jax
+from selection_scores import scores, standard_error
 
 import ocplace  # noqa: F401  (sets the headless OpenGL default before MuJoCo loads)
 from ocplace.models.offline_backbone import OfflineBackbone, init_params
@@ -33,7 +37,7 @@ from ocplace.models.offline_recipes import PretrainConfig, default_config
 from ocplace.sim.corpus.build import build_corpus
 from ocplace.sim.library import load_library
 from ocplace.train.pretrain.loop import pretrain
-from ocplace.train.pretrain.validation import validation_grounding, validation_scenes
+from ocplace.train.pretrain.validation import validation_scenes
 
 
 def candidate_config(base: PretrainConfig, name: str) -> PretrainConfig:
@@ -55,9 +59,30 @@ def candidate_config(base: PretrainConfig, name: str) -> PretrainConfig:
     return dataclasses.replace(base, recipe=f"selection-{name}", model=model, render=render, optim=optim)
 
 
+def verdicts(report: dict) -> dict[str, str]:
+    """Rule C (docs/settings.md): each candidate's change is kept when its reach beats the base's by more than
+    one standard error of the difference and its `dev_seen` is at most one point below the base's."""
+    base = report["candidates"]["base"]
+    found = {}
+    for name, row in report["candidates"].items():
+        if name == "base":
+            continue
+        margin = row["reach"] - base["reach"]
+        se = math.hypot(
+            standard_error(row["reach"], row["reach_references"]),
+            standard_error(base["reach"], base["reach_references"]),
+        )
+        keep = margin > se and row["dev_seen"] >= base["dev_seen"] - 0.01
+        found[name] = f"{'kept' if keep else 'not kept'}: reach {100 * margin:+.1f} points (SE {100 * se:.1f}), " + (
+            f"dev_seen {100 * (row['dev_seen'] - base['dev_seen']):+.1f}"
+        )
+    return found
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--candidates", nargs="+", default=["base", "frozen16", "frozen10", "objects70"])
+    parser.add_argument("--dev", type=Path, required=True, help="dataset folder holding dev_seen and dev_colour")
+    parser.add_argument("--candidates", nargs="+", default=["base", "balanced", "colour-open"])
     parser.add_argument("--scenes", type=int, default=200)
     parser.add_argument("--steps", type=int, default=200)
     parser.add_argument("--work", type=Path, default=Path("out/corpus_selection"))
@@ -79,14 +104,19 @@ def main() -> None:
         config = candidate_config(base, name)
         began = time.perf_counter()
         result = pretrain(config, library, args.work / name, progress=True)
-        row = {"pretrain_s": round(time.perf_counter() - began, 1), **validation_grounding(result.backbone, scenes)}
+        row = {"pretrain_s": round(time.perf_counter() - began, 1)}
+        row |= scores(result.backbone, scenes, args.dev, library)
         if "random_init" not in report:
             params = init_params(base.model, jax.random.key(0))
             floor = OfflineBackbone(base.model, params, result.backbone.text_tower, source="random init")
-            report["random_init"] = validation_grounding(floor, scenes)
+            report["random_init"] = scores(floor, scenes, args.dev, library)
             print("random init", json.dumps(report["random_init"]), flush=True)
         report["candidates"][name] = row
         print(name, json.dumps(row), flush=True)
+        args.out.write_text(json.dumps(report, indent=2) + "\n")
+    if "base" in report["candidates"]:
+        report["verdicts"] = verdicts(report)
+        print(json.dumps(report["verdicts"], indent=1))
         args.out.write_text(json.dumps(report, indent=2) + "\n")
 
 

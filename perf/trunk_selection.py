@@ -28,34 +28,17 @@ import time
 from pathlib import Path
 
 import jax
+from selection_scores import scores, standard_error
 
 import ocplace  # noqa: F401  (sets the headless OpenGL default before MuJoCo loads)
 from ocplace.models.offline_backbone import OfflineBackbone, init_params
 from ocplace.models.offline_recipes import default_config
 from ocplace.sim.corpus.build import build_corpus
 from ocplace.sim.library import load_library
-from ocplace.train.pretrain.evaluate import evaluate_split
 from ocplace.train.pretrain.loop import pretrain
-from ocplace.train.pretrain.validation import validation_grounding, validation_scenes
+from ocplace.train.pretrain.validation import validation_scenes
 
-CURRENT = "13@128"
-DEV_SPLITS = ("dev_seen", "dev_colour")
-
-
-def scores(backbone, scenes, dev: Path, library) -> dict:
-    """Reach, dev_colour and dev_seen top-1 (object tuples) of one backbone, with their reference counts."""
-    reach = validation_grounding(backbone, scenes)
-    row = {"reach": reach["grounding_top1"], "reach_references": reach["references"]}
-    for split in DEV_SPLITS:
-        grounding = evaluate_split(backbone, dev, split, library)["grounding"]
-        objects = grounding["object_tuples"]
-        row[split] = objects
-        row[f"{split}_references"] = grounding["counts"]["object_tuples"]
-    return row
-
-
-def _se(rate: float, count: int) -> float:
-    return math.sqrt(rate * (1 - rate) / max(count, 1))
+CURRENT = "13@160"  # rule T chose it on 2026-12-04
 
 
 def choose(rows: dict[str, dict], current: str = CURRENT) -> tuple[str, str]:
@@ -69,7 +52,8 @@ def choose(rows: dict[str, dict], current: str = CURRENT) -> tuple[str, str]:
     margin = (theirs["reach"] + theirs["dev_colour"]) - (ours["reach"] + ours["dev_colour"])
     se = math.sqrt(
         sum(
-            _se(row["reach"], row["reach_references"]) ** 2 + _se(row["dev_colour"], row["dev_colour_references"]) ** 2
+            standard_error(row["reach"], row["reach_references"]) ** 2
+            + standard_error(row["dev_colour"], row["dev_colour_references"]) ** 2
             for row in (ours, theirs)
         )
     )
