@@ -28,7 +28,7 @@ import json
 import os
 import platform
 import subprocess
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
 from importlib import metadata
 from pathlib import Path
 
@@ -237,16 +237,19 @@ OUTCOME_FIELDS = (
 )
 
 
-def write_outcomes(path: str | Path, results: Mapping) -> Path:
-    """Every scene's outcome of `results` as gzipped JSON lines (the fields of `OUTCOME_FIELDS`), small enough
-    to keep beside a summary: `with_outcomes` puts them back, and the intervals are computed from them. The
-    bytes depend on the outcomes only (no time stamp in the gzip header)."""
+def write_outcomes(path: str | Path, results: Mapping, fractions: Collection[float] | None = None) -> Path:
+    """Every scene's outcome of `results` as gzipped JSON lines (the fields of `OUTCOME_FIELDS`, a failure by its
+    error type), small enough to keep beside a summary: `with_outcomes` puts them back, and the intervals are
+    computed from them. The bytes depend on the outcomes only (no time stamp in the gzip header). `fractions`:
+    only the evaluations of these training fractions (Table I's: 1.0)."""
     lines = []
     for entry in results["evaluations"]:
+        if fractions is not None and entry["fraction"] not in fractions:
+            continue
         head = {name: entry.get(name) for name in OUTCOME_ENTRY_FIELDS}
         for subset, body in entry["subsets"].items():
             lines += [
-                json.dumps(head | {"subset": subset} | {name: scene.get(name) for name in OUTCOME_FIELDS})
+                json.dumps(head | {"subset": subset} | {name: _kept(scene, name) for name in OUTCOME_FIELDS})
                 for scene in body["scenes"]
             ]
     data = gzip.compress(("\n".join(lines) + "\n").encode(), mtime=0)
@@ -254,6 +257,13 @@ def write_outcomes(path: str | Path, results: Mapping) -> Path:
     with atomic_path(path) as tmp:
         tmp.write_bytes(data)
     return path
+
+
+def _kept(scene: Mapping, name: str):
+    """A scene's field as the outcomes file keeps it: a failure by its error type (the message is in the full
+    results), every other field as it is."""
+    value = scene.get(name)
+    return value.partition(":")[0] if name == "failure" and value is not None else value
 
 
 def with_outcomes(summary: Mapping, path: str | Path) -> dict:
@@ -266,18 +276,20 @@ def with_outcomes(summary: Mapping, path: str | Path) -> dict:
     scenes: dict[tuple[str, str], list[dict]] = {}
     for line in lines:
         scenes.setdefault((line["key"], line["subset"]), []).append({name: line.get(name) for name in OUTCOME_FIELDS})
-    evaluations = []
+    evaluations, partial = [], False
     for entry in summary["evaluations"]:
         subsets = {}
         for subset, body in entry["subsets"].items():
-            found = scenes.get((entry["key"], subset), [])
-            if len(found) != body["aggregate"]["overall"]["scenes"]:
+            found = scenes.get((entry["key"], subset))
+            if found is None:  # a file of some evaluations only (Table I's rows, say): this one stays summarised
+                subsets[subset], partial = body, True
+            elif len(found) != body["aggregate"]["overall"]["scenes"]:
                 raise ResultsError(f"{path} holds {len(found)} scenes of {entry['key']} on {subset}, not its results'")
-            subsets[subset] = {"aggregate": body["aggregate"], "scenes": found}
+            else:
+                subsets[subset] = {"aggregate": body["aggregate"], "scenes": found}
         evaluations.append({**entry, "subsets": subsets})
-    return {key: value for key, value in summary.items() if key not in ("summary", "derived")} | {
-        "evaluations": evaluations
-    }
+    restored = {key: value for key, value in summary.items() if key not in ("summary", "derived")}
+    return restored | {"evaluations": evaluations} | ({"summary": True} if partial else {})
 
 
 def write_results(path: str | Path, results: dict) -> Path:
