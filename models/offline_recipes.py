@@ -164,9 +164,13 @@ class PretrainConfig:
         return hashlib.sha256(serial.to_json(self).encode()).hexdigest()[:12]
 
 
+# Rule C of docs/settings.md kept colour-category captions for recoloured corpus objects under `open`.
+OPEN_RENDER = RenderConfig(colour_captions="open")
+
+
 def default_config() -> PretrainConfig:
     """The foundation backbone: the furniture corpus under the `open` protocol, never a benchmark object."""
-    return PretrainConfig("default")
+    return PretrainConfig("default", render=OPEN_RENDER)
 
 
 def strict_config() -> PretrainConfig:
@@ -182,7 +186,9 @@ def task_config() -> PretrainConfig:
 def demo_config() -> PretrainConfig:
     """A few minutes on 2 cores: fewer scenes and steps, same architecture and corpus."""
     return PretrainConfig(
-        "demo", render=RenderConfig(scenes=100), optim=OptimConfig(steps=75, warmup_steps=8, checkpoint_every=25)
+        "demo",
+        render=dataclasses.replace(OPEN_RENDER, scenes=100),
+        optim=OptimConfig(steps=75, warmup_steps=8, checkpoint_every=25),
     )
 
 

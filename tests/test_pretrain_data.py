@@ -371,8 +371,9 @@ def test_group_balance_weighs_a_category_of_many_models_as_one():
 def test_open_colour_captions_keep_corpus_recolourings_that_name_a_test_object(library, corpus):
     from ocplace.train.pretrain.pool import training_pool
 
-    seen_rule = default_config().render
-    open_rule = dataclasses.replace(seen_rule, colour_captions="open")
+    open_rule = default_config().render  # rule C kept the open captions (docs/settings.md)
+    seen_rule = dataclasses.replace(open_rule, colour_captions="seen")
+    assert open_rule.colour_captions == "open"
     assets = training_pool(library, corpus, seen_rule).assets
     kept = {extra.description.name for extra in pretraining_classes(library, assets, seen_rule).extras}
     widened = {extra.description.name for extra in pretraining_classes(library, assets, open_rule).extras}
