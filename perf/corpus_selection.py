@@ -16,6 +16,9 @@ Candidates:
     no-extras     corpus models only: no recoloured objects, no primitives
     balanced      within a kind, a category group first, then a class of it (`OptimConfig.balance`)
     colour-open   recoloured corpus objects keep colour-category captions ("a yellow bowl"; `colour_captions`)
+    seen-captions the default without them (`colour_captions="seen"`)
+    before        the recipe of the issue-40 record (13 frozen entries at 128 px, no colour-category captions)
+                  with today's held-out categories: the reference reach is measured against
 """
 
 from __future__ import annotations
@@ -54,6 +57,11 @@ def candidate_config(base: PretrainConfig, name: str) -> PretrainConfig:
         optim = dataclasses.replace(optim, balance="group")
     elif name == "colour-open":
         render = dataclasses.replace(render, colour_captions="open")
+    elif name == "seen-captions":
+        render = dataclasses.replace(render, colour_captions="seen")
+    elif name == "before":
+        model = dataclasses.replace(model, image_size=128)
+        render = dataclasses.replace(render, colour_captions="seen")
     elif name != "base":
         raise SystemExit(f"unknown candidate {name!r}; see the module docstring")
     return dataclasses.replace(base, recipe=f"selection-{name}", model=model, render=render, optim=optim)
