@@ -6,7 +6,7 @@ from ocplace.experiments.experiment import DatasetSizes, EvalPlan, Experiment, M
 from ocplace.models import no_pretrain_config, offline_recipes
 from ocplace.models.baselines.cliport_config import CliportConfig
 from ocplace.models.baselines.grid_config import GridConfig
-from ocplace.train.config import TrainConfig
+from ocplace.train import config as ours
 from ocplace.train.recipes import (
     CliportRecipe,
     GridsRecipe,
@@ -26,7 +26,9 @@ def get_config() -> Experiment:
         dataset=DatasetSizes(train_scenes=2000, test_scenes=400, physical_scenes=100, seed=0),
         backbone=offline_recipes.default_config(),  # what `load_backbone("offline")` loads
         recipes=MethodRecipes(
-            ours=TrainConfig(),  # the paper's budget: 200K steps at batch 1
+            # The paper's budget (200K steps at batch 1) with rule A's adapters; beside it the paper's adapters.
+            ours=ours.default_config(),
+            ours_paper=ours.paper_config(),
             no_llm=NoLlmTrainConfig(),
             no_pretrain=NoPretrainRecipe(no_pretrain_config.default_config(), NoPretrainTrainConfig()),
             # The paper's budget for the adapters: 200K steps at batch 1, warm-up then cosine decay.

@@ -25,7 +25,8 @@ def get_config() -> Experiment:
         dataset=DatasetSizes(train_scenes=12, test_scenes=8, physical_scenes=2, seed=0),
         backbone=offline_recipes.smoke_config(),  # a tiny tower, four objects, two scenes, a few steps
         recipes=MethodRecipes(
-            ours=ours.smoke_config(),
+            ours=ours.chosen_adapters(ours.smoke_config()),
+            ours_paper=ours.smoke_config(),
             no_llm=NoLlmTrainConfig(
                 steps=120,
                 batch_size=8,

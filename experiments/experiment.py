@@ -51,7 +51,7 @@ _SCENE_COUNTS = ("train_scenes", "test_scenes")
 # a value given here would be overwritten, so `--set` and `Experiment.validate` refuse one.
 RUN_KEYS = {
     f"recipes.{recipe}.{field}": source
-    for recipe in ("ours", "no_llm", "no_pretrain.train")
+    for recipe in ("ours", "ours_paper", "no_llm", "no_pretrain.train")
     for field, source in (
         ("seed", "the experiment's `seed` (and `evaluation.seeds` for repeats)"),
         ("fraction", "`evaluation.fractions`"),
@@ -76,6 +76,7 @@ class MethodRecipes:
     the `Recipe` of that method's module in `ocplace.methods` (imported from `train/`, where it is light)."""
 
     ours: TrainConfig
+    ours_paper: TrainConfig  # the paper's adapters, beside Ours' chosen ones
     no_llm: NoLlmTrainConfig
     no_pretrain: NoPretrainRecipe
     grids: GridsRecipe
@@ -89,6 +90,7 @@ class MethodRecipes:
         """What each recipe's own `validate` refuses, named by the recipe's key."""
         checks = {
             "ours": self.ours.validate,
+            "ours_paper": self.ours_paper.validate,
             "no_llm": self.no_llm.validate,
             "no_pretrain.train": self.no_pretrain.train.validate,
             "grids.schedule": self.grids.schedule.validate,

@@ -12,6 +12,7 @@ from ocplace.methods.api import LoadContext, MethodSpec
 # One module per row of Table I. The order is the order of `all`, of runs and of results.json's evaluations.
 METHOD_MODULES: tuple[str, ...] = (
     "ocplace.methods.ours",
+    "ocplace.methods.ours_paper",
     "ocplace.methods.no_adapter",
     "ocplace.methods.grids",
     "ocplace.methods.cliport",

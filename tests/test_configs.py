@@ -15,6 +15,7 @@ def test_each_experiment_is_named_after_its_scale_and_its_recipes_are_valid(name
     recipes = experiment.recipes
     trainings = (
         recipes.ours,
+        recipes.ours_paper,
         recipes.no_llm,
         recipes.no_pretrain.train,
         recipes.grids.schedule,
@@ -33,6 +34,17 @@ def test_ours_recipes_by_scale():
     default, demo, smoke = (configs.get(name).recipes.ours for name in ("default", "demo", "smoke"))
     assert default.steps == 200_000 and default.batch_size == 1
     assert smoke.steps < demo.steps < 200_000
+
+
+@pytest.mark.parametrize("name", list(configs.EXPERIMENTS))
+def test_ours_has_rule_a_adapters_and_the_paper_row_the_papers_at_the_same_budget(name):
+    recipes = configs.get(name).recipes
+    chosen, paper = recipes.ours.adapters, recipes.ours_paper.adapters
+    assert (chosen["normalise"], chosen["residual_ratio"], chosen["text_ratio"]) == (True, 0.1, 0.5)
+    assert (paper["normalise"], paper["residual_ratio"], paper["text_ratio"]) == (False, 0.2, None)
+    assert (recipes.ours_paper.weight_decay, recipes.ours_paper.anchor) == (0.0, 0.0)
+    budget = ("steps", "batch_size", "learning_rate", "warmup_steps")
+    assert [getattr(recipes.ours, f) for f in budget] == [getattr(recipes.ours_paper, f) for f in budget]
 
 
 def test_a_method_finds_its_recipe_by_name():

@@ -18,7 +18,7 @@ from ocplace.models.grounding import GroundingModel
 from ocplace.paths import OLD_RUN_FILES, RUN_FILE, WEIGHTS_FILE
 from ocplace.train import checkpoints
 from ocplace.train.batches import batch_indices, subset_indices
-from ocplace.train.config import TrainConfig, smoke_config
+from ocplace.train.config import TrainConfig, default_config, smoke_config
 from ocplace.train.metrics import MetricsLog, evaluate_features
 from ocplace.train.ours import train_ours as train
 
@@ -290,7 +290,7 @@ def _train_args(*options):
 
 
 def test_train_flags_mirror_every_config_field_and_keep_the_old_names():
-    assert train_command.train_config_from_args(_train_args()) == TrainConfig()
+    assert train_command.train_config_from_args(_train_args()) == default_config()
     assert train_command.train_config_from_args(_train_args("--smoke")) == smoke_config()
     every_field = [
         *("--steps", "7", "--batch-size", "2", "--lr", "0.5", "--warmup-steps", "3", "--seed", "4"),
