@@ -27,6 +27,7 @@ from ocplace.vocabulary import SHAPES, SIZES
 
 POOLS = ("corpus", "task")
 BALANCES = ("class", "group")
+LARGE_MODELS = ("drop", "shrink")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -66,11 +67,18 @@ class RenderConfig:
     # `open` (corpus pool, `open` protocol only): corpus objects keep such colour-category captions, as
     # CLIP's data holds yellow bowls.
     colour_captions: str = "seen"
+    # `drop`: tabletop corpus models only; `shrink` (corpus pool): also the large tier (chairs, beds, cars, ...),
+    # shrunk to tabletop size as every model is (`sim.corpus.build`), for more categories.
+    large_models: str = "drop"
     primitives_per_scene: int = 2  # named primitives dropped with the objects; 0: no primitive classes
     primitive_shapes: tuple[str, ...] = SHAPES
     primitive_widths: tuple[float, ...] = (0.05, 0.075, 0.10)  # m, small, medium and large primitives
     chunk_scenes: int = 50  # scenes per resumable render chunk
     seed: int = 0
+
+    def serial_omitted(self) -> tuple[str, ...]:
+        """`large_models` at its default stays out of the recipe's text, so recipes from before it keep their key."""
+        return ("large_models",) if self.large_models == "drop" else ()
 
     def validate(self) -> list[str]:
         problems = []
@@ -92,6 +100,8 @@ class RenderConfig:
             self.colour_captions == "open" and (self.pool, self.protocol) != ("corpus", "open")
         ):
             problems.append("colour_captions is 'seen', or 'open' with the corpus pool under the open protocol")
+        if self.large_models not in LARGE_MODELS or (self.large_models == "shrink" and self.pool != "corpus"):
+            problems.append(f"large_models is one of {', '.join(LARGE_MODELS)}; 'shrink' needs the corpus pool")
         if not self.colours or not set(self.colours) <= set(COLOUR_TERMS):
             problems.append(f"colours must be among {', '.join(COLOUR_TERMS)}")
         if not 0 <= self.primitives_per_scene <= len(SIZES) * len(self.primitive_shapes) or not set(

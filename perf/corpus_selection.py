@@ -17,6 +17,7 @@ Candidates:
     balanced      within a kind, a category group first, then a class of it (`OptimConfig.balance`)
     colour-open   recoloured corpus objects keep colour-category captions ("a yellow bowl"; `colour_captions`)
     seen-captions the default without them (`colour_captions="seen"`)
+    large         also the corpus' large tier: models over 40 cm (chairs, beds, cars), shrunk (`large_models`)
     before        the recipe of the issue-40 record (13 frozen entries at 128 px, no colour-category captions)
                   with today's held-out categories: the reference reach is measured against
 """
@@ -57,6 +58,8 @@ def candidate_config(base: PretrainConfig, name: str) -> PretrainConfig:
         optim = dataclasses.replace(optim, balance="group")
     elif name == "colour-open":
         render = dataclasses.replace(render, colour_captions="open")
+    elif name == "large":
+        render = dataclasses.replace(render, large_models="shrink")
     elif name == "seen-captions":
         render = dataclasses.replace(render, colour_captions="seen")
     elif name == "before":

@@ -4,6 +4,7 @@ protocols and the validation split. Real catalogues (Debian's package) and hand-
 from __future__ import annotations
 
 import collections
+import dataclasses
 import json
 import logging
 import os
@@ -15,8 +16,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import trimesh
 
-from ocplace.errors import CorpusError
+from ocplace import serial
+from ocplace.errors import CorpusError, TrainingError
 from ocplace.models.offline_recipes import default_config, strict_config
 from ocplace.sim.corpus.build import (
     ATTRIBUTION_FILE,
@@ -324,6 +327,48 @@ def test_a_killed_build_resumes_to_the_same_corpus(tmp_path, own_cache):
     )
     assert fresh.returncode == 0, fresh.stderr
     assert _files(fresh_cache / "corpus") == resumed_files
+
+
+def test_the_large_tier_is_converted_only_when_asked_shrunk_and_kept_after(tmp_path, own_cache):
+    source = tmp_path / "catalogues"
+    source.mkdir()
+    models = {
+        "Small box": _cube("small"),
+        "Big chair": {**_cube("chair"), "size": (60, 55, 95)},
+        "Huge rug": {**_cube("rug"), "size": (300, 200, 1)},  # 0.07 cm thin once shrunk: never usable
+    }
+    _write_catalogue(source / "Rooms.sh3f", models)
+    plain = build_corpus(source, progress=False)
+    status = {m.entry.name: (m.status, m.reason) for m in plain.models}
+    assert list(plain.assets) == ["rooms-001"] and plain.large == frozenset()
+    assert status["Big chair"][0] == "rejected" and "large tier was not asked for" in status["Big chair"][1]
+    assert status["Huge rug"][0] == "rejected" and "too thin" in status["Huge rug"][1]
+    wide = build_corpus(source, progress=False, large=True)
+    assert set(wide.assets) == {"rooms-001", "rooms-002"} and wide.large == {"rooms-002"}
+    chair = wide.assets["rooms-002"]
+    vertices = np.concatenate([trimesh.load(part.mesh, force="mesh").vertices for part in chair.visual_parts])
+    assert np.ptp(vertices, axis=0).max() == pytest.approx(0.22, abs=1e-3)  # 95 cm shrunk to the plate's size
+    again = build_corpus(source, progress=False)  # a plain build keeps what was converted and converts nothing new
+    assert again.large == {"rooms-002"} and load_corpus().large == {"rooms-002"}
+
+
+def test_a_recipe_renders_the_large_tier_only_when_it_asks(corpus, library):
+    from ocplace.sim.corpus.build import Corpus
+    from ocplace.train.pretrain.pool import validation_groups
+
+    groups = validation_groups(corpus, library, default_config().render)
+    tabletop = next(m for m in corpus.models if m.status == "ok" and noun_group(m.asset.human_name) not in groups)
+    held = next(m for m in corpus.models if m.status == "ok" and noun_group(m.asset.human_name) in groups)
+    # The same corpus with one ordinary model and one of a held-out category marked as of the large tier.
+    marked = tuple(dataclasses.replace(m, large=m in (tabletop, held)) for m in corpus.models)
+    wide = Corpus(corpus.root, marked, corpus.assets)
+    drop, shrink = default_config().render, dataclasses.replace(default_config().render, large_models="shrink")
+    assert tabletop.asset.name not in training_pool(library, wide, drop).objects
+    pool = training_pool(library, wide, shrink).objects
+    assert tabletop.asset.name in pool and held.asset.name not in pool
+    with pytest.raises(TrainingError, match="large tier, which is not built"):
+        training_pool(library, corpus, shrink)
+    assert "large_models" not in serial.to_json(drop) and "large_models" in serial.to_json(shrink)
 
 
 def _files(root: Path) -> dict[str, bytes]:

@@ -63,6 +63,7 @@ class CorpusModel:
     reason: str  # why it is not "ok"
     folder: str = ""  # of an "ok" model, relative to the corpus root
     asset: ObjectAsset | None = None
+    large: bool = False  # of the `large` tier: over the tabletop size, shrunk (`SelectionRule.is_large`)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -73,10 +74,16 @@ class Corpus:
     models: tuple[CorpusModel, ...]
     assets: Mapping[str, ObjectAsset]
 
+    @property
+    def large(self) -> frozenset[str]:
+        """The names of the converted models of the `large` tier (a recipe renders them only when it asks)."""
+        return frozenset(m.asset.name for m in self.models if m.status == "ok" and m.large)
+
     def summary(self) -> str:
         counts = {status: sum(m.status == status for m in self.models) for status in ("ok", "rejected", "skipped")}
         return (
-            f"{counts['ok']} models converted ({len({a.human_name for a in self.assets.values()})} names), "
+            f"{counts['ok']} models converted ({len({a.human_name for a in self.assets.values()})} names, "
+            f"{len(self.large)} of the large tier), "
             f"{counts['rejected']} outside the size rule, {counts['skipped']} skipped"
         )
 
@@ -108,10 +115,15 @@ def _reuse(root: Path, folder: str) -> ObjectAsset | None:
 
 
 def build_corpus(
-    source: str | os.PathLike | None = None, config: ConversionConfig = ConversionConfig(), progress: bool = True
+    source: str | os.PathLike | None = None,
+    config: ConversionConfig = ConversionConfig(),
+    progress: bool = True,
+    large: bool = False,
 ) -> Corpus:
     """Converts the selected models of every catalogue in `source_dir(source)` that are not converted yet
-    into `corpus_cache()`, writes the manifest and the attribution file, and returns the corpus.
+    into `corpus_cache()`, writes the manifest and the attribution file, and returns the corpus. `large`:
+    also the models over the tabletop size (`SelectionRule.is_large`), shrunk like every model; without it
+    the ones an earlier build converted are kept, and no new one is converted.
 
     Models that cannot be used (a member outside its folder, a missing texture, a failed load, no
     volume, a truncated archive) are skipped with one warning listing them all; CorpusError when
@@ -135,15 +147,21 @@ def build_corpus(
         models += [CorpusModel(_unread(path, index, name), "skipped", why) for index, name, why in problems]
         for entry in entries:
             reason = config.rule.size_problem(entry)
-            if reason:
+            tier = bool(reason) and config.rule.is_large(entry)
+            if tier and config.rule.large_problem(entry, 100 * config.max_extent_m):
+                reason, tier = config.rule.large_problem(entry, 100 * config.max_extent_m), False
+            if reason and not tier:
                 models.append(CorpusModel(entry, "rejected", reason))
                 continue
             folder = _model_folder(entry, catalogue_hash, config)
             asset = _reuse(root, folder)
-            if asset is None and folder in known_skips:  # the same bytes and settings fail the same way
-                models.append(CorpusModel(entry, "skipped", known_skips[folder], folder))
+            if tier and asset is None and not large:
+                models.append(CorpusModel(entry, "rejected", f"{reason}; the large tier was not asked for"))
                 continue
-            models.append(CorpusModel(entry, "ok" if asset else "todo", "", folder, asset))
+            if asset is None and folder in known_skips:  # the same bytes and settings fail the same way
+                models.append(CorpusModel(entry, "skipped", known_skips[folder], folder, large=tier))
+                continue
+            models.append(CorpusModel(entry, "ok" if asset else "todo", "", folder, asset, large=tier))
             if asset is None:
                 todo.append((len(models) - 1, entry, path, licence, folder))
     die_after = int(os.environ.get(DIE_AFTER_MODELS_ENV, "0"))
@@ -151,7 +169,7 @@ def build_corpus(
         tqdm(todo, desc="corpus", unit="model", disable=not progress), start=1
     ):
         result = convert_model(entry, path, licence, config, root / folder, root / TMP_DIRNAME)
-        models[index] = _outcome(entry, result, folder)
+        models[index] = _outcome(entry, result, folder, models[index].large)
         if count == die_after:
             os.kill(os.getpid(), signal.SIGKILL)
     corpus = _finish(root, source, catalogues, models, config)
@@ -183,15 +201,22 @@ def _unread(path: Path, index: int = 0, name: str = "") -> CatalogueEntry:
     return CatalogueEntry(path.stem, index, name or path.name, "", (0.0, 0.0, 0.0), "", None, "")
 
 
-def _outcome(entry: CatalogueEntry, result: ConversionResult, folder: str) -> CorpusModel:
+def _outcome(entry: CatalogueEntry, result: ConversionResult, folder: str, large: bool) -> CorpusModel:
     if result.status == "ok":
-        return CorpusModel(entry, "ok", "", folder, result.asset)
-    return CorpusModel(entry, "skipped", result.reason, folder)
+        return CorpusModel(entry, "ok", "", folder, result.asset, large)
+    return CorpusModel(entry, "skipped", result.reason, folder, large=large)
 
 
 def _finish(root: Path, source: Path, catalogues: list, models: list[CorpusModel], config) -> Corpus:
     records = [
-        {"key": m.entry.key, "status": m.status, "reason": m.reason, "folder": m.folder, **dataclasses.asdict(m.entry)}
+        {
+            "key": m.entry.key,
+            "status": m.status,
+            "reason": m.reason,
+            "folder": m.folder,
+            "large": m.large,
+            **dataclasses.asdict(m.entry),
+        }
         for m in models
     ]
     manifest = {
@@ -255,7 +280,7 @@ def _model_of(root: Path, record: dict) -> CorpusModel:
     asset = _reuse(root, record["folder"]) if record["status"] == "ok" else None
     if record["status"] == "ok" and asset is None:
         raise ValueError(f"model {record['key']} is incomplete")
-    return CorpusModel(entry, record["status"], record["reason"], record["folder"], asset)
+    return CorpusModel(entry, record["status"], record["reason"], record["folder"], asset, record.get("large", False))
 
 
 def load_corpus() -> Corpus:

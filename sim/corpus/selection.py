@@ -4,7 +4,9 @@ then the two protocols (`open`, `strict`) and the validation split of held-out c
 The rule was fixed from the catalogue's own numbers before any test object was looked at:
 tabletop things (longest side <= 40 cm), not paper-thin (smallest side >= 4 mm: a bank note or a
 ruler is a texture on a sliver), and not heavier than `max_faces` triangles (what the CPU renderer
-draws at the benchmark's pace). `strict` then drops every model whose name holds a noun that names a
+draws at the benchmark's pace). Larger models (chairs, beds, cars: the `large` tier) are converted only
+when a recipe asks for them, shrunk to tabletop size like every model, and kept when still not
+paper-thin. `strict` then drops every model whose name holds a noun that names a
 test object (docs/offline_backbone.md lists the dropped models); `open` keeps them, as CLIP's data
 holds teddy bears and bread while the task's training data does not.
 """
@@ -41,6 +43,21 @@ class SelectionRule:
             return f"longest side {max(sizes):g} cm > {self.max_side_cm:g} cm"
         if min(sizes) < self.min_side_cm:
             return f"smallest side {min(sizes):g} cm < {self.min_side_cm:g} cm (too thin)"
+        return ""
+
+    def is_large(self, entry: CatalogueEntry) -> bool:
+        """Over the tabletop size only: a chair, a bed, a car; converted on request, shrunk like every model."""
+        sizes = entry.size_cm
+        return all(0.0 < s < 1e4 for s in sizes) and max(sizes) > self.max_side_cm
+
+    def large_problem(self, entry: CatalogueEntry, extent_cm: float) -> str:
+        """Why a large model shrunk to a longest side of `extent_cm` is still unusable ("" when it is not)."""
+        sizes = entry.size_cm
+        thinnest = min(sizes) * extent_cm / max(sizes)
+        if thinnest < self.min_side_cm:
+            return (
+                f"smallest side {thinnest:.2g} cm once shrunk to {extent_cm:g} cm < {self.min_side_cm:g} cm (too thin)"
+            )
         return ""
 
     def faces_problem(self, faces: int) -> str:

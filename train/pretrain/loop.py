@@ -391,7 +391,9 @@ def pretrain(
 
 def corpus_of(config: PretrainConfig):
     """The corpus a recipe's pool is drawn from (built into the cache on first use), None for `task`."""
-    return None if config.render.pool == "task" else build_corpus(progress=False)
+    if config.render.pool == "task":
+        return None
+    return build_corpus(progress=False, large=config.render.large_models == "shrink")
 
 
 def _run_metadata(config: PretrainConfig, pool: TrainingPool, bank: CaptionBank) -> dict:

@@ -2,7 +2,10 @@
 
 Two pools (`RenderConfig.pool`):
 - `corpus` (the default, the foundation backbone): the furniture corpus (`sim/corpus/`) under the
-  recipe's protocol, minus the categories held out for validation. No object of the benchmark library
+  recipe's protocol, minus the categories held out for validation; its `large` tier (models over the
+  tabletop size, shrunk) only when the recipe asks (`RenderConfig.large_models`), and never a model of a
+  held-out category. The held-out categories and the validation scenes come from the tabletop models
+  alone, so they are the same with or without the large tier. No object of the benchmark library
   (seen, unseen or unseen_cat) can be in it: the benchmark's training objects reach the model only
   through the adapters, as in the paper.
 - `task` (today's backbone of earlier results): the library's training split.
@@ -49,10 +52,15 @@ def strict_drops(corpus: Corpus, library) -> dict[str, str]:
     return {key: noun for key, noun in drops.items() if noun}
 
 
-def protocol_assets(corpus: Corpus, library, protocol: str) -> tuple[ObjectAsset, ...]:
-    """The corpus under `protocol`: everything (`open`), or without the models `strict_drops` names."""
+def protocol_assets(corpus: Corpus, library, protocol: str, large: bool = False) -> tuple[ObjectAsset, ...]:
+    """The corpus' tabletop models (and its large tier when `large`) under `protocol`: everything (`open`),
+    or without the models `strict_drops` names."""
     dropped = strict_drops(corpus, library) if protocol == "strict" else {}
-    return tuple(asset for key, asset in corpus.assets.items() if key not in dropped)
+    return tuple(
+        asset
+        for key, asset in corpus.assets.items()
+        if key not in dropped and (large or asset.name not in corpus.large)
+    )
 
 
 def validation_groups(corpus: Corpus, library, config: RenderConfig) -> set[str]:
@@ -99,8 +107,17 @@ def training_pool(library, corpus: Corpus | None, config: RenderConfig) -> Train
     else:
         if corpus is None:
             raise TrainingError("a corpus pool needs the corpus; build it with `ocplace corpus build`")
-        held_out = {asset.name for asset in validation_assets(corpus, library, config)}
-        assets = tuple(a for a in protocol_assets(corpus, library, config.protocol) if a.name not in held_out)
+        groups = validation_groups(corpus, library, config)
+        large = config.large_models == "shrink"
+        assets = tuple(
+            a
+            for a in protocol_assets(corpus, library, config.protocol, large)
+            if noun_group(a.human_name) not in groups
+        )
+        if large and not set(corpus.large) & {a.name for a in assets}:
+            raise TrainingError(
+                "the recipe asks for the corpus' large tier, which is not built: build_corpus(large=True)"
+            )
     if config.max_objects > 0:
         assets = assets[: config.max_objects]
     _check_pool(library, corpus, assets, textures, config)
@@ -114,7 +131,10 @@ def _check_pool(library, corpus, assets, textures, config: RenderConfig) -> None
         library_sources = {a.source for a in library.objects.values()}
         leaked += [a.name for a in assets if a.name in library.objects or a.source in library_sources]
         held_out = {a.name for a in validation_assets(corpus, library, config)}
-        leaked += [a.name for a in assets if a.name in held_out]
+        groups = validation_groups(corpus, library, config)
+        leaked += [a.name for a in assets if a.name in held_out or noun_group(a.human_name) in groups]
+        if config.large_models != "shrink":
+            leaked += [a.name for a in assets if a.name in corpus.large]
     leaked += [t for t in textures if library.textures[t].split != "seen"]
     if leaked:
         raise TrainingError(f"objects or textures pretraining may not render are in its pool: {sorted(set(leaked))}")
