@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import itertools
 import logging
 from collections.abc import Sequence
 from pathlib import Path
@@ -51,6 +52,22 @@ def scene_primitives(config: RenderConfig) -> tuple[Primitive, ...]:
     if config.primitives_per_scene == 0:
         return ()
     return primitive_set(config.primitive_shapes, config.primitive_widths)
+
+
+# MuJoCo's renderer holds at most 1,000 materials (and textures) per model: a pool with more visual parts than
+# this (the tabletop corpus has about 600) is rendered from several arenas, scene i from group i mod k, each
+# group a contiguous share of the pool.
+MAX_ARENA_PARTS = 900
+
+
+def arena_groups(pool: TrainingPool) -> list[TrainingPool]:
+    """The pool itself when its visual parts fit one arena, else `k` contiguous groups that each fit."""
+    parts = sum(len(asset.visual_parts) for asset in pool.assets)
+    count = -(-parts // MAX_ARENA_PARTS)
+    if count <= 1:
+        return [pool]
+    bounds = np.linspace(0, len(pool.assets), count + 1).round().astype(int)
+    return [TrainingPool(pool.assets[a:b], pool.textures) for a, b in itertools.pairwise(bounds)]
 
 
 def training_arena(library, pool: TrainingPool, primitives: Sequence[Primitive] = ()):
@@ -272,7 +289,8 @@ def render_all(
     done_scenes = config.scenes - sum(_chunk_scenes(c, config) for c in missing)
     if missing:
         classes = pretraining_classes(library, pool.assets, config)
-        arena = training_arena(library, pool, scene_primitives(config))
+        groups = arena_groups(pool)
+        arenas = [training_arena(library, group, scene_primitives(config)) for group in groups]
         try:
             with tqdm(
                 total=config.scenes, initial=done_scenes, unit="scene", desc="render", disable=not progress
@@ -280,11 +298,13 @@ def render_all(
                 for chunk in missing:
                     parts = []
                     for index in _chunk_scenes_range(chunk, config):
-                        parts.append(render_scene(arena, pool, classes, index, config, model))
+                        group = index % len(groups)
+                        parts.append(render_scene(arenas[group], groups[group], classes, index, config, model))
                         bar.update(1)
                     RenderedImages.concatenate(parts).save(chunk_path(run_dir, chunk))
         finally:
-            arena.close()
+            for arena in arenas:
+                arena.close()
     return RenderedImages.concatenate([RenderedImages.load(chunk_path(run_dir, c)) for c in range(num_chunks)])
 
 
