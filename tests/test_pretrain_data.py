@@ -296,6 +296,27 @@ def test_rendering_builds_only_pool_objects_and_primitives(library, corpus, tmp_
         assert len(set(spec.objects) - set(pool.objects)) == RENDER.primitives_per_scene
 
 
+def test_a_pool_over_the_material_limit_renders_from_groups_that_each_fit(library, corpus, tmp_path):
+    from ocplace.train.pretrain import render
+    from ocplace.train.pretrain.render import arena_groups, render_all
+
+    pool = training_pool(library, corpus, default_config().render)
+    assert arena_groups(pool) == [pool]  # the tabletop corpus fits one arena: its renders are unchanged
+    small = dataclasses.replace(pool, assets=pool.assets[:6])
+    parts = sum(len(asset.visual_parts) for asset in small.assets)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(render, "MAX_ARENA_PARTS", max(len(a.visual_parts) for a in small.assets) + 1)
+        groups = arena_groups(small)
+        assert len(groups) == -(-parts // render.MAX_ARENA_PARTS) > 1
+        assert [a for group in groups for a in group.assets] == list(small.assets)
+        config = dataclasses.replace(RENDER, scenes=len(groups), objects_per_scene=1, primitives_per_scene=0)
+        images = render_all(library, small, tmp_path, config, MODEL, progress=False)
+    names = [asset.name for asset in small.assets]
+    for scene, group in enumerate(groups):  # scene i shows an object of group i (classes 0..N-1: as rendered)
+        labels = images.labels[(images.scenes == scene) & (images.labels < len(names))]
+        assert len(labels) and {names[label] for label in labels} <= set(group.objects)
+
+
 def test_render_knobs_are_validated():
     assert not RENDER.validate() and not default_config().render.validate()
     for bad in (
