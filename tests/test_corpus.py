@@ -353,21 +353,31 @@ def test_the_large_tier_is_converted_only_when_asked_shrunk_and_kept_after(tmp_p
 
 
 def test_a_recipe_renders_the_large_tier_only_when_it_asks(corpus, library):
+    import types
+
     from ocplace.sim.corpus.build import Corpus
     from ocplace.train.pretrain.pool import validation_groups
 
-    groups = validation_groups(corpus, library, default_config().render)
-    tabletop = next(m for m in corpus.models if m.status == "ok" and noun_group(m.asset.human_name) not in groups)
-    held = next(m for m in corpus.models if m.status == "ok" and noun_group(m.asset.human_name) in groups)
-    # The same corpus with one ordinary model and one of a held-out category marked as of the large tier.
-    marked = tuple(dataclasses.replace(m, large=m in (tabletop, held)) for m in corpus.models)
-    wide = Corpus(corpus.root, marked, corpus.assets)
+    # The tabletop corpus (whatever this cache holds of the large tier left out), then the same with two models
+    # marked as of the large tier: one ordinary, one of a held-out category; each shares its head noun with
+    # another model, so the held-out categories stay what they are.
+    models = tuple(m for m in corpus.models if not m.large)
+    assets = types.MappingProxyType({k: a for k, a in corpus.assets.items() if a.name not in corpus.large})
+    plain = Corpus(corpus.root, models, assets)
     drop, shrink = default_config().render, dataclasses.replace(default_config().render, large_models="shrink")
+    groups = validation_groups(plain, library, drop)
+    ok = [m for m in models if m.status == "ok"]
+    nouns = collections.Counter(head_noun(m.asset.human_name) for m in ok)
+    shared = [m for m in ok if nouns[head_noun(m.asset.human_name)] > 1]
+    tabletop = next(m for m in shared if noun_group(m.asset.human_name) not in groups)
+    held = next(m for m in shared if noun_group(m.asset.human_name) in groups)
+    wide = Corpus(corpus.root, tuple(dataclasses.replace(m, large=m in (tabletop, held)) for m in models), assets)
+    assert validation_groups(wide, library, shrink) == groups
     assert tabletop.asset.name not in training_pool(library, wide, drop).objects
     pool = training_pool(library, wide, shrink).objects
     assert tabletop.asset.name in pool and held.asset.name not in pool
-    with pytest.raises(TrainingError, match="large tier, which is not built"):
-        training_pool(library, corpus, shrink)
+    with pytest.raises(TrainingError, match="large tier, and no model of it"):
+        training_pool(library, plain, shrink)
     assert "large_models" not in serial.to_json(drop) and "large_models" in serial.to_json(shrink)
 
 

@@ -292,6 +292,7 @@ def _train_args(*options):
 def test_train_flags_mirror_every_config_field_and_keep_the_old_names():
     assert train_command.train_config_from_args(_train_args()) == default_config()
     assert train_command.train_config_from_args(_train_args("--smoke")) == smoke_config()
+    assert train_command.train_config_from_args(_train_args("--paper-adapters")) == TrainConfig()
     every_field = [
         *("--steps", "7", "--batch-size", "2", "--lr", "0.5", "--warmup-steps", "3", "--seed", "4"),
         *("--fraction", "0.25", "--subset-seed", "5", "--reduction", "8", "--residual-ratio", "0.3"),

@@ -20,6 +20,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     actions = corpus.add_subparsers(dest="action", metavar="ACTION", required=True)
     build = actions.add_parser("build", help="convert the selected models into the cache (a no-op when cached)")
     build.add_argument("--source", type=Path, help="a folder of .sh3f catalogues (default: Debian's package)")
+    build.add_argument(
+        "--large", action="store_true", help="also the models over 40 cm, shrunk (the large tier; a few minutes)"
+    )
     build.set_defaults(func=_build)
     listing = actions.add_parser("list", help="show the corpus under a protocol")
     listing.add_argument("--protocol", choices=PROTOCOLS, default="open")
@@ -38,7 +41,7 @@ def _build(args: argparse.Namespace) -> int:
     from ocplace.paths import corpus_cache
     from ocplace.sim.corpus.build import build_corpus
 
-    corpus = build_corpus(args.source)
+    corpus = build_corpus(args.source, large=args.large)
     print(f"pretraining corpus: {corpus.summary()} in {corpus_cache()}")
     return 0
 

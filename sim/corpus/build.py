@@ -13,6 +13,7 @@ A rerun converts only what is missing, so a build killed at any point resumes wh
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import json
 import logging
@@ -74,7 +75,7 @@ class Corpus:
     models: tuple[CorpusModel, ...]
     assets: Mapping[str, ObjectAsset]
 
-    @property
+    @functools.cached_property
     def large(self) -> frozenset[str]:
         """The names of the converted models of the `large` tier (a recipe renders them only when it asks)."""
         return frozenset(m.asset.name for m in self.models if m.status == "ok" and m.large)

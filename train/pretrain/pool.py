@@ -116,7 +116,8 @@ def training_pool(library, corpus: Corpus | None, config: RenderConfig) -> Train
         )
         if large and not set(corpus.large) & {a.name for a in assets}:
             raise TrainingError(
-                "the recipe asks for the corpus' large tier, which is not built: build_corpus(large=True)"
+                "the recipe asks for the corpus' large tier, and no model of it outside the held-out categories is "
+                "built: run `ocplace corpus build --large`"
             )
     if config.max_objects > 0:
         assets = assets[: config.max_objects]

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import itertools
 import logging
 from collections.abc import Sequence
 from pathlib import Path
@@ -56,18 +55,23 @@ def scene_primitives(config: RenderConfig) -> tuple[Primitive, ...]:
 
 # MuJoCo's renderer holds at most 1,000 materials (and textures) per model: a pool with more visual parts than
 # this (the tabletop corpus has about 600) is rendered from several arenas, scene i from group i mod k, each
-# group a contiguous share of the pool.
+# group a contiguous share of the pool filled up to the limit (a single model over it gets an arena of its own).
 MAX_ARENA_PARTS = 900
 
 
 def arena_groups(pool: TrainingPool) -> list[TrainingPool]:
-    """The pool itself when its visual parts fit one arena, else `k` contiguous groups that each fit."""
-    parts = sum(len(asset.visual_parts) for asset in pool.assets)
-    count = -(-parts // MAX_ARENA_PARTS)
-    if count <= 1:
+    """The pool itself when its visual parts fit one arena, else contiguous groups, each filled up to the limit."""
+    sizes = [len(asset.visual_parts) for asset in pool.assets]
+    if sum(sizes) <= MAX_ARENA_PARTS:
         return [pool]
-    bounds = np.linspace(0, len(pool.assets), count + 1).round().astype(int)
-    return [TrainingPool(pool.assets[a:b], pool.textures) for a, b in itertools.pairwise(bounds)]
+    groups, start, parts = [], 0, 0
+    for index, size in enumerate(sizes):
+        if parts + size > MAX_ARENA_PARTS and index > start:
+            groups.append(TrainingPool(pool.assets[start:index], pool.textures))
+            start, parts = index, 0
+        parts += size
+    groups.append(TrainingPool(pool.assets[start:], pool.textures))
+    return groups
 
 
 def training_arena(library, pool: TrainingPool, primitives: Sequence[Primitive] = ()):
