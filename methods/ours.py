@@ -27,9 +27,17 @@ def train(ctx: TrainContext[Recipe]) -> Path:
     return Path(ctx.out_dir)
 
 
-def load(ctx: LoadContext) -> PolicyMethod:
-    adapters_file = trained_run_weights(ctx.run_dir, "adapters", "ours")
-    return PolicyMethod("ours", policy_of(ctx, adapters_file), ctx.backbone, adapters_file)
+def loader(name: str):
+    """`load` for a method that trains as Ours does, under its own name (`ours`, `ours_paper`)."""
+
+    def load(ctx: LoadContext) -> PolicyMethod:
+        adapters_file = trained_run_weights(ctx.run_dir, "adapters", name)
+        return PolicyMethod(name, policy_of(ctx, adapters_file), ctx.backbone, adapters_file)
+
+    return load
+
+
+load = loader("ours")
 
 
 SPEC: MethodSpec[Recipe] = MethodSpec(

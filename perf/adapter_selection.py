@@ -26,6 +26,7 @@ import math
 from pathlib import Path
 
 import numpy as np
+from selection_scores import standard_error
 
 import ocplace  # noqa: F401  (sets the headless OpenGL default before MuJoCo loads)
 
@@ -77,10 +78,6 @@ def validation_features(backbone, scenes, prompt, info):
     return Features(**arrays, scene_ids=tuple(map(str, ids)), phrases=((),) * len(ids), info=info)
 
 
-def _se(rate: float, count: int) -> float:
-    return math.sqrt(rate * (1 - rate) / max(count, 1))
-
-
 def choose(rows: list[dict]) -> tuple[dict, str]:
     """Rule A (the module docstring): the chosen row and why."""
     best_seen = max(row["dev_seen"] for row in rows)
@@ -90,7 +87,8 @@ def choose(rows: list[dict]) -> tuple[dict, str]:
     margin = (best["reach"] + best["dev_colour"]) - (paper["reach"] + paper["dev_colour"])
     se = math.sqrt(
         sum(
-            _se(row["reach"], row["reach_tuples"]) ** 2 + _se(row["dev_colour"], row["dev_colour_tuples"]) ** 2
+            standard_error(row["reach"], row["reach_tuples"]) ** 2
+            + standard_error(row["dev_colour"], row["dev_colour_tuples"]) ** 2
             for row in (best, paper)
         )
     )
