@@ -8,6 +8,7 @@ placement policy with those adapters.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from pathlib import Path
 
 from ocplace.methods.api import LoadContext, MethodSpec, TrainContext
@@ -27,17 +28,14 @@ def train(ctx: TrainContext[Recipe]) -> Path:
     return Path(ctx.out_dir)
 
 
-def loader(name: str):
-    """`load` for a method that trains as Ours does, under its own name (`ours`, `ours_paper`)."""
-
-    def load(ctx: LoadContext) -> PolicyMethod:
-        adapters_file = trained_run_weights(ctx.run_dir, "adapters", name)
-        return PolicyMethod(name, policy_of(ctx, adapters_file), ctx.backbone, adapters_file)
-
-    return load
+def load_as(name: str, ctx: LoadContext) -> PolicyMethod:
+    """Loads a run of a method that trains as Ours does, under its own name (`ours`, `ours_paper`)."""
+    adapters_file = trained_run_weights(ctx.run_dir, "adapters", name)
+    return PolicyMethod(name, policy_of(ctx, adapters_file), ctx.backbone, adapters_file)
 
 
-load = loader("ours")
+# A partial of a module-level function: specs travel to worker processes by pickle.
+load = functools.partial(load_as, "ours")
 
 
 SPEC: MethodSpec[Recipe] = MethodSpec(

@@ -4,6 +4,8 @@ training and loading as Ours (`methods/ours.py`); only the recipe differs."""
 
 from __future__ import annotations
 
+import functools
+
 from ocplace.methods import ours
 from ocplace.methods.api import MethodSpec
 from ocplace.methods.policy_method import prepare_train_features
@@ -12,7 +14,7 @@ from ocplace.train.config import TrainConfig as Recipe
 SPEC: MethodSpec[Recipe] = MethodSpec(
     "ours_paper",
     "Ours, paper's adapters",
-    load=ours.loader("ours_paper"),
+    load=functools.partial(ours.load_as, "ours_paper"),
     train=ours.train,
     prepare=prepare_train_features,
     shares_test_features=True,
