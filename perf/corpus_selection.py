@@ -18,6 +18,7 @@ Candidates:
     colour-open   recoloured corpus objects keep colour-category captions ("a yellow bowl"; `colour_captions`)
     seen-captions the default without them (`colour_captions="seen"`)
     large         also the corpus' large tier: models over 40 cm (chairs, beds, cars), shrunk (`large_models`)
+    cutouts       also Tux Paint's stamps as thin textured cut-outs (`cutouts`; `sim/corpus/stamps.py`)
     before        the recipe of the issue-40 record (13 frozen entries at 128 px, no colour-category captions)
                   with today's held-out categories: the reference reach is measured against
 """
@@ -60,6 +61,8 @@ def candidate_config(base: PretrainConfig, name: str) -> PretrainConfig:
         render = dataclasses.replace(render, colour_captions="open")
     elif name == "large":
         render = dataclasses.replace(render, large_models="shrink")
+    elif name == "cutouts":
+        render = dataclasses.replace(render, cutouts="stamps")
     elif name == "seen-captions":
         render = dataclasses.replace(render, colour_captions="seen")
     elif name == "before":
@@ -100,7 +103,7 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path("corpus_selection.json"))
     args = parser.parse_args()
 
-    library, corpus = load_library(), build_corpus(progress=False)
+    library, corpus = load_library(), build_corpus(progress=False, cutouts="cutouts" in args.candidates)
     default = default_config()
     base = dataclasses.replace(
         default,

@@ -38,6 +38,7 @@ from ocplace.sim.corpus.selection import (
     names_test_noun,
     noun_group,
 )
+from ocplace.sim.corpus.stamps import STAMPS_ENV
 from ocplace.sim.library.types import CORPUS_SPLIT
 from ocplace.train.pretrain.pool import strict_drops, training_pool, validation_assets
 
@@ -122,6 +123,7 @@ def _listing(directory: Path) -> dict[str, int]:
 def own_cache(tmp_path, monkeypatch):
     cache = tmp_path / "cache"
     monkeypatch.setenv("OCPLACE_CACHE", str(cache))
+    monkeypatch.setenv(STAMPS_ENV, str(tmp_path / "no-stamps"))  # the catalogues under test only
     return cache
 
 

@@ -23,6 +23,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     build.add_argument(
         "--large", action="store_true", help="also the models over 40 cm, shrunk (the large tier; a few minutes)"
     )
+    build.add_argument(
+        "--cutouts",
+        action="store_true",
+        help="also Tux Paint's stamps as cut-outs (apt package tuxpaint-stamps-default; about a minute)",
+    )
+    build.add_argument("--stamps", type=Path, help="a folder laid out like Tux Paint's stamps (default: Debian's)")
     build.set_defaults(func=_build)
     listing = actions.add_parser("list", help="show the corpus under a protocol")
     listing.add_argument("--protocol", choices=PROTOCOLS, default="open")
@@ -41,7 +47,7 @@ def _build(args: argparse.Namespace) -> int:
     from ocplace.paths import corpus_cache
     from ocplace.sim.corpus.build import build_corpus
 
-    corpus = build_corpus(args.source, large=args.large)
+    corpus = build_corpus(args.source, large=args.large, cutouts=args.cutouts, stamps=args.stamps)
     print(f"pretraining corpus: {corpus.summary()} in {corpus_cache()}")
     return 0
 

@@ -30,6 +30,13 @@ from ocplace.errors import CorpusError
 from ocplace.paths import corpus_cache, file_sha256, inside, remove_abandoned_tmp, write_text_atomic
 from ocplace.sim.corpus.catalogue import CatalogueEntry, read_entries
 from ocplace.sim.corpus.convert import ConversionConfig, ConversionResult, convert_model, read_converted
+from ocplace.sim.corpus.stamps import (
+    STAMPS_CATALOGUE,
+    STAMPS_INSTALL_HINT,
+    STAMPS_LICENCE,
+    read_stamps,
+    stamps_dir,
+)
 from ocplace.sim.library.types import ObjectAsset
 
 DEFAULT_SOURCE = Path("/usr/share/sweethome3d/furniture")
@@ -65,6 +72,7 @@ class CorpusModel:
     folder: str = ""  # of an "ok" model, relative to the corpus root
     asset: ObjectAsset | None = None
     large: bool = False  # of the `large` tier: over the tabletop size, shrunk (`SelectionRule.is_large`)
+    cutout: bool = False  # a stamp as a cut-out (`sim.corpus.stamps`): rendered only when a recipe asks
 
 
 @dataclasses.dataclass(frozen=True)
@@ -80,11 +88,16 @@ class Corpus:
         """The names of the converted models of the `large` tier (a recipe renders them only when it asks)."""
         return frozenset(m.asset.name for m in self.models if m.status == "ok" and m.large)
 
+    @functools.cached_property
+    def cutouts(self) -> frozenset[str]:
+        """The names of the converted cut-outs (a recipe renders them only when it asks)."""
+        return frozenset(m.asset.name for m in self.models if m.status == "ok" and m.cutout)
+
     def summary(self) -> str:
         counts = {status: sum(m.status == status for m in self.models) for status in ("ok", "rejected", "skipped")}
         return (
             f"{counts['ok']} models converted ({len({a.human_name for a in self.assets.values()})} names, "
-            f"{len(self.large)} of the large tier), "
+            f"{len(self.large)} of the large tier, {len(self.cutouts)} cut-outs), "
             f"{counts['rejected']} outside the size rule, {counts['skipped']} skipped"
         )
 
@@ -120,15 +133,19 @@ def build_corpus(
     config: ConversionConfig = ConversionConfig(),
     progress: bool = True,
     large: bool = False,
+    cutouts: bool = False,
+    stamps: str | os.PathLike | None = None,
 ) -> Corpus:
     """Converts the selected models of every catalogue in `source_dir(source)` that are not converted yet
     into `corpus_cache()`, writes the manifest and the attribution file, and returns the corpus. `large`:
     also the models over the tabletop size (`SelectionRule.is_large`), shrunk like every model; without it
-    the ones an earlier build converted are kept, and no new one is converted.
+    the ones an earlier build converted are kept, and no new one is converted. `cutouts`: also the stamps of
+    `stamps_dir(stamps)` as cut-outs, the same way; missing stamps are a warning naming their package.
 
     Models that cannot be used (a member outside its folder, a missing texture, a failed load, no
-    volume, a truncated archive) are skipped with one warning listing them all; CorpusError when
-    nothing usable is left or no catalogue is found.
+    volume, a truncated archive; a stamp without alpha or description) are skipped with one warning listing
+    them all; CorpusError when nothing usable is left, no catalogue is found, or cut-outs were asked for and no
+    stamp is usable.
     """
     source = source_dir(source)
     root = corpus_cache()
@@ -154,23 +171,19 @@ def build_corpus(
             if reason and not tier:
                 models.append(CorpusModel(entry, "rejected", reason))
                 continue
-            folder = _model_folder(entry, catalogue_hash, config)
-            asset = _reuse(root, folder)
-            if tier and asset is None and not large:
-                models.append(CorpusModel(entry, "rejected", f"{reason}; the large tier was not asked for"))
-                continue
-            if asset is None and folder in known_skips:  # the same bytes and settings fail the same way
-                models.append(CorpusModel(entry, "skipped", known_skips[folder], folder, large=tier))
-                continue
-            models.append(CorpusModel(entry, "ok" if asset else "todo", "", folder, asset, large=tier))
-            if asset is None:
-                todo.append((len(models) - 1, entry, path, licence, folder))
+            model, task = _plan(entry, catalogue_hash, path, licence, config, root, known_skips, large, large=tier)
+            models.append(model)
+            if task:
+                todo.append((len(models) - 1, *task))
+    stamp_record = _plan_stamps(stamps_dir(stamps), cutouts, config, root, known_skips, models, todo)
+    if stamp_record:
+        catalogues.append(stamp_record)
     die_after = int(os.environ.get(DIE_AFTER_MODELS_ENV, "0"))
     for count, (index, entry, path, licence, folder) in enumerate(
         tqdm(todo, desc="corpus", unit="model", disable=not progress), start=1
     ):
         result = convert_model(entry, path, licence, config, root / folder, root / TMP_DIRNAME)
-        models[index] = _outcome(entry, result, folder, models[index].large)
+        models[index] = _outcome(result, models[index])
         if count == die_after:
             os.kill(os.getpid(), signal.SIGKILL)
     corpus = _finish(root, source, catalogues, models, config)
@@ -185,7 +198,53 @@ def build_corpus(
         )
     if not corpus.assets:
         raise CorpusError(f"no usable model in the catalogues of {source}: {corpus.summary()}")
+    if cutouts and stamp_record and not corpus.cutouts:
+        raise CorpusError(f"no usable stamp in {stamp_record['file']}: every one was skipped (see the warning above)")
     return corpus
+
+
+def _plan(entry, digest: str, path: Path, licence: str, config, root: Path, known_skips, asked: bool, **tier):
+    """The model `entry` is now (reused, skipped before, or to convert: then also its conversion task).
+    `tier`: `large=` or `cutout=`, the tier the model is of; `asked`: whether new ones of that tier convert."""
+    folder = _model_folder(entry, digest, config)
+    asset = _reuse(root, folder)
+    if any(tier.values()) and asset is None and not asked:
+        name = "large tier" if tier.get("large") else "cut-out tier"
+        return CorpusModel(entry, "rejected", f"{_size_reason(entry, config)}the {name} was not asked for"), None
+    if asset is None and folder in known_skips:  # the same bytes and settings fail the same way
+        return CorpusModel(entry, "skipped", known_skips[folder], folder, **tier), None
+    model = CorpusModel(entry, "ok" if asset else "todo", "", folder, asset, **tier)
+    return model, (None if asset else (entry, path, licence, folder))
+
+
+def _size_reason(entry: CatalogueEntry, config) -> str:
+    reason = config.rule.size_problem(entry) if entry.catalogue != STAMPS_CATALOGUE else ""
+    return f"{reason}; " if reason else ""
+
+
+def _plan_stamps(source: Path, asked: bool, config, root: Path, known_skips, models: list, todo: list) -> dict | None:
+    """Adds the stamps of `source` to `models` (and what to convert to `todo`); their catalogue record, or None
+    when there are no stamps (a warning naming the package when cut-outs were asked for)."""
+    if not source.is_dir():
+        if asked:
+            log.warning("corpus: no stamps in %s, so no cut-outs; install them: %s", source, STAMPS_INSTALL_HINT)
+        return None
+    entries, problems = read_stamps(source)
+    for relative, why in problems:
+        models.append(
+            CorpusModel(
+                CatalogueEntry(STAMPS_CATALOGUE, 0, relative, "", (0.0,) * 3, relative, None, ""), "skipped", why
+            )
+        )
+    for entry in entries:
+        image = source / entry.model
+        model, task = _plan(
+            entry, file_sha256(image), image, STAMPS_LICENCE, config, root, known_skips, asked, cutout=True
+        )
+        models.append(model)
+        if task:
+            todo.append((len(models) - 1, *task))
+    return {"file": f"stamps:{source}", "licence": STAMPS_LICENCE, "models": len(entries)}
 
 
 def _previous_skips(root: Path) -> dict[str, str]:
@@ -202,10 +261,10 @@ def _unread(path: Path, index: int = 0, name: str = "") -> CatalogueEntry:
     return CatalogueEntry(path.stem, index, name or path.name, "", (0.0, 0.0, 0.0), "", None, "")
 
 
-def _outcome(entry: CatalogueEntry, result: ConversionResult, folder: str, large: bool) -> CorpusModel:
+def _outcome(result: ConversionResult, planned: CorpusModel) -> CorpusModel:
     if result.status == "ok":
-        return CorpusModel(entry, "ok", "", folder, result.asset, large)
-    return CorpusModel(entry, "skipped", result.reason, folder, large=large)
+        return dataclasses.replace(planned, status="ok", asset=result.asset)
+    return dataclasses.replace(planned, status="skipped", reason=result.reason)
 
 
 def _finish(root: Path, source: Path, catalogues: list, models: list[CorpusModel], config) -> Corpus:
@@ -216,6 +275,7 @@ def _finish(root: Path, source: Path, catalogues: list, models: list[CorpusModel
             "reason": m.reason,
             "folder": m.folder,
             "large": m.large,
+            "cutout": m.cutout,
             **dataclasses.asdict(m.entry),
         }
         for m in models
@@ -255,7 +315,9 @@ def attribution(models: list[CorpusModel], catalogues: list[dict]) -> str:
         "",
         "Converted (rescaled, re-oriented, textures resized) from Debian's `sweethome3d-furniture`",
         "catalogues, http://www.sweethome3d.com/importModels.jsp; licences as in",
-        "/usr/share/doc/sweethome3d-furniture/copyright.",
+        "/usr/share/doc/sweethome3d-furniture/copyright. Cut-outs (catalogue `tuxpaint`): Tux Paint's stamps,",
+        "Debian's `tuxpaint-stamps-default`, images extruded into thin prisms; GPL-2.0-or-later, see",
+        "/usr/share/doc/tuxpaint-stamps-default/copyright.",
         "",
         "| catalogue | licence |",
         "| --- | --- |",
@@ -281,7 +343,15 @@ def _model_of(root: Path, record: dict) -> CorpusModel:
     asset = _reuse(root, record["folder"]) if record["status"] == "ok" else None
     if record["status"] == "ok" and asset is None:
         raise ValueError(f"model {record['key']} is incomplete")
-    return CorpusModel(entry, record["status"], record["reason"], record["folder"], asset, record.get("large", False))
+    return CorpusModel(
+        entry,
+        record["status"],
+        record["reason"],
+        record["folder"],
+        asset,
+        record.get("large", False),
+        record.get("cutout", False),
+    )
 
 
 def load_corpus() -> Corpus:

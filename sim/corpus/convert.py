@@ -1,4 +1,5 @@
-"""Converting one catalogue model into an arena object: one visual mesh per material, one convex hull.
+"""Converting one catalogue model (or one stamp, `sim.corpus.cutout`) into an arena object: one visual mesh per
+material, one convex hull.
 
 Sweet Home 3D models are Y-up, in arbitrary units; the catalogue gives the size the model is
 stretched to (width along x, height along y, depth along z, after `modelRotation`). We do the same,
@@ -22,10 +23,13 @@ from pathlib import Path
 import mujoco
 import numpy as np
 import trimesh
+from PIL import Image
 
 from ocplace.errors import CorpusError
+from ocplace.sim.corpus import cutout
 from ocplace.sim.corpus.catalogue import CatalogueEntry, member_name
 from ocplace.sim.corpus.selection import SelectionRule, head_noun
+from ocplace.sim.corpus.stamps import STAMPS_CATALOGUE
 from ocplace.sim.library import processing
 from ocplace.sim.library.meshes import TexturedMesh
 from ocplace.sim.library.records import ASSET_FILE, asset_from_json, asset_to_json
@@ -187,7 +191,7 @@ def _standalone_mjcf(asset_parts: list[VisualPart], hull: Path, mass: float) -> 
     )
 
 
-def _write_object(
+def _write_catalogue_model(
     directory: Path, entry: CatalogueEntry, archive_path: Path, licence: str, config: ConversionConfig
 ) -> ObjectAsset:
     with zipfile.ZipFile(archive_path) as archive:
@@ -197,6 +201,26 @@ def _write_object(
     if problem:
         raise CorpusError(problem)
     parts = _decimated(_transform(parts, entry, config), config.max_faces)
+    return write_object(directory, parts, entry, f"sweethome3d:{entry.catalogue}:{entry.model}", licence, config)
+
+
+def _write_stamp(directory: Path, entry: CatalogueEntry, image_path: Path, licence: str, config: ConversionConfig):
+    try:
+        with Image.open(image_path) as image:
+            rgb, mask = cutout.mask_of(image)
+    except (OSError, ValueError, Image.DecompressionBombError) as error:
+        raise CorpusError(f"cannot read the image: {type(error).__name__}: {error}") from error
+    texture = cutout.filled_texture(rgb, mask)
+    extent, _, thickness = (s / 100.0 for s in entry.size_cm)
+    part = cutout.cutout_mesh(mask, texture, min(extent, config.max_extent_m), thickness)
+    return write_object(directory, [part], entry, f"{entry.catalogue}:{entry.model}", licence, config)
+
+
+def write_object(
+    directory: Path, parts: list[TexturedMesh], entry: CatalogueEntry, source: str, licence: str, config
+) -> ObjectAsset:
+    """Writes `parts` (in the object frame) as one arena object in `directory`: a mesh and texture per part, the
+    convex hull, the standalone MJCF (compiled as a check); CorpusError when MuJoCo cannot use them."""
     visual = []
     for k, part in enumerate(parts):
         mesh_path = directory / f"part_{k:02d}.obj"
@@ -228,7 +252,7 @@ def _write_object(
         synonyms=(),
         category=head_noun(entry.name),
         split=CORPUS_SPLIT,
-        source=f"sweethome3d:{entry.catalogue}:{entry.model}",
+        source=source,
         licence=licence,
         directory=directory,
         visual_mesh=visual[0].mesh,
@@ -244,14 +268,16 @@ def _write_object(
 
 
 def convert_model(
-    entry: CatalogueEntry, archive: Path, licence: str, config: ConversionConfig, target: Path, tmp_root: Path
+    entry: CatalogueEntry, source: Path, licence: str, config: ConversionConfig, target: Path, tmp_root: Path
 ) -> ConversionResult:
-    """Converts into a private temp folder, then renames it onto `target` in one step (a kill leaves at
-    most a temp folder, which no reader uses; `asset.json` is written last)."""
+    """Converts `entry` of `source` (a catalogue archive, or a stamp image for `STAMPS_CATALOGUE`) into a private
+    temp folder, then renames it onto `target` in one step (a kill leaves at most a temp folder, which no reader
+    uses; `asset.json` is written last)."""
+    write = _write_stamp if entry.catalogue == STAMPS_CATALOGUE else _write_catalogue_model
     tmp_root.mkdir(parents=True, exist_ok=True)
     work = Path(tempfile.mkdtemp(prefix=f"{target.name}.{os.getpid()}.", dir=tmp_root))
     try:
-        asset = _write_object(work, entry, archive, licence, config)
+        asset = write(work, entry, source, licence, config)
         (work / ASSET_FILE).write_text(json.dumps(asset_to_json(asset), indent=1) + "\n")
         if target.exists():  # a folder without its asset.json is partial: never used
             shutil.rmtree(target)

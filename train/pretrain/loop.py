@@ -393,7 +393,8 @@ def corpus_of(config: PretrainConfig):
     """The corpus a recipe's pool is drawn from (built into the cache on first use), None for `task`."""
     if config.render.pool == "task":
         return None
-    return build_corpus(progress=False, large=config.render.large_models == "shrink")
+    render = config.render
+    return build_corpus(progress=False, large=render.large_models == "shrink", cutouts=render.cutouts == "stamps")
 
 
 def _run_metadata(config: PretrainConfig, pool: TrainingPool, bank: CaptionBank) -> dict:
