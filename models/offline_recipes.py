@@ -22,13 +22,13 @@ from ocplace.models import offline_config
 from ocplace.models.offline_config import OfflineConfig
 from ocplace.paths import backbones_cache
 from ocplace.sim.colour_terms import BASIC_COLOURS, COLOUR_TERMS
+from ocplace.sim.corpus.cutout_sources import CUTOUT_SOURCES
 from ocplace.sim.corpus.selection import PROTOCOLS
 from ocplace.vocabulary import SHAPES, SIZES
 
 POOLS = ("corpus", "task")
 BALANCES = ("class", "group")
 LARGE_MODELS = ("drop", "shrink")
-CUTOUTS = ("drop", "stamps")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -71,9 +71,9 @@ class RenderConfig:
     # `drop`: tabletop corpus models only; `shrink` (corpus pool): also the large tier (chairs, beds, cars, ...),
     # shrunk to tabletop size as every model is (`sim.corpus.build`), for more categories.
     large_models: str = "drop"
-    # `drop`: no cut-outs; `stamps` (corpus pool): also Tux Paint's stamps as thin textured cut-outs
-    # (`sim.corpus.stamps`), for more named categories.
-    cutouts: str = "drop"
+    # Cut-out sources (corpus pool) whose images are rendered as thin textured cut-outs, for more named
+    # categories: "stamps" (Tux Paint's), "emoji" (Fluent Emoji 3-D); () none.
+    cutouts: tuple[str, ...] = ()
     primitives_per_scene: int = 2  # named primitives dropped with the objects; 0: no primitive classes
     primitive_shapes: tuple[str, ...] = SHAPES
     primitive_widths: tuple[float, ...] = (0.05, 0.075, 0.10)  # m, small, medium and large primitives
@@ -83,7 +83,7 @@ class RenderConfig:
     def serial_omitted(self) -> tuple[str, ...]:
         """`large_models` and `cutouts` at their defaults stay out of the recipe's text, so recipes from before them
         keep their key."""
-        return tuple(name for name in ("large_models", "cutouts") if getattr(self, name) == "drop")
+        return tuple(name for name in ("large_models", "cutouts") if getattr(self, name) in ("drop", ()))
 
     def validate(self) -> list[str]:
         problems = []
@@ -107,8 +107,8 @@ class RenderConfig:
             problems.append("colour_captions is 'seen', or 'open' with the corpus pool under the open protocol")
         if self.large_models not in LARGE_MODELS or (self.large_models == "shrink" and self.pool != "corpus"):
             problems.append(f"large_models is one of {', '.join(LARGE_MODELS)}; 'shrink' needs the corpus pool")
-        if self.cutouts not in CUTOUTS or (self.cutouts == "stamps" and self.pool != "corpus"):
-            problems.append(f"cutouts is one of {', '.join(CUTOUTS)}; 'stamps' needs the corpus pool")
+        if not set(self.cutouts) <= set(CUTOUT_SOURCES) or (self.cutouts and self.pool != "corpus"):
+            problems.append(f"cutouts are among {', '.join(CUTOUT_SOURCES)}, and need the corpus pool")
         if not self.colours or not set(self.colours) <= set(COLOUR_TERMS):
             problems.append(f"colours must be among {', '.join(COLOUR_TERMS)}")
         if not 0 <= self.primitives_per_scene <= len(SIZES) * len(self.primitive_shapes) or not set(

@@ -19,6 +19,7 @@ Candidates:
     seen-captions the default without them (`colour_captions="seen"`)
     large         also the corpus' large tier: models over 40 cm (chairs, beds, cars), shrunk (`large_models`)
     cutouts       also Tux Paint's stamps as thin textured cut-outs (`cutouts`; `sim/corpus/stamps.py`)
+    emoji         also Fluent Emoji 3-D as thin textured cut-outs (`cutouts`; `sim/corpus/emoji.py`)
     before        the recipe of the issue-40 record (13 frozen entries at 128 px, no colour-category captions)
                   with today's held-out categories: the reference reach is measured against
 """
@@ -62,7 +63,9 @@ def candidate_config(base: PretrainConfig, name: str) -> PretrainConfig:
     elif name == "large":
         render = dataclasses.replace(render, large_models="shrink")
     elif name == "cutouts":
-        render = dataclasses.replace(render, cutouts="stamps")
+        render = dataclasses.replace(render, cutouts=("stamps",))
+    elif name == "emoji":
+        render = dataclasses.replace(render, cutouts=("emoji",))
     elif name == "seen-captions":
         render = dataclasses.replace(render, colour_captions="seen")
     elif name == "before":
@@ -71,6 +74,11 @@ def candidate_config(base: PretrainConfig, name: str) -> PretrainConfig:
     elif name != "base":
         raise SystemExit(f"unknown candidate {name!r}; see the module docstring")
     return dataclasses.replace(base, recipe=f"selection-{name}", model=model, render=render, optim=optim)
+
+
+def cutouts_of(candidates: list[str]) -> tuple[str, ...]:
+    """The cut-out sources the candidates render (converted before any of them pretrains)."""
+    return tuple(source for name, source in (("cutouts", "stamps"), ("emoji", "emoji")) if name in candidates)
 
 
 def verdicts(report: dict) -> dict[str, str]:
@@ -103,7 +111,7 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path("corpus_selection.json"))
     args = parser.parse_args()
 
-    library, corpus = load_library(), build_corpus(progress=False, cutouts="cutouts" in args.candidates)
+    library, corpus = load_library(), build_corpus(progress=False, cutouts=cutouts_of(args.candidates))
     default = default_config()
     base = dataclasses.replace(
         default,

@@ -30,6 +30,7 @@ from ocplace.sim.corpus.build import (
     load_corpus,
 )
 from ocplace.sim.corpus.catalogue import member_name, parse_properties
+from ocplace.sim.corpus.emoji import EMOJI_ENV
 from ocplace.sim.corpus.selection import (
     SelectionRule,
     eligible_groups,
@@ -124,6 +125,7 @@ def own_cache(tmp_path, monkeypatch):
     cache = tmp_path / "cache"
     monkeypatch.setenv("OCPLACE_CACHE", str(cache))
     monkeypatch.setenv(STAMPS_ENV, str(tmp_path / "no-stamps"))  # the catalogues under test only
+    monkeypatch.setenv(EMOJI_ENV, str(tmp_path / "no-emoji"))
     return cache
 
 
@@ -382,7 +384,7 @@ def test_a_recipe_renders_the_large_tier_only_when_it_asks(corpus, library):
     assert tabletop.asset.name not in training_pool(library, wide, drop).objects
     pool = training_pool(library, wide, shrink).objects
     assert tabletop.asset.name in pool and held.asset.name not in pool
-    with pytest.raises(TrainingError, match="large tier, and no model of it"):
+    with pytest.raises(TrainingError, match="large tier of the corpus, and no model of it"):
         training_pool(library, plain, shrink)
     assert "large_models" not in serial.to_json(drop) and "large_models" in serial.to_json(shrink)
 

@@ -1,5 +1,6 @@
-"""Cut-outs: named 2-D images (Tux Paint's stamps) as thin textured prisms of the pretraining corpus: the mesh,
-reading stamps, bad input, the tier a recipe asks for, and the real package when it is installed."""
+"""Cut-outs: named 2-D images (Tux Paint's stamps, Fluent Emoji) as thin textured prisms of the pretraining
+corpus: the mesh, reading each source, fetching the emoji, bad input, the sources a recipe asks for, and the
+real stamps when they are installed."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ import dataclasses
 import logging
 import os
 import shutil
+import tarfile
 import zipfile
 from pathlib import Path
 
@@ -17,10 +19,11 @@ import trimesh
 from PIL import Image
 
 from ocplace import serial
-from ocplace.errors import CorpusError, TrainingError
+from ocplace.errors import CorpusError, MissingAssetPackage, TrainingError
 from ocplace.models.offline_recipes import default_config
 from ocplace.sim.corpus import cutout
 from ocplace.sim.corpus.build import ATTRIBUTION_FILE, build_corpus, load_corpus
+from ocplace.sim.corpus.emoji import EMOJI_ENV, EMOJI_INSTALL_HINT, EMOJI_TARBALL, emoji_name, fetch_emoji
 from ocplace.sim.corpus.selection import is_validation_group
 from ocplace.sim.corpus.stamps import DEFAULT_STAMPS, STAMPS_ENV, STAMPS_INSTALL_HINT, stamp_name
 from ocplace.train.pretrain.pool import strict_drops, training_pool, validation_groups
@@ -91,10 +94,19 @@ def test_a_stamp_is_named_by_its_description_or_its_file():
     assert stamp_name("", "025quarter") == "quarter"
 
 
+def test_an_emoji_is_named_by_unicode_and_kept_only_when_it_is_a_thing():
+    assert emoji_name("1f34e") == "red apple" and emoji_name("1f4a1") == "electric light bulb"
+    assert emoji_name("1F9F8") == "teddy bear" and emoji_name("2615") == ""  # hot beverage: outside the blocks
+    for stem in ("1f600", "1f44d", "1f1fa-1f1f8", "1f468-200d-1f373", "2764-fe0f", "1f7e5", "zz", ""):
+        assert emoji_name(stem) == "", stem  # a face, a hand, a flag, a sequence, a heart, a square, no number
+
+
 @pytest.fixture
 def own_cache(tmp_path, monkeypatch):
     cache = tmp_path / "cache"
     monkeypatch.setenv("OCPLACE_CACHE", str(cache))
+    monkeypatch.setenv(STAMPS_ENV, str(tmp_path / "no-stamps"))
+    monkeypatch.setenv(EMOJI_ENV, str(tmp_path / "no-emoji"))
     return cache
 
 
@@ -135,15 +147,20 @@ def test_stamps_convert_only_when_asked_and_bad_ones_are_skipped_with_one_warnin
     shutil.copy(stamps / "household" / "ring.txt", stamps / "food" / "escape.txt")
     before = _listing(tmp_path)
 
-    plain = build_corpus(source, progress=False, stamps=stamps)
-    assert plain.cutouts == frozenset() and list(plain.assets) == ["boxes-001"]
-    assert "cut-out tier was not asked for" in {m.entry.name: m.reason for m in plain.models}["ring"]
+    folders = {"stamps": stamps}
+    plain = build_corpus(source, progress=False, cutout_folders=folders)
+    assert not plain.cutouts and list(plain.assets) == ["boxes-001"]
+    assert "cut-out source stamps was not asked for" in {m.entry.name: m.reason for m in plain.models}["ring"]
     caplog.clear()
     with caplog.at_level(logging.WARNING):
-        corpus = build_corpus(source, progress=False, cutouts=True, stamps=stamps)
+        corpus = build_corpus(source, progress=False, cutouts=("stamps",), cutout_folders=folders)
     assert len(corpus.cutouts) == 1
     (name,) = corpus.cutouts
-    assert corpus.assets[name].human_name == "ring" and corpus.assets[name].source.endswith("household/ring.png")
+    assert (
+        corpus.cutouts[name] == "stamps"
+        and corpus.assets[name].human_name == "ring"
+        and corpus.assets[name].source.endswith("household/ring.png")
+    )
     warnings = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
     assert len(warnings) == 1 and "6 models skipped" in warnings[0]
     for problem in ("no alpha", "alpha mask is empty", "under 32 px", "not UTF-8", "no description", "outside"):
@@ -153,20 +170,61 @@ def test_stamps_convert_only_when_asked_and_bad_ones_are_skipped_with_one_warnin
     model = mujoco.MjModel.from_xml_path(str(ring.mjcf))
     assert model.ntex == 1 and ring.extents[2] == pytest.approx(THICKNESS, abs=1e-6)
     assert {k: v for k, v in _listing(tmp_path).items() if not k.startswith("cache")} == before
-    assert load_corpus().cutouts == {name}
-    assert build_corpus(source, progress=False, stamps=stamps).cutouts == {name}  # kept after
+    assert load_corpus().cutouts == {name: "stamps"}
+    assert build_corpus(source, progress=False, cutout_folders=folders).cutouts == {name: "stamps"}  # kept after
 
 
-def test_missing_stamps_are_a_warning_and_no_usable_stamp_a_typed_error(tmp_path, own_cache, caplog):
+def test_missing_sources_are_a_warning_and_a_source_with_nothing_usable_a_typed_error(
+    tmp_path, own_cache, caplog, monkeypatch
+):
     source, stamps = tmp_path / "catalogues", tmp_path / "stamps"
     _catalogue(source, ["Blue box"])
+    monkeypatch.delenv(EMOJI_ENV)
+    monkeypatch.setenv("PATH", str(tmp_path / "no-programs"))  # no npm to fetch the emoji with
     with caplog.at_level(logging.WARNING):
-        corpus = build_corpus(source, progress=False, cutouts=True, stamps=tmp_path / "absent")
+        corpus = build_corpus(source, progress=False, cutouts=("stamps", "emoji"))
     assert list(corpus.assets) == ["boxes-001"]
-    assert any(STAMPS_INSTALL_HINT in r.getMessage() for r in caplog.records if r.levelno == logging.WARNING)
+    warnings = " ".join(r.getMessage() for r in caplog.records if r.levelno == logging.WARNING)
+    assert STAMPS_INSTALL_HINT in warnings and EMOJI_INSTALL_HINT in warnings
     _write_stamp(stamps / "food", "clear", np.zeros((64, 64, 4), np.uint8))
-    with pytest.raises(CorpusError, match="no usable stamp"):
-        build_corpus(source, progress=False, cutouts=True, stamps=stamps)
+    with pytest.raises(CorpusError, match="no usable image"):
+        build_corpus(source, progress=False, cutouts=("stamps",), cutout_folders={"stamps": stamps})
+    with pytest.raises(CorpusError, match="unknown cut-out sources"):
+        build_corpus(source, progress=False, cutouts=("photos",))
+
+
+def _webp(path: Path, image: np.ndarray) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    Image.fromarray(image).save(path, format="WEBP", lossless=True)
+
+
+def test_emoji_are_fetched_from_their_tarball_and_become_cut_outs(tmp_path, own_cache, monkeypatch):
+    monkeypatch.delenv(EMOJI_ENV)
+    package = tmp_path / "package-src"
+    for stem in ("1f34e", "1f4a1", "1f600", "1f1fa-1f1f8"):  # red apple, light bulb; a face and a flag left out
+        _webp(package / "package" / "assets" / f"{stem}.webp", _ring())
+    sources = own_cache / "sources"
+    sources.mkdir(parents=True)
+    with tarfile.open(sources / EMOJI_TARBALL, "w:gz") as archive:
+        archive.add(package / "package", arcname="package")
+    _catalogue(tmp_path / "catalogues", ["Blue box"])
+    corpus = build_corpus(tmp_path / "catalogues", progress=False, cutouts=("emoji",))
+    assert sorted(corpus.assets[n].human_name for n in corpus.cutouts) == ["electric light bulb", "red apple"]
+    assert set(corpus.cutouts.values()) == {"emoji"}
+    assert fetch_emoji().is_dir() and not [p for p in sources.iterdir() if p.name.startswith(".unpack")]
+
+
+def test_an_emoji_tarball_that_leads_outside_is_refused(tmp_path, own_cache, monkeypatch):
+    monkeypatch.delenv(EMOJI_ENV)
+    (tmp_path / "evil.webp").write_bytes(b"x")
+    sources = own_cache / "sources"
+    sources.mkdir(parents=True)
+    with tarfile.open(sources / EMOJI_TARBALL, "w:gz") as archive:
+        archive.add(tmp_path / "evil.webp", arcname="../../evil.webp")
+    with pytest.raises(MissingAssetPackage, match="cannot be unpacked"):
+        fetch_emoji()
+    assert not (own_cache / "evil.webp").exists()  # where the member points, from the unpacking folder
+    assert [p.name for p in sources.iterdir()] == [EMOJI_TARBALL]
 
 
 def _held_out_word(library) -> str:
@@ -187,20 +245,23 @@ def test_a_recipe_renders_cut_outs_only_when_it_asks_and_never_a_held_out_catego
     _write_stamp(stamps / "household", "ring", _ring())
     _write_stamp(stamps / "household", "held", _ring(), f"A toy {held}.\n".encode())
     _write_stamp(stamps / "animals", "bear", _ring(), b"A teddy bear.\n")
-    corpus = build_corpus(source, progress=False, cutouts=True, stamps=stamps)
+    corpus = build_corpus(source, progress=False, cutouts=("stamps",), cutout_folders={"stamps": stamps})
     names = {a.human_name: a.name for a in corpus.assets.values()}
-    drop, stamps_config = default_config().render, dataclasses.replace(default_config().render, cutouts="stamps")
+    drop, stamps_config = default_config().render, dataclasses.replace(default_config().render, cutouts=("stamps",))
     assert held in validation_groups(corpus, library, drop) == validation_groups(corpus, library, stamps_config)
-    assert not set(training_pool(library, corpus, drop).objects) & corpus.cutouts
+    assert not set(training_pool(library, corpus, drop).objects) & set(corpus.cutouts)
     pool = training_pool(library, corpus, stamps_config).objects
     assert names["ring"] in pool and names["teddy bear"] in pool and names[f"toy {held}"] not in pool
     assert names["teddy bear"] in strict_drops(corpus, library)  # `strict` drops a cut-out named by a test noun
     strict = dataclasses.replace(stamps_config, protocol="strict")
     assert names["teddy bear"] not in training_pool(library, corpus, strict).objects
     assert "cutouts" not in serial.to_json(drop) and "cutouts" in serial.to_json(stamps_config)
-    bare = build_corpus(source, progress=False, stamps=tmp_path / "absent")
-    with pytest.raises(TrainingError, match="corpus build --cutouts"):
+    bare = build_corpus(source, progress=False, cutout_folders={"stamps": tmp_path / "absent"})
+    with pytest.raises(TrainingError, match="corpus build --cutouts stamps"):
         training_pool(library, bare, stamps_config)
+    emoji_config = dataclasses.replace(stamps_config, cutouts=("emoji",))
+    with pytest.raises(TrainingError, match="corpus build --cutouts emoji"):  # its stamps do not count
+        training_pool(library, corpus, emoji_config)
 
 
 @pytest.mark.skipif(not DEFAULT_STAMPS.is_dir(), reason=f"Tux Paint's stamps are not installed: {STAMPS_INSTALL_HINT}")
@@ -214,7 +275,7 @@ def test_real_stamps_become_textured_cut_outs(tmp_path, own_cache, monkeypatch):
         shutil.copy(found[0].with_suffix(".txt"), target.with_suffix(".txt"))
     _catalogue(tmp_path / "catalogues", ["Blue box"])
     monkeypatch.setenv(STAMPS_ENV, os.fspath(stamps))
-    corpus = build_corpus(tmp_path / "catalogues", progress=False, cutouts=True)
+    corpus = build_corpus(tmp_path / "catalogues", progress=False, cutouts=("stamps",))
     assert sorted(corpus.assets[name].human_name for name in corpus.cutouts) == ["green apple", "teapot", "tennis ball"]
     for name in corpus.cutouts:
         texture = np.asarray(Image.open(corpus.assets[name].texture))

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from ocplace.sim.corpus.cutout_sources import CUTOUT_SOURCES
 from ocplace.sim.corpus.selection import PROTOCOLS
 
 VIEWS = ("pool", "validation", "test-nouns", "skipped")
@@ -25,10 +26,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     build.add_argument(
         "--cutouts",
-        action="store_true",
-        help="also Tux Paint's stamps as cut-outs (apt package tuxpaint-stamps-default; about a minute)",
+        nargs="+",
+        choices=tuple(CUTOUT_SOURCES),
+        default=(),
+        metavar="SOURCE",
+        help="also these images as thin cut-outs: stamps (Tux Paint's, apt package tuxpaint-stamps-default), emoji "
+        "(Fluent Emoji 3-D, fetched with npm); under a minute each",
     )
-    build.add_argument("--stamps", type=Path, help="a folder laid out like Tux Paint's stamps (default: Debian's)")
     build.set_defaults(func=_build)
     listing = actions.add_parser("list", help="show the corpus under a protocol")
     listing.add_argument("--protocol", choices=PROTOCOLS, default="open")
@@ -47,7 +51,7 @@ def _build(args: argparse.Namespace) -> int:
     from ocplace.paths import corpus_cache
     from ocplace.sim.corpus.build import build_corpus
 
-    corpus = build_corpus(args.source, large=args.large, cutouts=args.cutouts, stamps=args.stamps)
+    corpus = build_corpus(args.source, large=args.large, cutouts=tuple(args.cutouts))
     print(f"pretraining corpus: {corpus.summary()} in {corpus_cache()}")
     return 0
 

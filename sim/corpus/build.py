@@ -21,22 +21,16 @@ import os
 import shutil
 import signal
 import types
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 from tqdm import tqdm
 
-from ocplace.errors import CorpusError
+from ocplace.errors import CorpusError, MissingAssetPackage
 from ocplace.paths import corpus_cache, file_sha256, inside, remove_abandoned_tmp, write_text_atomic
 from ocplace.sim.corpus.catalogue import CatalogueEntry, read_entries
 from ocplace.sim.corpus.convert import ConversionConfig, ConversionResult, convert_model, read_converted
-from ocplace.sim.corpus.stamps import (
-    STAMPS_CATALOGUE,
-    STAMPS_INSTALL_HINT,
-    STAMPS_LICENCE,
-    read_stamps,
-    stamps_dir,
-)
+from ocplace.sim.corpus.cutout_sources import CUTOUT_CATALOGUES, CUTOUT_SOURCES, CutoutSource
 from ocplace.sim.library.types import ObjectAsset
 
 DEFAULT_SOURCE = Path("/usr/share/sweethome3d/furniture")
@@ -72,7 +66,7 @@ class CorpusModel:
     folder: str = ""  # of an "ok" model, relative to the corpus root
     asset: ObjectAsset | None = None
     large: bool = False  # of the `large` tier: over the tabletop size, shrunk (`SelectionRule.is_large`)
-    cutout: bool = False  # a stamp as a cut-out (`sim.corpus.stamps`): rendered only when a recipe asks
+    cutout: str = ""  # of a cut-out: its source (`sim.corpus.cutout_sources`); rendered only when a recipe asks
 
 
 @dataclasses.dataclass(frozen=True)
@@ -89,9 +83,9 @@ class Corpus:
         return frozenset(m.asset.name for m in self.models if m.status == "ok" and m.large)
 
     @functools.cached_property
-    def cutouts(self) -> frozenset[str]:
-        """The names of the converted cut-outs (a recipe renders them only when it asks)."""
-        return frozenset(m.asset.name for m in self.models if m.status == "ok" and m.cutout)
+    def cutouts(self) -> Mapping[str, str]:
+        """The source of each converted cut-out, by name (a recipe renders them only when it asks for the source)."""
+        return types.MappingProxyType({m.asset.name: m.cutout for m in self.models if m.status == "ok" and m.cutout})
 
     def summary(self) -> str:
         counts = {status: sum(m.status == status for m in self.models) for status in ("ok", "rejected", "skipped")}
@@ -133,19 +127,20 @@ def build_corpus(
     config: ConversionConfig = ConversionConfig(),
     progress: bool = True,
     large: bool = False,
-    cutouts: bool = False,
-    stamps: str | os.PathLike | None = None,
+    cutouts: Sequence[str] = (),
+    cutout_folders: Mapping[str, str | os.PathLike] | None = None,
 ) -> Corpus:
     """Converts the selected models of every catalogue in `source_dir(source)` that are not converted yet
     into `corpus_cache()`, writes the manifest and the attribution file, and returns the corpus. `large`:
     also the models over the tabletop size (`SelectionRule.is_large`), shrunk like every model; without it
-    the ones an earlier build converted are kept, and no new one is converted. `cutouts`: also the stamps of
-    `stamps_dir(stamps)` as cut-outs, the same way; missing stamps are a warning naming their package.
+    the ones an earlier build converted are kept, and no new one is converted. `cutouts`: also the images of
+    these cut-out sources (`CUTOUT_SOURCES`: "stamps", "emoji"), the same way, each from its own folder or from
+    `cutout_folders[name]`; a missing source is a warning saying how to install it.
 
     Models that cannot be used (a member outside its folder, a missing texture, a failed load, no
     volume, a truncated archive; a stamp without alpha or description) are skipped with one warning listing
-    them all; CorpusError when nothing usable is left, no catalogue is found, or cut-outs were asked for and no
-    stamp is usable.
+    them all; CorpusError when nothing usable is left, no catalogue is found, or a cut-out source was asked for
+    and none of its images is usable.
     """
     source = source_dir(source)
     root = corpus_cache()
@@ -175,9 +170,16 @@ def build_corpus(
             models.append(model)
             if task:
                 todo.append((len(models) - 1, *task))
-    stamp_record = _plan_stamps(stamps_dir(stamps), cutouts, config, root, known_skips, models, todo)
-    if stamp_record:
-        catalogues.append(stamp_record)
+    unknown = set(cutouts) - set(CUTOUT_SOURCES)
+    if unknown:
+        raise CorpusError(f"unknown cut-out sources {sorted(unknown)}; the sources are {', '.join(CUTOUT_SOURCES)}")
+    cutout_records = {}
+    for name, source in CUTOUT_SOURCES.items():
+        folder = _cutout_folder(source, name in cutouts, cutout_folders or {})
+        record = _plan_cutouts(source, folder, name in cutouts, config, root, known_skips, models, todo)
+        if record:
+            catalogues.append(record)
+            cutout_records[name] = record
     die_after = int(os.environ.get(DIE_AFTER_MODELS_ENV, "0"))
     for count, (index, entry, path, licence, folder) in enumerate(
         tqdm(todo, desc="corpus", unit="model", disable=not progress), start=1
@@ -198,8 +200,9 @@ def build_corpus(
         )
     if not corpus.assets:
         raise CorpusError(f"no usable model in the catalogues of {source}: {corpus.summary()}")
-    if cutouts and stamp_record and not corpus.cutouts:
-        raise CorpusError(f"no usable stamp in {stamp_record['file']}: every one was skipped (see the warning above)")
+    for name in set(cutouts) & set(cutout_records):
+        if name not in corpus.cutouts.values():
+            raise CorpusError(f"no usable image in {cutout_records[name]['file']}: every one was skipped (see above)")
     return corpus
 
 
@@ -209,7 +212,7 @@ def _plan(entry, digest: str, path: Path, licence: str, config, root: Path, know
     folder = _model_folder(entry, digest, config)
     asset = _reuse(root, folder)
     if any(tier.values()) and asset is None and not asked:
-        name = "large tier" if tier.get("large") else "cut-out tier"
+        name = "large tier" if tier.get("large") else f"cut-out source {tier.get('cutout')}"
         return CorpusModel(entry, "rejected", f"{_size_reason(entry, config)}the {name} was not asked for"), None
     if asset is None and folder in known_skips:  # the same bytes and settings fail the same way
         return CorpusModel(entry, "skipped", known_skips[folder], folder, **tier), None
@@ -218,33 +221,41 @@ def _plan(entry, digest: str, path: Path, licence: str, config, root: Path, know
 
 
 def _size_reason(entry: CatalogueEntry, config) -> str:
-    reason = config.rule.size_problem(entry) if entry.catalogue != STAMPS_CATALOGUE else ""
+    reason = config.rule.size_problem(entry) if entry.catalogue not in CUTOUT_CATALOGUES else ""
     return f"{reason}; " if reason else ""
 
 
-def _plan_stamps(source: Path, asked: bool, config, root: Path, known_skips, models: list, todo: list) -> dict | None:
-    """Adds the stamps of `source` to `models` (and what to convert to `todo`); their catalogue record, or None
-    when there are no stamps (a warning naming the package when cut-outs were asked for)."""
-    if not source.is_dir():
+def _plan_cutouts(source: CutoutSource, folder: Path | None, asked: bool, config, root, known_skips, models, todo):
+    """Adds the images of `source` in `folder` to `models` (and what to convert to `todo`); their catalogue
+    record, or None when there are none (a warning naming how to install them when they were asked for)."""
+    if folder is None or not folder.is_dir():
         if asked:
-            log.warning("corpus: no stamps in %s, so no cut-outs; install them: %s", source, STAMPS_INSTALL_HINT)
+            hint = source.install_hint
+            log.warning("corpus: no %s in %s, so none as cut-outs; install them: %s", source.name, folder, hint)
         return None
-    entries, problems = read_stamps(source)
+    entries, problems = source.read(folder)
     for relative, why in problems:
-        models.append(
-            CorpusModel(
-                CatalogueEntry(STAMPS_CATALOGUE, 0, relative, "", (0.0,) * 3, relative, None, ""), "skipped", why
-            )
-        )
+        unread = CatalogueEntry(source.catalogue, 0, relative, "", (0.0,) * 3, relative, None, "")
+        models.append(CorpusModel(unread, "skipped", why))
     for entry in entries:
-        image = source / entry.model
+        image = folder / entry.model
         model, task = _plan(
-            entry, file_sha256(image), image, STAMPS_LICENCE, config, root, known_skips, asked, cutout=True
+            entry, file_sha256(image), image, source.licence, config, root, known_skips, asked, cutout=source.name
         )
         models.append(model)
         if task:
             todo.append((len(models) - 1, *task))
-    return {"file": f"stamps:{source}", "licence": STAMPS_LICENCE, "models": len(entries)}
+    return {"file": f"{source.name}:{folder}", "licence": source.licence, "models": len(entries)}
+
+
+def _cutout_folder(source: CutoutSource, asked: bool, folders: Mapping[str, str | os.PathLike]) -> Path | None:
+    if source.name in folders:
+        return Path(folders[source.name])
+    try:
+        return source.locate(asked)
+    except MissingAssetPackage as error:
+        log.warning("corpus: %s", error)
+        return None
 
 
 def _previous_skips(root: Path) -> dict[str, str]:
@@ -315,9 +326,10 @@ def attribution(models: list[CorpusModel], catalogues: list[dict]) -> str:
         "",
         "Converted (rescaled, re-oriented, textures resized) from Debian's `sweethome3d-furniture`",
         "catalogues, http://www.sweethome3d.com/importModels.jsp; licences as in",
-        "/usr/share/doc/sweethome3d-furniture/copyright. Cut-outs (catalogue `tuxpaint`): Tux Paint's stamps,",
-        "Debian's `tuxpaint-stamps-default`, images extruded into thin prisms; GPL-2.0-or-later, see",
-        "/usr/share/doc/tuxpaint-stamps-default/copyright.",
+        "/usr/share/doc/sweethome3d-furniture/copyright. Cut-outs, images extruded into thin prisms: catalogue",
+        "`tuxpaint`, Tux Paint's stamps (Debian's `tuxpaint-stamps-default`, GPL-2.0-or-later, see",
+        "/usr/share/doc/tuxpaint-stamps-default/copyright); catalogue `fluentemoji`, Microsoft's Fluent Emoji",
+        "(npm `@lobehub/fluent-emoji-3d` 1.1.0, MIT).",
         "",
         "| catalogue | licence |",
         "| --- | --- |",
@@ -350,7 +362,7 @@ def _model_of(root: Path, record: dict) -> CorpusModel:
         record["folder"],
         asset,
         record.get("large", False),
-        record.get("cutout", False),
+        record.get("cutout") or "",
     )
 
 

@@ -1,5 +1,5 @@
-"""Converting one catalogue model (or one stamp, `sim.corpus.cutout`) into an arena object: one visual mesh per
-material, one convex hull.
+"""Converting one catalogue model (or one image as a cut-out, `sim.corpus.cutout`) into an arena object: one
+visual mesh per material, one convex hull.
 
 Sweet Home 3D models are Y-up, in arbitrary units; the catalogue gives the size the model is
 stretched to (width along x, height along y, depth along z, after `modelRotation`). We do the same,
@@ -28,8 +28,8 @@ from PIL import Image
 from ocplace.errors import CorpusError
 from ocplace.sim.corpus import cutout
 from ocplace.sim.corpus.catalogue import CatalogueEntry, member_name
+from ocplace.sim.corpus.cutout_sources import CUTOUT_CATALOGUES
 from ocplace.sim.corpus.selection import SelectionRule, head_noun
-from ocplace.sim.corpus.stamps import STAMPS_CATALOGUE
 from ocplace.sim.library import processing
 from ocplace.sim.library.meshes import TexturedMesh
 from ocplace.sim.library.records import ASSET_FILE, asset_from_json, asset_to_json
@@ -204,7 +204,7 @@ def _write_catalogue_model(
     return write_object(directory, parts, entry, f"sweethome3d:{entry.catalogue}:{entry.model}", licence, config)
 
 
-def _write_stamp(directory: Path, entry: CatalogueEntry, image_path: Path, licence: str, config: ConversionConfig):
+def _write_cutout(directory: Path, entry: CatalogueEntry, image_path: Path, licence: str, config: ConversionConfig):
     try:
         with Image.open(image_path) as image:
             rgb, mask = cutout.mask_of(image)
@@ -270,10 +270,10 @@ def write_object(
 def convert_model(
     entry: CatalogueEntry, source: Path, licence: str, config: ConversionConfig, target: Path, tmp_root: Path
 ) -> ConversionResult:
-    """Converts `entry` of `source` (a catalogue archive, or a stamp image for `STAMPS_CATALOGUE`) into a private
+    """Converts `entry` of `source` (a catalogue archive, or an image for a cut-out source's catalogue) into a private
     temp folder, then renames it onto `target` in one step (a kill leaves at most a temp folder, which no reader
     uses; `asset.json` is written last)."""
-    write = _write_stamp if entry.catalogue == STAMPS_CATALOGUE else _write_catalogue_model
+    write = _write_cutout if entry.catalogue in CUTOUT_CATALOGUES else _write_catalogue_model
     tmp_root.mkdir(parents=True, exist_ok=True)
     work = Path(tempfile.mkdtemp(prefix=f"{target.name}.{os.getpid()}.", dir=tmp_root))
     try:

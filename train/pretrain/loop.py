@@ -394,7 +394,7 @@ def corpus_of(config: PretrainConfig):
     if config.render.pool == "task":
         return None
     render = config.render
-    return build_corpus(progress=False, large=render.large_models == "shrink", cutouts=render.cutouts == "stamps")
+    return build_corpus(progress=False, large=render.large_models == "shrink", cutouts=render.cutouts)
 
 
 def _run_metadata(config: PretrainConfig, pool: TrainingPool, bank: CaptionBank) -> dict:

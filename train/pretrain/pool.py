@@ -4,7 +4,7 @@ Two pools (`RenderConfig.pool`):
 - `corpus` (the default, the foundation backbone): the furniture corpus (`sim/corpus/`) under the
   recipe's protocol, minus the categories held out for validation; its `large` tier (models over the
   tabletop size, shrunk) only when the recipe asks (`RenderConfig.large_models`), and never a model of a
-  held-out category; likewise its cut-outs (Tux Paint's stamps, `RenderConfig.cutouts`). The held-out
+  held-out category; likewise its cut-outs (Tux Paint's stamps, Fluent Emoji: `RenderConfig.cutouts`). The held-out
   categories and the validation scenes come from the tabletop models alone, so they are the same with or
   without the large tier and the cut-outs. No object of the benchmark library
   (seen, unseen or unseen_cat) can be in it: the benchmark's training objects reach the model only
@@ -54,17 +54,17 @@ def strict_drops(corpus: Corpus, library) -> dict[str, str]:
 
 
 def protocol_assets(
-    corpus: Corpus, library, protocol: str, large: bool = False, cutouts: bool = False
+    corpus: Corpus, library, protocol: str, large: bool = False, cutouts: tuple[str, ...] = ()
 ) -> tuple[ObjectAsset, ...]:
-    """The corpus' tabletop models (and its large tier when `large`, its cut-outs when `cutouts`) under
-    `protocol`: everything (`open`), or without the models `strict_drops` names."""
+    """The corpus' tabletop models (and its large tier when `large`, the cut-outs of the sources `cutouts`)
+    under `protocol`: everything (`open`), or without the models `strict_drops` names."""
     dropped = strict_drops(corpus, library) if protocol == "strict" else {}
     return tuple(
         asset
         for key, asset in corpus.assets.items()
         if key not in dropped
         and (large or asset.name not in corpus.large)
-        and (cutouts or asset.name not in corpus.cutouts)
+        and (asset.name not in corpus.cutouts or corpus.cutouts[asset.name] in cutouts)
     )
 
 
@@ -113,17 +113,22 @@ def training_pool(library, corpus: Corpus | None, config: RenderConfig) -> Train
         if corpus is None:
             raise TrainingError("a corpus pool needs the corpus; build it with `ocplace corpus build`")
         groups = validation_groups(corpus, library, config)
-        large, cutouts = config.large_models == "shrink", config.cutouts == "stamps"
+        large = config.large_models == "shrink"
         assets = tuple(
             a
-            for a in protocol_assets(corpus, library, config.protocol, large, cutouts)
+            for a in protocol_assets(corpus, library, config.protocol, large, config.cutouts)
             if noun_group(a.human_name) not in groups
         )
-        for asked, tier, flag in ((large, corpus.large, "--large"), (cutouts, corpus.cutouts, "--cutouts")):
-            if asked and not set(tier) & {a.name for a in assets}:
+        names = {a.name for a in assets}
+        asked = [("the large tier", "--large", corpus.large)] if large else []
+        for source in config.cutouts:
+            tier = {name for name, of in corpus.cutouts.items() if of == source}
+            asked.append((f"the cut-outs of {source}", f"--cutouts {source}", tier))
+        for what, flag, tier in asked:
+            if not set(tier) & names:
                 raise TrainingError(
-                    f"the recipe asks for the corpus' {'large tier' if flag == '--large' else 'cut-outs'}, and no "
-                    f"model of it outside the held-out categories is built: run `ocplace corpus build {flag}`"
+                    f"the recipe asks for {what} of the corpus, and no model of it outside the held-out categories "
+                    f"is built: run `ocplace corpus build {flag}`"
                 )
     if config.max_objects > 0:
         assets = assets[: config.max_objects]
@@ -141,8 +146,7 @@ def _check_pool(library, corpus, assets, textures, config: RenderConfig) -> None
         leaked += [a.name for a in assets if noun_group(a.human_name) in groups]
         if config.large_models != "shrink":
             leaked += [a.name for a in assets if a.name in corpus.large]
-        if config.cutouts != "stamps":
-            leaked += [a.name for a in assets if a.name in corpus.cutouts]
+        leaked += [a.name for a in assets if a.name in corpus.cutouts and corpus.cutouts[a.name] not in config.cutouts]
     leaked += [t for t in textures if library.textures[t].split != "seen"]
     if leaked:
         raise TrainingError(f"objects or textures pretraining may not render are in its pool: {sorted(set(leaked))}")
