@@ -59,15 +59,7 @@ def fetch_emoji() -> Path:
     sources.mkdir(parents=True, exist_ok=True)
     tarball = sources / EMOJI_TARBALL
     if not tarball.is_file():
-        command = ["npm", "pack", f"{EMOJI_PACKAGE}@{EMOJI_VERSION}", "--pack-destination", str(sources)]
-        try:
-            subprocess.run(command, check=True, capture_output=True, text=True, timeout=_DOWNLOAD_TIMEOUT_S)
-        except (OSError, subprocess.SubprocessError) as error:
-            lines = (getattr(error, "stderr", None) or str(error)).strip().splitlines()
-            raise MissingAssetPackage(
-                f"the emoji are not in {sources} and `npm pack` failed ({lines[-1] if lines else error}); "
-                f"install them: {EMOJI_INSTALL_HINT}"
-            ) from error
+        _npm_pack(sources)
     with tempfile.TemporaryDirectory(prefix=".unpack.", dir=sources, ignore_cleanup_errors=True) as work:
         try:
             with tarfile.open(tarball) as archive:
@@ -76,6 +68,22 @@ def fetch_emoji() -> Path:
             raise MissingAssetPackage(f"{tarball} cannot be unpacked ({error}); delete it and rerun") from error
         os.replace(work, folder.parent.parent)
     return folder
+
+
+def _npm_pack(sources: Path) -> None:
+    """Fetches the package's tarball into `sources`, with npm's own cache in a temporary folder there (npm would
+    otherwise write into ~/.npm, outside the cache)."""
+    with tempfile.TemporaryDirectory(prefix=".npm.", dir=sources) as npm_cache:
+        command = ["npm", "pack", f"{EMOJI_PACKAGE}@{EMOJI_VERSION}", "--pack-destination", str(sources)]
+        command += ["--cache", npm_cache, "--no-update-notifier", "--no-fund", "--no-audit"]
+        try:
+            subprocess.run(command, check=True, capture_output=True, text=True, timeout=_DOWNLOAD_TIMEOUT_S)
+        except (OSError, subprocess.SubprocessError) as error:
+            lines = (getattr(error, "stderr", None) or str(error)).strip().splitlines()
+            raise MissingAssetPackage(
+                f"the emoji are not in {sources} and `npm pack` failed ({lines[-1] if lines else error}); "
+                f"install them: {EMOJI_INSTALL_HINT}"
+            ) from error
 
 
 def emoji_name(stem: str) -> str:
