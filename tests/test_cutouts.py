@@ -199,7 +199,6 @@ def _webp(path: Path, image: np.ndarray) -> None:
 
 
 def test_emoji_are_fetched_from_their_tarball_and_become_cut_outs(tmp_path, own_cache, monkeypatch):
-    monkeypatch.delenv(EMOJI_ENV)
     package = tmp_path / "package-src"
     for stem in ("1f34e", "1f4a1", "1f600", "1f1fa-1f1f8"):  # red apple, light bulb; a face and a flag left out
         _webp(package / "package" / "assets" / f"{stem}.webp", _ring())
@@ -208,6 +207,8 @@ def test_emoji_are_fetched_from_their_tarball_and_become_cut_outs(tmp_path, own_
     with tarfile.open(sources / EMOJI_TARBALL, "w:gz") as archive:
         archive.add(package / "package", arcname="package")
     _catalogue(tmp_path / "catalogues", ["Blue box"])
+    assert fetch_emoji() == tmp_path / "no-emoji" and not (tmp_path / "no-emoji").exists()  # a named folder: as is
+    monkeypatch.delenv(EMOJI_ENV)
     corpus = build_corpus(tmp_path / "catalogues", progress=False, cutouts=("emoji",))
     assert sorted(corpus.assets[n].human_name for n in corpus.cutouts) == ["electric light bulb", "red apple"]
     assert set(corpus.cutouts.values()) == {"emoji"}

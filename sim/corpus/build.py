@@ -30,7 +30,7 @@ from ocplace.errors import CorpusError, MissingAssetPackage
 from ocplace.paths import corpus_cache, file_sha256, inside, remove_abandoned_tmp, write_text_atomic
 from ocplace.sim.corpus.catalogue import CatalogueEntry, read_entries
 from ocplace.sim.corpus.convert import ConversionConfig, ConversionResult, convert_model, read_converted
-from ocplace.sim.corpus.cutout_sources import CUTOUT_CATALOGUES, CUTOUT_SOURCES, CutoutSource
+from ocplace.sim.corpus.cutout_sources import CUTOUT_SOURCES, CutoutSource
 from ocplace.sim.library.types import ObjectAsset
 
 DEFAULT_SOURCE = Path("/usr/share/sweethome3d/furniture")
@@ -166,7 +166,10 @@ def build_corpus(
             if reason and not tier:
                 models.append(CorpusModel(entry, "rejected", reason))
                 continue
-            model, task = _plan(entry, catalogue_hash, path, licence, config, root, known_skips, large, large=tier)
+            not_asked = f"{reason}; the large tier was not asked for"
+            model, task = _plan(
+                entry, catalogue_hash, path, licence, config, root, known_skips, large, not_asked, large=tier
+            )
             models.append(model)
             if task:
                 todo.append((len(models) - 1, *task))
@@ -206,23 +209,18 @@ def build_corpus(
     return corpus
 
 
-def _plan(entry, digest: str, path: Path, licence: str, config, root: Path, known_skips, asked: bool, **tier):
+def _plan(entry, digest: str, path: Path, licence, config, root: Path, known_skips, asked: bool, not_asked, **tier):
     """The model `entry` is now (reused, skipped before, or to convert: then also its conversion task).
-    `tier`: `large=` or `cutout=`, the tier the model is of; `asked`: whether new ones of that tier convert."""
+    `tier`: `large=` or `cutout=`, the tier the model is of; `asked`: whether new ones of that tier convert,
+    `not_asked`: the reason it is rejected when they do not."""
     folder = _model_folder(entry, digest, config)
     asset = _reuse(root, folder)
     if any(tier.values()) and asset is None and not asked:
-        name = "large tier" if tier.get("large") else f"cut-out source {tier.get('cutout')}"
-        return CorpusModel(entry, "rejected", f"{_size_reason(entry, config)}the {name} was not asked for"), None
+        return CorpusModel(entry, "rejected", not_asked), None
     if asset is None and folder in known_skips:  # the same bytes and settings fail the same way
         return CorpusModel(entry, "skipped", known_skips[folder], folder, **tier), None
     model = CorpusModel(entry, "ok" if asset else "todo", "", folder, asset, **tier)
     return model, (None if asset else (entry, path, licence, folder))
-
-
-def _size_reason(entry: CatalogueEntry, config) -> str:
-    reason = config.rule.size_problem(entry) if entry.catalogue not in CUTOUT_CATALOGUES else ""
-    return f"{reason}; " if reason else ""
 
 
 def _plan_cutouts(source: CutoutSource, folder: Path | None, asked: bool, config, root, known_skips, models, todo):
@@ -239,8 +237,10 @@ def _plan_cutouts(source: CutoutSource, folder: Path | None, asked: bool, config
         models.append(CorpusModel(unread, "skipped", why))
     for entry in entries:
         image = folder / entry.model
+        not_asked = f"the cut-out source {source.name} was not asked for"
+        digest = file_sha256(image)
         model, task = _plan(
-            entry, file_sha256(image), image, source.licence, config, root, known_skips, asked, cutout=source.name
+            entry, digest, image, source.licence, config, root, known_skips, asked, not_asked, cutout=source.name
         )
         models.append(model)
         if task:

@@ -16,6 +16,7 @@ from scipy.spatial import Delaunay
 from ocplace.errors import CorpusError
 from ocplace.sim.library.meshes import TexturedMesh
 
+SIZE_CM = (15.0, 15.0, 1.0)  # every cut-out's longest side, again, and thickness: an image carries no size
 MIN_SIDE_PX = 32  # a smaller stamp is an icon, not an object
 ALPHA_CUT = 128
 MIN_PART_SHARE = 0.02  # mask pieces smaller than this share of the largest are specks, dropped

@@ -18,8 +18,9 @@ import unicodedata
 from pathlib import Path
 
 from ocplace.errors import MissingAssetPackage
-from ocplace.paths import sources_cache
+from ocplace.paths import inside, sources_cache
 from ocplace.sim.corpus.catalogue import CatalogueEntry
+from ocplace.sim.corpus.cutout import SIZE_CM
 
 EMOJI_PACKAGE = "@lobehub/fluent-emoji-3d"
 EMOJI_VERSION = "1.1.0"
@@ -38,22 +39,21 @@ EXCLUDED_WORDS = frozenset(
     "sign symbol arrow arrows button square squared circle circled heart mark clock oclock flag silhouette letter "
     "digit keycap triangle diamond shape dot information speech balloon zodiac".split()
 )
-EXTENT_CM = 15.0
-THICKNESS_CM = 1.0
 _DOWNLOAD_TIMEOUT_S = 300
 
 
-def emoji_dir(source: str | os.PathLike | None = None) -> Path:
-    """Where the emoji images are: `source`, else `$OCPLACE_EMOJI_SOURCE`, else the package in the cache."""
-    explicit = source or os.environ.get(EMOJI_ENV)
+def emoji_dir() -> Path:
+    """Where the emoji images are: `$OCPLACE_EMOJI_SOURCE`, else the package's folder in the cache."""
+    explicit = os.environ.get(EMOJI_ENV)
     return Path(explicit) if explicit else sources_cache() / f"fluent-emoji-3d-{EMOJI_VERSION}" / "package" / "assets"
 
 
 def fetch_emoji() -> Path:
-    """The package's images in the cache, unpacked on first use from its tarball in `<cache>/sources/` (fetched
-    there with `npm pack` when missing). MissingAssetPackage when neither works."""
-    folder = emoji_dir("")
-    if folder.is_dir():
+    """`emoji_dir()`; the package's folder is unpacked on first use from its tarball in `<cache>/sources/`
+    (fetched there with `npm pack` when missing; a folder `$OCPLACE_EMOJI_SOURCE` names is never fetched
+    into). MissingAssetPackage when neither works."""
+    folder = emoji_dir()
+    if folder.is_dir() or os.environ.get(EMOJI_ENV):
         return folder
     sources = sources_cache()
     sources.mkdir(parents=True, exist_ok=True)
@@ -102,17 +102,17 @@ def emoji_name(stem: str) -> str:
 def read_emoji(source: Path) -> tuple[list[CatalogueEntry], list[tuple[str, str]]]:
     """The emoji of `source` the rule keeps, as catalogue entries (in file order; `model` is the file name), and
     `(file, why)` for each that cannot be used (a file that resolves outside `source`)."""
-    root = source.resolve()
     entries, problems = [], []
     for image in sorted(source.glob("*.webp")):
         name = emoji_name(image.stem)
         if not name:
             continue
-        if not image.resolve().is_relative_to(root):
-            problems.append((image.name, "it leads outside the emoji folder"))
+        try:
+            inside(source, image.name)
+        except ValueError:
+            problems.append((image.name, "it leads outside the emoji folder (a symlink?)"))
             continue
-        size = (EXTENT_CM, EXTENT_CM, THICKNESS_CM)
         entries.append(
-            CatalogueEntry(EMOJI_CATALOGUE, len(entries), name, "emoji", size, image.name, None, EMOJI_CREATOR)
+            CatalogueEntry(EMOJI_CATALOGUE, len(entries), name, "emoji", SIZE_CM, image.name, None, EMOJI_CREATOR)
         )
     return entries, problems

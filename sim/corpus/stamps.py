@@ -15,7 +15,9 @@ import os
 import re
 from pathlib import Path
 
+from ocplace.paths import inside
 from ocplace.sim.corpus.catalogue import CatalogueEntry
+from ocplace.sim.corpus.cutout import SIZE_CM
 
 DEFAULT_STAMPS = Path("/usr/share/tuxpaint/stamps")
 STAMPS_ENV = "OCPLACE_STAMPS_SOURCE"  # a folder laid out like Tux Paint's stamps instead of Debian's
@@ -36,8 +38,6 @@ STAMP_FOLDERS = (
     "vehicles",
 )
 MAX_NAME_WORDS = 4
-EXTENT_CM = 15.0  # the longest side of every cut-out: a stamp carries no size
-THICKNESS_CM = 1.0
 _ARTICLE = re.compile(r"^(a|an|the|some)\s+")
 _CLAUSE_END = re.compile(r"[.,!?;:(]|\s[-\u2013\u2014]\s|\u2014")
 
@@ -56,9 +56,8 @@ def stamp_name(description: str, stem: str) -> str:
     return " ".join(re.sub(r"[^a-z]+", " ", stem.lower()).split())
 
 
-def _description(image: Path) -> str:
-    """The first line of the stamp's `.txt` (its English description); ValueError when missing or not UTF-8."""
-    text = image.with_suffix(".txt")
+def _description(text: Path) -> str:
+    """The first line of a stamp's `.txt` (its English description); ValueError when missing or not UTF-8."""
     try:
         return text.read_bytes().decode("utf-8").splitlines()[0].strip()
     except FileNotFoundError:
@@ -69,13 +68,19 @@ def _description(image: Path) -> str:
         raise ValueError("its description is empty") from None
 
 
+def _within(source: Path, relative: str) -> Path:
+    try:
+        return inside(source, relative)
+    except ValueError:
+        raise ValueError(f"{relative} leads outside the stamps folder (a symlink?)") from None
+
+
 def read_stamps(source: Path) -> tuple[list[CatalogueEntry], list[tuple[str, str]]]:
     """The usable stamps of `source` as catalogue entries (in path order; `model` is the path relative to
     `source`) and `(path, why)` for each stamp that cannot be used.
 
     A file that resolves outside `source` (a symlink out of the package) is refused before it is opened.
     """
-    root = source.resolve()
     entries, problems = [], []
     images = sorted(p for folder in STAMP_FOLDERS for p in (source / folder).rglob("*.png"))
     for image in images:
@@ -83,19 +88,17 @@ def read_stamps(source: Path) -> tuple[list[CatalogueEntry], list[tuple[str, str
         if image.stem.endswith("_mirror"):
             continue
         try:
-            if not image.resolve().is_relative_to(root) or not image.with_suffix(".txt").resolve().is_relative_to(root):
-                raise ValueError("it leads outside the stamps folder")
-            description = _description(image)
+            _within(source, relative)
+            description = _description(_within(source, Path(relative).with_suffix(".txt").as_posix()))
             name = stamp_name(description, image.stem)
             if not name:
                 raise ValueError(f"no name in {description!r} or its file name")
         except (ValueError, OSError) as error:
             problems.append((relative, str(error)))
             continue
-        size = (EXTENT_CM, EXTENT_CM, THICKNESS_CM)
         entries.append(
             CatalogueEntry(
-                STAMPS_CATALOGUE, len(entries), name, relative.split("/")[0], size, relative, None, STAMPS_CREATOR
+                STAMPS_CATALOGUE, len(entries), name, relative.split("/")[0], SIZE_CM, relative, None, STAMPS_CREATOR
             )
         )
     return entries, problems
