@@ -411,3 +411,49 @@ def test_validation_scenes_show_held_out_models_only_and_are_cached(corpus, libr
     score = validation_grounding(load_backbone(tiny_backbone_spec), scenes)
     assert score["references"] == len(scenes.crops) and score["scenes"] == len(set(scenes.scenes.tolist()))
     assert 0.0 <= score["grounding_top1"] <= 1.0 and 0.15 < score["chance"] < 0.5
+
+
+# ----------------------------------------------------------------------------- copied meshes
+
+
+def test_a_benchmark_mesh_copied_into_the_corpus_is_refused_under_any_name(corpus, library, tmp_path):
+    """The guard compares geometry, not labels: a library object's mesh, turned Y-up, mirrored, enlarged, moved
+    and decimated, written by the corpus' own converter under the key and name of an ordinary pool model, stops
+    pretraining; the real corpus, spheres and discs of the benchmark's shapes included, holds no copy."""
+    import types
+
+    from ocplace.sim.corpus.build import Corpus
+    from ocplace.sim.corpus.convert import ConversionConfig, write_object
+    from ocplace.sim.library import processing
+    from ocplace.sim.library.meshes import TexturedMesh
+    from ocplace.sim.library.shape_descriptor import (
+        DESCRIPTOR_FILE,
+        asset_descriptor,
+        asset_vertices,
+        same_mesh,
+        same_shape,
+        shape_descriptor,
+    )
+    from ocplace.train.pretrain.pool import benchmark_copies
+
+    original = library.get("alphabet_soup")
+    mesh = trimesh.load(original.visual_mesh, force="mesh", process=False, skip_materials=True)
+    turned = mesh.vertices[:, [0, 2, 1]] * np.array([1.0, -1.0, 1.0]) * 1.7 + np.array([0.3, -0.2, 0.05])
+    part = processing.decimate(TexturedMesh(turned, np.asarray(mesh.faces), None, None, (0.5, 0.5, 0.5, 1.0)), 9000)
+    pool = training_pool(library, corpus, default_config().render)
+    victim = pool.assets[0]
+    entry = next(m.entry for m in corpus.models if m.asset is not None and m.asset.name == victim.name)
+    copy = write_object(tmp_path, [part], entry, "x", "", ConversionConfig())
+    assert (tmp_path / DESCRIPTOR_FILE).is_file() and same_shape(asset_descriptor(copy), asset_descriptor(original))
+    assets = types.MappingProxyType({k: (copy if a.name == victim.name else a) for k, a in corpus.assets.items()})
+    with pytest.raises(TrainingError, match="geometry of a benchmark object"):
+        training_pool(library, Corpus(corpus.root, corpus.models, assets), default_config().render)
+    assert benchmark_copies(library, [copy]) == {victim.name: "alphabet_soup"}
+    assert benchmark_copies(library, corpus.assets.values()) == {}
+    # Two tessellations of one sphere share a descriptor; the vertex check tells them apart.
+    fine, coarse = trimesh.creation.icosphere(4), trimesh.creation.uv_sphere(count=(64, 64))
+    assert same_shape(shape_descriptor(fine.vertices, fine.faces), shape_descriptor(coarse.vertices, coarse.faces))
+    assert not same_mesh(fine.vertices / 1.0, coarse.vertices / 1.0)
+    assert same_mesh(asset_vertices(copy), asset_vertices(original))
+    box = trimesh.creation.box()
+    assert shape_descriptor(box.vertices, box.faces) == ()  # primitive-like: never anyone's copy

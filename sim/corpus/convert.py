@@ -33,6 +33,7 @@ from ocplace.sim.corpus.selection import SelectionRule, head_noun
 from ocplace.sim.library import processing
 from ocplace.sim.library.meshes import TexturedMesh
 from ocplace.sim.library.records import ASSET_FILE, asset_from_json, asset_to_json
+from ocplace.sim.library.shape_descriptor import write_descriptor
 from ocplace.sim.library.types import CORPUS_SPLIT, ObjectAsset, VisualPart
 from ocplace.sim.library.writers import hull_filename, write_hull_obj
 
@@ -231,6 +232,7 @@ def write_object(
             processing.prepare_texture(part.texture, config.texture_px).save(texture)
         visual.append(VisualPart(mesh_path, texture, part.rgba))
     points = np.concatenate([part.vertices for part in parts])
+    write_descriptor(directory, [(part.vertices, part.faces) for part in parts])
     try:
         hull = trimesh.convex.convex_hull(points)
     except Exception as error:  # qhull's own error types

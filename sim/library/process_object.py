@@ -16,6 +16,7 @@ from ocplace.sim.library.config import LibraryConfig
 from ocplace.sim.library.meshes import load_mesh
 from ocplace.sim.library.metadata import ObjectSpec
 from ocplace.sim.library.records import ASSET_FILE, asset_from_json, asset_to_json
+from ocplace.sim.library.shape_descriptor import write_descriptor
 from ocplace.sim.library.sources import SourceFiles
 from ocplace.sim.library.types import ObjectAsset
 
@@ -55,6 +56,7 @@ def _write_object(directory: Path, spec: ObjectSpec, files: SourceFiles, config:
     hulls = _collision_hulls(full, spec, config)
     mass = processing.mass_properties(hulls, config.density)
     writers.write_visual_obj(directory, mesh)
+    write_descriptor(directory, [(mesh.vertices, mesh.faces)])
     for index, hull in enumerate(hulls):
         writers.write_hull_obj(directory / writers.hull_filename(index), hull)
     textured = mesh.texture is not None

@@ -8,7 +8,8 @@ Two pools (`RenderConfig.pool`):
   categories and the validation scenes come from the tabletop models alone, so they are the same with or
   without the large tier and the cut-outs. No object of the benchmark library
   (seen, unseen or unseen_cat) can be in it: the benchmark's training objects reach the model only
-  through the adapters, as in the paper.
+  through the adapters, as in the paper; neither by name and source nor by geometry (a copied mesh: its
+  shape descriptor, `sim.library.shape_descriptor`).
 - `task` (today's backbone of earlier results): the library's training split.
 
 Tables are the library's seen textures in both.
@@ -29,6 +30,7 @@ from ocplace.sim.corpus.selection import (
     noun_group,
     test_nouns,
 )
+from ocplace.sim.library.shape_descriptor import asset_descriptor, asset_vertices, same_mesh, same_shape
 from ocplace.sim.library.types import CORPUS_SPLIT, ObjectAsset
 from ocplace.sim.scene import split_pools
 from ocplace.vocabulary import SHAPE_WORDS
@@ -150,3 +152,26 @@ def _check_pool(library, corpus, assets, textures, config: RenderConfig) -> None
     leaked += [t for t in textures if library.textures[t].split != "seen"]
     if leaked:
         raise TrainingError(f"objects or textures pretraining may not render are in its pool: {sorted(set(leaked))}")
+    if config.pool != "task":
+        copies = benchmark_copies(library, assets)
+        if copies:
+            raise TrainingError(
+                "corpus models with the geometry of a benchmark object (their shape descriptors match) are in the "
+                f"pretraining pool: {copies}; remove their source from the corpus and rebuild it"
+            )
+
+
+def benchmark_copies(library, assets) -> dict[str, str]:
+    """The models of `assets` whose mesh is a benchmark library object's (`sim.library.shape_descriptor`: the
+    descriptors close, then the vertices on each other), mapped to that object: the guard against a copied
+    mesh under another name or source label."""
+    benchmark = {name: asset_descriptor(obj) for name, obj in library.objects.items()}
+    copies = {}
+    for asset in assets:
+        descriptor = asset_descriptor(asset)
+        close = [name for name, other in benchmark.items() if same_shape(descriptor, other)]
+        vertices = asset_vertices(asset) if close else None
+        matches = [name for name in close if same_mesh(vertices, asset_vertices(library.get(name)))]
+        if matches:
+            copies[asset.name] = matches[0]
+    return copies
