@@ -17,6 +17,7 @@ flat index is `v * width + u`.
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 
 import cv2
@@ -154,17 +155,39 @@ def _distribution(config: CliportConfig, params, rgb, height, text, mask):
 jit_distribution = jax.jit(_distribution, static_argnums=0)
 
 
+def _inverse_cdf(cdf: jax.Array, targets: jax.Array) -> jax.Array:
+    """The first index whose cumulative mass exceeds each target (never one past the last entry with mass)."""
+    index = jnp.searchsorted(cdf, targets, side="right")
+    has_mass = jnp.diff(cdf, prepend=0.0) > 0.0
+    last = cdf.shape[-1] - 1 - jnp.argmax(has_mass[::-1])  # u * total may round up to total
+    return jnp.minimum(index, last)
+
+
+@functools.partial(jax.jit, static_argnames=("num_samples", "width"))
+def sample_pixels(key, probabilities: jax.Array, num_samples: int, width: int) -> jax.Array:
+    """`(num_samples,)` flat pixel indices drawn from one `(h * w,)` distribution by inverse CDF: a row by the
+    rows' masses, then a pixel of it. Two short float32 cumulative sums (h, then w entries) keep every
+    pixel's share to float rounding; one over all h * w pixels would not. It replaces Gumbel-max
+    (`jax.random.categorical`: h * w draws per sample), the same distribution (tests/test_baselines.py)."""
+    row_key, pixel_key = jax.random.split(key)
+    rows = probabilities.reshape(-1, width)
+    row_cdf = jnp.cumsum(rows.sum(axis=1))
+    row = _inverse_cdf(row_cdf, jax.random.uniform(row_key, (num_samples,)) * row_cdf[-1])
+    cdf = jnp.cumsum(rows[row], axis=1)  # (num_samples, width)
+    targets = jax.random.uniform(pixel_key, (num_samples,)) * cdf[:, -1]
+    return row * width + jax.vmap(_inverse_cdf)(cdf, targets)
+
+
 def mode_and_samples(
     key, probabilities: np.ndarray, num_samples: int, camera: Camera, config: CliportConfig
 ) -> tuple[np.ndarray, np.ndarray]:
     """`(mode (2,), samples (num_samples, 2))` table points from one scene's `(h * w,)` pixel distribution.
 
-    The mode is the argmax pixel's centre; a sample is a pixel drawn from the distribution plus a
-    uniform offset inside it, clipped to the table.
+    The mode is the argmax pixel's centre; a sample is a pixel drawn from the distribution
+    (`sample_pixels`) plus a uniform offset inside it, clipped to the table.
     """
     pick_key, jitter_key = jax.random.split(key)
-    logits = jnp.log(jnp.asarray(probabilities))
-    flat = np.asarray(jax.random.categorical(pick_key, logits, shape=(num_samples,)))
+    flat = np.asarray(sample_pixels(pick_key, jnp.asarray(probabilities), num_samples, config.width))
     jitter = np.asarray(jax.random.uniform(jitter_key, (num_samples, 2), minval=-0.5, maxval=0.5))
     mode = pixel_to_table(flat_to_pixel(int(np.argmax(probabilities)), config), camera, config)
     samples = pixel_to_table(flat_to_pixel(flat, config) + jitter, camera, config)
