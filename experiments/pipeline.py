@@ -213,12 +213,12 @@ def evaluation_key(run: MethodRun, description: dict, settings: EvalSettings, da
 # ----------------------------------------------------------------------------- tasks of the graph (any worker)
 
 
-def pretrain_task(recipe, progress: bool) -> str:
-    """The offline backbone of `recipe`, pretrained unless cached; returns its spec."""
+def pretrain_task(recipe, progress: bool, cpus: int = 1) -> str:
+    """The offline backbone of `recipe`, pretrained unless cached (rendering in `cpus` processes); returns its spec."""
     from ocplace.sim.library import load_library
     from ocplace.train.pretrain.loop import pretrain
 
-    return f"offline:{pretrain(recipe, load_library(), progress=progress).directory}"
+    return f"offline:{pretrain(recipe, load_library(), progress=progress, render_workers=cpus).directory}"
 
 
 def train_context(run: MethodRun, config: PipelineConfig, dataset_dir: Path, backbone: str, out: Path) -> TrainContext:
@@ -301,7 +301,10 @@ def task_graph(
     if config.backbone is None:
         for seed in dict.fromkeys(run.backbone_seed for run in [MethodRun("", ""), *runs]):  # the base one first
             task = Task(
-                pretrain_task, (config.experiment.backbone_recipe(seed), False), cpus=cpus.pretrain, pinned=True
+                pretrain_task,
+                (config.experiment.backbone_recipe(seed), False, cpus.pretrain),
+                cpus=cpus.pretrain,
+                pinned=True,
             )
             nodes.append(Node(backbone_key(seed), lambda done, task=task: task))
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 from pathlib import Path
 
 from ocplace.cli.options import add_dataset_argument, dataset_of
@@ -36,6 +37,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     pretrain.add_argument("--smoke", action="store_true", help="same as --recipe smoke")
     pretrain.add_argument("--out", type=Path, help="output directory (default: the recipe's cache folder)")
     pretrain.add_argument("--keep-run", action="store_true", help="keep rendered images and checkpoints")
+    pretrain.add_argument(
+        "--workers", type=int, default=0, help="processes that render (default: every CPU this process may use)"
+    )
     pretrain.add_argument("--no-progress", action="store_true")
     pretrain.set_defaults(func=_pretrain)
 
@@ -80,7 +84,10 @@ def _pretrain(args: argparse.Namespace) -> int:
     from ocplace.train.pretrain.loop import pretrain
 
     config = recipe_config("smoke" if args.smoke else args.recipe)
-    result = pretrain(config, load_library(), args.out, progress=not args.no_progress, keep_run=args.keep_run)
+    workers = args.workers or len(os.sched_getaffinity(0))
+    result = pretrain(
+        config, load_library(), args.out, progress=not args.no_progress, keep_run=args.keep_run, render_workers=workers
+    )
     timings = ", ".join(f"{k} {v:.0f}" for k, v in result.timings.items())
     print(
         f"offline backbone ({config.recipe}) in {result.directory}\n"

@@ -41,6 +41,10 @@ class Library:
     root: Path
     manifest: Mapping  # the manifest as written, failed objects included
 
+    def __reduce__(self):
+        # Read-only views do not pickle; a worker process (the parallel pretraining render) gets the same library.
+        return (_read_only, (dict(self.objects), dict(self.textures), self.root, dict(self.manifest)))
+
     def get(self, name: str) -> ObjectAsset:
         """By name ("alphabet_soup") or human name ("alphabet soup can"), case-insensitive."""
         key = name.strip().lower()
@@ -133,6 +137,10 @@ def load_library(cache: str | Path | None = None) -> Library:
         if not path.is_file():
             raise LibraryNotBuilt(f"table texture {path} is missing; {BUILD_HINT}")
         textures[entry["name"]] = TableTexture(entry["name"], path, entry["split"])
+    return _read_only(objects, textures, root, manifest)
+
+
+def _read_only(objects: dict, textures: dict, root: Path, manifest: dict) -> Library:
     return Library(
         objects=types.MappingProxyType(objects),
         textures=types.MappingProxyType(textures),

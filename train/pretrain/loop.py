@@ -278,10 +278,12 @@ def pretrain(
     progress: bool = True,
     keep_run: bool = False,
     stop_after: int | None = None,
+    render_workers: int = 1,
 ) -> PretrainResult:
     """Renders, trains and saves the offline backbone of `config` (resuming whatever was done).
 
-    `stop_after`: return after this many training steps without saving (to test resuming).
+    `stop_after`: return after this many training steps without saving (to test resuming);
+    `render_workers`: processes that render (the same images with any number).
     """
     config.validate()
     began = time.perf_counter()
@@ -300,7 +302,7 @@ def pretrain(
     timings = {"setup_s": time.perf_counter() - began}
 
     mark, cpu_mark = time.perf_counter(), time.process_time()
-    images = render_all(library, pool, run_dir, config.render, config.model, progress)
+    images = render_all(library, pool, run_dir, config.render, config.model, progress, render_workers)
     timings["render_s"] = time.perf_counter() - mark
     timings["render_cpu_s"] = time.process_time() - cpu_mark
     by_class = [np.flatnonzero(images.labels == k) for k in range(len(bank.class_names))]

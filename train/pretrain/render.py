@@ -11,7 +11,8 @@ term per scene; some objects of each render also give a second crop with the obj
 colour term (`train.pretrain.colours`), labelled with its own class (`train.pretrain.classes`).
 
 Chunks of scenes are written to `<run>/renders/chunk_*.npz` as they finish: a rerun renders only the
-missing chunks. Scene `i` is a pure function of `(seed, i)`.
+missing chunks. Scene `i` is a pure function of `(seed, i)`, so chunks render in parallel processes
+(`render_all(workers=...)`, the pretraining task's CPUs) to the same images.
 """
 
 from __future__ import annotations
@@ -19,7 +20,9 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import logging
+import multiprocessing
 from collections.abc import Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
 import cv2
@@ -283,33 +286,59 @@ def chunk_path(run_dir: Path, chunk: int) -> Path:
 
 
 def render_all(
-    library, pool: TrainingPool, run_dir: Path, config: RenderConfig, model: OfflineConfig, progress: bool = True
+    library,
+    pool: TrainingPool,
+    run_dir: Path,
+    config: RenderConfig,
+    model: OfflineConfig,
+    progress: bool = True,
+    workers: int = 1,
 ) -> RenderedImages:
-    """Renders the missing chunks into `run_dir`, then returns every image of every chunk."""
+    """Renders the missing chunks into `run_dir`, in up to `workers` processes (each renders whole chunks: a
+    scene is a pure function of its index, so the images are the same with any number), then returns every
+    image of every chunk."""
     from tqdm import tqdm
 
     num_chunks = -(-config.scenes // config.chunk_scenes)
     missing = [c for c in range(num_chunks) if not chunk_path(run_dir, c).exists()]
     done_scenes = config.scenes - sum(_chunk_scenes(c, config) for c in missing)
-    if missing:
-        classes = pretraining_classes(library, pool.assets, config)
-        groups = arena_groups(pool)
-        arenas = [training_arena(library, group, scene_primitives(config)) for group in groups]
-        try:
-            with tqdm(
-                total=config.scenes, initial=done_scenes, unit="scene", desc="render", disable=not progress
-            ) as bar:
-                for chunk in missing:
-                    parts = []
-                    for index in _chunk_scenes_range(chunk, config):
-                        group = index % len(groups)
-                        parts.append(render_scene(arenas[group], groups[group], classes, index, config, model))
-                        bar.update(1)
-                    RenderedImages.concatenate(parts).save(chunk_path(run_dir, chunk))
-        finally:
-            for arena in arenas:
-                arena.close()
+    shares = [missing[k :: max(1, workers)] for k in range(min(max(1, workers), len(missing)))]
+    with tqdm(total=config.scenes, initial=done_scenes, unit="scene", desc="render", disable=not progress) as bar:
+        if len(shares) == 1:
+            render_chunks(library, pool, run_dir, config, model, shares[0], bar.update)
+        elif shares:
+            with ProcessPoolExecutor(len(shares), mp_context=multiprocessing.get_context("spawn")) as executor:
+                futures = {
+                    executor.submit(render_chunks, library, pool, run_dir, config, model, share): share
+                    for share in shares
+                }
+                for future in as_completed(futures):
+                    future.result()
+                    bar.update(sum(_chunk_scenes(c, config) for c in futures[future]))
     return RenderedImages.concatenate([RenderedImages.load(chunk_path(run_dir, c)) for c in range(num_chunks)])
+
+
+def render_chunks(
+    library, pool: TrainingPool, run_dir: Path, config: RenderConfig, model: OfflineConfig, chunks, done=None
+) -> None:
+    """Renders `chunks` (indices) into `run_dir` with arenas of its own; `done(scenes)` after each scene."""
+    if not chunks:
+        return
+    classes = pretraining_classes(library, pool.assets, config)
+    groups = arena_groups(pool)
+    arenas = [training_arena(library, group, scene_primitives(config)) for group in groups]
+    try:
+        for chunk in chunks:
+            parts = []
+            for index in _chunk_scenes_range(chunk, config):
+                group = index % len(groups)
+                parts.append(render_scene(arenas[group], groups[group], classes, index, config, model))
+                if done is not None:
+                    done(1)
+            RenderedImages.concatenate(parts).save(chunk_path(run_dir, chunk))
+    finally:
+        for arena in arenas:
+            arena.close()
 
 
 def _chunk_scenes_range(chunk: int, config: RenderConfig) -> range:
