@@ -30,7 +30,7 @@ import numpy as np
 from ocplace import serial
 from ocplace.errors import FeaturesError
 from ocplace.models.backbone import Backbone, PromptConfig
-from ocplace.paths import atomic_path, file_lock
+from ocplace.paths import atomic_path, file_lock, remove_tree
 
 log = logging.getLogger(__name__)
 
@@ -405,4 +405,4 @@ def _remove_stale_parts(out_path: Path, keep: Path) -> None:
     """Chunks of an interrupted run for another backbone, data or config are useless now."""
     for stale in out_path.parent.glob(f".{out_path.name}.parts-*"):
         if stale != keep:
-            shutil.rmtree(stale)
+            remove_tree(stale)

@@ -135,6 +135,10 @@ class ClusterError(OcplaceError):
     """A Ray cluster that cannot be started or reached, or that lost a task for good."""
 
 
+class CacheError(OcplaceError):
+    """A folder or file of the cache is not what ocplace made it (a symbolic link where ocplace deletes or creates)."""
+
+
 class CorpusError(OcplaceError):
     """The pretraining corpus (furniture catalogues) is missing, unreadable or left nothing usable."""
 

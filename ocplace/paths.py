@@ -12,7 +12,7 @@ import shutil
 import tempfile
 from pathlib import Path
 
-from ocplace.errors import OutputError, TrainingError
+from ocplace.errors import CacheError, OutputError, TrainingError
 
 RUN_FILE = "run.json"  # a run's identity: a rerun with other contents is refused, a rerun with the same resumes
 WEIGHTS_FILE = "weights.safetensors"  # what a run ends with; its presence marks the run finished
@@ -141,12 +141,43 @@ def file_lock(target: str | os.PathLike):
 
     target = Path(target)
     target.parent.mkdir(parents=True, exist_ok=True)
-    with open(target.with_name(f".{target.name}.lock"), "a") as handle:
+    lock = target.with_name(f".{target.name}.lock")
+    try:  # O_NOFOLLOW: a link planted at the lock's name must not make us create its target
+        descriptor = os.open(lock, os.O_WRONLY | os.O_CREAT | os.O_APPEND | os.O_NOFOLLOW, 0o644)
+    except OSError as error:
+        if error.errno != errno.ELOOP:
+            raise
+        raise CacheError(_link_message(lock)) from None
+    with os.fdopen(descriptor, "a") as handle:
         fcntl.flock(handle, fcntl.LOCK_EX)
         try:
             yield
         finally:
             fcntl.flock(handle, fcntl.LOCK_UN)
+
+
+def _link_message(path: Path) -> str:
+    return (
+        f"{path} is a symbolic link (to {os.path.realpath(path)}); ocplace deletes and creates files inside its "
+        f"cache folders, so it never follows one there: remove the link (`rm {path}`) and rerun"
+    )
+
+
+def refuse_links(*folders: str | os.PathLike) -> None:
+    """CacheError when one of `folders` (cache folders whose entries ocplace sweeps: `tmp`, `models`, `objects`)
+    is a symbolic link. The cache root and its top folders (`library`, `corpus`) may be links (another disk,
+    a cache shared with another): what they hold is ocplace's; a swept folder that leads elsewhere is not."""
+    for folder in folders:
+        if os.path.islink(folder):
+            raise CacheError(_link_message(Path(folder)))
+
+
+def remove_tree(path: Path) -> None:
+    """Removes `path`: a folder with what it holds, a file, or a symbolic link (the link only, never its target)."""
+    if path.is_symlink() or not path.is_dir():
+        path.unlink(missing_ok=True)
+    else:
+        shutil.rmtree(path, ignore_errors=True)
 
 
 @contextlib.contextmanager
@@ -237,14 +268,16 @@ def pid_alive(pid: int) -> bool:
 
 
 def remove_abandoned_tmp(tmp_root: Path) -> None:
-    """Removes the temp folders (`<name>.<pid>.<random>`) of builds that died; live builds keep theirs."""
+    """Removes the temp folders (`<name>.<pid>.<random>`) of builds that died; live builds keep theirs.
+    CacheError when `tmp_root` is a symbolic link (`refuse_links`)."""
+    refuse_links(tmp_root)
     if not tmp_root.is_dir():
         return
     for path in tmp_root.iterdir():
         parts = path.name.split(".")
         pid = int(parts[-2]) if len(parts) >= 3 and parts[-2].isdigit() else None
         if pid is None or not pid_alive(pid):
-            shutil.rmtree(path, ignore_errors=True)
+            remove_tree(path)
 
 
 def file_sha256(path: str | os.PathLike) -> str:

@@ -18,7 +18,6 @@ import hashlib
 import json
 import logging
 import os
-import shutil
 import signal
 import types
 from collections.abc import Mapping, Sequence
@@ -27,7 +26,15 @@ from pathlib import Path
 from tqdm import tqdm
 
 from ocplace.errors import CorpusError, MissingAssetPackage
-from ocplace.paths import corpus_cache, file_sha256, inside, remove_abandoned_tmp, write_text_atomic
+from ocplace.paths import (
+    corpus_cache,
+    file_sha256,
+    inside,
+    refuse_links,
+    remove_abandoned_tmp,
+    remove_tree,
+    write_text_atomic,
+)
 from ocplace.sim.corpus.catalogue import CatalogueEntry, read_entries
 from ocplace.sim.corpus.convert import ConversionConfig, ConversionResult, convert_model, read_converted
 from ocplace.sim.corpus.cutout_sources import CUTOUT_SOURCES, CutoutSource
@@ -144,6 +151,7 @@ def build_corpus(
     """
     source = source_dir(source)
     root = corpus_cache()
+    refuse_links(root / MODELS_DIRNAME)  # before anything is written into it
     remove_abandoned_tmp(root / TMP_DIRNAME)
     known_skips = _previous_skips(root)
     models, catalogues, todo = [], [], []
@@ -313,10 +321,11 @@ def _corpus(root: Path, models: list[CorpusModel]) -> Corpus:
 def _remove_unreferenced(root: Path, folders: set[str]) -> None:
     """Model folders of earlier conversions (another catalogue version or setting)."""
     models_dir = root / MODELS_DIRNAME
+    refuse_links(models_dir)
     if models_dir.is_dir():
         for path in models_dir.iterdir():
             if f"{MODELS_DIRNAME}/{path.name}" not in folders:
-                shutil.rmtree(path, ignore_errors=True)
+                remove_tree(path)
 
 
 def attribution(models: list[CorpusModel], catalogues: list[dict]) -> str:

@@ -8,7 +8,6 @@ import difflib
 import hashlib
 import json
 import logging
-import shutil
 from collections import Counter
 from pathlib import Path
 
@@ -16,7 +15,7 @@ from PIL import Image
 from tqdm import tqdm
 
 from ocplace.errors import AssetBuildError, UnknownObject
-from ocplace.paths import atomic_path, library_cache, remove_abandoned_tmp, write_text_atomic
+from ocplace.paths import atomic_path, library_cache, refuse_links, remove_abandoned_tmp, remove_tree, write_text_atomic
 from ocplace.runtime import Executor, ExecutorConfig, Task, open_executor
 from ocplace.sim.library.config import LibraryConfig, default_config
 from ocplace.sim.library.library import Library, load_library
@@ -205,9 +204,10 @@ def _remove_unreferenced(root: Path, manifest: dict) -> None:
     """After a full build: drop folders and textures of older keys."""
     keep = {e["folder"] for e in manifest["objects"] if e["folder"]} | {t["file"] for t in manifest["textures"]}
     for sub in (OBJECTS_DIRNAME, TEXTURES_DIRNAME):
+        refuse_links(root / sub)
         for path in (root / sub).glob("*") if (root / sub).is_dir() else ():
             if f"{sub}/{path.name}" not in keep and not path.name.startswith("."):
-                shutil.rmtree(path) if path.is_dir() else path.unlink()
+                remove_tree(path)
 
 
 def build_library(
@@ -225,6 +225,7 @@ def build_library(
     config = config or default_config()
     root = library_cache(cache)
     jobs = [_job(spec, config) for spec in resolve_specs(config)]
+    refuse_links(root / OBJECTS_DIRNAME, root / TEXTURES_DIRNAME)  # before anything is written into them
     remove_abandoned_tmp(root / TMP_DIRNAME)
     results = {}
     for job in jobs:
