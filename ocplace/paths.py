@@ -180,6 +180,18 @@ def remove_tree(path: Path) -> None:
         shutil.rmtree(path, ignore_errors=True)
 
 
+def unwritable(error: OSError, target: str | os.PathLike, then: str) -> OutputError | None:
+    """The OutputError for a write into `target` that failed for the machine's reasons (a full disk, a
+    read-only file system), saying `then`; None for any other OSError (one about the input)."""
+    if error.errno in _DISK_FULL:
+        why = f"the disk is full ({error.strerror}); free some space"
+    elif error.errno == errno.EROFS:
+        why = f"its file system is read-only ({error.strerror}); make it writable"
+    else:
+        return None
+    return OutputError(f"cannot write {target}: {why}, then {then}")
+
+
 @contextlib.contextmanager
 def disk_full_is_typed(target: str | os.PathLike):
     """Turns a full disk (ENOSPC, EDQUOT) while writing `target` into an OutputError naming it."""

@@ -4,10 +4,12 @@ protocols and the validation split. Real catalogues (Debian's package) and hand-
 from __future__ import annotations
 
 import collections
+import contextlib
 import dataclasses
 import json
 import logging
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -310,6 +312,34 @@ def test_no_usable_model_or_no_catalogue_is_a_typed_error(tmp_path, own_cache):
     _write_catalogue(empty / "Bad.sh3f", {"Missing": _cube("m", second="painted", with_texture=False)})
     with pytest.raises(CorpusError, match="no usable model"):
         build_corpus(empty, progress=False)
+
+
+def test_a_full_disk_stops_the_build_and_is_never_remembered_as_a_skip(tmp_path, own_cache, monkeypatch, tmpfs):
+    """Issue 43, defect 4: ENOSPC was recorded per model as "skipped", and every later build kept the skip."""
+    import subprocess
+
+    from ocplace.errors import OutputError
+
+    source = tmp_path / "catalogues"
+    source.mkdir()
+    _write_catalogue(source / "Test.sh3f", {"Sugar bowl": _cube("bowl"), "Tea cup": _cube("cup")})
+    with tmpfs(tmp_path / "disk", "size=64k") as disk:
+        monkeypatch.setenv("OCPLACE_CACHE", str(disk / "cache"))
+        with contextlib.suppress(OSError), open(disk / "filler", "wb") as filler:
+            filler.write(b"\0" * (1 << 20))
+        with pytest.raises(OutputError, match="the disk is full.*rerun `ocplace corpus build`"):
+            build_corpus(source, progress=False)
+        subprocess.run(["mount", "-o", "remount,size=64m", str(disk)], check=True)  # space freed
+        corpus = build_corpus(source, progress=False)
+        assert len(corpus.assets) == 2 and not [m for m in corpus.models if m.status != "ok"]
+        # A manifest from before the fix, with the disk's error as a model's skip reason: converted again.
+        manifest_path = disk / "cache" / "corpus" / MANIFEST_FILE
+        manifest = json.loads(manifest_path.read_text())
+        record = manifest["models"][0]
+        shutil.rmtree(disk / "cache" / "corpus" / record["folder"])
+        record.update(status="skipped", reason="OSError: [Errno 28] No space left on device")
+        manifest_path.write_text(json.dumps(manifest))
+        assert len(build_corpus(source, progress=False).assets) == 2
 
 
 def test_a_killed_build_resumes_to_the_same_corpus(tmp_path, own_cache):

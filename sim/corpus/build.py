@@ -18,6 +18,7 @@ import hashlib
 import json
 import logging
 import os
+import re
 import signal
 import types
 from collections.abc import Mapping, Sequence
@@ -52,6 +53,7 @@ TMP_DIRNAME = "tmp"
 # resume test crashes a build at a known point instead of racing a kill against it. Unset: off.
 DIE_AFTER_MODELS_ENV = "OCPLACE_TEST_DIE_AFTER_MODELS"
 # /usr/share/doc/sweethome3d-furniture/copyright, per catalogue.
+MACHINE_ERRORS = re.compile(r"\[Errno (28|30|122)\]")  # ENOSPC, EROFS, EDQUOT in a recorded skip reason
 LICENCES = {
     "BlendSwap-CC-0": "CC0-1.0",
     "BlendSwap-CC-BY": "CC-BY-3.0",
@@ -270,7 +272,9 @@ def _previous_skips(root: Path) -> dict[str, str]:
     """Why each model the last build skipped was skipped, by its folder key (not converted again)."""
     try:
         records = json.loads((root / MANIFEST_FILE).read_text())["models"]
-        return {r["folder"]: r["reason"] for r in records if r["status"] == "skipped" and r["folder"]}
+        skipped = [r for r in records if r["status"] == "skipped" and r["folder"]]
+        # Builds before issue 43 recorded a full or read-only disk as the model's fault: such models convert again.
+        return {r["folder"]: r["reason"] for r in skipped if not MACHINE_ERRORS.search(r["reason"])}
     except (OSError, ValueError, KeyError, TypeError):
         return {}
 

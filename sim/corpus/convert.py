@@ -26,6 +26,7 @@ import trimesh
 from PIL import Image
 
 from ocplace.errors import CorpusError
+from ocplace.paths import unwritable
 from ocplace.sim.corpus import cutout
 from ocplace.sim.corpus.catalogue import CatalogueEntry, member_name
 from ocplace.sim.corpus.cutout_sources import CUTOUT_CATALOGUES
@@ -269,6 +270,10 @@ def write_object(
     )
 
 
+# Not a skip: nothing is wrong with the model, and a skip is remembered by every later build.
+CACHE_HINT = "rerun `ocplace corpus build`: the models converted so far are kept"
+
+
 def convert_model(
     entry: CatalogueEntry, source: Path, licence: str, config: ConversionConfig, target: Path, tmp_root: Path
 ) -> ConversionResult:
@@ -276,9 +281,10 @@ def convert_model(
     temp folder, then renames it onto `target` in one step (a kill leaves at most a temp folder, which no reader
     uses; `asset.json` is written last)."""
     write = _write_cutout if entry.catalogue in CUTOUT_CATALOGUES else _write_catalogue_model
-    tmp_root.mkdir(parents=True, exist_ok=True)
-    work = Path(tempfile.mkdtemp(prefix=f"{target.name}.{os.getpid()}.", dir=tmp_root))
+    work = None
     try:
+        tmp_root.mkdir(parents=True, exist_ok=True)
+        work = Path(tempfile.mkdtemp(prefix=f"{target.name}.{os.getpid()}.", dir=tmp_root))
         asset = write(work, entry, source, licence, config)
         (work / ASSET_FILE).write_text(json.dumps(asset_to_json(asset), indent=1) + "\n")
         if target.exists():  # a folder without its asset.json is partial: never used
@@ -286,11 +292,14 @@ def convert_model(
         target.parent.mkdir(parents=True, exist_ok=True)
         os.rename(work, target)
         return ConversionResult(entry.key, "ok", "", read_converted(target))
-    except Exception as error:  # one bad model must not stop the corpus
+    except Exception as error:  # one bad model must not stop the corpus; a full or read-only disk stops it
+        if isinstance(error, OSError) and (typed := unwritable(error, target, CACHE_HINT)):
+            raise typed from error
         reason = str(error) if isinstance(error, CorpusError) else f"{type(error).__name__}: {error}"
         return ConversionResult(entry.key, "skipped", reason, None)
     finally:
-        shutil.rmtree(work, ignore_errors=True)
+        if work is not None:
+            shutil.rmtree(work, ignore_errors=True)
 
 
 def read_converted(directory: Path) -> ObjectAsset:
