@@ -303,6 +303,77 @@ def test_bad_models_are_skipped_with_one_warning_and_nothing_written_outside(tmp
     assert not [r for r in caplog.records if r.levelno >= logging.WARNING]
 
 
+def _patch_member(path: Path, name: str, flag: int = 0, method: int | None = None) -> None:
+    """Sets general-purpose flag bits and the compression method of member `name`, in its local and central
+    headers (what a hand-edited or hostile archive can hold)."""
+    import struct
+
+    data = bytearray(path.read_bytes())
+    encoded = name.encode()
+    for signature, flag_at, method_at, name_at in ((b"PK\x03\x04", 6, 8, 30), (b"PK\x01\x02", 8, 10, 46)):
+        start = 0
+        while (start := data.find(signature, start)) >= 0:
+            if data[start + name_at : start + name_at + len(encoded)] == encoded:
+                (bits,) = struct.unpack_from("<H", data, start + flag_at)
+                struct.pack_into("<H", data, start + flag_at, bits | flag)
+                if method is not None:
+                    struct.pack_into("<H", data, start + method_at, method)
+            start += 4
+    path.write_bytes(bytes(data))
+
+
+def test_damaged_catalogues_are_skipped_and_the_good_ones_build(tmp_path, own_cache, library, caplog, capsys):
+    """Issue 43, defect 9: bad deflate data, the encrypted flag, compression method 9, a lone surrogate in a
+    name and a FIFO named like a catalogue each stopped the build (or `corpus list`), good catalogues included."""
+    from ocplace.cli import main
+    from ocplace.sim.corpus.catalogue import PROPERTIES_FILE
+
+    source = tmp_path / "catalogues"
+    source.mkdir()
+    _write_catalogue(source / "Good.sh3f", {"Sugar bowl": _cube("bowl"), "Tea \\uD800 cup": _cube("cup")})
+    properties = (source / "Good.sh3f").read_bytes()
+    for name in ("Deflate", "Encrypted", "Method9"):
+        _write_catalogue(source / f"{name}.sh3f", {"Salt shaker": _cube("salt")})
+        with zipfile.ZipFile(source / f"{name}.sh3f") as archive:
+            text = archive.read(PROPERTIES_FILE)
+        with zipfile.ZipFile(source / f"{name}.sh3f", "w") as archive:  # the properties compressed, as Java does
+            archive.writestr(PROPERTIES_FILE, text * 20, compress_type=zipfile.ZIP_DEFLATED)
+    deflate = bytearray((source / "Deflate.sh3f").read_bytes())
+    deflate[80:100] = b"\xff" * 20  # inside the compressed properties (its header ends at byte 63)
+    (source / "Deflate.sh3f").write_bytes(bytes(deflate))
+    _patch_member(source / "Encrypted.sh3f", PROPERTIES_FILE, flag=0x1)
+    _patch_member(source / "Method9.sh3f", PROPERTIES_FILE, method=9)
+    os.mkfifo(source / "Pipe.sh3f")
+    assert (source / "Good.sh3f").read_bytes() == properties
+    with caplog.at_level(logging.WARNING):
+        corpus = build_corpus(source, progress=False)
+    assert list(corpus.assets) == ["good-001"]
+    warnings = " ".join(r.getMessage() for r in caplog.records if r.levelno == logging.WARNING)
+    for name in ("Deflate", "Encrypted", "Method9", "Pipe.sh3f", "lone surrogate"):
+        assert name in warnings, name
+    assert "Tea" in (own_cache / "corpus" / MANIFEST_FILE).read_text()
+    assert "Sugar bowl" in (own_cache / "corpus" / ATTRIBUTION_FILE).read_text()
+    (own_cache / "library").symlink_to(library.root)  # `corpus list` reads the library's test nouns
+    code, out = main(["corpus", "list", "--show", "skipped"]), capsys.readouterr()
+    assert code == 0 and "Tea" in out.out, out.err
+
+
+def test_an_oversized_member_is_skipped(tmp_path, own_cache, monkeypatch):
+    """The size cap on untrusted archives (issue 43's decision), at a cap small enough to test: a model whose
+    mesh declares more is skipped, the rest builds."""
+    from ocplace.sim.corpus import catalogue
+
+    source = tmp_path / "catalogues"
+    source.mkdir()
+    big = _cube("big")
+    big["files"]["big/cube.obj"] += "# padding\n" * 200
+    _write_catalogue(source / "Test.sh3f", {"Sugar bowl": _cube("bowl"), "Huge bowl": big})
+    monkeypatch.setattr(catalogue, "MAX_MEMBER_BYTES", 1500)
+    corpus = build_corpus(source, progress=False)
+    reasons = {m.entry.name: m.reason for m in corpus.models}
+    assert list(corpus.assets) == ["test-001"] and "declares more than 1,500 bytes" in reasons["Huge bowl"]
+
+
 def test_no_usable_model_or_no_catalogue_is_a_typed_error(tmp_path, own_cache):
     empty = tmp_path / "empty"
     empty.mkdir()

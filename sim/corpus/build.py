@@ -111,7 +111,10 @@ def source_dir(source: str | os.PathLike | None = None) -> Path:
 
 
 def _catalogues(source: Path) -> list[Path]:
-    found = sorted(source.glob("*.sh3f")) if source.is_dir() else []
+    named = sorted(source.glob("*.sh3f")) if source.is_dir() else []
+    found = [path for path in named if path.is_file()]
+    if len(found) < len(named):  # a FIFO or a device would block or stream forever
+        log.warning("not regular files, left out: %s", ", ".join(p.name for p in named if p not in found))
     if not found:
         raise CorpusError(f"no furniture catalogues (*.sh3f) in {source}; install them: {INSTALL_HINT}")
     return found

@@ -11,6 +11,7 @@ import dataclasses
 import posixpath
 import re
 import zipfile
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +19,9 @@ import numpy as np
 from ocplace.errors import CorpusError
 
 PROPERTIES_FILE = "PluginFurnitureCatalog.properties"
+# A catalogue is untrusted input: a member that declares or inflates to more than this is refused (the largest
+# member of Debian's catalogues is about 40 MB).
+MAX_MEMBER_BYTES = 256 << 20
 _ESCAPE = re.compile(r"\\(u[0-9a-fA-F]{4}|.)")
 _SIMPLE_ESCAPES = {"t": "\t", "n": "\n", "r": "\r", "f": "\f"}
 
@@ -49,6 +53,30 @@ def _unescape(value: str) -> str:
         return _SIMPLE_ESCAPES.get(code, code)
 
     return _ESCAPE.sub(replace, value)
+
+
+def read_member(archive: zipfile.ZipFile, name: str) -> bytes:
+    """The bytes of member `name`; CorpusError for a missing, damaged, encrypted, oddly compressed or oversized
+    one (over `MAX_MEMBER_BYTES` as declared, or once inflated)."""
+    try:
+        if archive.getinfo(name).file_size > MAX_MEMBER_BYTES:
+            raise CorpusError(f"{name} declares more than {MAX_MEMBER_BYTES:,} bytes")
+        with archive.open(name) as member:
+            data = member.read(MAX_MEMBER_BYTES + 1)
+    except (KeyError, OSError, EOFError, zipfile.BadZipFile, zlib.error, RuntimeError, NotImplementedError) as error:
+        # RuntimeError: an encrypted member; NotImplementedError: a compression method zipfile lacks
+        raise CorpusError(f"cannot read {name}: {type(error).__name__}: {error}") from error
+    if len(data) > MAX_MEMBER_BYTES:
+        raise CorpusError(f"{name} inflates to more than {MAX_MEMBER_BYTES:,} bytes")
+    return data
+
+
+def _valid_text(text: str) -> str:
+    """`text` with the UTF-16 surrogate pairs of Java's escapes joined; ValueError for a lone surrogate."""
+    try:
+        return text.encode("utf-16", "surrogatepass").decode("utf-16")
+    except UnicodeDecodeError:
+        raise ValueError(f"{text.encode('utf-8', 'backslashreplace').decode()!r} holds a lone surrogate") from None
 
 
 def parse_properties(text: str) -> dict[str, str]:
@@ -113,8 +141,8 @@ def read_entries(path: Path) -> tuple[list[CatalogueEntry], list[tuple[int, str,
     path = Path(path)
     try:
         with zipfile.ZipFile(path) as archive:
-            text = archive.read(PROPERTIES_FILE).decode("latin-1")
-    except (OSError, zipfile.BadZipFile, KeyError, EOFError) as error:
+            text = read_member(archive, PROPERTIES_FILE).decode("latin-1")
+    except (OSError, zipfile.BadZipFile, EOFError, CorpusError) as error:
         raise CorpusError(f"cannot read the catalogue {path}: {error}") from error
     properties = parse_properties(text)
     indices = sorted({int(key[5:]) for key in properties if re.fullmatch(r"name#\d+", key)})
@@ -129,14 +157,14 @@ def read_entries(path: Path) -> tuple[list[CatalogueEntry], list[tuple[int, str,
                 CatalogueEntry(
                     catalogue=path.stem,
                     index=index,
-                    name=" ".join(get("name").split()),
-                    category=get("category"),
+                    name=_valid_text(" ".join(get("name").split())),
+                    category=_valid_text(get("category")),
                     size_cm=tuple(_number(properties, f"{k}#{index}") for k in ("width", "depth", "height")),
                     model=member_name(get("model")),
                     rotation=_rotation(get("modelRotation")),
-                    creator=get("creator"),
+                    creator=_valid_text(get("creator")),
                 )
             )
         except (CorpusError, ValueError) as error:
-            problems.append((index, get("name"), str(error)))
+            problems.append((index, get("name").encode("utf-8", "backslashreplace").decode(), str(error)))
     return entries, problems

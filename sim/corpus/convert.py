@@ -28,7 +28,7 @@ from PIL import Image
 from ocplace.errors import CorpusError
 from ocplace.paths import unwritable
 from ocplace.sim.corpus import cutout
-from ocplace.sim.corpus.catalogue import CatalogueEntry, member_name
+from ocplace.sim.corpus.catalogue import CatalogueEntry, member_name, read_member
 from ocplace.sim.corpus.cutout_sources import CUTOUT_CATALOGUES
 from ocplace.sim.corpus.selection import SelectionRule, head_noun
 from ocplace.sim.library import processing
@@ -71,8 +71,8 @@ class _ArchiveResolver(trimesh.resolvers.Resolver):
 
     def get(self, name: str) -> bytes:
         try:
-            return self.archive.read(member_name(name, self.folder))
-        except (CorpusError, KeyError, OSError, zipfile.BadZipFile) as error:
+            return read_member(self.archive, member_name(name, self.folder))
+        except CorpusError as error:
             self.missing.append(f"{name} ({error})")
             raise KeyError(name) from None
 
@@ -114,7 +114,7 @@ def load_parts(archive: zipfile.ZipFile, entry: CatalogueEntry) -> list[Textured
     folder = posixpath.dirname(entry.model)
     resolver = _ArchiveResolver(archive, folder)
     try:
-        data = archive.read(entry.model)
+        data = read_member(archive, entry.model)
         scene = trimesh.load(
             io.BytesIO(data), file_type="obj", resolver=resolver, group_material=True, force="scene", process=False
         )
