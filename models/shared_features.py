@@ -15,14 +15,16 @@ by up to 3e-8). Ours and w/o Adapter parse and chunk their scenes alike, so they
 and a batch no one encoded before is simply encoded.
 
 Files (`$OCPLACE_CACHE/features/shared/<fingerprint[:16]>/<kind>-<digest>.safetensors`, one array
-`features` with the fingerprint and the input's digest in their metadata) are written atomically
-under a lock (`ocplace.paths.file_lock`), so two tasks asking for a batch at once encode it once;
-a file that does not verify (another fingerprint or input, a wrong shape, not readable) is encoded
-again and replaced.
+`features` with the fingerprint, the input's digest and a content hash in their metadata:
+`models.weights_file`) are written atomically under a lock (`ocplace.paths.file_lock`), so two tasks
+asking for a batch at once encode it once; a file that does not verify (damaged content, another
+fingerprint or input, a wrong shape, not readable) is encoded again and replaced. A store that cannot be
+written (a full or read-only disk) is one warning, and the features are used from memory.
 """
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import logging
@@ -31,12 +33,14 @@ from pathlib import Path
 
 import numpy as np
 
+from ocplace.errors import CacheError, OutputError, WeightsError
 from ocplace.models.backbone import Backbone
-from ocplace.paths import atomic_path, features_cache, file_lock
+from ocplace.models.weights_file import load_weights, save_weights
+from ocplace.paths import features_cache, file_lock
 
 log = logging.getLogger(__name__)
 
-FORMAT = "ocplace-shared-features-1"
+FORMAT = "ocplace-shared-features-2"  # 2: with a content hash (`models.weights_file`); 1 is encoded again
 
 
 def shared_folder(fingerprint: str) -> Path:
@@ -49,6 +53,7 @@ class SharedFeatures:
     def __init__(self, backbone: Backbone, folder: Path | None = None):
         self.backbone = backbone
         self.folder = folder or shared_folder(backbone.fingerprint)
+        self._warned = False
 
     @property
     def dim(self) -> int:
@@ -77,35 +82,41 @@ class SharedFeatures:
         found = self._read(path, digest, rows)
         if found is not None:
             return found
-        with file_lock(path):  # another task may be encoding this batch: wait, then read what it wrote
+        with contextlib.ExitStack() as stack:
+            try:  # another task may be encoding this batch: wait, then read what it wrote
+                stack.enter_context(file_lock(path))
+            except (OSError, CacheError) as error:
+                self._cannot_write(error)
+                return np.asarray(encode(batch), np.float32)
             found = self._read(path, digest, rows)
             if found is not None:
                 return found
             features = np.asarray(encode(batch), np.float32)
-            self._write(path, digest, features)
-        return features
+            try:
+                save_weights(path, {"features": features}, self._metadata(digest))
+            except (OSError, OutputError) as error:
+                self._cannot_write(error)
+            return features
+
+    def _metadata(self, digest: str) -> dict[str, str]:
+        return {"format": FORMAT, "fingerprint": self.fingerprint, "input": digest}
+
+    def _cannot_write(self, error: Exception) -> None:
+        """A store that cannot be written is no reason to fail a scene: warn once, go on in memory."""
+        if not self._warned:
+            self._warned = True
+            log.warning("cannot write the shared test features in %s (%s): encoding in memory", self.folder, error)
 
     def _read(self, path: Path, digest: str, rows: int) -> np.ndarray | None:
-        from safetensors import SafetensorError, safe_open
-
         if not path.is_file():
             return None
         try:
-            with safe_open(str(path), framework="numpy") as handle:
-                meta = handle.metadata() or {}
-                features = handle.get_tensor("features")
-        except (SafetensorError, OSError) as error:
-            log.warning("%s is not readable (%s): encoding its batch again", path, error)
+            tensors, meta = load_weights(path, "it is encoded again")
+        except (WeightsError, OSError) as error:
+            log.warning("%s does not verify (%s): encoding its batch again", path, error)
             return None
-        wanted = {"format": FORMAT, "fingerprint": self.fingerprint, "input": digest}
-        if any(meta.get(key) != value for key, value in wanted.items()) or features.shape != (rows, self.dim):
+        features = tensors.get("features")
+        if meta != self._metadata(digest) or features is None or features.shape != (rows, self.dim):
             log.warning("%s does not match its batch or backbone: encoding the batch again", path)
             return None
         return features
-
-    def _write(self, path: Path, digest: str, features: np.ndarray) -> None:
-        from safetensors.numpy import save_file
-
-        metadata = {"format": FORMAT, "fingerprint": self.fingerprint, "input": digest}
-        with atomic_path(path) as tmp:
-            save_file({"features": np.ascontiguousarray(features)}, str(tmp), metadata=metadata)

@@ -1,5 +1,6 @@
 """The feature cache: layout, no-op second run, resume after a crash, invalidation, bad input."""
 
+import logging
 import os
 import threading
 import time
@@ -291,6 +292,35 @@ def test_a_shared_feature_file_that_does_not_verify_is_encoded_again(tmp_path, b
     third = Counting(other_backbone)
     assert np.array_equal(SharedFeatures(third, tmp_path).encode_images(images), other_backbone.encode_images(images))
     assert again.images == 2 and third.images == 0  # the file written again verifies
+
+
+def test_a_shared_feature_file_with_damaged_floats_is_encoded_again(tmp_path, backbone, caplog):
+    """Issue 43, defect 2: the store checked metadata and shapes, never content; a damaged file was used."""
+    images = np.random.default_rng(3).integers(0, 256, (2, 24, 24, 3), dtype=np.uint8)
+    SharedFeatures(backbone, tmp_path).encode_images(images)
+    [stored] = tmp_path.glob("images-*.safetensors")
+    damaged = bytearray(stored.read_bytes())
+    damaged[-5] ^= 0x40  # one bit of the last float: still a valid, finite safetensors file
+    stored.write_bytes(bytes(damaged))
+    again = Counting(backbone)
+    with caplog.at_level(logging.WARNING):
+        features = SharedFeatures(again, tmp_path).encode_images(images)
+    assert np.array_equal(features, backbone.encode_images(images)) and again.images == 2
+    assert "does not verify" in caplog.text and "content hash" in caplog.text
+    third = Counting(backbone)
+    assert np.array_equal(SharedFeatures(third, tmp_path).encode_images(images), features) and third.images == 0
+
+
+@pytest.mark.parametrize("store", ["read_only_dir", "full_disk"])
+def test_a_store_that_cannot_be_written_is_a_warning_and_features_come_from_memory(store, backbone, caplog, request):
+    """Issue 43, defect 3: an unwritable or full store turned every scene into a failure, exit 0."""
+    folder = request.getfixturevalue(store) / "shared"
+    images = np.random.default_rng(4).integers(0, 256, (2, 24, 24, 3), dtype=np.uint8)
+    shared = SharedFeatures(backbone, folder)
+    with caplog.at_level(logging.WARNING):
+        assert np.array_equal(shared.encode_images(images), backbone.encode_images(images))
+        assert np.array_equal(shared.encode_texts(["a bowl"]), backbone.encode_texts(["a bowl"]))
+    assert caplog.text.count("cannot write the shared test features") == 1
 
 
 def test_two_evaluations_asking_for_a_batch_at_once_encode_it_once(tmp_path, backbone):
