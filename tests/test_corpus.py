@@ -374,6 +374,30 @@ def test_an_oversized_member_is_skipped(tmp_path, own_cache, monkeypatch):
     assert list(corpus.assets) == ["test-001"] and "declares more than 1,500 bytes" in reasons["Huge bowl"]
 
 
+def test_a_damaged_model_folder_is_refused_on_load_and_converted_again_by_the_build(tmp_path, own_cache, caplog):
+    """Issue 43, defect 11: the cache trusted `asset.json` alone (a missing hull passed, a changed mesh byte was
+    kept); a manifest that is `[]` crashed `corpus list`."""
+    source = tmp_path / "catalogues"
+    source.mkdir()
+    _write_catalogue(source / "Test.sh3f", {"Sugar bowl": _cube("bowl"), "Tea cup": _cube("cup")})
+    corpus = build_corpus(source, progress=False)
+    first, second = (corpus.assets[key].directory for key in ("test-001", "test-002"))
+    pristine = _files(own_cache / "corpus")
+    mesh = bytearray((first / "part_00.obj").read_bytes())
+    mesh[10] = ord("9") if mesh[10] != ord("9") else ord("8")  # one digit of a vertex
+    (first / "part_00.obj").write_bytes(bytes(mesh))
+    (second / "hull_000.obj").unlink()
+    with pytest.raises(CorpusError, match="part_00.obj changed since it was built"):
+        load_corpus()
+    with caplog.at_level(logging.WARNING):
+        build_corpus(source, progress=False)
+    assert "converted again" in caplog.text and _files(own_cache / "corpus") == pristine
+    assert len(load_corpus().assets) == 2
+    (own_cache / "corpus" / MANIFEST_FILE).write_text("[]")
+    with pytest.raises(CorpusError, match="run `ocplace corpus build`"):
+        load_corpus()
+
+
 def test_no_usable_model_or_no_catalogue_is_a_typed_error(tmp_path, own_cache):
     empty = tmp_path / "empty"
     empty.mkdir()

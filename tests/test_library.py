@@ -178,3 +178,37 @@ def test_a_manifest_that_is_not_a_library_manifest_is_typed_and_rebuilt(built, t
     assert main(["assets", "list"]) == 2
     assert "is not a library manifest" in capsys.readouterr().err
     assert build_library(config, cache=tmp_path, progress=False).names() == library.names()
+
+
+def test_a_damaged_object_or_texture_is_refused_on_load_and_built_again(tmp_path, caplog):
+    """Issue 43's decision: every cache is verified by content on read; a mismatch re-creates the entry with a
+    warning (a changed mesh byte, a lost hull, an edited table texture)."""
+    import logging
+
+    from ocplace.errors import LibraryNotBuilt
+    from ocplace.sim.library import load_library
+
+    cache = tmp_path / "cache"
+    library = build_library(FAST, cache=cache, progress=False)
+    pristine = {p: p.read_bytes() for p in (cache / "library").rglob("*") if p.is_file() and "tmp" not in p.parts}
+    butter, cookies = library.get("butter"), library.get("cookies")
+    mesh = bytearray(butter.visual_mesh.read_bytes())
+    mesh[-3] = ord("7") if mesh[-3] != ord("7") else ord("6")
+    butter.visual_mesh.write_bytes(bytes(mesh))
+    cookies.hulls[0].unlink()
+    with pytest.raises(LibraryNotBuilt, match="visual.obj changed since it was built"):
+        load_library(cache)
+    with caplog.at_level(logging.WARNING):
+        build_library(FAST, cache=cache, progress=False)
+    assert "butter cannot be used" in caplog.text and "cookies cannot be used" in caplog.text
+    texture = next(iter(library.textures.values())).path
+    texture.write_bytes(texture.read_bytes()[:-1] + b"\0")
+    with pytest.raises(LibraryNotBuilt, match="changed since it was built"):
+        load_library(cache)
+    build_library(FAST, cache=cache, progress=False)
+    after = {p: p.read_bytes() for p in (cache / "library").rglob("*") if p.is_file() and "tmp" not in p.parts}
+    assert {p for p in after if p.name != "manifest.json"} == {p for p in pristine if p.name != "manifest.json"}
+    assert all(
+        after[p] == pristine[p] for p in pristine if p.name not in ("manifest.json", "asset.json", "checksums.json")
+    )
+    assert len(load_library(cache).objects) == 2

@@ -44,7 +44,7 @@ from ocplace.sim.library.types import ObjectAsset
 DEFAULT_SOURCE = Path("/usr/share/sweethome3d/furniture")
 SOURCE_ENV = "OCPLACE_CORPUS_SOURCE"  # a folder of .sh3f catalogues instead of Debian's
 INSTALL_HINT = "sudo apt-get install sweethome3d-furniture (Debian/Ubuntu; `make setup` does it)"
-CONVERSION_VERSION = 1  # bump when conversion writes something else: every model converts again
+CONVERSION_VERSION = 2  # bump when conversion writes something else: every model converts again (2: checksums)
 MANIFEST_FILE = "manifest.json"
 ATTRIBUTION_FILE = "ATTRIBUTION.md"
 MODELS_DIRNAME = "models"
@@ -128,9 +128,15 @@ def _model_folder(entry: CatalogueEntry, catalogue_hash: str, config: Conversion
 
 
 def _reuse(root: Path, folder: str) -> ObjectAsset | None:
+    """The converted model in `folder` when it is there and as converted; a damaged one is warned about (and
+    converted again by the build)."""
     try:
-        return read_converted(inside(root, folder))
-    except (OSError, ValueError, KeyError, TypeError):
+        directory = inside(root, folder)
+        if not directory.exists():
+            return None
+        return read_converted(directory)
+    except (OSError, ValueError, KeyError, TypeError) as error:
+        log.warning("corpus model %s cannot be used (%s): it is converted again", folder, error)
         return None
 
 
@@ -368,9 +374,7 @@ def _model_of(root: Path, record: dict) -> CorpusModel:
     entry = CatalogueEntry(
         **fields | {"size_cm": tuple(fields["size_cm"]), "rotation": None if rotation is None else tuple(rotation)}
     )
-    asset = _reuse(root, record["folder"]) if record["status"] == "ok" else None
-    if record["status"] == "ok" and asset is None:
-        raise ValueError(f"model {record['key']} is incomplete")
+    asset = read_converted(inside(root, record["folder"])) if record["status"] == "ok" else None
     return CorpusModel(
         entry,
         record["status"],
@@ -390,8 +394,8 @@ def load_corpus() -> Corpus:
         if manifest.get("version") != CONVERSION_VERSION:
             raise ValueError("built by another ocplace version")
         models = [_model_of(root, record) for record in manifest["models"]]
-    except (OSError, ValueError, KeyError, TypeError) as error:
+    except (OSError, ValueError, KeyError, TypeError, AttributeError) as error:
         raise CorpusError(
-            f"the corpus in {root} is missing or incomplete ({error}); run `ocplace corpus build`"
+            f"the corpus in {root} is missing, incomplete or damaged ({error}); run `ocplace corpus build`"
         ) from error
     return _corpus(root, models)

@@ -32,6 +32,7 @@ from ocplace.sim.corpus.catalogue import CatalogueEntry, member_name, read_membe
 from ocplace.sim.corpus.cutout_sources import CUTOUT_CATALOGUES
 from ocplace.sim.corpus.selection import SelectionRule, head_noun
 from ocplace.sim.library import processing
+from ocplace.sim.library.checksums import read_checked, write_checksums
 from ocplace.sim.library.meshes import TexturedMesh
 from ocplace.sim.library.records import ASSET_FILE, asset_from_json, asset_to_json
 from ocplace.sim.library.shape_descriptor import write_descriptor
@@ -279,7 +280,7 @@ def convert_model(
 ) -> ConversionResult:
     """Converts `entry` of `source` (a catalogue archive, or an image for a cut-out source's catalogue) into a private
     temp folder, then renames it onto `target` in one step (a kill leaves at most a temp folder, which no reader
-    uses; `asset.json` is written last)."""
+    uses; `checksums.json`, over every other file, is written last)."""
     write = _write_cutout if entry.catalogue in CUTOUT_CATALOGUES else _write_catalogue_model
     work = None
     try:
@@ -287,6 +288,7 @@ def convert_model(
         work = Path(tempfile.mkdtemp(prefix=f"{target.name}.{os.getpid()}.", dir=tmp_root))
         asset = write(work, entry, source, licence, config)
         (work / ASSET_FILE).write_text(json.dumps(asset_to_json(asset), indent=1) + "\n")
+        write_checksums(work)
         if target.exists():  # a folder without its asset.json is partial: never used
             shutil.rmtree(target)
         target.parent.mkdir(parents=True, exist_ok=True)
@@ -303,5 +305,6 @@ def convert_model(
 
 
 def read_converted(directory: Path) -> ObjectAsset:
-    """The converted model in `directory`; ValueError/OSError/KeyError when it is missing or incomplete."""
-    return asset_from_json(json.loads((directory / ASSET_FILE).read_text()), directory)
+    """The converted model in `directory`, its files checked against their checksums; ValueError/OSError/KeyError
+    when it is missing, incomplete or damaged."""
+    return asset_from_json(read_checked(directory), directory)

@@ -15,14 +15,22 @@ from PIL import Image
 from tqdm import tqdm
 
 from ocplace.errors import AssetBuildError, UnknownObject
-from ocplace.paths import atomic_path, library_cache, refuse_links, remove_abandoned_tmp, remove_tree, write_text_atomic
+from ocplace.paths import (
+    atomic_path,
+    file_sha256,
+    library_cache,
+    refuse_links,
+    remove_abandoned_tmp,
+    remove_tree,
+    write_text_atomic,
+)
 from ocplace.runtime import Executor, ExecutorConfig, Task, open_executor
+from ocplace.sim.library.checksums import CHECKSUMS_FILE, read_checked
 from ocplace.sim.library.config import LibraryConfig, default_config
 from ocplace.sim.library.library import Library, load_library
 from ocplace.sim.library.metadata import ObjectSpec, packaged_objects, table_textures
 from ocplace.sim.library.process_object import ObjectResult, build_object
 from ocplace.sim.library.records import (
-    ASSET_FILE,
     MANIFEST_FILE,
     MANIFEST_VERSION,
     OBJECTS_DIRNAME,
@@ -33,7 +41,7 @@ from ocplace.sim.library.records import (
 )
 from ocplace.sim.library.sources import SourceFiles, gso_specs, libero_root, pybullet_root, source_files
 
-PROCESSING_VERSION = 1  # bump when processing changes what is written: every object rebuilds
+PROCESSING_VERSION = 2  # bump when processing changes what is written: every object rebuilds (2: checksums)
 _KEY_CHARS = 16
 
 log = logging.getLogger(__name__)
@@ -110,10 +118,13 @@ def _job(spec: ObjectSpec, config: LibraryConfig) -> _Job:
 
 def _cached(root: Path, job: _Job) -> ObjectResult | None:
     directory = root / job.folder
+    if not directory.exists():
+        return None
     try:
-        record = json.loads((directory / ASSET_FILE).read_text())
+        record = read_checked(directory)
         asset = asset_from_json(record, directory)
-    except (OSError, ValueError, KeyError, TypeError):  # unreadable, or names files outside its folder: not reused
+    except (OSError, ValueError, KeyError, TypeError) as error:  # damaged, or names files outside its folder
+        log.warning("library object %s cannot be used (%s): it is built again", job.spec.name, error)
         return None
     return ObjectResult(job.spec.name, "ok", "", record.get("build_seconds", 0.0), asset)
 
@@ -150,6 +161,9 @@ def _texture_source(source: str, path: str) -> Path:
 
 
 def _build_textures(root: Path, max_px: int) -> list[dict]:
+    """Each table texture as a manifest entry with its file's sha256 (checked on load); a file that no longer
+    hashes to the last manifest's value is made again."""
+    recorded = {e.get("file"): e.get("sha256") for e in _previous_manifest(root).get("textures", [])}
     entries = []
     for spec in table_textures():
         source = _texture_source(spec.source, spec.path)
@@ -157,13 +171,16 @@ def _build_textures(root: Path, max_px: int) -> list[dict]:
         _hash_files(digest, [source])
         relative = f"{TEXTURES_DIRNAME}/{spec.name}-{digest.hexdigest()[:_KEY_CHARS]}.png"
         target = root / relative
+        if target.is_file() and recorded.get(relative) not in (None, file_sha256(target)):
+            log.warning("table texture %s changed since it was built: it is made again", target)
+            target.unlink()
         if not target.is_file():
             with Image.open(source) as image:
                 image = image.convert("RGB")
                 image.thumbnail((max_px, max_px), Image.Resampling.LANCZOS)
                 with atomic_path(target) as tmp:
                     image.save(tmp, format="PNG")
-        entries.append({"name": spec.name, "split": spec.split, "file": relative})
+        entries.append({"name": spec.name, "split": spec.split, "file": relative, "sha256": file_sha256(target)})
     return entries
 
 
@@ -190,14 +207,18 @@ def _manifest_entry(job: _Job, result: ObjectResult) -> dict:
     return entry
 
 
-def _previous_entries(root: Path) -> list[dict]:
+def _previous_manifest(root: Path) -> dict:
+    """The last build's manifest, or {} when there is none usable (rebuilt from nothing, and rewritten)."""
     try:
         manifest = json.loads((root / MANIFEST_FILE).read_text())
     except (OSError, ValueError):
-        return []
-    if manifest_problem(manifest) is not None:  # rebuilt from nothing, and rewritten
-        return []
-    return [e for e in manifest["objects"] if e["status"] != "ok" or (root / e["folder"] / ASSET_FILE).is_file()]
+        return {}
+    return manifest if manifest_problem(manifest) is None else {}
+
+
+def _previous_entries(root: Path) -> list[dict]:
+    objects = _previous_manifest(root).get("objects", [])
+    return [e for e in objects if e["status"] != "ok" or (root / e["folder"] / CHECKSUMS_FILE).is_file()]
 
 
 def _remove_unreferenced(root: Path, manifest: dict) -> None:

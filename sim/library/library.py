@@ -10,11 +10,11 @@ from collections.abc import Mapping
 from pathlib import Path
 
 from ocplace.errors import LibraryNotBuilt, UnknownObject
-from ocplace.paths import inside, library_cache
+from ocplace.paths import file_sha256, inside, library_cache
 from ocplace.sim.colour_terms import COLOUR_TERMS
+from ocplace.sim.library.checksums import read_checked
 from ocplace.sim.library.metadata import packaged_objects
 from ocplace.sim.library.records import (
-    ASSET_FILE,
     MANIFEST_FILE,
     asset_from_json,
     manifest_problem,
@@ -115,9 +115,11 @@ def _read_manifest(root: Path) -> dict:
 def _read_asset(root: Path, entry: dict) -> ObjectAsset:
     try:
         directory = inside(root, entry["folder"])
-        return asset_from_json(json.loads((directory / ASSET_FILE).read_text()), directory)
+        return asset_from_json(read_checked(directory), directory)
     except (OSError, ValueError, KeyError) as error:
-        raise LibraryNotBuilt(f"object {entry['name']!r} in {root} is incomplete ({error}); {BUILD_HINT}") from error
+        raise LibraryNotBuilt(
+            f"object {entry['name']!r} in {root} is incomplete or damaged ({error}); {BUILD_HINT}"
+        ) from error
 
 
 def load_library(cache: str | Path | None = None) -> Library:
@@ -136,6 +138,8 @@ def load_library(cache: str | Path | None = None) -> Library:
             raise LibraryNotBuilt(f"table texture {entry['name']!r} of {root}: {error}; {BUILD_HINT}") from None
         if not path.is_file():
             raise LibraryNotBuilt(f"table texture {path} is missing; {BUILD_HINT}")
+        if entry.get("sha256") not in (None, file_sha256(path)):
+            raise LibraryNotBuilt(f"table texture {path} changed since it was built; {BUILD_HINT}")
         textures[entry["name"]] = TableTexture(entry["name"], path, entry["split"])
     return _read_only(objects, textures, root, manifest)
 

@@ -12,6 +12,7 @@ from pathlib import Path
 
 from ocplace.errors import AssetBuildError
 from ocplace.sim.library import processing, writers
+from ocplace.sim.library.checksums import damage, read_checked, write_checksums
 from ocplace.sim.library.config import LibraryConfig
 from ocplace.sim.library.meshes import load_mesh
 from ocplace.sim.library.metadata import ObjectSpec
@@ -118,12 +119,13 @@ def build_object(
         seconds = time.perf_counter() - start
         record = asset_to_json(asset) | {"build_seconds": round(seconds, 2)}
         (work / ASSET_FILE).write_text(json.dumps(record, indent=1) + "\n")
-        if not (target / ASSET_FILE).is_file():  # else a concurrent build finished it first
-            if target.exists():  # a folder without its asset.json is partial: never used
+        write_checksums(work)
+        if damage(target):  # else a concurrent build finished it first
+            if target.exists():  # a folder whose files do not match its checksums is never used
                 shutil.rmtree(target)
             target.parent.mkdir(parents=True, exist_ok=True)
             os.rename(work, target)
-        asset = asset_from_json(json.loads((target / ASSET_FILE).read_text()), target)
+        asset = asset_from_json(read_checked(target), target)
         return ObjectResult(spec.name, "ok", "", seconds, asset)
     except Exception as error:  # one bad object must not stop the build
         reason = str(error) if isinstance(error, AssetBuildError) else f"{type(error).__name__}: {error}"
