@@ -33,7 +33,7 @@ from ocplace.errors import EvaluationError
 from ocplace.eval.api import Method, MethodOutput
 from ocplace.sim.boxes import Boxes
 from ocplace.sim.dataset.records import SceneRecord
-from ocplace.vocabulary import LEVELS, TEST_SUBSETS, subsets_problem
+from ocplace.vocabulary import LEVELS, MAX_SAMPLES, TEST_SUBSETS, subsets_problem
 
 STAGES = ("failure", "parse", "grounding", "sampling", "placement")
 # The per-subset columns pooled from levels besides Overall: each level alone, and the object-referenced
@@ -67,6 +67,8 @@ class EvalSettings:
             for name, least, value in (("num_samples", 1, self.num_samples), ("chunk_size", 1, self.chunk_size))
             if value < least
         ]
+        if self.num_samples > MAX_SAMPLES:
+            problems.append(f"num_samples must be at most {MAX_SAMPLES:,}, got {self.num_samples:,}")
         if self.limit is not None and self.limit < 1:
             problems.append(f"limit must be at least 1 (none: every scene), got {self.limit}")
         if self.physical_scenes is not None and self.physical_scenes < 0:

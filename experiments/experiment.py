@@ -20,7 +20,7 @@ from ocplace.models.parsing.config import PARSER_NAMES
 from ocplace.runtime.width import TRAIN_CPUS
 from ocplace.train.config import TrainConfig
 from ocplace.train.recipes import CliportRecipe, GridsRecipe, NoLlmTrainConfig, NoPretrainRecipe
-from ocplace.vocabulary import TEST_SUBSETS, subsets_problem
+from ocplace.vocabulary import MAX_SAMPLES, TEST_SUBSETS, subsets_problem
 
 
 @dataclasses.dataclass(frozen=True)
@@ -129,8 +129,8 @@ class EvalPlan:
             for f in self.fractions
             if not 0 < f <= 1
         ]
-        if self.num_samples < 1:
-            problems.append(f"evaluation.num_samples must be at least 1, got {self.num_samples}")
+        if not 1 <= self.num_samples <= MAX_SAMPLES:
+            problems.append(f"evaluation.num_samples must be from 1 to {MAX_SAMPLES:,}, got {self.num_samples}")
         if self.parser not in PARSER_NAMES:
             problems.append(
                 f"evaluation.parser {self.parser!r} is not a parser; choose one of {', '.join(PARSER_NAMES)}"

@@ -69,3 +69,8 @@ def subsets_problem(subsets, key: str, allowed: tuple[str, ...] = SCORED_SPLITS)
         named = ", ".join(subsets) or "none"
         return f"{key} must name each {kinds} at most once, some of {', '.join(allowed)}; got {named}"
     return None
+
+
+# Placement samples per scene anything accepts: `(scenes, samples, 2)` arrays and XLA's buffers for them stay small
+# (200,000,000 aborted an evaluation worker inside XLA). The paper draws 1,024.
+MAX_SAMPLES = 65_536

@@ -325,7 +325,7 @@ CANNOT_RUN = "experiment 'smoke' cannot run: "
         ("recipes.ours.stepz=1", "unknown key 'recipes.ours.stepz': valid keys under 'recipes.ours' are steps, "),
         ("dataset.train_scenes=many", "--set dataset.train_scenes=many: expected an integer, got 'many'"),
         ("evaluation", "--set takes KEY=VALUE, got 'evaluation'"),
-        ("evaluation.num_samples=-1", CANNOT_RUN + "evaluation.num_samples must be at least 1, got -1"),
+        ("evaluation.num_samples=-1", CANNOT_RUN + "evaluation.num_samples must be from 1 to 65,536, got -1"),
         ("recipes.ours.learning_rate=-1", CANNOT_RUN + "recipes.ours.learning_rate must be positive, got -1.0"),
         ("recipes.ours.learning_rate=nan", CANNOT_RUN + "recipes.ours.learning_rate is nan; numbers must be finite"),
         ("recipes.cliport.schedule.learning_rate=inf", CANNOT_RUN + "recipes.cliport.schedule.learning_rate is inf"),
@@ -419,6 +419,7 @@ def test_train_refuses_a_bad_setting_before_reading_features(tmp_path, capsys, o
         ("--chunk-size", "-3", "chunk_size must be at least 1, got -3"),
         ("--limit", "0", "limit must be at least 1 (none: every scene), got 0"),
         ("--seed", "-1", "seed must be at least 0, got -1"),
+        ("--num-samples", "200000000", "num_samples must be at most 65,536, got 200,000,000"),
     ],
 )
 def test_evaluate_refuses_a_bad_setting_before_any_work(tmp_path, capsys, monkeypatch, option, value, message):
@@ -574,3 +575,38 @@ def test_registered_names_are_the_specs_names_without_importing_them():
     from ocplace.methods.registry import method_specs, registered_names
 
     assert registered_names() == tuple(method_specs())
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["train", "--cpus", "-5"], "argument --cpus: -5 is out of range: give a whole number at least 0"),
+        (["featurize", "--chunk-scenes", "0"], "argument --chunk-scenes: 0 is out of range"),
+        (["generate", "--seed", "-1"], "argument --seed: -1 is out of range"),
+        (["place", "--samples", "0"], "argument --samples: 0 is out of range: give a whole number from 1 to 65,536"),
+        (["place", "--held-footprint", "nan", "nan"], "argument --held-footprint: nan is not a finite number"),
+        (
+            ["evaluate", "--physical", "-5"],
+            "argument --physical: -5 is out of range: give a whole number at least 0 (or -1)",
+        ),
+        (["place", "--seed", "x"], "argument --seed: 'x' is not a whole number"),
+    ],
+)
+def test_out_of_range_flags_are_usage_errors(capsys, argv, message):
+    """Issue 43, defect 13: these were accepted (and meant "all", printed "nan%", or aborted a worker in XLA)."""
+    with pytest.raises(SystemExit) as stop:
+        main(argv)
+    assert stop.value.code == 2 and message in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "flags, message",
+    [
+        (["--chunk-steps", "0"], "steps, batch_size and chunk_steps must be positive"),
+        (["--reduction", "0"], "reduction must be at least 1"),
+        (["--seed", "-1"], "seed and subset_seed must be at least 0, got -1"),
+    ],
+)
+def test_train_refuses_settings_that_cannot_train(tmp_path, capsys, flags, message):
+    code, _, err = _cli(capsys, "train", "--features", tmp_path / "none.safetensors", "--out", tmp_path / "run", *flags)
+    assert code == 2 and message in err and not (tmp_path / "run").exists()

@@ -58,10 +58,14 @@ class TrainConfig:
             problems.append(f"weight_decay and anchor must be at least 0, got {self.weight_decay}, {self.anchor}")
         for name in ("eval_every", "checkpoint_every"):
             value = getattr(self, name)
-            if value < 1 or value % self.chunk_steps:
+            if value < 1 or value % max(self.chunk_steps, 1):
                 problems.append(f"{name} ({value}) must be a positive multiple of chunk_steps ({self.chunk_steps})")
         if self.keep_checkpoints < 1:
             problems.append("keep_checkpoints must be at least 1")
+        if self.reduction < 1:
+            problems.append(f"reduction must be at least 1 (hidden width = D / reduction), got {self.reduction}")
+        if self.seed < 0 or self.subset_seed < 0:
+            problems.append(f"seed and subset_seed must be at least 0, got {self.seed}, {self.subset_seed}")
         if problems:
             raise TrainingError("invalid training configuration: " + "; ".join(problems))
 

@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from ocplace.cli.executor_options import add_executor_arguments, executor_config
-from ocplace.cli.options import DeprecatedAlias, add_dataset_argument, config_from_arguments
+from ocplace.cli.options import DeprecatedAlias, add_dataset_argument, config_from_arguments, count
 from ocplace.vocabulary import EXPERIMENT_NAMES, SCORED_SPLITS, TEST_SUBSETS
 
 # `ocplace evaluate` options named after EvalSettings fields: left out (None), they keep its defaults.
@@ -80,7 +80,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     evaluate.add_argument("--limit", type=int, help="first N scenes of each subset")
     evaluate.add_argument(
         "--physical",
-        type=int,
+        type=count(0, none_below=-1),
         default=None,
         metavar="K",
         help="physical check on the first K scenes of each subset (default 50; 0: none; -1: all)",
@@ -131,7 +131,7 @@ def parse_runs(items: list[str]) -> dict[str, Path]:
 def physical_setting(value: int | None, default: int | None) -> int | None:
     if value is None:
         return default
-    return None if value < 0 else value
+    return None if value == -1 else value  # `count(0, none_below=-1)` lets nothing else below 0 through
 
 
 def method_runs(specs: list, runs: dict[str, Path], runs_from: Path | None = None) -> list:

@@ -7,6 +7,7 @@ import dataclasses
 from pathlib import Path
 
 from ocplace.cli.executor_options import add_executor_arguments, executor_config
+from ocplace.cli.options import count
 from ocplace.sim.dataset.config import SPLIT_NAMES
 from ocplace.vocabulary import DEV_SPLITS
 
@@ -25,7 +26,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     generate.add_argument("--out", type=Path, required=True, help="dataset folder")
     generate.add_argument("--split", choices=SPLIT_CHOICES, default="all")
-    generate.add_argument("--seed", type=int, default=0)
+    generate.add_argument("--seed", type=count(0), default=0)
     generate.add_argument("--train", type=int, default=2000, help="training scenes")
     generate.add_argument("--test", type=int, default=400, help="scenes per test subset")
     generate.add_argument(

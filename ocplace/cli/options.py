@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import math
 import sys
 import types
 import typing
@@ -266,3 +267,32 @@ def dataset_of(args: argparse.Namespace) -> Path:
     if dataset is None:
         raise ConfigError("name the dataset folder with --dataset DIR")
     return dataset
+
+
+def count(minimum: int = 0, maximum: int | None = None, none_below: int | None = None):
+    """An argparse type: an integer in [`minimum`, `maximum`] (`none_below`: one more allowed value below,
+    e.g. -1 for "all"), or argparse's usage error naming the range."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+        if value == none_below or (value >= minimum and (maximum is None or value <= maximum)):
+            return value
+        span = f"at least {minimum}" if maximum is None else f"from {minimum} to {maximum:,}"
+        extra = f" (or {none_below})" if none_below is not None else ""
+        raise argparse.ArgumentTypeError(f"{value} is out of range: give a whole number {span}{extra}")
+
+    return parse
+
+
+def finite(text: str) -> float:
+    """An argparse type: a finite number."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"{text} is not a finite number")
+    return value

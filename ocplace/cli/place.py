@@ -5,6 +5,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from ocplace.cli.options import count, finite
+from ocplace.vocabulary import MAX_SAMPLES
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
@@ -40,7 +43,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     own.add_argument(
         "--held-footprint",
-        type=float,
+        type=finite,
         nargs=2,
         metavar=("HX", "HY"),
         default=(0.05, 0.05),
@@ -60,8 +63,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     model.add_argument(
         "--threshold", type=float, help="least grounding probability to place against (default: the policy's)"
     )
-    model.add_argument("--samples", type=int, default=1024, help="placements to sample")
-    model.add_argument("--seed", type=int, default=0)
+    model.add_argument("--samples", type=count(1, MAX_SAMPLES), default=1024, help="placements to sample")
+    model.add_argument("--seed", type=count(0), default=0)
     parser.add_argument("--out", type=Path, default=Path("place.png"), help="figure to write (PNG)")
     parser.set_defaults(func=run_place)
 

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from ocplace.cli.evaluate import command_record, physical_setting
 from ocplace.cli.executor_options import add_executor_arguments, executor_config
-from ocplace.cli.options import DeprecatedAlias, add_dataset_argument
+from ocplace.cli.options import DeprecatedAlias, add_dataset_argument, count
 from ocplace.vocabulary import EXPERIMENT_NAMES
 
 
@@ -55,10 +55,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     reproduce.add_argument(
         "--physical",
-        type=int,
+        type=count(0, none_below=-1),
         default=None,
         metavar="K",
-        help="physical check on the first K scenes per subset (default: the experiment's)",
+        help="physical check on the first K scenes per subset (default: the experiment's; -1: all)",
     )
     reproduce.add_argument(
         "--set",

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ocplace.cli.options import add_config_arguments, config_from_arguments
+from ocplace.cli.options import add_config_arguments, config_from_arguments, count
 from ocplace.runtime.width import TRAIN_CPUS, pin_jax_width
 from ocplace.train.config import TrainConfig, default_config, paper_config, smoke_config  # light: no JAX behind it
 
@@ -29,7 +29,7 @@ def register(subparsers) -> None:
     )
     parser.add_argument(
         "--cpus",
-        type=int,
+        type=count(0),
         default=TRAIN_CPUS,
         help=f"CPUs JAX computes for (default {TRAIN_CPUS}, as `ocplace reproduce` trains: the same recipe gives the "
         "same bits; 1 may be faster on a busy machine, with other last bits; 0: every CPU this process may use)",
