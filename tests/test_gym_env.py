@@ -97,7 +97,7 @@ def test_bad_actions_score_zero_or_raise_a_typed_error(smoke_dataset):
         env.reset(seed=2)
         _, reward, terminated, _, info = env.step(np.array(action))
         assert reward == 0.0 and terminated and not info["success"] and reason in info["reason"]
-    for action in (np.zeros(3), np.zeros((2, 2)), 0.5, "ab", [[0.0], [0.0]], {"x": 0}):
+    for action in (np.zeros(3), np.zeros((2, 2)), 0.5, "ab", [[0.0], [0.0]], {"x": 0}, (10**400, 0)):
         env.reset(seed=2)
         with pytest.raises(InvalidAction, match=r"placement \(x, y\)"):
             env.step(action)
@@ -137,6 +137,7 @@ def test_the_vector_env_plays_the_single_envs_scenes(smoke_dataset):
         for worker, scene in enumerate(scenes):
             played[scene] = ({k: v[worker] for k, v in observations.items()}, rewards[worker])
         observations = next_observations
+    _check_bad_batches(vector, truth)
     vector.close()
     assert sorted(played) == sorted(expected)
     for scene, (observation, reward) in played.items():
@@ -177,3 +178,39 @@ def test_the_physical_check_drops_the_held_object_when_asked(smoke_dataset, aren
         "max_disturbance": None,
     }
     env.close()
+
+
+def test_writing_into_an_observation_never_changes_the_score(smoke_dataset):
+    """Issue 43, defect 6: the observation's footprint was the record's own array, so a policy writing into
+    `obs["held_footprint"]` changed its reward (0 -> 1 on seen-00000); `evaluate --policy` was immune."""
+    env = gymnasium.make(ENV_ID, dataset=smoke_dataset, split="seen")
+    truth = oracles(smoke_dataset, "seen")
+    rewards = []
+    for seed in range(len(truth)):
+        _, info = env.reset(seed=seed)
+        action = truth[info["scene"]] + [0.0, 0.03]
+        _, plain, *_ = env.step(action)
+        observation, _ = env.reset(seed=seed)
+        for value in observation.values():
+            if isinstance(value, np.ndarray):
+                value[...] = 0  # the footprint shrinks to nothing, the boxes vanish
+        _, edited, *_ = env.step(action)
+        assert edited == plain, info["scene"]
+        rewards.append(plain)
+    assert set(rewards) == {0.0, 1.0}  # some placements fail: the footprint decides them
+    env.close()
+
+
+def _check_bad_batches(vector, truth) -> None:
+    """Issue 43, defect 5: a (3, 2) action for 2 workers sent 2 rows, raised an untyped ValueError, and the
+    next `step(NaN)` returned those rows' rewards; now a bad batch sends nothing."""
+    _, infos = vector.reset(seed=0)
+    good = np.stack([truth[scene] for scene in infos["scene"]])
+    for bad in (np.concatenate([good, good[:1]]), [[10**400, 0.0], [0.0, 0.0]], good[:, :1]):
+        with pytest.raises(InvalidAction, match="shape \\(2, 2\\)"):
+            vector.step(bad)
+    _, rewards, terminated, _, infos = vector.step(np.full((2, 2), np.nan))
+    assert list(rewards) == [0.0, 0.0] and terminated.all()  # scored now, not the rows of a bad batch
+    assert all("not finite" in reason for reason in infos["final_info"]["reason"])
+    _, rewards, *_ = vector.step(np.stack([truth[scene] for scene in infos["scene"]]))
+    assert list(rewards) == [1.0, 1.0]  # and the vector env goes on

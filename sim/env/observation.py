@@ -76,14 +76,15 @@ def observation(record: SceneRecord) -> dict:
     aabbs = np.zeros((MAX_BOXES, 2, 3), np.float64)
     for row, object_id in enumerate(boxes.object_ids):
         aabbs[row] = aabb_by_id[int(object_id)]
+    # Copies, never views of the record: a policy may write into its observation, and the record scores it.
     return {
-        "rgb": record.rgb,
-        "depth": record.depth,
+        "rgb": np.array(record.rgb),
+        "depth": np.array(record.depth),
         "boxes": padded_boxes,
         "box_mask": (np.arange(MAX_BOXES) < len(boxes)).astype(np.int8),
         "box_aabbs": aabbs,
         "instruction": record.instruction,
-        "held_footprint": np.asarray(record.held_object.footprint_half_extents, np.float64),
-        "camera_intrinsics": record.camera.intrinsics,
-        "camera_pose": record.camera.world_from_camera,
+        "held_footprint": np.array(record.held_object.footprint_half_extents, np.float64),
+        "camera_intrinsics": np.array(record.camera.intrinsics),
+        "camera_pose": np.array(record.camera.world_from_camera),
     }

@@ -37,7 +37,7 @@ def placement_of(action) -> np.ndarray:
     """`(2,)` float64 table-frame `(x, y)` of an action; InvalidAction when it is not two numbers."""
     try:
         placement = np.asarray(action, dtype=np.float64)
-    except (TypeError, ValueError) as error:
+    except Exception as error:  # TypeError, ValueError, OverflowError (10**400), or whatever an __array__ raises
         raise InvalidAction(
             f"an action is a placement (x, y) in metres in the table frame, two numbers; got "
             f"{type(action).__name__} ({error})"

@@ -12,9 +12,29 @@ from __future__ import annotations
 
 import functools
 
+import numpy as np
 from gymnasium.vector import AsyncVectorEnv, AutoresetMode
 
-from ocplace.errors import PlaceEnvError
+from ocplace.errors import InvalidAction, PlaceEnvError
+
+
+class PlaceVectorEnv(AsyncVectorEnv):
+    """Gymnasium's `AsyncVectorEnv` that checks the whole batch of actions before it sends a row: a bad batch is
+    an `InvalidAction` with nothing sent, so no worker is left holding a result the next step would return."""
+
+    def step_async(self, actions) -> None:
+        try:
+            rows = np.asarray(actions, dtype=np.float64)
+        except Exception as error:  # as `placement_of`: whatever the conversion raises
+            raise InvalidAction(
+                f"actions of a vector environment are numbers, shape ({self.num_envs}, 2): {error}"
+            ) from None
+        if rows.shape != (self.num_envs, 2):
+            raise InvalidAction(
+                f"a vector environment of {self.num_envs} takes one placement (x, y) per sub-environment, shape "
+                f"({self.num_envs}, 2); got shape {rows.shape}"
+            )
+        super().step_async(rows)
 
 
 def make_vector_env(num_envs: int = 2, **kwargs) -> AsyncVectorEnv:
@@ -27,7 +47,7 @@ def make_vector_env(num_envs: int = 2, **kwargs) -> AsyncVectorEnv:
 
     if num_envs < 1:
         raise PlaceEnvError(f"num_envs must be at least 1, got {num_envs}")
-    return AsyncVectorEnv(
+    return PlaceVectorEnv(
         [functools.partial(PlaceEnv, **kwargs, worker=worker, workers=num_envs) for worker in range(num_envs)],
         context="spawn",
         # Gymnasium 1.4 reads a Text space out of shared memory once, when the vector env is made: every
