@@ -191,6 +191,11 @@ def chunks(scenes: Sequence, size: int) -> Iterator[tuple[int, list[SceneRecord]
 # ----------------------------------------------------------------------------- running a method
 
 
+# What a method's (anyone's policy's) code may raise without ending the evaluation: any exception, and a
+# `sys.exit` too; Ctrl-C (KeyboardInterrupt) still stops it.
+POLICY_ERRORS = (Exception, SystemExit)
+
+
 def _describe_error(error: BaseException) -> str:
     return f"{type(error).__name__}: {error}"
 
@@ -210,14 +215,14 @@ def run_chunk(method: Method, scenes: Sequence[SceneRecord], key) -> list[Method
 
     try:
         return _checked(method.run(scenes, key), len(scenes))
-    except Exception:
+    except POLICY_ERRORS:
         if len(scenes) == 1:
             raise
     outputs = []
     for index, scene in enumerate(scenes):
         try:
             outputs.append(_checked(method.run([scene], jax.random.fold_in(key, index)), 1)[0])
-        except Exception as error:
+        except POLICY_ERRORS as error:
             outputs.append(MethodOutput(mode=None, samples=None, failure=_describe_error(error)))
     return outputs
 
@@ -226,7 +231,7 @@ def run_scenes(method: Method, scenes: Sequence[SceneRecord], key) -> list[Metho
     """`run_chunk`, with a single scene's exception turned into a failure."""
     try:
         return run_chunk(method, scenes, key)
-    except Exception as error:
+    except POLICY_ERRORS as error:
         return [MethodOutput(mode=None, samples=None, failure=_describe_error(error))]
 
 
@@ -289,8 +294,8 @@ def interpret(output: MethodOutput) -> _Interpreted:
             if output.failure is not None or output.mode is not None
             else "no placement and no failure message",
         )
-    except (TypeError, ValueError) as error:
-        return _Interpreted(None, None, None, None, output.failure or f"malformed output: {error}")
+    except Exception as error:  # OverflowError (10**400), whatever an object's __array__ raises, ...
+        return _Interpreted(None, None, None, None, output.failure or f"malformed output: {_describe_error(error)}")
 
 
 def score_scene(record: SceneRecord, output: MethodOutput) -> SceneOutcome:
@@ -298,6 +303,8 @@ def score_scene(record: SceneRecord, output: MethodOutput) -> SceneOutcome:
     from ocplace.sim.metric import placement_success
 
     truth = record.tuples
+    if not isinstance(output, MethodOutput):  # anyone's Method may return anything
+        output = MethodOutput(None, None, failure=f"malformed output: {type(output).__name__}, not a MethodOutput")
     mode, samples, parsed, tokens, failure = interpret(output)
     problem = record.problem()
     success = failure is None and bool(placement_success(mode[None], problem)[0])

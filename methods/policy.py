@@ -23,7 +23,7 @@ from pathlib import Path
 
 from ocplace.errors import EvaluationError
 from ocplace.eval.api import Method, MethodOutput
-from ocplace.eval.harness import EvalSettings, evaluate_run, physical_arena
+from ocplace.eval.harness import POLICY_ERRORS, EvalSettings, evaluate_run, physical_arena
 from ocplace.methods.api import LoadContext, MethodSpec
 from ocplace.methods.registry import method_run
 from ocplace.sim.dataset.records import SceneRecord
@@ -56,6 +56,11 @@ def import_policy(reference: str):
         target = importlib.import_module(module_name)
     except ImportError as error:
         raise EvaluationError(f"cannot import the policy module {module_name!r} ({error}); {REFERENCE_HELP}") from None
+    except POLICY_ERRORS as error:  # a SyntaxError, or anything its own code raises while it is imported
+        raise EvaluationError(
+            f"the policy module {module_name!r} failed while it was imported ({type(error).__name__}: {error}); "
+            "fix it, or import it yourself to see the traceback"
+        ) from None
     for attribute in attributes.split("."):
         if not hasattr(target, attribute):
             raise EvaluationError(f"{module_name} has no {attributes!r} for the policy {reference!r}; {REFERENCE_HELP}")
@@ -91,7 +96,7 @@ class PlacerMethod:
             # stateful placer (one random generator for all scenes) would see other calls than in the env.
             try:
                 mode = self.place(observation(scene))
-            except Exception as error:
+            except POLICY_ERRORS as error:
                 outputs.append(MethodOutput(mode=None, samples=None, failure=f"{type(error).__name__}: {error}"))
             else:  # the harness checks the shape and finiteness: anything else is a failure there
                 outputs.append(MethodOutput(mode=mode, samples=None))
@@ -101,7 +106,12 @@ class PlacerMethod:
 def as_method(policy, name: str) -> Method:
     """The `Method` that runs `policy` (a Method, a placer, an object with a `place` method, or a class)."""
     if inspect.isclass(policy):
-        policy = policy()
+        try:
+            policy = policy()
+        except POLICY_ERRORS as error:
+            raise EvaluationError(
+                f"the policy class {name!r} failed when made with no arguments ({type(error).__name__}: {error})"
+            ) from None
     if _is_method(policy):
         return policy
     place = getattr(policy, "place", policy)

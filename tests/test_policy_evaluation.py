@@ -91,6 +91,20 @@ def test_cli_evaluates_a_policy_module_and_reruns_it(smoke_dataset, tmp_path, mo
     assert "cannot import the policy module" in capsys.readouterr().err
     assert main([*common, "--policy", "centre_policy_of_the_cli_test"]) == 2
     assert "MODULE:CALLABLE" in capsys.readouterr().err
+    broken = {  # issue 43, defect 12: each was a raw traceback, exit 1
+        "raising_policy_of_the_cli_test": ('raise RuntimeError("no GPU here")\n', "RuntimeError: no GPU here"),
+        "syntax_policy_of_the_cli_test": ("def place(:\n", "SyntaxError"),
+        "class_policy_of_the_cli_test": (
+            "class Place:\n    def __init__(self):\n        raise ValueError('needs a model path')\n",
+            "failed when made with no arguments (ValueError: needs a model path)",
+        ),
+    }
+    for module, (source, message) in broken.items():
+        (tmp_path / f"{module}.py").write_text(source)
+        callable_name = "Place" if module.startswith("class") else "place"
+        assert main([*common, "--policy", f"{module}:{callable_name}"]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("ocplace evaluate: error:") and message in err, err
     assert main([*common, "--policy", "centre_policy_of_the_cli_test:place", "--label", "Centre"]) == 0
     assert "| Centre |" in capsys.readouterr().out
     saved = read_results(tmp_path / "results.json")
@@ -124,3 +138,31 @@ def test_a_policy_no_process_can_import_again_is_evaluated_and_its_rerun_refused
         err = capsys.readouterr().err
         assert err.startswith(f"ocplace evaluate: error: the policy '{entry['method']}' was defined {message}"), err
         assert not path.with_name(path.stem + ".rerun.json").exists()
+
+
+class _Unconvertible:
+    def __array__(self, dtype=None, copy=None):
+        raise RuntimeError("no array for you")
+
+
+class _NoneMethod:
+    def describe(self) -> dict:
+        return {}
+
+    def run(self, scenes, key):
+        return [None for _ in scenes]
+
+
+def test_a_policys_odd_answers_and_exits_are_failures_of_their_scenes(smoke_dataset):
+    """Issue 43, defect 8: each of these aborted the whole evaluation (a traceback, or a silent exit 3)."""
+    settings = dataclasses.replace(SETTINGS, subsets=("seen",), limit=2)
+    policies = {
+        "overflow": (lambda observation: (10**400, 0), "OverflowError"),
+        "unconvertible": (lambda observation: _Unconvertible(), "no array for you"),
+        "exit": (lambda observation: sys.exit(3), "SystemExit: 3"),
+        "none": (_NoneMethod(), "NoneType, not a MethodOutput"),
+    }
+    for name, (policy, message) in policies.items():
+        (entry,) = evaluate_policy(policy, smoke_dataset, settings, label=name)["evaluations"]
+        scenes = entry["subsets"]["seen"]["scenes"]
+        assert len(scenes) == 2 and all(not s["success"] and message in s["failure"] for s in scenes), (name, scenes)
