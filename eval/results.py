@@ -380,6 +380,22 @@ def settings_of(results: Mapping) -> EvalSettings:
 # ----------------------------------------------------------------------------- comparing two results
 
 
+def _by_content(description):
+    """`description` without the names of what it also identifies by content: a `path` beside its `sha256`, a
+    backbone `spec` beside its `fingerprint` (a run named relative in one command and absolute in the other is
+    the same run)."""
+    if isinstance(description, Mapping):
+        named = {"path": "sha256", "spec": "fingerprint"}
+        return {
+            key: _by_content(value)
+            for key, value in description.items()
+            if not (key in named and named[key] in description)
+        }
+    if isinstance(description, list):
+        return [_by_content(value) for value in description]
+    return description
+
+
 def compare(expected: Mapping, actual: Mapping) -> list[str]:
     """Every difference that matters between two results: dataset, settings, methods and outcomes."""
     differences = []
@@ -393,7 +409,7 @@ def compare(expected: Mapping, actual: Mapping) -> list[str]:
     for key in sorted(old.keys() ^ new.keys()):
         differences.append(f"{key}: evaluated in only one of the results")
     for key in [k for k in old if k in new]:
-        if old[key]["description"] != new[key]["description"]:
+        if _by_content(old[key]["description"]) != _by_content(new[key]["description"]):
             differences.append(f"{key}: describe() differs (configs, checkpoints or backbone)")
         for subset in sorted(old[key]["subsets"].keys() | new[key]["subsets"].keys()):
             differences += _compare_scenes(

@@ -379,3 +379,17 @@ def test_results_written_before_the_paper_protocol_render_as_they_were_scored(re
     assert lines[5:] == new_rows  # the Obj column pooled from 1 Obj and 2 Obj, as stored now
     fresh = json.loads(json.dumps(results_json))
     assert results.compare(old, fresh) == [f"settings: {old['settings']} != {fresh['settings']}"]  # not confidence
+
+
+def test_a_run_named_relative_or_absolute_compares_by_its_content(results_json):
+    """Issue 43, defect 7: `--rerun` of a results file made with a relative `--run` (as `make demo` writes them)
+    reported "describe() differs" for the same weights; paths and specs are names, the hashes decide."""
+    relative, absolute = json.loads(json.dumps(results_json)), json.loads(json.dumps(results_json))
+    for entry, root in ((relative["evaluations"][0], "out/demo"), (absolute["evaluations"][0], "/home/me/out/demo")):
+        entry["description"] = {
+            "adapters": {"path": f"{root}/runs/ours/adapters.safetensors", "sha256": "ab" * 32, "steps": 10},
+            "backbone": {"spec": f"offline:{root}/backbone", "fingerprint": "cd" * 32},
+        }
+    assert results.compare(relative, absolute) == []
+    absolute["evaluations"][0]["description"]["adapters"]["sha256"] = "ef" * 32
+    assert any("describe() differs" in difference for difference in results.compare(relative, absolute))
