@@ -25,6 +25,8 @@ import dataclasses
 import logging
 import multiprocessing
 import os
+import threading
+import time
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures.process import BrokenProcessPool
 from typing import Any, Literal
@@ -220,12 +222,30 @@ class LocalExecutor(Executor):
 
 def init_worker(width: int | None) -> None:
     """Starts a worker (a local pool's process, a Ray actor); one for pinned tasks starts JAX `width` CPUs
-    wide before any task can import it."""
+    wide before any task can import it. The worker ends itself when the process that started it is gone."""
     os.environ["OMP_NUM_THREADS"] = "1"  # one task per CPU; OpenMP (coacd) would oversubscribe
+    exit_with_parent()
     if width is not None:
         from ocplace.runtime.width import pin_jax_width
 
         pin_jax_width(width)
+
+
+PARENT_CHECK_S = 1.0
+
+
+def exit_with_parent() -> None:
+    """A daemon thread that ends this process within `PARENT_CHECK_S` of its parent's end (SIGTERM or SIGKILL of
+    the command: nothing else would, as a pool's idle worker waits on its queue for good). Polling, not Linux's
+    parent-death signal, which fires when the *thread* that started the process ends."""
+    parent = os.getppid()
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(PARENT_CHECK_S)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="ocplace-exit-with-parent", daemon=True).start()
 
 
 @contextlib.contextmanager
