@@ -9,7 +9,7 @@ A policy is one of
 A class is instantiated with no arguments first. The harness scores a policy as any method: same
 scenes, metric, physical check and tables; its Table I row carries the policy's label. The method
 name of a policy is its `MODULE:CALLABLE` reference (registered names have no colon), which is how
-`ocplace evaluate --rerun` imports it again.
+`ocplace evaluate --rerun --policy MODULE:CALLABLE` imports it again (never a results file alone).
 """
 
 from __future__ import annotations
@@ -138,14 +138,23 @@ def _spec(policy, name: str, label: str | None) -> MethodSpec:
     return MethodSpec(name=name, label=label, load=functools.partial(load_policy, name))
 
 
-def with_policies(specs: Mapping[str, MethodSpec], results: Mapping) -> dict[str, MethodSpec]:
-    """`specs` plus a spec for each policy a results file evaluated (method names `MODULE:CALLABLE`)."""
-    policies = {
-        entry["method"]: policy_spec(entry["method"], entry["label"])
-        for entry in results["evaluations"]
-        if is_policy_name(entry["method"]) and entry["method"] not in specs
-    }
-    return dict(specs) | policies
+def with_policies(
+    specs: Mapping[str, MethodSpec], results: Mapping, trusted: set[str] = frozenset(), trust_all: bool = False
+) -> dict[str, MethodSpec]:
+    """`specs` plus a spec for each policy a results file evaluated (method names `MODULE:CALLABLE`).
+
+    No module is imported because a file names it: only the policies the user names again (`trusted`, the
+    command's `--policy`), or all with `trust_all` (`--trust-policy`); any other is an EvaluationError saying so.
+    """
+    named = [e["method"] for e in results["evaluations"] if is_policy_name(e["method"]) and e["method"] not in specs]
+    untrusted = [name for name in named if name not in trusted and not trust_all]
+    if untrusted:
+        raise EvaluationError(
+            f"the results file names the policies {', '.join(map(repr, untrusted))}; a results file never makes "
+            "ocplace import code: name each again with --policy MODULE:CALLABLE (or pass --trust-policy) to rerun it"
+        )
+    labels = {e["method"]: e["label"] for e in results["evaluations"]}
+    return dict(specs) | {name: policy_spec(name, labels[name]) for name in named}
 
 
 def reference_of(policy) -> str:

@@ -2,6 +2,7 @@
 
 import dataclasses
 import hashlib
+import json
 import sys
 
 import eval_methods
@@ -110,8 +111,15 @@ def test_cli_evaluates_a_policy_module_and_reruns_it(smoke_dataset, tmp_path, mo
     saved = read_results(tmp_path / "results.json")
     assert [e["method"] for e in saved["evaluations"]] == ["centre_policy_of_the_cli_test:place"]
     assert [s["mode"] for s in saved["evaluations"][0]["subsets"]["seen"]["scenes"]] == [[0.0, 0.0]] * 4
-    assert main(["evaluate", "--rerun", "results.json", "--no-progress"]) == 0
+    assert main(["evaluate", "--rerun", "results.json", "--no-progress"]) == 2  # the file alone imports nothing
+    assert "never makes ocplace import code: name each again with --policy" in capsys.readouterr().err
+    assert main(["evaluate", "--rerun", "results.json", "--policy", "centre_policy_of_the_cli_test:place"]) == 0
     assert "reproduced exactly" in capsys.readouterr().out
+    crafted = json.loads((tmp_path / "results.json").read_text())
+    crafted["evaluations"][0]["method"] = "builtins:input"  # what a hostile file would name
+    (tmp_path / "crafted.json").write_text(json.dumps(crafted))
+    assert main(["evaluate", "--rerun", "crafted.json", "--no-progress"]) == 2
+    assert "'builtins:input'" in capsys.readouterr().err
 
 
 def test_a_policy_no_process_can_import_again_is_evaluated_and_its_rerun_refused(smoke_dataset, tmp_path, capsys):
@@ -134,7 +142,7 @@ def test_a_policy_no_process_can_import_again_is_evaluated_and_its_rerun_refused
         path = tmp_path / f"{module}.json"
         write_outputs(results, path)
         capsys.readouterr()
-        assert main(["evaluate", "--rerun", str(path), "--no-progress"]) == 2
+        assert main(["evaluate", "--rerun", str(path), "--no-progress", "--trust-policy"]) == 2
         err = capsys.readouterr().err
         assert err.startswith(f"ocplace evaluate: error: the policy '{entry['method']}' was defined {message}"), err
         assert not path.with_name(path.stem + ".rerun.json").exists()

@@ -111,6 +111,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="RESULTS.json",
         help="evaluate again from this results JSON (its settings and runs) and compare",
     )
+    evaluate.add_argument(
+        "--trust-policy",
+        action="store_true",
+        help="with --rerun: import every policy the results file names (default: only those --policy names again)",
+    )
     evaluate.add_argument("--no-progress", action="store_true")
     add_executor_arguments(evaluate, "each method's evaluation is a task")
     evaluate.set_defaults(func=_evaluate)
@@ -232,7 +237,7 @@ def _rerun(args: argparse.Namespace) -> int:
 
     original = read_results(args.rerun)
     _import_from_here()  # a policy's module, as when it was evaluated from here
-    specs = with_policies(method_specs(), original)
+    specs = with_policies(method_specs(), original, trusted=set(args.policy), trust_all=args.trust_policy)
     with open_executor(executor_config(args)) as executor:
         fresh = rerun(original, specs, progress=not args.no_progress, command=command_record(args), executor=executor)
     out = args.out or args.rerun.with_name(args.rerun.stem + ".rerun.json")
