@@ -14,10 +14,13 @@ name of a policy is its `MODULE:CALLABLE` reference (registered names have no co
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 import importlib
 import inspect
+import signal
+import threading
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
@@ -27,6 +30,7 @@ from ocplace.eval.harness import POLICY_ERRORS, EvalSettings, evaluate_run, phys
 from ocplace.methods.api import LoadContext, MethodSpec
 from ocplace.methods.registry import method_run
 from ocplace.sim.dataset.records import SceneRecord
+from ocplace.vocabulary import SCENE_TIMEOUT_S
 
 REFERENCE_HELP = (
     "a policy is named MODULE:CALLABLE, e.g. my_policies:place or my_pkg.policies:MyPolicy; the module must be "
@@ -73,6 +77,32 @@ def import_policy(reference: str):
     return target
 
 
+class SceneTimeout(TimeoutError):
+    """A policy past its time on a scene (`--scene-timeout`): that scene fails, the evaluation goes on."""
+
+
+@contextlib.contextmanager
+def deadline(seconds: float):
+    """Raises `SceneTimeout` in this thread once `seconds` have passed, and again every second until the block
+    ends (a policy that swallows the first does not hang the evaluation). A signal timer: only in the main thread
+    (elsewhere, and for `seconds <= 0`, no deadline), and a call stuck in native code is interrupted only when
+    it returns to Python."""
+    if seconds <= 0 or threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def expire(signum, frame):
+        raise SceneTimeout(f"timeout: the policy took more than {seconds:g} s (--scene-timeout)")
+
+    previous = signal.signal(signal.SIGALRM, expire)
+    signal.setitimer(signal.ITIMER_REAL, seconds, 1.0)
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+
+
 def _is_method(policy) -> bool:
     return callable(getattr(policy, "run", None)) and callable(getattr(policy, "describe", None))
 
@@ -83,6 +113,7 @@ class PlacerMethod:
 
     name: str
     place: Callable
+    scene_timeout_s: float = SCENE_TIMEOUT_S
 
     def describe(self) -> dict:
         return {"policy": self.name, "interface": "place(observation) -> (x, y)"}
@@ -95,7 +126,8 @@ class PlacerMethod:
             # Caught here, not by the harness: it would run the whole chunk again scene by scene, so a
             # stateful placer (one random generator for all scenes) would see other calls than in the env.
             try:
-                mode = self.place(observation(scene))
+                with deadline(self.scene_timeout_s):
+                    mode = self.place(observation(scene))
             except POLICY_ERRORS as error:
                 outputs.append(MethodOutput(mode=None, samples=None, failure=f"{type(error).__name__}: {error}"))
             else:  # the harness checks the shape and finiteness: anything else is a failure there
@@ -103,8 +135,25 @@ class PlacerMethod:
         return outputs
 
 
-def as_method(policy, name: str) -> Method:
-    """The `Method` that runs `policy` (a Method, a placer, an object with a `place` method, or a class)."""
+@dataclasses.dataclass
+class TimedMethod:
+    """A policy's own `Method`, under a deadline of `scene_timeout_s` per scene of each call (the harness then
+    runs a chunk past it again scene by scene, so only the slow scene fails)."""
+
+    method: Method
+    scene_timeout_s: float = SCENE_TIMEOUT_S
+
+    def describe(self) -> dict:
+        return self.method.describe()
+
+    def run(self, scenes: Sequence[SceneRecord], key) -> list[MethodOutput]:
+        with deadline(self.scene_timeout_s * len(scenes)):
+            return self.method.run(scenes, key)
+
+
+def as_method(policy, name: str, scene_timeout_s: float = SCENE_TIMEOUT_S) -> Method:
+    """The `Method` that runs `policy` (a Method, a placer, an object with a `place` method, or a class), each
+    scene under a deadline of `scene_timeout_s` (0: none)."""
     if inspect.isclass(policy):
         try:
             policy = policy()
@@ -113,33 +162,38 @@ def as_method(policy, name: str) -> Method:
                 f"the policy class {name!r} failed when made with no arguments ({type(error).__name__}: {error})"
             ) from None
     if _is_method(policy):
-        return policy
+        return TimedMethod(policy, scene_timeout_s)
     place = getattr(policy, "place", policy)
     if not callable(place):
         raise EvaluationError(f"policy {name!r} is neither a Method (describe and run) nor a placer (place)")
-    return PlacerMethod(name, place)
+    return PlacerMethod(name, place, scene_timeout_s)
 
 
-def load_policy(reference: str, context: LoadContext | None = None) -> Method:
+def load_policy(reference: str, context: LoadContext | None = None, scene_timeout_s: float = SCENE_TIMEOUT_S) -> Method:
     """`MethodSpec.load` of a policy: imports it anew (in an evaluation's worker process)."""
-    return as_method(import_policy(reference), reference)
+    return as_method(import_policy(reference), reference, scene_timeout_s)
 
 
-def policy_spec(reference: str, label: str | None = None) -> MethodSpec:
+def policy_spec(reference: str, label: str | None = None, scene_timeout_s: float = SCENE_TIMEOUT_S) -> MethodSpec:
     """The spec of the policy `MODULE:CALLABLE`, imported here so that a bad reference fails before any work.
 
     Its Table I label: `label`, else the policy's `label` attribute, else the reference.
     """
-    return _spec(import_policy(reference), reference, label)
+    return _spec(import_policy(reference), reference, label, scene_timeout_s)
 
 
-def _spec(policy, name: str, label: str | None) -> MethodSpec:
+def _spec(policy, name: str, label: str | None, scene_timeout_s: float = SCENE_TIMEOUT_S) -> MethodSpec:
     label = label or getattr(policy, "label", None) or name
-    return MethodSpec(name=name, label=label, load=functools.partial(load_policy, name))
+    load = functools.partial(load_policy, name, scene_timeout_s=scene_timeout_s)
+    return MethodSpec(name=name, label=label, load=load)
 
 
 def with_policies(
-    specs: Mapping[str, MethodSpec], results: Mapping, trusted: set[str] = frozenset(), trust_all: bool = False
+    specs: Mapping[str, MethodSpec],
+    results: Mapping,
+    trusted: set[str] = frozenset(),
+    trust_all: bool = False,
+    scene_timeout_s: float = SCENE_TIMEOUT_S,
 ) -> dict[str, MethodSpec]:
     """`specs` plus a spec for each policy a results file evaluated (method names `MODULE:CALLABLE`).
 
@@ -154,7 +208,7 @@ def with_policies(
             "ocplace import code: name each again with --policy MODULE:CALLABLE (or pass --trust-policy) to rerun it"
         )
     labels = {e["method"]: e["label"] for e in results["evaluations"]}
-    return dict(specs) | {name: policy_spec(name, labels[name]) for name in named}
+    return dict(specs) | {name: policy_spec(name, labels[name], scene_timeout_s) for name in named}
 
 
 def reference_of(policy) -> str:
@@ -170,6 +224,7 @@ def evaluate_policy(
     *,
     label: str | None = None,
     progress: bool = False,
+    scene_timeout_s: float = SCENE_TIMEOUT_S,
 ) -> dict:
     """Scores `policy` on the test subsets of `dataset_dir` with the harness, in this process.
 
@@ -181,7 +236,7 @@ def evaluate_policy(
     from ocplace.eval.results import build_results
 
     name, policy = (policy, import_policy(policy)) if isinstance(policy, str) else (reference_of(policy), policy)
-    spec, method = _spec(policy, name, label), as_method(policy, name)
+    spec, method = _spec(policy, name, label, scene_timeout_s), as_method(policy, name, scene_timeout_s)
     with physical_arena(settings) as arena:
         evaluation = evaluate_run(method_run(spec), method, dataset_dir, settings, arena, progress=progress)
     command = {"python": "ocplace.methods.policy.evaluate_policy", "policy": spec.name}

@@ -4,6 +4,7 @@ import dataclasses
 import hashlib
 import json
 import sys
+import time
 
 import eval_methods
 import gymnasium
@@ -174,3 +175,30 @@ def test_a_policys_odd_answers_and_exits_are_failures_of_their_scenes(smoke_data
         (entry,) = evaluate_policy(policy, smoke_dataset, settings, label=name)["evaluations"]
         scenes = entry["subsets"]["seen"]["scenes"]
         assert len(scenes) == 2 and all(not s["success"] and message in s["failure"] for s in scenes), (name, scenes)
+
+
+class _SlowOnFirst:
+    """Sleeps far past the deadline on its first scene (and swallows the first timeout), then answers at once."""
+
+    def __init__(self):
+        self.calls = 0
+
+    def place(self, observation):
+        self.calls += 1
+        if self.calls == 1:
+            try:
+                time.sleep(30)
+            except Exception:  # a policy that swallows the timeout still cannot hang the evaluation
+                time.sleep(30)
+        return (0.0, 0.0)
+
+
+def test_a_scene_past_its_deadline_fails_as_a_timeout_and_the_rest_run(smoke_dataset):
+    """Issue 43's decision: `--scene-timeout` (default 60 s) for anyone's policy."""
+    settings = dataclasses.replace(SETTINGS, subsets=("seen",), limit=3)
+    started = time.monotonic()
+    (entry,) = evaluate_policy(_SlowOnFirst(), smoke_dataset, settings, scene_timeout_s=0.5)["evaluations"]
+    scenes = entry["subsets"]["seen"]["scenes"]
+    assert time.monotonic() - started < 20
+    assert "timeout: the policy took more than 0.5 s" in scenes[0]["failure"]
+    assert [s["mode"] for s in scenes[1:]] == [[0.0, 0.0]] * 2

@@ -8,8 +8,8 @@ import sys
 from pathlib import Path
 
 from ocplace.cli.executor_options import add_executor_arguments, executor_config
-from ocplace.cli.options import DeprecatedAlias, add_dataset_argument, config_from_arguments, count
-from ocplace.vocabulary import EXPERIMENT_NAMES, SCORED_SPLITS, TEST_SUBSETS
+from ocplace.cli.options import DeprecatedAlias, add_dataset_argument, config_from_arguments, count, seconds
+from ocplace.vocabulary import EXPERIMENT_NAMES, SCENE_TIMEOUT_S, SCORED_SPLITS, TEST_SUBSETS
 
 # `ocplace evaluate` options named after EvalSettings fields: left out (None), they keep its defaults.
 # Written by hand, not generated: EvalSettings sits behind NumPy, too slow to import for `--help`.
@@ -112,6 +112,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="evaluate again from this results JSON (its settings and runs) and compare",
     )
     evaluate.add_argument(
+        "--scene-timeout",
+        type=seconds,
+        default=SCENE_TIMEOUT_S,
+        metavar="S",
+        help=f"seconds a --policy may take per scene before that scene fails as a timeout "
+        f"(default {SCENE_TIMEOUT_S:g}; 0: no limit)",
+    )
+    evaluate.add_argument(
         "--trust-policy",
         action="store_true",
         help="with --rerun: import every policy the results file names (default: only those --policy names again)",
@@ -198,7 +206,7 @@ def _evaluate(args: argparse.Namespace) -> int:
     specs = method_specs()
     methods = args.methods or ("" if args.policy else "all")
     runs = method_runs(select_specs(methods, specs) if methods else [], parse_runs(args.run), args.runs_from)
-    policies = _policy_specs(args.policy, args.label)
+    policies = _policy_specs(args.policy, args.label, args.scene_timeout)
     runs += [method_run(spec) for spec in policies]
     specs |= {spec.name: spec for spec in policies}
     with open_executor(executor_config(args)) as executor:
@@ -209,7 +217,7 @@ def _evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
-def _policy_specs(references: list[str], labels: list[str]) -> list:
+def _policy_specs(references: list[str], labels: list[str], scene_timeout_s: float) -> list:
     """The spec of each `--policy`, imported here (the current folder first on the import path, as for `python -m`)."""
     from ocplace.errors import EvaluationError
     from ocplace.methods.policy import policy_spec
@@ -218,7 +226,8 @@ def _policy_specs(references: list[str], labels: list[str]) -> list:
         raise EvaluationError(f"give one --label per --policy, or none: got {len(labels)} for {len(references)}")
     if references:
         _import_from_here()
-    return [policy_spec(ref, label) for ref, label in zip(references, labels or [None] * len(references))]
+    labels = labels or [None] * len(references)
+    return [policy_spec(ref, label, scene_timeout_s) for ref, label in zip(references, labels)]
 
 
 def _import_from_here() -> None:
@@ -237,7 +246,9 @@ def _rerun(args: argparse.Namespace) -> int:
 
     original = read_results(args.rerun)
     _import_from_here()  # a policy's module, as when it was evaluated from here
-    specs = with_policies(method_specs(), original, trusted=set(args.policy), trust_all=args.trust_policy)
+    specs = with_policies(
+        method_specs(), original, set(args.policy), args.trust_policy, scene_timeout_s=args.scene_timeout
+    )
     with open_executor(executor_config(args)) as executor:
         fresh = rerun(original, specs, progress=not args.no_progress, command=command_record(args), executor=executor)
     out = args.out or args.rerun.with_name(args.rerun.stem + ".rerun.json")
