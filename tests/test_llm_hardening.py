@@ -65,6 +65,10 @@ FAULTS = {
     "escaped echo as body": lambda h: send(h, 200, f'{{"echo": "{_escaped(h)}"}}'.encode()),
     "escaped echo, cut short": lambda h: send(h, 200, f'{{"echo": "{_escaped(h)}'.encode()),
     "echo in UTF-16": lambda h: send(h, 200, json.dumps({"echo": _echo(h)}).encode("utf-16")),
+    "echo with zero-width spaces": lambda h: send(h, 200, json.dumps({"echo": "\u200b".join(_echo(h))}).encode()),
+    "echo in fullwidth letters": lambda h: send(
+        h, 200, json.dumps({"echo": "".join(chr(ord(c) + 0xFEE0) if "!" <= c <= "~" else c for c in _echo(h))}).encode()
+    ),
     "escaped echo as content": lambda h: send(
         h, 200, f'{{"choices": [{{"message": {{"content": "{_escaped(h)}"}}}}]}}'.encode()
     ),
@@ -82,6 +86,8 @@ DECODED_ECHOES = [
     "escaped echo as body",
     "escaped echo, cut short",
     "echo in UTF-16",
+    "echo with zero-width spaces",
+    "echo in fullwidth letters",
     "escaped echo as content",
     "escaped echo as reference",
     "escaped echo as relation",

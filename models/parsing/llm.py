@@ -28,6 +28,7 @@ import re
 import socket
 import threading
 import time
+import unicodedata
 import urllib.error
 import urllib.request
 from collections.abc import Callable
@@ -96,9 +97,21 @@ _JSON_ESCAPE = re.compile(r'\\(u[0-9a-fA-F]{4}|["\\/bfnrt])')
 _SIMPLE_ESCAPES = {'"': '"', "\\": "\\", "/": "/", "b": "\b", "f": "\f", "n": "\n", "r": "\r", "t": "\t"}
 
 
+def visible(text: str) -> str:
+    """`text` as a reader sees it: NFKC (fullwidth letters are letters) without format characters (zero-width
+    spaces and joiners, soft hyphens, byte-order marks), which a hostile echo could slip between the key's."""
+    return "".join(ch for ch in unicodedata.normalize("NFKC", text) if unicodedata.category(ch) != "Cf")
+
+
 def scrub(message: str, secret: str | None) -> str:
-    """`message` with every occurrence of `secret` (the API key) replaced by API_KEY_MARK."""
-    return message.replace(secret, API_KEY_MARK) if secret else message
+    """`message` with every occurrence of `secret` (the API key) replaced by API_KEY_MARK, also one spelled
+    with invisible characters or compatibility forms (then the whole message is given in its `visible` form)."""
+    if not secret:
+        return message
+    if secret in message:
+        return message.replace(secret, API_KEY_MARK)
+    shown, key = visible(message), visible(secret)
+    return shown.replace(key, API_KEY_MARK) if key and key in shown else message
 
 
 def scrub_decoded(value, secret: str | None):
