@@ -299,3 +299,35 @@ def test_evaluate_refuses_an_edited_scene(tmp_path, two_seen, monkeypatch, capsy
     err = capsys.readouterr().err
     assert err.startswith("ocplace evaluate: error: scene.json of scene seen-00001 does not match the sha256")
     assert "ocplace dataset verify" in err and not (tmp_path / "edited.json").exists()
+
+
+def test_a_split_that_does_not_exist_is_named_as_such_not_as_a_command_that_fails(smoke_dataset):
+    """Issue 44's papercut, on 43's list: `split="test"` advised `ocplace generate --split test`, which argparse
+    rejects; a real split missing from the folder still gets the command that makes it."""
+    from ocplace.errors import DatasetError
+    from ocplace.sim.dataset.job import listed_scenes
+
+    with pytest.raises(DatasetError, match="'test' is no split of the benchmark; the splits are train, seen") as error:
+        listed_scenes(smoke_dataset, "test")
+    assert "--split test" not in str(error.value)
+    with pytest.raises(DatasetError, match="generate them with `ocplace generate --out .* --split dev_seen`"):
+        listed_scenes(smoke_dataset, "dev_seen")
+
+
+def test_dataset_show_checks_the_scene_against_the_manifest(tmp_path, tiny, capsys):
+    """Issue 43's decision: `dataset show` read a scene without the manifest's hashes; an edited scene was drawn."""
+    from ocplace.cli import main
+
+    ds = tmp_path / "ds"
+    shutil.copytree(tiny, ds)
+    scene = sorted((ds / "train").iterdir())[0]
+    out = tmp_path / "scene.png"
+    command = ["dataset", "show", "--dataset", str(ds), "--out", str(out), "--id"]
+    assert main([*command, scene.name]) == 0 and out.is_file()
+    meta = scene / "scene.json"
+    meta.write_text(meta.read_text() + " ")  # one byte more: the hash no longer matches
+    out.unlink()
+    assert main([*command, scene.name]) == 2
+    assert scene.name in capsys.readouterr().err and not out.exists()
+    assert main([*command, "train-99999"]) == 2
+    assert "lists no scene 'train-99999'" in capsys.readouterr().err

@@ -54,14 +54,19 @@ def _verify(args: argparse.Namespace) -> int:
 
 
 def _show(args: argparse.Namespace) -> int:
+    from ocplace.errors import DatasetError
     from ocplace.sim.dataset.generate import scene_id
-    from ocplace.sim.dataset.records import read_scene
+    from ocplace.sim.dataset.job import listed_scenes
     from ocplace.sim.dataset.show import scene_figure
     from ocplace.sim.figures import save_png
 
     identifier = scene_id(args.split, int(args.id)) if args.id.isdigit() else args.id
     split = identifier.rsplit("-", 1)[0]
-    record = read_scene(dataset_of(args) / split / identifier)
+    # Through the manifest, as every reader: a scene edited after generation is refused, never drawn as the dataset's.
+    scene = next((s for s in listed_scenes(dataset_of(args), split) if s.name == identifier), None)
+    if scene is None:
+        raise DatasetError(f"{dataset_of(args)} lists no scene {identifier!r} in its manifest")
+    record = scene.read()
     save_png(args.out, scene_figure(record))
     print(f"wrote {args.out}: {record.instruction}")
     return 0

@@ -14,6 +14,13 @@ LEVEL_REFERENCES = {"table": 0, "1obj": 1, "2obj": 2}  # object references per i
 SPLIT_NAMES = ("train", *TEST_SUBSETS, *DEV_SPLITS)
 
 
+def generate_advice(out, split: str) -> str:
+    """How to get the scenes of `split` into `out`: the `generate` command for a split there is, else the splits."""
+    if split in SPLIT_NAMES:
+        return f"generate them with `ocplace generate --out {out} --split {split}`"
+    return f"{split!r} is no split of the benchmark; the splits are {', '.join(SPLIT_NAMES)}"
+
+
 @dataclasses.dataclass(frozen=True)
 class SplitConfig:
     name: str

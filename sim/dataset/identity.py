@@ -16,15 +16,13 @@ from ocplace.paths import features_cache
 
 def split_files(dataset_dir: Path, split: str) -> list[tuple[str, str]]:
     """Sorted `(relative path, sha256)` of the split's files, from the dataset manifest."""
+    from ocplace.sim.dataset.config import generate_advice
     from ocplace.sim.dataset.job import read_manifest
 
     files = read_manifest(dataset_dir)["files"]
     chosen = sorted((name, digest) for name, digest in files.items() if name.startswith(f"{split}/"))
     if not chosen:
-        raise FeaturesError(
-            f"{dataset_dir} has no scenes in split {split!r}; generate it with "
-            f"`ocplace generate --out {dataset_dir} --split {split}`"
-        )
+        raise FeaturesError(f"{dataset_dir} has no scenes in split {split!r}; {generate_advice(dataset_dir, split)}")
     return chosen
 
 

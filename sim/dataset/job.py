@@ -30,7 +30,7 @@ import ocplace
 from ocplace.errors import DatasetError
 from ocplace.paths import disk_full_is_typed, file_sha256, inside, write_text_atomic
 from ocplace.runtime import Executor, ExecutorConfig, Task, map_tasks, open_executor
-from ocplace.sim.dataset.config import DatasetConfig
+from ocplace.sim.dataset.config import DatasetConfig, generate_advice
 from ocplace.sim.dataset.generate import SceneGenerator, describe, level_schedule, scene_id
 from ocplace.sim.dataset.records import IMAGE_FILES, SCENE_FILE, SceneInfo, SceneRecord, read_meta, read_scene
 from ocplace.vocabulary import DEV_SPLITS, TEST_SUBSETS
@@ -411,9 +411,7 @@ def listed_scenes(out: str | Path, split: str) -> list[ListedScene]:
             path = out / relative
             digests.setdefault(path.parent, {})[path.name] = digest
     if not digests:
-        raise DatasetError(
-            f"{out} has no scenes of split {split!r}; generate them with `ocplace generate --out {out} --split {split}`"
-        )
+        raise DatasetError(f"{out} has no scenes of split {split!r}; {generate_advice(out, split)}")
     return [ListedScene(scene_dir, digests[scene_dir]) for scene_dir in sorted(digests)]
 
 

@@ -36,6 +36,8 @@ PIXEL_LIMIT = 1 << 15  # OpenCV draws with shifted fixed-point coordinates: larg
 def placement_of(action) -> np.ndarray:
     """`(2,)` float64 table-frame `(x, y)` of an action; InvalidAction when it is not two numbers."""
     try:
+        if np.asarray(action).dtype.kind not in "iuf":  # "0.1" would convert: strings, bools, objects are refused
+            raise TypeError(f"not numbers but {np.asarray(action).dtype}")
         placement = np.asarray(action, dtype=np.float64)
     except Exception as error:  # TypeError, ValueError, OverflowError (10**400), or whatever an __array__ raises
         raise InvalidAction(
