@@ -599,6 +599,13 @@ def test_out_of_range_flags_are_usage_errors(capsys, argv, message):
     assert stop.value.code == 2 and message in capsys.readouterr().err
 
 
+def test_place_refuses_own_image_flags_beside_a_dataset_scene(tmp_path, capsys):
+    """Issue 43, defect 13: `--held-footprint` with `--dataset` was accepted and ignored."""
+    command = ["place", "--dataset", tmp_path, "--id", "0", "--held-footprint", "0.2", "0.2"]
+    code, _, err = _cli(capsys, *command)
+    assert code == 2 and "--held-footprint describe your own images; a --dataset scene has its own" in err
+
+
 @pytest.mark.parametrize(
     "flags, message",
     [

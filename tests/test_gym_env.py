@@ -97,7 +97,17 @@ def test_bad_actions_score_zero_or_raise_a_typed_error(smoke_dataset):
         env.reset(seed=2)
         _, reward, terminated, _, info = env.step(np.array(action))
         assert reward == 0.0 and terminated and not info["success"] and reason in info["reason"]
-    bad = (np.zeros(3), np.zeros((2, 2)), 0.5, "ab", [[0.0], [0.0]], {"x": 0}, (10**400, 0), ["0.1", "0.2"], (True, False))
+    bad = (
+        np.zeros(3),
+        np.zeros((2, 2)),
+        0.5,
+        "ab",
+        [[0.0], [0.0]],
+        {"x": 0},
+        (10**400, 0),
+        ["0.1", "0.2"],
+        (True, False),
+    )
     for action in bad:
         env.reset(seed=2)
         with pytest.raises(InvalidAction, match=r"placement \(x, y\)"):

@@ -8,6 +8,15 @@ from pathlib import Path
 from ocplace.cli.options import count, finite
 from ocplace.vocabulary import MAX_SAMPLES
 
+HELD_FOOTPRINT = (0.05, 0.05)  # half-extents (m) of your own images' held object unless --held-footprint says
+OWN_IMAGE_FLAGS = {
+    "--rgb": "rgb",
+    "--depth": "depth",
+    "--segmentation": "segmentation",
+    "--camera": "camera",
+    "--held-footprint": "held_footprint",
+}
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
@@ -46,7 +55,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         type=finite,
         nargs=2,
         metavar=("HX", "HY"),
-        default=(0.05, 0.05),
         help="half-extents of the held object's footprint in metres (default 0.05 0.05)",
     )
     parser.add_argument("--instruction", help="the instruction (a dataset scene's own by default)")
@@ -130,6 +138,9 @@ def _scene(args):
             '"put it to the left of the red bowl", or leave it out to use a dataset scene\'s own'
         )
     if args.dataset is not None:
+        own = [flag for flag, value in OWN_IMAGE_FLAGS.items() if getattr(args, value) is not None]
+        if own:  # a dataset scene has its own: these would be ignored without a word
+            raise PolicyInputError(f"{', '.join(own)} describe your own images; a --dataset scene has its own")
         return _dataset_scene(args)
     if args.rgb is None or args.depth is None or args.instruction is None:
         raise PolicyInputError("give --dataset DIR --id K, or --rgb, --depth and --instruction")
@@ -188,7 +199,13 @@ def _image_scene(args):
         print("no --camera given: assuming the simulator's camera (640x480, 70 deg, 0.6 m above the table)")
     camera = PinholeCamera.from_any(args.camera or DEFAULT_CAMERA)
     return SceneInput(
-        rgb, depth, segmentation, args.instruction, tuple(args.held_footprint), camera, name=args.rgb.name
+        rgb,
+        depth,
+        segmentation,
+        args.instruction,
+        tuple(args.held_footprint or HELD_FOOTPRINT),
+        camera,
+        name=args.rgb.name,
     )
 
 
