@@ -430,6 +430,25 @@ def test_an_experiment_whose_recipe_sets_what_each_run_sets_is_refused():
         dataclasses.replace(smoke, recipes=recipes).validate()
 
 
+def test_backbone_seeds_plan_a_pretraining_each_and_repeat_only_the_seeded_backbone_methods(tmp_path):
+    """The plan of the slow end-to-end test below, in the default suite: no pretraining, no training."""
+    smoke = configs.get("smoke")
+    plan = dataclasses.replace(
+        smoke.evaluation, methods=("ours", "no_adapter"), seed_methods=("ours",), backbone_seeds=2, subsets=("seen",)
+    )
+    config = pipeline.PipelineConfig(dataclasses.replace(smoke, evaluation=plan), dataset=tmp_path, progress=False)
+    specs = registry.method_specs()
+    runs = pipeline.planned_runs(config, [specs["ours"], specs["no_adapter"]])
+    assert sorted(run.key for run in runs) == ["no_adapter", "ours", "ours~backbone1"]
+    nodes = {node.key: node for node in pipeline.task_graph(config, specs, runs, tmp_path, tmp_path / "out", "h")}
+    assert pipeline.backbone_key(None) in nodes and pipeline.backbone_key(1) in nodes
+    assert pipeline.backbone_key(1) in nodes["train ours~backbone1"].after
+    assert pipeline.backbone_key(1) in nodes["evaluate ours~backbone1"].after
+    assert pipeline.backbone_key(1) not in nodes["evaluate no_adapter"].after
+    assert pipeline.run_directory(tmp_path, "ours", 1.0, None, 1).name == "fraction-1.00-backbone-1"
+
+
+@pytest.mark.slow  # 90 s, a tenth of the default suite's 15 minutes: `make test-all` runs it
 def test_backbone_seeds_pretrain_train_and_score_on_each_backbone(smoke_dataset, library, borrowed_cache, tmp_path):
     from ocplace.eval import table
     from ocplace.models.offline_recipes import output_dir

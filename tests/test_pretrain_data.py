@@ -296,12 +296,14 @@ def test_rendering_builds_only_pool_objects_and_primitives(library, corpus, tmp_
         assert len(set(spec.objects) - set(pool.objects)) == RENDER.primitives_per_scene
 
 
-def test_chunks_rendered_in_two_processes_are_the_images_of_one(library, corpus, tmp_path):
+def test_chunks_rendered_in_two_processes_are_the_images_of_one(library, corpus, tmp_path, monkeypatch):
     """A scene is a function of its index, so the pretraining task renders its chunks in parallel processes."""
+    from ocplace.train.pretrain import render
     from ocplace.train.pretrain.render import render_all
 
     pool = training_pool(library, corpus, RENDER)
     config = dataclasses.replace(RENDER, scenes=3, chunk_scenes=1)
+    monkeypatch.setattr(render, "PARALLEL_MIN_SCENES", 3)  # the demo's 100 scenes in miniature
     one = render_all(library, pool, tmp_path / "one", config, MODEL, progress=False)
     two = render_all(library, pool, tmp_path / "two", config, MODEL, progress=False, workers=2)
     assert len(list((tmp_path / "two" / "renders").glob("chunk_*.npz"))) == 3

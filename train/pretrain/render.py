@@ -44,6 +44,7 @@ from ocplace.train.pretrain.colours import hsv_to_rgb, recolour_objects, sample_
 from ocplace.train.pretrain.pool import TrainingPool
 
 RENDERS_DIR = "renders"
+PARALLEL_MIN_SCENES = 40  # fewer scenes to render than this: one process, whatever `workers` says
 MAX_SCENE_DRAWS = 20
 
 log = logging.getLogger(__name__)
@@ -302,6 +303,9 @@ def render_all(
     num_chunks = -(-config.scenes // config.chunk_scenes)
     missing = [c for c in range(num_chunks) if not chunk_path(run_dir, c).exists()]
     done_scenes = config.scenes - sum(_chunk_scenes(c, config) for c in missing)
+    to_render = sum(_chunk_scenes(c, config) for c in missing)
+    # A render process starts in seconds (imports, arenas): worth it for the demo's 100 scenes, not for smoke's 2.
+    workers = workers if to_render >= PARALLEL_MIN_SCENES else 1
     shares = [missing[k :: max(1, workers)] for k in range(min(max(1, workers), len(missing)))]
     with tqdm(total=config.scenes, initial=done_scenes, unit="scene", desc="render", disable=not progress) as bar:
         if len(shares) == 1:
