@@ -182,14 +182,15 @@ def remove_tree(path: Path) -> None:
 
 def unwritable(error: OSError, target: str | os.PathLike, then: str) -> OutputError | None:
     """The OutputError for a write into `target` that failed for the machine's reasons (a full disk, a
-    read-only file system), saying `then`; None for any other OSError (one about the input)."""
+    read-only file system), ending with `then` ("or write the output elsewhere"); None for any other OSError
+    (one about the input)."""
     if error.errno in _DISK_FULL:
-        why = f"the disk is full ({error.strerror}); free some space"
-    elif error.errno == errno.EROFS:
-        why = f"its file system is read-only ({error.strerror}); make it writable"
-    else:
-        return None
-    return OutputError(f"cannot write {target}: {why}, then {then}")
+        return OutputError(f"cannot write {target}: the disk is full ({error.strerror}); free some space there {then}")
+    if error.errno == errno.EROFS:
+        return OutputError(
+            f"cannot write {target}: its file system is read-only ({error.strerror}); make it writable {then}"
+        )
+    return None
 
 
 @contextlib.contextmanager
@@ -199,10 +200,7 @@ def disk_full_is_typed(target: str | os.PathLike):
         yield
     except OSError as error:
         if error.errno in _DISK_FULL:
-            raise OutputError(
-                f"cannot write {target}: the disk is full ({error.strerror}); free some space "
-                "there or write the output elsewhere"
-            ) from error
+            raise unwritable(error, target, "or write the output elsewhere") from error
         raise
 
 

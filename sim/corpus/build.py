@@ -52,8 +52,8 @@ TMP_DIRNAME = "tmp"
 # Set to N, `build_corpus` SIGKILLs its process right after committing its Nth converted model, so the
 # resume test crashes a build at a known point instead of racing a kill against it. Unset: off.
 DIE_AFTER_MODELS_ENV = "OCPLACE_TEST_DIE_AFTER_MODELS"
-# /usr/share/doc/sweethome3d-furniture/copyright, per catalogue.
 MACHINE_ERRORS = re.compile(r"\[Errno (28|30|122)\]")  # ENOSPC, EROFS, EDQUOT in a recorded skip reason
+# /usr/share/doc/sweethome3d-furniture/copyright, per catalogue.
 LICENCES = {
     "BlendSwap-CC-0": "CC0-1.0",
     "BlendSwap-CC-BY": "CC-BY-3.0",

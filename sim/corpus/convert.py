@@ -272,7 +272,7 @@ def write_object(
 
 
 # Not a skip: nothing is wrong with the model, and a skip is remembered by every later build.
-CACHE_HINT = "rerun `ocplace corpus build`: the models converted so far are kept"
+CACHE_HINT = "and rerun `ocplace corpus build`: the models converted so far are kept"
 
 
 def convert_model(
@@ -292,8 +292,10 @@ def convert_model(
         if target.exists():  # a folder without its asset.json is partial: never used
             shutil.rmtree(target)
         target.parent.mkdir(parents=True, exist_ok=True)
-        os.rename(work, target)
-        return ConversionResult(entry.key, "ok", "", read_converted(target))
+        os.rename(work, target)  # just written and hashed: its paths moved with it, no need to hash it again
+        return ConversionResult(
+            entry.key, "ok", "", asset_from_json(json.loads((target / ASSET_FILE).read_text()), target)
+        )
     except Exception as error:  # one bad model must not stop the corpus; a full or read-only disk stops it
         if isinstance(error, OSError) and (typed := unwritable(error, target, CACHE_HINT)):
             raise typed from error
