@@ -156,7 +156,7 @@ def _check_pool(library, corpus, assets, textures, config: RenderConfig) -> None
         copies = benchmark_copies(library, assets)
         if copies:
             raise TrainingError(
-                "corpus models with the geometry of a benchmark object (their shape descriptors match) are in the "
+                "corpus models with the geometry of a benchmark object (descriptors and vertices match) are in the "
                 f"pretraining pool: {copies}; remove their source from the corpus and rebuild it"
             )
 
@@ -166,12 +166,16 @@ def benchmark_copies(library, assets) -> dict[str, str]:
     descriptors close, then the vertices on each other), mapped to that object: the guard against a copied
     mesh under another name or source label."""
     benchmark = {name: asset_descriptor(obj) for name, obj in library.objects.items()}
+    benchmark_vertices = {}  # read once per library object that some model comes close to
     copies = {}
     for asset in assets:
         descriptor = asset_descriptor(asset)
         close = [name for name, other in benchmark.items() if same_shape(descriptor, other)]
         vertices = asset_vertices(asset) if close else None
-        matches = [name for name in close if same_mesh(vertices, asset_vertices(library.get(name)))]
-        if matches:
-            copies[asset.name] = matches[0]
+        for name in close:
+            if name not in benchmark_vertices:
+                benchmark_vertices[name] = asset_vertices(library.get(name))
+            if same_mesh(vertices, benchmark_vertices[name]):
+                copies[asset.name] = name
+                break
     return copies
