@@ -29,7 +29,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ocplace import serial
-from ocplace.errors import EvaluationError
+from ocplace.errors import POLICY_ERRORS, EvaluationError, PolicyRaised
 from ocplace.eval.api import Method, MethodOutput
 from ocplace.sim.boxes import Boxes
 from ocplace.sim.dataset.records import SceneRecord
@@ -191,13 +191,8 @@ def chunks(scenes: Sequence, size: int) -> Iterator[tuple[int, list[SceneRecord]
 # ----------------------------------------------------------------------------- running a method
 
 
-# What a method's (anyone's policy's) code may raise without ending the evaluation: any exception, and a
-# `sys.exit` too; Ctrl-C (KeyboardInterrupt) still stops it.
-POLICY_ERRORS = (Exception, SystemExit)
-
-
 def _describe_error(error: BaseException) -> str:
-    return f"{type(error).__name__}: {error}"
+    return str(error) if isinstance(error, PolicyRaised) else f"{type(error).__name__}: {error}"
 
 
 def _checked(outputs, count: int) -> list[MethodOutput]:

@@ -7,9 +7,14 @@ Each task loads its method (`ocplace.methods`) in the worker and scores it with 
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import json
+import os
+import signal
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
+from ocplace import serial
 from ocplace.errors import ResultsError
 from ocplace.eval.api import Method
 from ocplace.eval.harness import EvalSettings, Evaluation, MethodRun, evaluate_in_own_arena, evaluate_run
@@ -27,6 +32,41 @@ def evaluate_in_worker(
     return evaluate_in_own_arena(run, method, dataset_dir, settings)
 
 
+def evaluation_key(run: MethodRun, description: dict, settings: EvalSettings, dataset_hash: str) -> str:
+    """Everything that decides an evaluation's outcome, hashed: a stored evaluation with it is reused."""
+    from ocplace.eval.results import SCHEMA
+
+    fields = {
+        "schema": SCHEMA,
+        "key": run.key,
+        "run_dir": None if run.run_dir is None else str(run.run_dir),
+        "description": description,
+        "settings": serial.to_dict(settings),
+        "dataset": dataset_hash,
+    }
+    return hashlib.sha256(json.dumps(fields, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def stored_evaluation(
+    spec: MethodSpec, run: MethodRun, settings: EvalSettings, dataset_dir: str | Path, dataset_hash: str, store: Path
+) -> tuple[Path, bool, Evaluation]:
+    """(its file in `store`, reused, the evaluation): read from `store` when an evaluation with the same
+    `evaluation_key` (run, the loaded method's description, settings, dataset) is there, else scored and stored
+    (atomically: a kill leaves it whole or absent)."""
+    from ocplace.eval.results import evaluation_from_json, evaluation_to_json
+    from ocplace.paths import write_text_atomic
+
+    settings = run.settings(settings)
+    method = load_method(spec, run, settings)
+    key = evaluation_key(run, serial.to_dict(method.describe()), settings, dataset_hash)
+    path = store / f"{run.key}-{key}.json"
+    if path.exists():
+        return path, True, evaluation_from_json(json.loads(path.read_text()))
+    evaluation = evaluate_in_worker(spec, run, dataset_dir, settings, method)
+    write_text_atomic(path, json.dumps(evaluation_to_json(evaluation), indent=1))
+    return path, False, evaluation
+
+
 def evaluate_runs(
     specs: Mapping[str, MethodSpec],
     runs: Sequence[MethodRun],
@@ -34,19 +74,38 @@ def evaluate_runs(
     settings: EvalSettings,
     executor,
     progress: bool = True,
+    store: Path | None = None,
 ) -> list[Evaluation]:
     """Every run scored as one task of `executor` (on a worker whose JAX is one CPU wide); in `runs` order.
-    `specs` holds the spec of each run's method."""
+    `specs` holds the spec of each run's method. With a `store` folder, each finished evaluation is kept there
+    and one already there is reused (`stored_evaluation`): an interrupted command resumes."""
     from ocplace.runtime import Task, map_tasks
 
     settings.validate()
-    tasks = [Task(evaluate_in_worker, (specs[run.method], run, dataset_dir, settings), pinned=True) for run in runs]
+    if store is None:
+        tasks = [Task(evaluate_in_worker, (specs[run.method], run, dataset_dir, settings), pinned=True) for run in runs]
+    else:
+        dataset_hash = dataset_identity(dataset_dir)["dataset_hash"]
+        arguments = [(specs[run.method], run, settings, dataset_dir, dataset_hash, store) for run in runs]
+        tasks = [Task(stored_evaluation, args, pinned=True) for args in arguments]
     evaluations: list[Evaluation | None] = [None] * len(runs)
-    for index, evaluation in map_tasks(executor, tasks):
+    for count, (index, outcome) in enumerate(map_tasks(executor, tasks), 1):
+        reused, evaluation = (False, outcome) if store is None else outcome[1:]
         evaluations[index] = evaluation
         if progress:
-            print(f"evaluated {runs[index].key} in {evaluation.wall_s:.1f} s", flush=True)
+            done = "stored by an earlier, interrupted command" if reused else f"in {evaluation.wall_s:.1f} s"
+            print(f"evaluated {runs[index].key} {done}", flush=True)
+        _die_after(count)
     return evaluations
+
+
+DIE_AFTER_EVALUATIONS_ENV = "OCPLACE_TEST_DIE_AFTER_EVALUATIONS"
+
+
+def _die_after(count: int) -> None:
+    """The tests' deterministic kill point: SIGKILL once `count` evaluations are in (the variable unset: never)."""
+    if count == int(os.environ.get(DIE_AFTER_EVALUATIONS_ENV, "0")):
+        os.kill(os.getpid(), signal.SIGKILL)
 
 
 def runs_of(results: Mapping, specs: Mapping[str, MethodSpec] | None = None) -> list[MethodRun]:

@@ -21,7 +21,6 @@ its outcome (settings, dataset, the method's describe()). Outputs are written at
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import json
 import time
 import traceback
@@ -195,21 +194,6 @@ def placement_figure_task(run_dir: Path, parser: str, seed: int, dataset_dir: Pa
     return f"{path} ({scene.name}, {'placed' if placement.error is None else placement.failure})"
 
 
-def evaluation_key(run: MethodRun, description: dict, settings: EvalSettings, dataset_hash: str) -> str:
-    """Everything that decides an evaluation's outcome, hashed: a stored evaluation with it is reused."""
-    from ocplace.eval.results import SCHEMA
-
-    fields = {
-        "schema": SCHEMA,
-        "key": run.key,
-        "run_dir": None if run.run_dir is None else str(run.run_dir),
-        "description": description,
-        "settings": serial.to_dict(settings),
-        "dataset": dataset_hash,
-    }
-    return hashlib.sha256(json.dumps(fields, sort_keys=True).encode()).hexdigest()[:16]
-
-
 # ----------------------------------------------------------------------------- tasks of the graph (any worker)
 
 
@@ -260,21 +244,9 @@ def evaluate_task(
 ):
     """(stored evaluation's path, reused, seen success): from OUT/evaluations/ when an identical one is
     stored, else scored now and stored."""
-    from ocplace.eval.results import evaluation_from_json, evaluation_to_json
-    from ocplace.experiments.evaluation import evaluate_in_worker
-    from ocplace.methods.registry import load_method
-    from ocplace.paths import write_text_atomic
+    from ocplace.experiments.evaluation import stored_evaluation
 
-    settings = run.settings(settings)
-    method = load_method(spec, run, settings)
-    key = evaluation_key(run, serial.to_dict(method.describe()), settings, dataset_hash)
-    path = out / "evaluations" / f"{run.key}-{key}.json"
-    reused = path.exists()
-    if reused:
-        evaluation = evaluation_from_json(json.loads(path.read_text()))
-    else:
-        evaluation = evaluate_in_worker(spec, run, dataset_dir, settings, method)
-        write_text_atomic(path, json.dumps(evaluation_to_json(evaluation), indent=1))
+    path, reused, evaluation = stored_evaluation(spec, run, settings, dataset_dir, dataset_hash, out / "evaluations")
     seen = evaluation.subsets.get("seen")
     return path, reused, f"seen success {sum(o.success for o in seen) / max(len(seen), 1):.1%}" if seen else ""
 

@@ -17,76 +17,43 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import functools
-import importlib
 import inspect
 import signal
 import threading
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
-from ocplace.errors import EvaluationError
+import numpy as np
+
+from ocplace.errors import POLICY_ERRORS, EvaluationError, PolicyRaised
 from ocplace.eval.api import Method, MethodOutput
-from ocplace.eval.harness import POLICY_ERRORS, EvalSettings, evaluate_run, physical_arena
+from ocplace.eval.harness import EvalSettings, evaluate_run, physical_arena
 from ocplace.methods.api import LoadContext, MethodSpec
+from ocplace.methods.policy_host import (
+    PolicyHost,
+    PolicyProcessEnded,
+    SceneTimeout,
+    describe_error,
+    import_policy,
+    is_method,
+    is_policy_name,
+    made,
+    placement_numbers,
+)
 from ocplace.methods.registry import method_run
 from ocplace.sim.dataset.records import SceneRecord
 from ocplace.vocabulary import SCENE_TIMEOUT_S
 
-REFERENCE_HELP = (
-    "a policy is named MODULE:CALLABLE, e.g. my_policies:place or my_pkg.policies:MyPolicy; the module must be "
-    "importable (the command adds the current folder to the import path; else set PYTHONPATH)"
-)
-
-
-def is_policy_name(name: str) -> bool:
-    """Whether a method name is a policy's `MODULE:CALLABLE` reference, not a registered method's."""
-    return ":" in name
-
-
-def import_policy(reference: str):
-    """The object `MODULE:ATTRIBUTE[.ATTRIBUTE...]` names; EvaluationError when it cannot be imported."""
-    module_name, _, attributes = reference.partition(":")
-    if not module_name or not attributes:
-        raise EvaluationError(f"cannot read the policy reference {reference!r}: {REFERENCE_HELP}")
-    if module_name == "__main__" or any(part.startswith("<") for part in attributes.split(".")):
-        where = (
-            "in a script run directly (__main__)" if module_name == "__main__" else "inside a function, or as a lambda"
-        )
-        raise EvaluationError(
-            f"the policy {reference!r} was defined {where}, so no other process can import it again: "
-            "put it in a module (a .py file in the current folder will do) and name it MODULE:CALLABLE"
-        )
-    try:
-        target = importlib.import_module(module_name)
-    except ImportError as error:
-        raise EvaluationError(f"cannot import the policy module {module_name!r} ({error}); {REFERENCE_HELP}") from None
-    except POLICY_ERRORS as error:  # a SyntaxError, or anything its own code raises while it is imported
-        raise EvaluationError(
-            f"the policy module {module_name!r} failed while it was imported ({type(error).__name__}: {error}); "
-            "fix it, or import it yourself to see the traceback"
-        ) from None
-    for attribute in attributes.split("."):
-        if not hasattr(target, attribute):
-            raise EvaluationError(f"{module_name} has no {attributes!r} for the policy {reference!r}; {REFERENCE_HELP}")
-        target = getattr(target, attribute)
-    if not (callable(target) or _is_method(target) or callable(getattr(target, "place", None))):
-        raise EvaluationError(
-            f"{reference} is a {type(target).__name__}: a policy is a Method (describe and run), a callable "
-            "place(observation) -> (x, y), an object with such a place method, or a class making one"
-        )
-    return target
-
-
-class SceneTimeout(TimeoutError):
-    """A policy past its time on a scene (`--scene-timeout`): that scene fails, the evaluation goes on."""
+__all__ = ["evaluate_policy", "import_policy", "is_policy_name", "policy_spec", "with_policies"]
 
 
 @contextlib.contextmanager
 def deadline(seconds: float):
     """Raises `SceneTimeout` in this thread once `seconds` have passed, and again every second until the block
-    ends (a policy that swallows the first does not hang the evaluation). A signal timer: only in the main thread
-    (elsewhere, and for `seconds <= 0`, no deadline), and a call stuck in native code is interrupted only when
-    it returns to Python."""
+    ends (a policy that swallows the first does not hang the evaluation). For a policy given as an object, which
+    runs in this process: a signal timer, only in the main thread (elsewhere, and for `seconds <= 0`, no
+    deadline); a call stuck in native code is interrupted only when it returns to Python. A policy named
+    `MODULE:CALLABLE` runs in its own process instead (`HostedPolicy`), killed at its deadline."""
     if seconds <= 0 or threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -103,20 +70,24 @@ def deadline(seconds: float):
         signal.signal(signal.SIGALRM, previous)
 
 
-def _is_method(policy) -> bool:
-    return callable(getattr(policy, "run", None)) and callable(getattr(policy, "describe", None))
+def _placer_failure(error: BaseException) -> MethodOutput:
+    return MethodOutput(mode=None, samples=None, failure=describe_error(error))
+
+
+PLACER_DESCRIPTION = "place(observation) -> (x, y)"
 
 
 @dataclasses.dataclass
 class PlacerMethod:
-    """A `Method` around `place(observation) -> (x, y)`: one call per scene, in the harness's scene order."""
+    """A `Method` around `place(observation) -> (x, y)` given as an object: one call per scene, in this process,
+    in the harness's scene order."""
 
     name: str
     place: Callable
     scene_timeout_s: float = SCENE_TIMEOUT_S
 
     def describe(self) -> dict:
-        return {"policy": self.name, "interface": "place(observation) -> (x, y)"}
+        return {"policy": self.name, "interface": PLACER_DESCRIPTION}
 
     def run(self, scenes: Sequence[SceneRecord], key) -> list[MethodOutput]:
         from ocplace.sim.env.observation import observation
@@ -127,9 +98,9 @@ class PlacerMethod:
             # stateful placer (one random generator for all scenes) would see other calls than in the env.
             try:
                 with deadline(self.scene_timeout_s):
-                    mode = self.place(observation(scene))
+                    mode = placement_numbers(self.place(observation(scene)))
             except POLICY_ERRORS as error:
-                outputs.append(MethodOutput(mode=None, samples=None, failure=f"{type(error).__name__}: {error}"))
+                outputs.append(_placer_failure(error))
             else:  # the harness checks the shape and finiteness: anything else is a failure there
                 outputs.append(MethodOutput(mode=mode, samples=None))
         return outputs
@@ -137,8 +108,8 @@ class PlacerMethod:
 
 @dataclasses.dataclass
 class TimedMethod:
-    """A policy's own `Method`, under a deadline of `scene_timeout_s` per scene of each call (the harness then
-    runs a chunk past it again scene by scene, so only the slow scene fails)."""
+    """A policy's own `Method` given as an object, under a deadline of `scene_timeout_s` per scene of each call
+    (the harness then runs a chunk past it again scene by scene, so only the slow scene fails)."""
 
     method: Method
     scene_timeout_s: float = SCENE_TIMEOUT_S
@@ -151,17 +122,55 @@ class TimedMethod:
             return self.method.run(scenes, key)
 
 
+class HostedPolicy:
+    """A policy named `MODULE:CALLABLE`, run in its own process (`methods/policy_host.py`): past its deadline, or
+    when that process dies, the scene fails and a fresh process takes the next one."""
+
+    def __init__(self, reference: str, scene_timeout_s: float = SCENE_TIMEOUT_S):
+        self.name = reference
+        self.scene_timeout_s = scene_timeout_s
+        self.host = PolicyHost(reference)
+
+    def describe(self) -> dict:
+        if self.host.ready["kind"] == "method":
+            return self.host.ready["describe"]
+        return {"policy": self.name, "interface": PLACER_DESCRIPTION}
+
+    def run(self, scenes: Sequence[SceneRecord], key) -> list[MethodOutput]:
+        if self.host.ready["kind"] == "method":
+            return self._run_method(scenes, key)
+        from ocplace.sim.env.observation import observation
+
+        outputs = []
+        for scene in scenes:
+            try:
+                answer = self.host.request(("place", observation(scene)), self.scene_timeout_s)
+            except (SceneTimeout, PolicyProcessEnded, EvaluationError) as error:
+                outputs.append(_placer_failure(error))
+                continue
+            if "error" in answer:
+                outputs.append(MethodOutput(mode=None, samples=None, failure=answer["error"]))
+            else:
+                outputs.append(MethodOutput(mode=answer["mode"], samples=None))
+        return outputs
+
+    def _run_method(self, scenes: Sequence[SceneRecord], key) -> list[MethodOutput]:
+        """The policy's `run` in its process; whatever goes wrong is raised, so that the harness runs the chunk
+        again scene by scene and only the scene at fault fails."""
+        import jax
+
+        request = ("run", list(scenes), np.asarray(jax.random.key_data(key)))
+        answer = self.host.request(request, self.scene_timeout_s * len(scenes))
+        if "error" in answer:
+            raise PolicyRaised(answer["error"])
+        return [MethodOutput(**output) for output in answer["outputs"]]
+
+
 def as_method(policy, name: str, scene_timeout_s: float = SCENE_TIMEOUT_S) -> Method:
-    """The `Method` that runs `policy` (a Method, a placer, an object with a `place` method, or a class), each
-    scene under a deadline of `scene_timeout_s` (0: none)."""
-    if inspect.isclass(policy):
-        try:
-            policy = policy()
-        except POLICY_ERRORS as error:
-            raise EvaluationError(
-                f"the policy class {name!r} failed when made with no arguments ({type(error).__name__}: {error})"
-            ) from None
-    if _is_method(policy):
+    """The `Method` that runs `policy` (a Method, a placer, an object with a `place` method, or a class) in this
+    process, each scene under a deadline of `scene_timeout_s` (0: none)."""
+    policy = made(policy, name)
+    if is_method(policy):
         return TimedMethod(policy, scene_timeout_s)
     place = getattr(policy, "place", policy)
     if not callable(place):
@@ -170,8 +179,8 @@ def as_method(policy, name: str, scene_timeout_s: float = SCENE_TIMEOUT_S) -> Me
 
 
 def load_policy(reference: str, context: LoadContext | None = None, scene_timeout_s: float = SCENE_TIMEOUT_S) -> Method:
-    """`MethodSpec.load` of a policy: imports it anew (in an evaluation's worker process)."""
-    return as_method(import_policy(reference), reference, scene_timeout_s)
+    """`MethodSpec.load` of a policy: started anew in a process of its own (from an evaluation's worker)."""
+    return HostedPolicy(reference, scene_timeout_s)
 
 
 def policy_spec(reference: str, label: str | None = None, scene_timeout_s: float = SCENE_TIMEOUT_S) -> MethodSpec:
@@ -226,17 +235,22 @@ def evaluate_policy(
     progress: bool = False,
     scene_timeout_s: float = SCENE_TIMEOUT_S,
 ) -> dict:
-    """Scores `policy` on the test subsets of `dataset_dir` with the harness, in this process.
+    """Scores `policy` on the test subsets of `dataset_dir` with the harness.
 
-    `policy` is a `MODULE:CALLABLE` reference or the policy itself (a Method, a placer, an object
-    with a `place` method, or a class). Returns the results (`ocplace.evaluation/1`, docs/evaluation.md):
+    `policy` is a `MODULE:CALLABLE` reference, run in a process of its own (killed at its deadline), or the
+    policy itself (a Method, a placer, an object with a `place` method, or a class), run in this process.
+    Returns the results (`ocplace.evaluation/1`, docs/evaluation.md):
     `ocplace.eval.table.render(results)` gives Table I and the other tables,
     `ocplace.eval.results.write_outputs(results, path)` writes them and the JSON.
     """
     from ocplace.eval.results import build_results
 
-    name, policy = (policy, import_policy(policy)) if isinstance(policy, str) else (reference_of(policy), policy)
-    spec, method = _spec(policy, name, label, scene_timeout_s), as_method(policy, name, scene_timeout_s)
+    if isinstance(policy, str):
+        name = policy
+        spec, method = _spec(import_policy(name), name, label, scene_timeout_s), HostedPolicy(name, scene_timeout_s)
+    else:
+        name = reference_of(policy)
+        spec, method = _spec(policy, name, label, scene_timeout_s), as_method(policy, name, scene_timeout_s)
     with physical_arena(settings) as arena:
         evaluation = evaluate_run(method_run(spec), method, dataset_dir, settings, arena, progress=progress)
     command = {"python": "ocplace.methods.policy.evaluate_policy", "policy": spec.name}

@@ -149,3 +149,12 @@ class PlaceEnvError(OcplaceError):
 
 class InvalidAction(PlaceEnvError, ValueError):
     """An action that is not one table-frame placement `(x, y)`: the wrong shape, or not numbers."""
+
+
+# What anyone's policy (`ocplace evaluate --policy`) may raise without ending the evaluation: any exception,
+# and a `sys.exit` too; Ctrl-C (KeyboardInterrupt) still stops it.
+POLICY_ERRORS = (Exception, SystemExit)
+
+
+class PolicyRaised(Exception):
+    """What a policy raised in its own process, carried as its text (`TypeName: message`)."""

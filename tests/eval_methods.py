@@ -108,7 +108,7 @@ class RandomMethod:
     """Uniform samples over the table from the key; the mode is the first sample; as its confidence, the share of
     samples right of the centre."""
 
-    num_samples: int
+    num_samples: int = 8
     name: str = "random"
 
     def describe(self) -> dict:

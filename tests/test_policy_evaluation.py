@@ -5,6 +5,7 @@ import hashlib
 import json
 import sys
 import time
+from pathlib import Path
 
 import eval_methods
 import gymnasium
@@ -74,6 +75,64 @@ def test_a_method_object_runs_as_registered_methods_do(smoke_dataset):
     (entry,) = results["evaluations"]
     assert entry["label"] == "eval_methods:OracleMethod" and entry["description"] == {"dataset": str(smoke_dataset)}
     assert all(entry["subsets"][subset]["aggregate"]["overall"]["success"] == 1.0 for subset in SUBSETS)
+
+
+def test_a_method_named_by_reference_runs_in_its_own_process_as_in_this_one(smoke_dataset):
+    """Its keys, outputs and the failures of the scenes it raises on are the same whichever process runs it."""
+
+    def scenes(policy) -> list:
+        (entry,) = evaluate_policy(policy, smoke_dataset, SETTINGS)["evaluations"]
+        return [
+            (s["mode"], s["sample_success"], s["failure"])
+            for subset in SUBSETS
+            for s in entry["subsets"][subset]["scenes"]
+        ]
+
+    for name in ("RandomMethod", "FlakyMethod"):
+        hosted, here = scenes(f"eval_methods:{name}"), scenes(getattr(eval_methods, name)())
+        assert hosted == here, name
+    assert {failure is None for _, _, failure in hosted} == {True, False}  # FlakyMethod's odd scenes
+
+
+STUCK_POLICY = '''
+import os, signal, time
+from pathlib import Path
+
+
+def place(observation):
+    """Stuck where no signal reaches it on its first call, its process gone on the second, then the centre."""
+    calls = Path(os.environ["OCPLACE_TEST_POLICY_CALLS"])
+    count = len(calls.read_text().split()) if calls.exists() else 0
+    calls.write_text(calls.read_text() + f" {os.getpid()}" if count else str(os.getpid()))
+    if count == 0:
+        signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGALRM, signal.SIGINT, signal.SIGTERM})
+        time.sleep(3600)
+    if count == 1:
+        os._exit(7)
+    return (0.0, 0.0)
+'''
+
+
+def test_a_policy_stuck_in_its_process_or_dying_fails_its_scene_and_a_fresh_process_goes_on(
+    smoke_dataset, tmp_path, monkeypatch
+):
+    """Issue 43's decision: past `--scene-timeout` the scene fails with `timeout` and the worker is replaced, even
+    for a call no signal interrupts (native code)."""
+    (tmp_path / "stuck_policy_of_the_host_test.py").write_text(STUCK_POLICY)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setenv("OCPLACE_TEST_POLICY_CALLS", str(tmp_path / "calls"))
+    settings = dataclasses.replace(SETTINGS, subsets=("seen",), limit=4)
+    started = time.monotonic()
+    results = evaluate_policy("stuck_policy_of_the_host_test:place", smoke_dataset, settings, scene_timeout_s=1.0)
+    scenes = results["evaluations"][0]["subsets"]["seen"]["scenes"]
+    assert time.monotonic() - started < 60
+    assert "timeout: the policy took more than 1 s" in scenes[0]["failure"]
+    assert "the policy's process ended (exit code 7)" in scenes[1]["failure"]
+    assert [s["mode"] for s in scenes[2:]] == [[0.0, 0.0]] * 2
+    pids = [int(pid) for pid in (tmp_path / "calls").read_text().split()]
+    assert len(set(pids)) == 3  # a process per failure, and the third took the rest
+    for pid in pids[:2]:
+        assert not Path(f"/proc/{pid}").exists(), "a killed policy's process is still there"
 
 
 CENTRE_POLICY = '''

@@ -3,6 +3,7 @@ started them, none is left 10 s later. A real LocalExecutor in a real child proc
 
 from __future__ import annotations
 
+import json
 import signal
 import subprocess
 import sys
@@ -50,3 +51,64 @@ def _env(folder) -> dict:
     import os
 
     return {**os.environ, "PYTHONPATH": os.pathsep.join([str(folder), os.environ.get("PYTHONPATH", "")])}
+
+
+FAST_POLICY = """
+import os, time
+from pathlib import Path
+
+
+def place(observation):
+    # Answers only once the slow policy has begun, so that the kill finds the slow one at work.
+    while not Path(os.environ["OCPLACE_TEST_PIDS"]).exists():
+        time.sleep(0.05)
+    return (0.0, 0.0)
+"""
+
+SLOW_POLICY = """
+import os, time
+
+
+def place(observation):
+    with open(os.environ["OCPLACE_TEST_PIDS"], "a") as pids:  # its own process and the evaluation's worker
+        pids.write(f"{os.getpid()} {os.getppid()}\\n")
+    time.sleep(1.0)
+    return (0.05, 0.0)
+"""
+
+
+def test_a_killed_evaluation_on_two_workers_leaves_no_process_and_resumes_what_it_finished(smoke_dataset, tmp_path):
+    """Issue 43's target for `evaluate --workers 2`: SIGKILL once the first evaluation is in (the slow policy
+    mid-scene in its own process under the other worker); none of its processes is left 10 s later; the same
+    command again reuses the finished evaluation byte for byte and scores the other."""
+    from ocplace.experiments.evaluation import DIE_AFTER_EVALUATIONS_ENV
+
+    (tmp_path / "fast_policy_of_the_kill_test.py").write_text(FAST_POLICY)
+    (tmp_path / "slow_policy_of_the_kill_test.py").write_text(SLOW_POLICY)
+    fast, slow = "fast_policy_of_the_kill_test:place", "slow_policy_of_the_kill_test:place"
+    command = [sys.executable, "-m", "ocplace.cli", "evaluate", "--dataset", str(smoke_dataset), "--subsets", "seen"]
+    command += ["--limit", "3", "--physical", "0", "--backbone", "none", "--workers", "2", "--out", "results.json"]
+    command += ["--policy", fast, "--policy", slow]
+    env = _env(tmp_path) | {"OCPLACE_TEST_PIDS": str(tmp_path / "pids")}
+    killed = subprocess.run(command, cwd=tmp_path, env=env | {DIE_AFTER_EVALUATIONS_ENV: "1"}, capture_output=True)
+    assert killed.returncode == -signal.SIGKILL, killed.stderr.decode()[-2000:]
+    assert not (tmp_path / "results.json").exists()
+    (stored,) = (tmp_path / "results.evaluations").glob(f"{fast}-*.json")
+    left = {int(pid) for line in (tmp_path / "pids").read_text().splitlines() for pid in line.split()}
+    deadline = time.monotonic() + 10
+    while any(pid_alive(pid) for pid in left) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert not any(pid_alive(pid) for pid in left), "a worker or a policy's process outlived its command"
+    stored_text = stored.read_text()
+
+    resumed = subprocess.run(command, cwd=tmp_path, env=env, capture_output=True, text=True)
+    assert resumed.returncode == 0, resumed.stderr[-2000:]
+    assert f"evaluated {fast} stored by an earlier, interrupted command" in resumed.stdout
+    assert not (tmp_path / "results.evaluations").exists()
+    from ocplace.eval.results import evaluation_to_json, evaluations, read_results
+
+    results = read_results(tmp_path / "results.json")
+    by_method = {e.method: e for e in evaluations(results)}
+    assert json.dumps(evaluation_to_json(by_method[fast]), indent=1) == stored_text
+    modes = {m: [o.mode for o in e.subsets["seen"]] for m, e in by_method.items()}
+    assert modes == {fast: [(0.0, 0.0)] * 3, slow: [(0.05, 0.0)] * 3}

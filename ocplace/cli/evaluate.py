@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import shutil
 import sys
 from pathlib import Path
 
@@ -116,8 +117,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         type=seconds,
         default=SCENE_TIMEOUT_S,
         metavar="S",
-        help=f"seconds a --policy may take per scene before that scene fails as a timeout "
-        f"(default {SCENE_TIMEOUT_S:g}; 0: no limit)",
+        help=f"seconds a --policy may take per scene; past them its process is killed, the scene fails as a "
+        f"timeout and a fresh process goes on (default {SCENE_TIMEOUT_S:g}; 0: no limit)",
     )
     evaluate.add_argument(
         "--trust-policy",
@@ -209,12 +210,20 @@ def _evaluate(args: argparse.Namespace) -> int:
     policies = _policy_specs(args.policy, args.label, args.scene_timeout)
     runs += [method_run(spec) for spec in policies]
     specs |= {spec.name: spec for spec in policies}
+    store = finished_store(args.out)
     with open_executor(executor_config(args)) as executor:
-        evaluations = evaluate_runs(specs, runs, args.dataset, settings, executor, progress=not args.no_progress)
+        evaluations = evaluate_runs(specs, runs, args.dataset, settings, executor, not args.no_progress, store)
     markdown = write_outputs(build_results(evaluations, args.dataset, settings, command_record(args)), args.out)
+    shutil.rmtree(store, ignore_errors=True)
     print(markdown)
     print(f"wrote {args.out} and {args.out.with_suffix('.md')}")
     return 0
+
+
+def finished_store(out: Path) -> Path:
+    """Where the evaluations of `--out` OUT.json are kept while the command runs (OUT.evaluations/ beside it):
+    a killed command run again with the same arguments reuses them; removed once OUT.json is written."""
+    return out.with_name(out.stem + ".evaluations")
 
 
 def _policy_specs(references: list[str], labels: list[str], scene_timeout_s: float) -> list:

@@ -1,0 +1,233 @@
+"""A policy named `MODULE:CALLABLE` in a process of its own, so that its deadline holds even in native code.
+
+The evaluation sends each request (an observation for a placer, redacted scenes and a key for a `Method`)
+to the policy's process and waits at most its deadline. Past it, or when that process ended (a crash,
+`os._exit`, a signal), the process is killed, the scene is a failure and the next request starts a fresh
+process (a stateful policy starts from its constructor again). Requests go down pickled (the evaluation
+made them); answers come back as JSON only, so nothing the policy returns is unpickled here.
+
+This module imports little at its top: a placer's process loads only it, numpy and the policy.
+"""
+
+from __future__ import annotations
+
+import importlib
+import inspect
+import json
+import multiprocessing
+import weakref
+
+import numpy as np
+
+from ocplace.errors import POLICY_ERRORS, EvaluationError
+
+LOAD_TIMEOUT_S = 600.0  # importing and constructing the policy; a scene's deadline starts after it
+
+REFERENCE_HELP = (
+    "a policy is named MODULE:CALLABLE, e.g. my_policies:place or my_pkg.policies:MyPolicy; the module must be "
+    "importable (the command adds the current folder to the import path; else set PYTHONPATH)"
+)
+
+
+class SceneTimeout(TimeoutError):
+    """A policy past its time on a scene (`--scene-timeout`): that scene fails, the evaluation goes on."""
+
+
+class PolicyProcessEnded(RuntimeError):
+    """The policy's process ended while it had a scene: that scene fails, the next one starts a new process."""
+
+
+def is_policy_name(name: str) -> bool:
+    """Whether a method name is a policy's `MODULE:CALLABLE` reference, not a registered method's."""
+    return ":" in name
+
+
+def import_policy(reference: str):
+    """The object `MODULE:ATTRIBUTE[.ATTRIBUTE...]` names; EvaluationError when it cannot be imported."""
+    module_name, _, attributes = reference.partition(":")
+    if not module_name or not attributes:
+        raise EvaluationError(f"cannot read the policy reference {reference!r}: {REFERENCE_HELP}")
+    if module_name == "__main__" or any(part.startswith("<") for part in attributes.split(".")):
+        where = (
+            "in a script run directly (__main__)" if module_name == "__main__" else "inside a function, or as a lambda"
+        )
+        raise EvaluationError(
+            f"the policy {reference!r} was defined {where}, so no other process can import it again: "
+            "put it in a module (a .py file in the current folder will do) and name it MODULE:CALLABLE"
+        )
+    try:
+        target = importlib.import_module(module_name)
+    except ImportError as error:
+        raise EvaluationError(f"cannot import the policy module {module_name!r} ({error}); {REFERENCE_HELP}") from None
+    except POLICY_ERRORS as error:  # a SyntaxError, or anything its own code raises while it is imported
+        raise EvaluationError(
+            f"the policy module {module_name!r} failed while it was imported ({type(error).__name__}: {error}); "
+            "fix it, or import it yourself to see the traceback"
+        ) from None
+    for attribute in attributes.split("."):
+        if not hasattr(target, attribute):
+            raise EvaluationError(f"{module_name} has no {attributes!r} for the policy {reference!r}; {REFERENCE_HELP}")
+        target = getattr(target, attribute)
+    if not (callable(target) or is_method(target) or callable(getattr(target, "place", None))):
+        raise EvaluationError(
+            f"{reference} is a {type(target).__name__}: a policy is a Method (describe and run), a callable "
+            "place(observation) -> (x, y), an object with such a place method, or a class making one"
+        )
+    return target
+
+
+def is_method(policy) -> bool:
+    return callable(getattr(policy, "run", None)) and callable(getattr(policy, "describe", None))
+
+
+def made(policy, name: str):
+    """`policy`, or the object its class makes with no arguments (EvaluationError when that fails)."""
+    if not inspect.isclass(policy):
+        return policy
+    try:
+        return policy()
+    except POLICY_ERRORS as error:
+        raise EvaluationError(
+            f"the policy class {name!r} failed when made with no arguments ({type(error).__name__}: {error})"
+        ) from None
+
+
+def placement_numbers(mode) -> list:
+    """A placer's answer as nested float lists (the harness checks the shape); strings, booleans and objects
+    are no placements, as in the environment (`"0.1"` would convert)."""
+    kind = np.asarray(mode).dtype.kind
+    if kind in "USb":
+        raise TypeError(f"a placement is numbers, not {np.asarray(mode).dtype} ({type(mode).__name__})")
+    return np.asarray(mode, dtype=np.float64).tolist()
+
+
+def describe_error(error: BaseException) -> str:
+    return f"{type(error).__name__}: {error}"
+
+
+# ----------------------------------------------------------------------------- the policy's process
+
+
+def serve(reference: str, connection) -> None:
+    """The policy's process: loads it, says what it is, then answers requests until the pipe closes."""
+    from ocplace.runtime.executor import exit_with_parent
+
+    exit_with_parent()
+    try:
+        policy = made(import_policy(reference), reference)
+    except EvaluationError as error:
+        connection.send_bytes(json.dumps({"error": str(error)}).encode())
+        return
+    if is_method(policy):
+        from ocplace import serial
+
+        ready = {"kind": "method", "describe": serial.to_dict(policy.describe())}
+    else:
+        ready = {"kind": "placer"}
+        policy = getattr(policy, "place", policy)
+    connection.send_bytes(json.dumps(ready).encode())
+    while True:
+        try:
+            request = connection.recv()
+        except EOFError:
+            return
+        connection.send_bytes(json.dumps(_answer(policy, request)).encode())
+
+
+def _answer(policy, request: tuple) -> dict:
+    try:
+        if request[0] == "place":
+            return {"mode": placement_numbers(policy(request[1]))}
+        import jax
+
+        scenes, key_data = request[1], request[2]
+        outputs = policy.run(scenes, jax.random.wrap_key_data(np.asarray(key_data, np.uint32)))
+        return {"outputs": [_output_json(output) for output in outputs]}
+    except POLICY_ERRORS as error:
+        return {"error": describe_error(error)}
+
+
+def _output_json(output) -> dict:
+    """A `MethodOutput` as JSON (numbers as lists; the harness checks them as it checks any method's)."""
+    from ocplace.eval.api import MethodOutput
+
+    if not isinstance(output, MethodOutput):
+        return {"failure": f"malformed output: {type(output).__name__}, not a MethodOutput"}
+    try:
+
+        def numbers(value):
+            return None if value is None else np.asarray(value, dtype=np.float64).tolist()
+
+        return {
+            "mode": numbers(output.mode),
+            "samples": numbers(output.samples),
+            "parsed": None if output.parsed is None else [[str(r), str(rel)] for r, rel in output.parsed],
+            "grounded": None if output.grounded is None else [int(t) for t in output.grounded],
+            "failure": None if output.failure is None else str(output.failure),
+            "parse_note": output.parse_note if isinstance(output.parse_note, str) else None,
+            "confidence": None if output.confidence is None else float(output.confidence),
+        }
+    except POLICY_ERRORS as error:
+        return {"failure": output.failure or f"malformed output: {describe_error(error)}"}
+
+
+# ----------------------------------------------------------------------------- the evaluation's side
+
+
+def _stop(process) -> None:
+    if process.is_alive():
+        process.kill()
+    process.join()
+
+
+class PolicyHost:
+    """The evaluation's handle on the policy's process, started on the first request and again after a kill."""
+
+    def __init__(self, reference: str):
+        self.reference = reference
+        self._process = None
+        self._connection = None
+        self.ready: dict = self._start()
+
+    def _start(self) -> dict:
+        context = multiprocessing.get_context("spawn")  # never fork a process that runs JAX or EGL
+        connection, child_end = context.Pipe()
+        process = context.Process(target=serve, args=(self.reference, child_end), daemon=True, name="ocplace-policy")
+        process.start()
+        child_end.close()
+        self._process, self._connection = process, connection
+        weakref.finalize(self, _stop, process)
+        ready = self._receive(LOAD_TIMEOUT_S, loading=True)
+        if "error" in ready:
+            self.stop()
+            raise EvaluationError(ready["error"])
+        return ready
+
+    def request(self, request: tuple, timeout_s: float) -> dict:
+        """The policy's JSON answer to `request` within `timeout_s` (0: no deadline); SceneTimeout or
+        PolicyProcessEnded (its process then stopped, the next request starts another)."""
+        if self._process is None:
+            self._start()
+        self._connection.send(request)
+        return self._receive(timeout_s if timeout_s > 0 else None)
+
+    def _receive(self, timeout_s: float | None, loading: bool = False) -> dict:
+        if not self._connection.poll(timeout_s):
+            self.stop()
+            what = "to load" if loading else "(--scene-timeout)"
+            raise SceneTimeout(f"timeout: the policy took more than {timeout_s:g} s {what}")
+        try:
+            return json.loads(self._connection.recv_bytes())
+        except (EOFError, OSError):
+            code = self.stop()
+            when = " while it was loaded" if loading else ""
+            raise PolicyProcessEnded(f"the policy's process ended{when} (exit code {code})") from None
+
+    def stop(self) -> int | None:
+        """Kills the policy's process (if running); its exit code."""
+        process, self._process = self._process, None
+        if process is None:
+            return None
+        self._connection.close()
+        _stop(process)
+        return process.exitcode
