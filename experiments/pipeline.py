@@ -39,6 +39,7 @@ from ocplace.runtime.graph import Node, run_graph
 SUMMARY_FILE = "results.summary.json"  # aggregates, no per-scene outcomes: small enough to commit
 OUTCOMES_FILE = "results.outcomes.jsonl.gz"  # each scene's outcome, compact: small enough to commit
 PLACEMENT_FIGURE = "placement.png"
+POLICY_FOLDER = "policy"  # OUT/policy: the drawn Ours run as a policy folder (methods/export.py)
 FIGURE_NODE = "figure ours"  # a failure is reported as stage "figure" of "ours"
 
 
@@ -178,9 +179,11 @@ def evaluation_settings(config: PipelineConfig, backbone: str) -> EvalSettings:
 
 
 def placement_figure_task(run_dir: Path, parser: str, seed: int, dataset_dir: Path, backbone: str, path: Path) -> str:
-    """Draws Ours (trained in `run_dir`) on the first `seen` test scene: what a user looks at first."""
+    """Draws Ours (trained in `run_dir`) on the first `seen` test scene: what a user looks at first; and writes
+    that policy as the policy folder `POLICY_FOLDER` beside the figure (OUT/policy)."""
     import jax
 
+    from ocplace.methods.export import export_trained
     from ocplace.methods.policy_method import scene_input
     from ocplace.models.backbone import load_backbone
     from ocplace.models.policy import PlacementPolicy
@@ -191,7 +194,11 @@ def placement_figure_task(run_dir: Path, parser: str, seed: int, dataset_dir: Pa
     policy = PlacementPolicy.from_run(load_backbone(backbone), run_dir, parser=parser)
     placement = save_placement(policy, scene_input(scene.read()), jax.random.key(seed), path)
     print(placement.summary(), flush=True)
-    return f"{path} ({scene.name}, {'placed' if placement.error is None else placement.failure})"
+    folder = export_trained(
+        policy, path.parent / POLICY_FOLDER, parser=parser, run_dir=run_dir, backbone=backbone, dataset=dataset_dir
+    )
+    outcome = "placed" if placement.error is None else placement.failure
+    return f"{path} ({scene.name}, {outcome}); policy folder {folder}"
 
 
 # ----------------------------------------------------------------------------- tasks of the graph (any worker)
@@ -442,9 +449,24 @@ def _run(config, executor, out, specs, command, library) -> PipelineSummary:
     figure = outcomes.get(FIGURE_NODE)
     if figure is not None and figure.ok:
         summary.placement_figure = out / PLACEMENT_FIGURE
+        _card_row(out / POLICY_FOLDER, results)
     summary.wall_s = time.perf_counter() - began
     _write_results(summary, config, results)
     return summary
+
+
+def _card_row(folder: Path, results: dict | None) -> None:
+    """The exported Ours policy's Table I row, from this run's results, into its model card."""
+    from ocplace.eval.table import table_one
+    from ocplace.methods.export import write_table_row
+
+    if results is None:
+        return
+    table = [line for line in table_one(results).splitlines() if line.startswith("|")]
+    rows = [line for line in table if line.startswith("| Ours |")]
+    if rows:  # the table's three header lines, then the row
+        note = "(Table I of the `reproduce` run that exported it, its `results.md`.)"
+        write_table_row(folder, "\n".join(table[:3] + rows) + "\n\n" + note)
 
 
 def _run_graph(summary: PipelineSummary, executor: Executor, nodes: list[Node]) -> dict:

@@ -29,6 +29,7 @@ from ocplace.errors import POLICY_ERRORS, EvaluationError, PolicyRaised
 from ocplace.eval.api import Method, MethodOutput
 from ocplace.eval.harness import EvalSettings, evaluate_run, physical_arena
 from ocplace.methods.api import LoadContext, MethodSpec
+from ocplace.methods.folder_method import folder_spec, is_folder_reference
 from ocplace.methods.policy_host import (
     PolicyHost,
     PolicyProcessEnded,
@@ -186,8 +187,11 @@ def load_policy(reference: str, context: LoadContext | None = None, scene_timeou
 def policy_spec(reference: str, label: str | None = None, scene_timeout_s: float = SCENE_TIMEOUT_S) -> MethodSpec:
     """The spec of the policy `MODULE:CALLABLE`, imported here so that a bad reference fails before any work.
 
-    Its Table I label: `label`, else the policy's `label` attribute, else the reference.
+    Its Table I label: `label`, else the policy's `label` attribute, else the reference. A policy folder
+    (`ocplace export`; `methods/folder_method.py`) is a spec too, and imports nothing.
     """
+    if is_folder_reference(reference):
+        return folder_spec(reference, label)
     return _spec(import_policy(reference), reference, label, scene_timeout_s)
 
 
@@ -210,7 +214,7 @@ def with_policies(
     command's `--policy`), or all with `trust_all` (`--trust-policy`); any other is an EvaluationError saying so.
     """
     named = [e["method"] for e in results["evaluations"] if is_policy_name(e["method"]) and e["method"] not in specs]
-    untrusted = [name for name in named if name not in trusted and not trust_all]
+    untrusted = [name for name in named if name not in trusted and not trust_all and not is_folder_reference(name)]
     if untrusted:
         raise EvaluationError(
             f"the results file names the policies {', '.join(map(repr, untrusted))}; a results file never makes "

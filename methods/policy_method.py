@@ -32,19 +32,7 @@ def scene_input(record: SceneRecord):
     """What a method may see of a dataset scene, as the policy's input (no tuples, no oracle)."""
     from ocplace.models.policy import SceneInput
 
-    boxes = record.boxes
-    aabb_by_id = {obj.object_id: obj.aabb for obj in record.objects}
-    aabbs = np.array([aabb_by_id[int(i)] for i in boxes.object_ids], np.float64).reshape(-1, 2, 3)[:, :, :2]
-    return SceneInput(
-        record.rgb,
-        record.depth,
-        boxes.boxes,
-        record.instruction,
-        record.held_object.footprint_half_extents,
-        record.camera,
-        aabbs,
-        name=record.id,
-    )
+    return SceneInput(**record.policy_inputs(), name=record.id)
 
 
 def output_of(placement) -> MethodOutput:

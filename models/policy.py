@@ -211,6 +211,16 @@ class PlacementPolicy:
             )
         return cls(backbone, trained.model, trained.prompt, parser, **kwargs)
 
+    @classmethod
+    def from_pretrained(cls, directory, parser: Parser | str | None = None, **kwargs) -> PlacementPolicy:
+        """The policy a policy folder holds (`ocplace export`; `out/demo/policy` after `make demo`), with no cache:
+        backbone, adapters and settings from its `config.json` and `model.safetensors`. `parser`: None for the
+        folder's own; `kwargs` override policy fields (`sampler`, `threshold`, ...). PolicyFolderError when the
+        folder is missing, tampered or of another format."""
+        from ocplace.models.policy_folder import load_policy_folder
+
+        return load_policy_folder(directory, parser, **kwargs)
+
     # ------------------------------------------------------------------ public calls
 
     def place(

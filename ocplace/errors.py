@@ -75,6 +75,10 @@ class FeaturesError(OcplaceError):
     """A feature file that is missing, corrupt, or does not match the data or backbone asked for."""
 
 
+class PolicyFolderError(OcplaceError):
+    """A policy folder (`ocplace export`) that cannot be loaded: missing, tampered, of another format or version."""
+
+
 class TrainingError(OcplaceError):
     """A training run that cannot start or resume (bad configuration, mismatched checkpoint)."""
 

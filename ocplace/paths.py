@@ -219,11 +219,28 @@ def atomic_path(target: str | os.PathLike):
             fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
             os.close(fd)
             yield Path(tmp)
+            honour_umask(tmp)
             os.replace(tmp, target)
     finally:
         if tmp is not None:
             with contextlib.suppress(FileNotFoundError):
                 os.unlink(tmp)
+
+
+def current_umask() -> int:
+    """The process's umask, read without changing it (`os.umask` can only set it, and another thread could create
+    a file in between); Linux says it in /proc/self/status."""
+    with contextlib.suppress(OSError, ValueError, StopIteration):
+        status = Path("/proc/self/status").read_text().splitlines()
+        return int(next(line for line in status if line.startswith("Umask:")).split()[1], 8)
+    return 0o022
+
+
+def honour_umask(path: str | os.PathLike) -> None:
+    """Gives a file or folder made by `tempfile` (always 0600 / 0700) the mode a plain `open` or `mkdir` would have
+    had: 0644 / 0755 under the usual umask 022, so that lab members can read each other's outputs."""
+    default = 0o777 if os.path.isdir(path) else 0o666
+    os.chmod(path, default & ~current_umask())
 
 
 def check_writable(target: str | os.PathLike, as_folder: bool = False) -> None:

@@ -66,6 +66,30 @@ def tiny_backbone_spec(tmp_path_factory):
     return f"offline:{directory}"
 
 
+@pytest.fixture(scope="session")
+def trained_run(smoke_dataset, tiny_backbone_spec, tmp_path_factory):
+    """`(run_dir, feature files)`: Ours trained at smoke size on the tiny backbone, in a cache of its own."""
+    from ocplace.configs import smoke
+    from ocplace.methods.api import TrainContext
+    from ocplace.methods.registry import method_specs
+
+    cache = tmp_path_factory.mktemp("ours_cache")
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("OCPLACE_CACHE", str(cache))
+        run = method_specs()["ours"].train(
+            TrainContext(
+                smoke_dataset,
+                tiny_backbone_spec,
+                tmp_path_factory.mktemp("ours") / "run",
+                smoke.get_config().recipes.ours,
+                fraction=0.5,
+                seed=3,
+            )
+        )
+        features = sorted((cache / "features").glob("*.safetensors"))
+    return run, features
+
+
 # The cache folders a test's own cache borrows from the real one: built once, only read by the tests that borrow them.
 _BORROWED_CACHE_FOLDERS = ("library", "sources", "corpus", "weights", "primitives", "compiled")
 

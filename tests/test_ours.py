@@ -9,12 +9,11 @@ import pytest
 from llm_endpoint import fixed_answer, llm_parser
 
 from ocplace import serial
-from ocplace.configs import smoke
 from ocplace.errors import TrainingError
 from ocplace.eval.api import MethodOutput
 from ocplace.eval.harness import SceneOutcome, score_scene
 from ocplace.methods import ours
-from ocplace.methods.api import LoadContext, TrainContext
+from ocplace.methods.api import LoadContext
 from ocplace.methods.registry import method_specs
 from ocplace.paths import RUN_FILE
 from ocplace.sim.dataset.job import scene_dirs
@@ -30,25 +29,6 @@ def _without_ground_truth(record: SceneRecord) -> SceneRecord:
 @pytest.fixture(scope="module")
 def seen_records(smoke_dataset):
     return [_without_ground_truth(read_scene(d)) for d in scene_dirs(smoke_dataset, "seen")]
-
-
-@pytest.fixture(scope="module")
-def trained_run(smoke_dataset, tiny_backbone_spec, tmp_path_factory):
-    cache = tmp_path_factory.mktemp("ours_cache")
-    with pytest.MonkeyPatch.context() as patch:
-        patch.setenv("OCPLACE_CACHE", str(cache))
-        run = method_specs()["ours"].train(
-            TrainContext(
-                smoke_dataset,
-                tiny_backbone_spec,
-                tmp_path_factory.mktemp("ours") / "run",
-                smoke.get_config().recipes.ours,
-                fraction=0.5,
-                seed=3,
-            )
-        )
-        features = sorted((cache / "features").glob("*.safetensors"))
-    return run, features
 
 
 def test_methods_are_registered():

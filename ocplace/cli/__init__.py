@@ -29,7 +29,11 @@ COMMAND_MODULES = (
     "ocplace.cli.evaluate",
     "ocplace.cli.reproduce",
     "ocplace.cli.place",
+    "ocplace.cli.export",
 )
+
+
+QUIET_LIBRARIES = ("trimesh", "OpenGL", "jax", "absl", "numexpr")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -50,6 +54,9 @@ def main(argv: list[str] | None = None) -> int:
         level=logging.DEBUG if args.verbose else logging.INFO,
         format="%(levelname)s %(name)s: %(message)s",
     )
+    if not args.verbose:  # their INFO lines (hundreds from trimesh in `make demo`) say nothing a user acts on
+        for name in QUIET_LIBRARIES:
+            logging.getLogger(name).setLevel(logging.WARNING)
     try:
         _check_output(args)
         return args.func(args) or 0

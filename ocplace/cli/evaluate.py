@@ -46,15 +46,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--policy",
         action="append",
         default=[],
-        metavar="MODULE:CALLABLE",
+        metavar="MODULE:CALLABLE|DIR",
         help="also evaluate your own policy: a Method, or a callable place(observation) -> (x, y) that gets the "
-        "Gymnasium environment's observation (docs/evaluation.md); repeatable; the current folder is importable",
+        "Gymnasium environment's observation (docs/evaluation.md), or a policy folder (`ocplace export`, "
+        "out/demo/policy); repeatable; the current folder is importable",
     )
     evaluate.add_argument(
         "--label",
         action="append",
         default=[],
-        help="the Table I row of each --policy, in their order (default: its `label` attribute, else MODULE:CALLABLE)",
+        help="the Table I row of each --policy, in their order (default: its `label` attribute, else MODULE:CALLABLE, "
+        "or a folder's name)",
     )
     evaluate.add_argument(
         "--run",

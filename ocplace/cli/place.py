@@ -67,7 +67,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     model.add_argument(
         "--adapters", type=Path, help="training run directory or adapters file (default: none, zero-shot grounding)"
     )
-    model.add_argument("--parser", default="offline", help="offline, offline-snap or llm")
+    model.add_argument(
+        "--policy",
+        type=Path,
+        help="a policy folder (`ocplace export`; out/demo/policy after `make demo`): backbone, adapters and "
+        "settings in one, no cache needed; not with --backbone or --adapters",
+    )
+    model.add_argument("--parser", help="offline, offline-snap or llm (default: a --policy folder's, else offline)")
     model.add_argument(
         "--threshold", type=float, help="least grounding probability to place against (default: the policy's)"
     )
@@ -80,6 +86,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run_place(args: argparse.Namespace) -> int:
     import jax
 
+    from ocplace.errors import PolicyInputError
+    from ocplace.methods.export import backbone_of
     from ocplace.models.backbone import load_backbone
     from ocplace.models.parsing import make_parser
     from ocplace.models.placement.sampler import SamplerConfig
@@ -90,16 +98,26 @@ def run_place(args: argparse.Namespace) -> int:
     # Everything given is read and checked before the backbone loads, which takes seconds to minutes.
     scene, record = _scene(args)
     check_scene(scene)  # sizes that disagree, the camera, the footprint
-    parser = make_parser(args.parser)
+    if args.policy is not None:
+        from ocplace.models.policy_folder import read_policy_config
+
+        parser = make_parser(args.parser or read_policy_config(args.policy)["policy"]["parser"])
+    else:
+        parser = make_parser(args.parser or "offline")
     parser.parse(scene.instruction)  # the policy parses it again: a few milliseconds, or the LLM parser's cache
-    adapters = None if args.adapters is None else load_adapters(args.adapters)  # a bad adapters file fails here
-    backbone_spec = _backbone_spec(args, adapters)
     kwargs = {"sampler": SamplerConfig(num_samples=args.samples)}
     if args.threshold is not None:
         kwargs["threshold"] = args.threshold
-    if args.adapters is None:
-        print("no --adapters given: zero-shot grounding (plain backbone similarity, 'Ours w/o Adapter')")
-    policy = PlacementPolicy.from_run(load_backbone(backbone_spec), adapters, parser=parser, **kwargs)
+    if args.policy is not None:
+        if args.adapters is not None or args.backbone is not None:
+            raise PolicyInputError("--policy holds its backbone and adapters: drop --backbone and --adapters")
+        policy = PlacementPolicy.from_pretrained(args.policy, parser=parser, **kwargs)
+    else:
+        adapters = None if args.adapters is None else load_adapters(args.adapters)  # a bad adapters file fails here
+        backbone_spec = backbone_of(adapters, args.backbone) if adapters is not None else args.backbone or "offline"
+        if args.adapters is None:
+            print("no --adapters given: zero-shot grounding (plain backbone similarity, 'Ours w/o Adapter')")
+        policy = PlacementPolicy.from_run(load_backbone(backbone_spec), adapters, parser=parser, **kwargs)
     [placement] = policy.place_many([scene], jax.random.key(args.seed))
     print(placement.summary())
     if record is not None:
@@ -107,26 +125,6 @@ def run_place(args: argparse.Namespace) -> int:
     save_placement_figure(placement, scene, args.out)  # last: a full disk costs the picture, not the placement
     print(f"wrote {args.out}")
     return 0 if placement.error is None else 2
-
-
-def _backbone_spec(args, adapters) -> str:
-    """--backbone; else the saved backbone whose fingerprint the adapters record; else the default one."""
-    from ocplace.errors import BackboneUnavailable
-    from ocplace.models.offline_backbone import saved_backbone_with
-    from ocplace.models.policy import backbone_hint
-
-    if adapters is None:
-        return args.backbone or "offline"
-    fingerprint = adapters.backbone_fingerprint
-    if args.backbone is not None:
-        return args.backbone
-    directory = saved_backbone_with(fingerprint)
-    if directory is None:
-        raise BackboneUnavailable(
-            f"the adapters in {args.adapters} were trained on the backbone with fingerprint "
-            f"{fingerprint[:12]}; {backbone_hint(fingerprint)}"
-        )
-    return f"offline:{directory}"
 
 
 def _scene(args):

@@ -26,7 +26,7 @@ import trimesh
 from PIL import Image
 
 from ocplace.errors import CorpusError
-from ocplace.paths import unwritable
+from ocplace.paths import honour_umask, unwritable
 from ocplace.sim.corpus import cutout
 from ocplace.sim.corpus.catalogue import CatalogueEntry, member_name, read_member
 from ocplace.sim.corpus.cutout_sources import CUTOUT_CATALOGUES
@@ -292,6 +292,7 @@ def convert_model(
         if target.exists():  # a folder without its asset.json is partial: never used
             shutil.rmtree(target)
         target.parent.mkdir(parents=True, exist_ok=True)
+        honour_umask(work)
         os.rename(work, target)  # just written and hashed: its paths moved with it, no need to hash it again
         return ConversionResult(
             entry.key, "ok", "", asset_from_json(json.loads((target / ASSET_FILE).read_text()), target)

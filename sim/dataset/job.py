@@ -415,6 +415,18 @@ def listed_scenes(out: str | Path, split: str) -> list[ListedScene]:
     return [ListedScene(scene_dir, digests[scene_dir]) for scene_dir in sorted(digests)]
 
 
+def dataset_scene(dataset_dir: str | Path, scene_id: str) -> SceneRecord:
+    """The scene `scene_id` (e.g. `seen-00003`; its split is the part before the last dash) of a dataset,
+    read through its manifest; DatasetError naming the scenes there are when it is not one of them."""
+    split = scene_id.rpartition("-")[0]
+    scenes = listed_scenes(dataset_dir, split) if split else []
+    for scene in scenes:
+        if scene.name == scene_id:
+            return scene.read()
+    named = f"{scenes[0].name} to {scenes[-1].name}" if scenes else "ids such as seen-00003"
+    raise DatasetError(f"no scene {scene_id!r} in {dataset_dir}; its scenes are named {named}")
+
+
 def scene_dirs(out: str | Path, split: str) -> list[Path]:
     """The folders of `listed_scenes`, for code that names or counts scenes; readers use `listed_scenes`."""
     return [scene.dir for scene in listed_scenes(out, split)]

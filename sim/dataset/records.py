@@ -132,6 +132,22 @@ class SceneRecord(SceneInfo):
     depth: np.ndarray  # (H, W) float32 metres
     segmentation: np.ndarray  # (H, W) int32
 
+    def policy_inputs(self) -> dict:
+        """What a robot would hand `PlacementPolicy.place` in this scene, by its argument names: `rgb`, `depth`,
+        `boxes_or_segmentation` (`(N, 4)` pixel boxes), `instruction`, `held_footprint`, `camera` and
+        `object_aabbs` (`(N, 2, 2)` table-frame x-y AABBs of the boxes' objects). No ground truth."""
+        aabb_by_id = {obj.object_id: obj.aabb for obj in self.objects}
+        aabbs = np.array([aabb_by_id[int(i)] for i in self.boxes.object_ids], np.float64).reshape(-1, 2, 3)
+        return {
+            "rgb": self.rgb,
+            "depth": self.depth,
+            "boxes_or_segmentation": self.boxes.boxes,
+            "instruction": self.instruction,
+            "held_footprint": self.held_object.footprint_half_extents,
+            "camera": self.camera,
+            "object_aabbs": aabbs[:, :, :2],
+        }
+
 
 def _parse(meta: dict) -> dict:
     """The typed fields of `SceneInfo`, by name."""

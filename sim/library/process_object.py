@@ -11,6 +11,7 @@ import time
 from pathlib import Path
 
 from ocplace.errors import AssetBuildError
+from ocplace.paths import honour_umask
 from ocplace.sim.library import processing, writers
 from ocplace.sim.library.checksums import damage, read_checked, write_checksums
 from ocplace.sim.library.config import LibraryConfig
@@ -124,6 +125,7 @@ def build_object(
             if target.exists():  # a folder whose files do not match its checksums is never used
                 shutil.rmtree(target)
             target.parent.mkdir(parents=True, exist_ok=True)
+            honour_umask(work)
             os.rename(work, target)
         asset = asset_from_json(read_checked(target), target)
         return ObjectResult(spec.name, "ok", "", seconds, asset)

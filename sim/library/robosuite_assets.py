@@ -18,7 +18,7 @@ import zipfile
 from pathlib import Path
 
 from ocplace.errors import MissingAssetPackage
-from ocplace.paths import sources_cache
+from ocplace.paths import honour_umask, sources_cache
 
 ROBOSUITE_VERSION = "1.5.2"
 WHEEL_NAME = f"robosuite-{ROBOSUITE_VERSION}-py3-none-any.whl"
@@ -115,6 +115,7 @@ def _extract(wheel: Path, root: Path) -> None:
                 target.write_bytes(archive.read(member))
         if not (root / "LICENSE").is_file():  # else a concurrent build finished first
             shutil.rmtree(root, ignore_errors=True)
+            honour_umask(work)
             os.rename(work, root)
     finally:
         shutil.rmtree(work, ignore_errors=True)

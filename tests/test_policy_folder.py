@@ -1,0 +1,149 @@
+"""Policy folders (issue 44): what `reproduce` and `ocplace export` write, loaded anywhere with no cache; the
+README's robot code run as written on an `out/demo` laid out as `make demo` leaves it."""
+
+import json
+import os
+import re
+import shutil
+import stat
+from pathlib import Path
+
+import jax
+import numpy as np
+import pytest
+
+from ocplace.cli import main
+from ocplace.errors import PolicyFolderError
+from ocplace.experiments import pipeline
+from ocplace.methods.policy_method import scene_input
+from ocplace.models.backbone import load_backbone
+from ocplace.models.placement.sampler import SamplerConfig
+from ocplace.models.policy import PlacementPolicy
+from ocplace.models.policy_folder import CONFIG_FILE, MODEL_FILE
+from ocplace.paths import current_umask, write_text_atomic
+from ocplace.sim.dataset.job import dataset_scene, listed_scenes
+
+README = Path(__file__).resolve().parents[1] / "README.md"
+SAMPLER = SamplerConfig(num_samples=64)
+
+
+@pytest.fixture(scope="module")
+def demo_root(trained_run, smoke_dataset, tiny_backbone_spec, tmp_path_factory):
+    """A folder holding `out/demo` as `make demo` leaves it, for what the README uses: the dataset and the policy
+    folder, written by the pipeline's own task (the smoke dataset and the tiny Ours run stand in)."""
+    root = tmp_path_factory.mktemp("after_make_demo")
+    demo = root / "out" / "demo"
+    demo.mkdir(parents=True)
+    (demo / "dataset").symlink_to(smoke_dataset)
+    pipeline.placement_figure_task(trained_run[0], "offline", 0, smoke_dataset, tiny_backbone_spec, demo / "p.png")
+    return root
+
+
+def test_the_readmes_robot_code_runs_as_written_after_make_demo(demo_root, tmp_path, monkeypatch, capsys):
+    blocks = re.findall(r"```python\n(.*?)```", README.read_text(), re.S)
+    assert blocks, "the README shows no Python"
+    monkeypatch.chdir(demo_root)
+    monkeypatch.setenv("OCPLACE_CACHE", str(tmp_path / "empty_cache"))  # a policy folder needs no cache
+    for block in blocks:
+        exec(compile(block, str(README), "exec"), {"__name__": "readme"})
+    printed = capsys.readouterr().out
+    assert printed.startswith(("[", "not placed: ")), printed  # a placement, or a typed error's advice
+    assert not (tmp_path / "empty_cache").exists()
+    card = (demo_root / "out/demo/policy/README.md").read_text()
+    assert "PlacementPolicy.from_pretrained(" in card and "## Licences" in card
+
+
+def test_a_copied_policy_folder_places_as_its_run_with_an_empty_cache(
+    demo_root, trained_run, tiny_backbone_spec, smoke_dataset, tmp_path, monkeypatch
+):
+    scenes = [scene_input(scene.read()) for scene in listed_scenes(smoke_dataset, "seen")]
+    from_run = PlacementPolicy.from_run(load_backbone(tiny_backbone_spec), trained_run[0], sampler=SAMPLER)
+    copied = shutil.copytree(demo_root / "out/demo/policy", tmp_path / "elsewhere" / "policy")
+    monkeypatch.setenv("OCPLACE_CACHE", str(tmp_path / "empty_cache"))
+    loaded = PlacementPolicy.from_pretrained(copied, sampler=SAMPLER)
+    expected = from_run.place_many(scenes, jax.random.key(5))
+    placed = loaded.place_many(scenes, jax.random.key(5))
+    for a, b in zip(expected, placed, strict=True):
+        assert a.failure == b.failure and a.tokens == b.tokens
+        assert (a.mode is None and b.mode is None) or (
+            np.array_equal(a.mode, b.mode) and np.array_equal(a.samples, b.samples)
+        )
+    assert loaded.threshold == from_run.threshold and loaded.prompt == from_run.prompt
+    assert not (tmp_path / "empty_cache").exists()
+
+
+def test_cli_exports_a_run_and_places_with_the_folder(trained_run, tiny_backbone_spec, smoke_dataset, tmp_path, capsys):
+    folder = tmp_path / "exported"
+    assert main(["export", "--run", str(trained_run[0]), "--out", str(folder), "--backbone", tiny_backbone_spec]) == 0
+    assert "PlacementPolicy.from_pretrained" in capsys.readouterr().out
+    assert json.loads((folder / CONFIG_FILE).read_text())["source"]["run"] == str(trained_run[0])
+    scene = dataset_scene(smoke_dataset, "seen-00001")
+    command = ["place", "--policy", str(folder), "--dataset", str(smoke_dataset), "--id", scene.id]
+    assert main([*command, "--samples", "64", "--out", str(tmp_path / "p.png")]) in (0, 2)  # 2: a typed refusal
+    assert repr(scene.instruction) in capsys.readouterr().out
+    assert main([*command, "--adapters", str(trained_run[0])]) == 2
+    assert "drop --backbone and --adapters" in capsys.readouterr().err
+
+
+def _tamper(folder: Path, how: str) -> None:
+    config = json.loads((folder / CONFIG_FILE).read_text())
+    if how == "flipped byte":
+        blob = bytearray((folder / MODEL_FILE).read_bytes())
+        blob[-5] ^= 0xFF
+        (folder / MODEL_FILE).write_bytes(bytes(blob))
+    elif how == "missing weights":
+        (folder / MODEL_FILE).unlink()
+    elif how == "another format":
+        config["format"] = "ocplace.policy/0"
+    elif how == "another architecture":
+        config["backbone"]["model"]["embed_dim"] *= 2
+    elif how == "another backbone's fingerprint":
+        config["backbone"]["fingerprint"] = "0" * 64
+    elif how == "no config":
+        (folder / CONFIG_FILE).unlink()
+        return
+    (folder / CONFIG_FILE).write_text(json.dumps(config))
+
+
+@pytest.mark.parametrize(
+    "how, message",
+    [
+        ("flipped byte", "is not the file config.json names"),
+        ("missing weights", "cannot load the policy folder"),
+        ("another format", "this ocplace reads 'ocplace.policy/1'"),
+        ("another architecture", "weights do not match the model config"),
+        ("another backbone's fingerprint", "do not give the fingerprint"),
+        ("no config", "is not a policy folder"),
+    ],
+)
+def test_a_damaged_or_foreign_policy_folder_is_a_typed_error(demo_root, tmp_path, how, message):
+    folder = shutil.copytree(demo_root / "out/demo/policy", tmp_path / "policy")
+    _tamper(folder, how)
+    with pytest.raises(PolicyFolderError, match=re.escape(message)):
+        PlacementPolicy.from_pretrained(folder)
+
+
+def test_outputs_honour_the_umask(demo_root, tmp_path):
+    """Issue 44: outputs were 0600 whatever the umask (tempfile's mode), so lab members could not read them."""
+    folder = demo_root / "out/demo/policy"
+    umask = current_umask()
+    assert {stat.S_IMODE(path.stat().st_mode) for path in folder.iterdir()} == {0o666 & ~umask}
+    previous = os.umask(0o027)
+    try:
+        write_text_atomic(tmp_path / "table.md", "| a |\n")
+        assert stat.S_IMODE((tmp_path / "table.md").stat().st_mode) == 0o640
+    finally:
+        os.umask(previous)
+
+
+def test_a_policy_folder_is_a_table_one_row_and_reruns_without_trust(demo_root, smoke_dataset, tmp_path, capsys):
+    folder = demo_root / "out/demo/policy"
+    out = tmp_path / "results.json"
+    command = ["evaluate", "--dataset", str(smoke_dataset), "--subsets", "seen", "--limit", "2", "--physical", "0"]
+    assert main([*command, "--no-progress", "--policy", str(folder), "--label", "Exported", "--out", str(out)]) == 0
+    assert "| Exported |" in capsys.readouterr().out
+    (entry,) = json.loads(out.read_text())["evaluations"]
+    assert entry["method"] == f"folder:{folder.resolve()}" and entry["description"]["grounding"]["zero_shot"] is False
+    assert len(entry["subsets"]["seen"]["scenes"]) == 2
+    assert main(["evaluate", "--rerun", str(out), "--no-progress"]) == 0  # a folder is no code: nothing to trust
+    assert "reproduced exactly" in capsys.readouterr().out
