@@ -66,10 +66,23 @@ def test_a_seed_chooses_the_scene_and_gives_the_same_bytes(smoke_dataset):
     first = gymnasium.make(ENV_ID, dataset=smoke_dataset, split="seen")
     second = gymnasium.make(ENV_ID, dataset=smoke_dataset, split="seen")
     observation, info = first.reset(seed=11)
-    assert info == {"scene": "seen-00003", "index": 3, "episode": 11}  # scene 11 mod 8
+    assert info == {"scene": "seen-00003", "index": 3, "episode_index": 11}  # scene 11 mod 8
     assert same_bytes(observation, second.reset(seed=11)[0])
     assert not same_bytes(observation, second.reset(seed=12)[0])
     assert first.reset()[1]["scene"] == "seen-00004"  # then on from the seeded scene
+
+
+def test_gymnasiums_episode_wrappers_work_on_it(smoke_dataset):
+    """Issue 44: `info["episode"]` collided with RecordEpisodeStatistics's own key."""
+    from gymnasium.wrappers import RecordEpisodeStatistics
+
+    env = RecordEpisodeStatistics(gymnasium.make(ENV_ID, dataset=smoke_dataset, split="seen", max_episode_steps=1))
+    _, info = env.reset(seed=2)
+    *_, terminated, truncated, info = env.step(np.zeros(2))
+    assert terminated and truncated  # TimeLimit marks its last step truncated too: both end the episode
+    assert info["episode"]["l"] == 1 and info["episode"]["r"] in (0.0, 1.0)
+    with pytest.raises(PlaceEnvError, match="max_episode_steps must be at least 1"):
+        gymnasium.make_vec(ENV_ID, num_envs=2, dataset=smoke_dataset, max_episode_steps=0)
 
 
 def test_generated_scenes_are_the_datasets_scenes(smoke_dataset, library):
@@ -137,11 +150,11 @@ def test_the_vector_env_plays_the_single_envs_scenes(smoke_dataset):
         observation, info = single.reset(seed=seed)
         _, reward, *_ = single.step(truth[info["scene"]] + [0.0, 0.02 * (seed % 3)])
         expected[info["scene"]] = (observation, reward)
-    vector = gymnasium.make_vec(ENV_ID, num_envs=2, dataset=smoke_dataset, split="seen")
+    vector = gymnasium.make_vec(ENV_ID, num_envs=2, dataset=smoke_dataset, split="seen", max_episode_steps=1)
     observations, infos = vector.reset(seed=0)
     played = {}
     for _ in range(len(truth) // 2):
-        episodes, scenes = infos["episode"], infos["scene"]
+        episodes, scenes = infos["episode_index"], infos["scene"]
         actions = np.stack([truth[s] + [0.0, 0.02 * (e % 3)] for s, e in zip(scenes, episodes)])
         next_observations, rewards, terminated, _, infos = vector.step(actions)
         assert terminated.all() and list(infos["final_info"]["scene"]) == list(scenes)

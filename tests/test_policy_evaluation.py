@@ -166,6 +166,11 @@ def test_cli_evaluates_a_policy_module_and_reruns_it(smoke_dataset, tmp_path, mo
         assert main([*common, "--policy", f"{module}:{callable_name}"]) == 2
         err = capsys.readouterr().err
         assert err.startswith("ocplace evaluate: error:") and message in err, err
+    (tmp_path / "failing_policy_of_the_cli_test.py").write_text(
+        "def place(observation):\n    raise ValueError('no model')\n"
+    )
+    assert main([*common, "--policy", "failing_policy_of_the_cli_test:place"]) == 1  # written, but it placed nothing
+    assert "placed nothing: all 4 scenes failed, 4 of them with ValueError" in capsys.readouterr().err
     assert main([*common, "--policy", "centre_policy_of_the_cli_test:place", "--label", "Centre"]) == 0
     assert "| Centre |" in capsys.readouterr().out
     saved = read_results(tmp_path / "results.json")

@@ -219,7 +219,26 @@ def _evaluate(args: argparse.Namespace) -> int:
     shutil.rmtree(store, ignore_errors=True)
     print(markdown)
     print(f"wrote {args.out} and {args.out.with_suffix('.md')}")
-    return 0
+    broken = [message for spec in policies if (message := _all_failed(spec.name, evaluations))]
+    for message in broken:
+        print(f"ocplace evaluate: {message}", file=sys.stderr)
+    return 1 if broken else 0
+
+
+def _all_failed(name: str, evaluations) -> str | None:
+    """What to say when the policy `name` failed every scene with an error (never placed): a policy that cannot
+    run is no row of Table I, and a script should see it in the exit status."""
+    import collections
+
+    evaluation = next(e for e in evaluations if e.method == name)
+    failures = [o.failure for outcomes in evaluation.subsets.values() for o in outcomes]
+    if not failures or any(failure is None for failure in failures):
+        return None
+    (most, count), *_ = collections.Counter(f.partition(":")[0] for f in failures).most_common(1)
+    return (
+        f"the policy {name} placed nothing: all {len(failures)} scenes failed, {count} of them with {most} "
+        f"(first: {failures[0][:300]}); the table above is written, but fix the policy before reading it (exit 1)"
+    )
 
 
 def finished_store(out: Path) -> Path:

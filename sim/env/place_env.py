@@ -151,7 +151,7 @@ class PlaceEnv(gymnasium.Env):
         self._record = self.scenes.record(index)
         self._observation = observation(self._record)
         self._placement = None
-        return self._observation, {"scene": self._record.id, "index": index, "episode": episode}
+        return self._observation, {"scene": self._record.id, "index": index, "episode_index": episode}
 
     def step(self, action):
         """Scores the placement `(x, y)`; the episode ends. Non-finite or off-table actions score 0 with a reason."""

@@ -37,16 +37,19 @@ class PlaceVectorEnv(AsyncVectorEnv):
         super().step_async(rows)
 
 
-def make_vector_env(num_envs: int = 2, **kwargs) -> AsyncVectorEnv:
+def make_vector_env(num_envs: int = 2, max_episode_steps: int | None = None, **kwargs) -> AsyncVectorEnv:
     """`num_envs` worker processes, each a `PlaceEnv(**kwargs, worker=i, workers=num_envs)`.
 
     Workers start by spawning, not forking: a fork after JAX or an OpenGL context started in this
-    process is unsafe, and a policy in the same process usually runs JAX.
+    process is unsafe, and a policy in the same process usually runs JAX. `max_episode_steps`, which
+    `gymnasium.make_vec` passes on, is accepted and changes nothing: every episode ends at its first step.
     """
     from ocplace.sim.env.place_env import PlaceEnv
 
     if num_envs < 1:
         raise PlaceEnvError(f"num_envs must be at least 1, got {num_envs}")
+    if max_episode_steps is not None and max_episode_steps < 1:
+        raise PlaceEnvError(f"max_episode_steps must be at least 1 (an episode is one step), got {max_episode_steps}")
     return PlaceVectorEnv(
         [functools.partial(PlaceEnv, **kwargs, worker=worker, workers=num_envs) for worker in range(num_envs)],
         context="spawn",
