@@ -175,6 +175,11 @@ def write_figures(
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     dataset_dir = Path(dataset_dir or results["dataset"]["dir"])
+    if not dataset_dir.is_dir():
+        raise EvaluationError(
+            f"the dataset {dataset_dir} the results name is not there, nor at the same place relative to the results "
+            "file (moved or deleted): pass --dataset DIR to `ocplace figures` (dataset_dir= in Python)"
+        )
     written = [plot_fig5(dataset_dir, out_dir / FIG5, seed)]
     if set(CASE_METHODS) <= _full_runs_by_method(results).keys() and not results.get("summary"):
         written.append(plot_cases(results, out_dir / FIG6, dataset_dir))

@@ -293,10 +293,50 @@ def with_outcomes(summary: Mapping, path: str | Path) -> dict:
 
 
 def write_results(path: str | Path, results: dict) -> Path:
-    """Writes the JSON atomically (a kill never leaves half a file)."""
+    """Writes the JSON atomically (a kill never leaves half a file), each path also relative to the file's folder
+    (`portable`)."""
     path = Path(path)
-    write_text_atomic(path, json.dumps(results, indent=1) + "\n")
+    write_text_atomic(path, json.dumps(portable(results, path.parent), indent=1) + "\n")
     return path
+
+
+def portable(results: dict, folder: Path) -> dict:
+    """`results` with the dataset folder and each run directory also written relative to `folder` (`dir_relative`,
+    `run_dir_relative`) beside their absolute form, so that a results file moved or copied together with the
+    folders it names still finds them (`anchored`)."""
+
+    def relative(path: str | None) -> str | None:
+        return None if path is None else os.path.relpath(Path(path).resolve(), folder.resolve())
+
+    dataset = results.get("dataset")
+    if not isinstance(dataset, dict) or not isinstance(dataset.get("dir"), str):
+        return results
+    evaluations = [
+        entry | {"run_dir_relative": relative(entry["run_dir"])} if isinstance(entry.get("run_dir"), str) else entry
+        for entry in results.get("evaluations", [])
+    ]
+    return results | {"dataset": dataset | {"dir_relative": relative(dataset["dir"])}, "evaluations": evaluations}
+
+
+def anchored(results: dict, folder: Path) -> dict:
+    """`results` with each path that is gone replaced by its relative form resolved from `folder`, where that exists
+    (the absolute form wins while it exists; files written before relative forms were kept are read as written)."""
+
+    def found(absolute: str | None, relative: str | None) -> str | None:
+        if absolute is None or not isinstance(relative, str) or Path(absolute).exists():
+            return absolute
+        moved = (folder / relative).resolve()
+        return str(moved) if moved.exists() else absolute
+
+    dataset = results["dataset"]
+    evaluations = [
+        entry | {"run_dir": found(entry.get("run_dir"), entry.get("run_dir_relative"))}
+        for entry in results["evaluations"]
+    ]
+    return results | {
+        "dataset": dataset | {"dir": found(dataset["dir"], dataset.get("dir_relative"))},
+        "evaluations": evaluations,
+    }
 
 
 def write_outputs(results: dict, out: Path) -> str:
@@ -321,7 +361,7 @@ def read_results(path: str | Path) -> dict:
             f"{results.get('schema') if isinstance(results, dict) else type(results).__name__}"
         )
     _check_sections(path, results)
-    return results
+    return anchored(results, path.parent)
 
 
 def _has(value, fields: Mapping[str, type | tuple]) -> bool:

@@ -155,6 +155,11 @@ def rerun(
             "these results are a summary without per-scene outcomes; rerun from the full results.json it was made from"
         )
     dataset_dir = Path(results["dataset"]["dir"])
+    if not dataset_dir.is_dir():
+        raise ResultsError(
+            f"the dataset {dataset_dir} these results were scored on is not there, nor at the same place relative "
+            "to the results file: move it back, or move the results file and the dataset together"
+        )
     identity = dataset_identity(dataset_dir)
     if identity["manifest_hash"] != results["dataset"]["manifest_hash"]:
         raise ResultsError(

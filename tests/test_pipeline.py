@@ -480,3 +480,24 @@ def test_backbone_seeds_pretrain_train_and_score_on_each_backbone(smoke_dataset,
     row = next(line for line in table.table_one(saved).splitlines() if line.startswith("| Ours |"))
     assert "±" in row and "over 2 seeds, where a row has them" in table.table_one(saved)
     assert results.compare(saved, rerun(saved, progress=False)) == []  # the repeat reloads its own backbone
+
+
+def test_a_results_file_moved_with_its_dataset_still_finds_it(first_run, smoke_dataset, tmp_path):
+    """Issue 44: results stored absolute paths only, so a moved results folder failed with advice to regenerate."""
+    import shutil
+
+    from ocplace.errors import EvaluationError
+
+    tree = tmp_path / "tree"
+    shutil.copytree(smoke_dataset, tree / "data")
+    saved = results.read_results(first_run.results_path)
+    saved["dataset"]["dir"] = str(tree / "data")
+    results.write_results(tree / "out" / "results.json", saved)
+    assert json.loads((tree / "out" / "results.json").read_text())["dataset"]["dir_relative"] == "../data"
+    tree.rename(tmp_path / "moved")
+    moved = results.read_results(tmp_path / "moved" / "out" / "results.json")
+    assert moved["dataset"]["dir"] == str((tmp_path / "moved" / "data").resolve())
+    assert [e["run_dir"] for e in moved["evaluations"]] == [e["run_dir"] for e in saved["evaluations"]]  # still there
+    (tmp_path / "moved" / "data").rename(tmp_path / "elsewhere")
+    with pytest.raises(EvaluationError, match="pass --dataset DIR to `ocplace figures`"):
+        figures.write_figures(results.read_results(tmp_path / "moved" / "out" / "results.json"), tmp_path / "figures")
