@@ -238,3 +238,27 @@ def _check_bad_batches(vector, truth) -> None:
     assert all("not finite" in reason for reason in infos["final_info"]["reason"])
     _, rewards, *_ = vector.step(np.stack([truth[scene] for scene in infos["scene"]]))
     assert list(rewards) == [1.0, 1.0]  # and the vector env goes on
+
+
+def test_the_instruction_embedding_wrapper_gives_rl_libraries_a_vector(smoke_dataset):
+    """Issue 44: Stable-Baselines3's `check_env` rejects the Text instruction; the wrapper embeds it with MiniLM."""
+    from ocplace.models.instruction_embedding import InstructionEmbedding
+
+    env = InstructionEmbedding(gymnasium.make(ENV_ID, dataset=smoke_dataset, split="seen"))
+    observation, _ = env.reset(seed=1)
+    assert env.observation_space.contains(observation)
+    assert observation["instruction"].shape == (384,) and abs(np.linalg.norm(observation["instruction"]) - 1) < 1e-4
+    other, _ = env.reset(seed=2)
+    assert not np.array_equal(observation["instruction"], other["instruction"])  # another scene, another sentence
+    *_, info = env.step(np.zeros(2))
+    assert info["scene"] == "seen-00002"
+
+
+def test_stable_baselines3_accepts_the_wrapped_environment(smoke_dataset):
+    sb3_checker = pytest.importorskip(
+        "stable_baselines3.common.env_checker",
+        reason="the `rl` extra is not installed (it needs torch, CPU build; docs/evaluation.md)",
+    )
+    from ocplace.models.instruction_embedding import InstructionEmbedding
+
+    sb3_checker.check_env(InstructionEmbedding(gymnasium.make(ENV_ID, dataset=smoke_dataset, split="seen")))
