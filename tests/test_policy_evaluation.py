@@ -3,6 +3,8 @@
 import dataclasses
 import hashlib
 import json
+import re
+import shlex
 import sys
 import time
 from pathlib import Path
@@ -10,6 +12,7 @@ from pathlib import Path
 import eval_methods
 import gymnasium
 import numpy as np
+import pytest
 
 from ocplace.cli import main
 from ocplace.eval.harness import EvalSettings
@@ -266,3 +269,27 @@ def test_a_scene_past_its_deadline_fails_as_a_timeout_and_the_rest_run(smoke_dat
     assert time.monotonic() - started < 20
     assert "timeout: the policy took more than 0.5 s" in scenes[0]["failure"]
     assert [s["mode"] for s in scenes[1:]] == [[0.0, 0.0]] * 2
+
+
+def _blocks_after(text: str, marker: str) -> list[tuple[str, str]]:
+    """(language, code) of the fenced blocks that follow `marker` in `text`, up to the next heading."""
+    section = text.split(marker, 1)[1].split("\n#", 1)[0]
+    return re.findall(r"```(\w+)\n(.*?)```", section, re.S)
+
+
+@pytest.mark.slow
+def test_the_your_own_policy_tutorial_runs_as_written(smoke_dataset, tmp_path, monkeypatch, capsys):
+    """docs/evaluation.md's complete example, block by block: my_policy.py, its two commands, its Python (with
+    the smoke dataset for DATA)."""
+    text = (Path(__file__).resolve().parents[1] / "docs" / "evaluation.md").read_text()
+    (module, shell, python) = _blocks_after(text, "A complete example:")[:3]
+    assert [module[0], shell[0], python[0]] == ["python", "bash", "python"]
+    (tmp_path / "my_policy.py").write_text(module[1])
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    for line in shell[1].strip().splitlines():
+        argv = shlex.split(line.split("#")[0].replace("DATA", str(smoke_dataset)))
+        assert argv[0] == "ocplace" and main(argv[1:]) == 0, line
+    assert "reproduced exactly" in capsys.readouterr().out
+    exec(compile(python[1].replace('"DATA"', repr(str(smoke_dataset))), "evaluation.md", "exec"), {})
+    assert "| Farthest point |" in capsys.readouterr().out
