@@ -139,11 +139,11 @@ def test_outputs_honour_the_umask(demo_root, tmp_path):
 def test_a_policy_folder_is_a_table_one_row_and_reruns_without_trust(demo_root, smoke_dataset, tmp_path, capsys):
     folder = demo_root / "out/demo/policy"
     out = tmp_path / "results.json"
-    command = ["evaluate", "--dataset", str(smoke_dataset), "--subsets", "seen", "--limit", "2", "--physical", "0"]
+    command = ["evaluate", "--dataset", str(smoke_dataset), "--subsets", "seen", "--limit", "1", "--physical", "0"]
     assert main([*command, "--no-progress", "--policy", str(folder), "--label", "Exported", "--out", str(out)]) == 0
     assert "| Exported |" in capsys.readouterr().out
     (entry,) = json.loads(out.read_text())["evaluations"]
     assert entry["method"] == f"folder:{folder.resolve()}" and entry["description"]["grounding"]["zero_shot"] is False
-    assert len(entry["subsets"]["seen"]["scenes"]) == 2
+    assert len(entry["subsets"]["seen"]["scenes"]) == 1
     assert main(["evaluate", "--rerun", str(out), "--no-progress"]) == 0  # a folder is no code: nothing to trust
     assert "reproduced exactly" in capsys.readouterr().out
