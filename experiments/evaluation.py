@@ -10,6 +10,7 @@ import dataclasses
 import hashlib
 import json
 import os
+import re
 import signal
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -59,9 +60,10 @@ def stored_evaluation(
     settings = run.settings(settings)
     method = load_method(spec, run, settings)
     key = evaluation_key(run, serial.to_dict(method.describe()), settings, dataset_hash)
-    path = store / f"{run.key}-{key}.json"
-    if path.exists():
-        return path, True, evaluation_from_json(json.loads(path.read_text()))
+    name = re.sub(r"[^\w.@~+-]", "_", run.key)  # a policy's key holds ':' and '/'
+    path = store / f"{name}-{key}.json"
+    if path.exists():  # the label is the command's (`--label`), not part of what is scored
+        return path, True, dataclasses.replace(evaluation_from_json(json.loads(path.read_text())), label=run.label)
     evaluation = evaluate_in_worker(spec, run, dataset_dir, settings, method)
     write_text_atomic(path, json.dumps(evaluation_to_json(evaluation), indent=1))
     return path, False, evaluation

@@ -186,6 +186,7 @@ def placement_figure_task(run_dir: Path, parser: str, seed: int, dataset_dir: Pa
     from ocplace.methods.export import export_trained
     from ocplace.methods.policy_method import scene_input
     from ocplace.models.backbone import load_backbone
+    from ocplace.models.offline_backbone import OfflineBackbone
     from ocplace.models.policy import PlacementPolicy
     from ocplace.models.policy_figure import save_placement
     from ocplace.sim.dataset.job import listed_scenes
@@ -194,10 +195,12 @@ def placement_figure_task(run_dir: Path, parser: str, seed: int, dataset_dir: Pa
     policy = PlacementPolicy.from_run(load_backbone(backbone), run_dir, parser=parser)
     placement = save_placement(policy, scene_input(scene.read()), jax.random.key(seed), path)
     print(placement.summary(), flush=True)
+    outcome = "placed" if placement.error is None else placement.failure
+    if not isinstance(policy.backbone, OfflineBackbone):  # a CLIP backbone is its checkpoint's folder plus the run
+        return f"{path} ({scene.name}, {outcome}); no policy folder for a {type(policy.backbone).__name__}"
     folder = export_trained(
         policy, path.parent / POLICY_FOLDER, parser=parser, run_dir=run_dir, backbone=backbone, dataset=dataset_dir
     )
-    outcome = "placed" if placement.error is None else placement.failure
     return f"{path} ({scene.name}, {outcome}); policy folder {folder}"
 
 

@@ -17,6 +17,8 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import functools
+import hashlib
+import importlib.util
 import inspect
 import signal
 import threading
@@ -78,6 +80,28 @@ def _placer_failure(error: BaseException) -> MethodOutput:
 PLACER_DESCRIPTION = "place(observation) -> (x, y)"
 
 
+def placer_description(reference: str, scene_timeout_s: float) -> dict:
+    """A placer's `describe()`: its name, deadline and the sha256 of its module's file, so that a stored
+    evaluation (a resumed `evaluate`) or a `--rerun` sees an edited policy as another one."""
+    return {
+        "policy": reference,
+        "interface": PLACER_DESCRIPTION,
+        "scene_timeout_s": scene_timeout_s,
+        "module_sha256": module_sha256(reference.partition(":")[0]),
+    }
+
+
+def module_sha256(module_name: str) -> str | None:
+    """sha256 of the file a module is imported from (None: no file, such as a built-in or `__main__` module)."""
+    try:
+        spec = importlib.util.find_spec(module_name)
+    except (ImportError, ValueError):
+        return None
+    if spec is None or not spec.origin or not Path(spec.origin).is_file():
+        return None
+    return hashlib.sha256(Path(spec.origin).read_bytes()).hexdigest()
+
+
 @dataclasses.dataclass
 class PlacerMethod:
     """A `Method` around `place(observation) -> (x, y)` given as an object: one call per scene, in this process,
@@ -88,7 +112,7 @@ class PlacerMethod:
     scene_timeout_s: float = SCENE_TIMEOUT_S
 
     def describe(self) -> dict:
-        return {"policy": self.name, "interface": PLACER_DESCRIPTION}
+        return placer_description(self.name, self.scene_timeout_s)
 
     def run(self, scenes: Sequence[SceneRecord], key) -> list[MethodOutput]:
         from ocplace.sim.env.observation import observation
@@ -127,15 +151,15 @@ class HostedPolicy:
     """A policy named `MODULE:CALLABLE`, run in its own process (`methods/policy_host.py`): past its deadline, or
     when that process dies, the scene fails and a fresh process takes the next one."""
 
-    def __init__(self, reference: str, scene_timeout_s: float = SCENE_TIMEOUT_S):
+    def __init__(self, reference: str, scene_timeout_s: float = SCENE_TIMEOUT_S, jax_width: int | None = None):
         self.name = reference
         self.scene_timeout_s = scene_timeout_s
-        self.host = PolicyHost(reference)
+        self.host = PolicyHost(reference, jax_width)
 
     def describe(self) -> dict:
         if self.host.ready["kind"] == "method":
             return self.host.ready["describe"]
-        return {"policy": self.name, "interface": PLACER_DESCRIPTION}
+        return placer_description(self.name, self.scene_timeout_s)
 
     def run(self, scenes: Sequence[SceneRecord], key) -> list[MethodOutput]:
         if self.host.ready["kind"] == "method":
@@ -180,8 +204,9 @@ def as_method(policy, name: str, scene_timeout_s: float = SCENE_TIMEOUT_S) -> Me
 
 
 def load_policy(reference: str, context: LoadContext | None = None, scene_timeout_s: float = SCENE_TIMEOUT_S) -> Method:
-    """`MethodSpec.load` of a policy: started anew in a process of its own (from an evaluation's worker)."""
-    return HostedPolicy(reference, scene_timeout_s)
+    """`MethodSpec.load` of a policy: started anew in a process of its own (from an evaluation's worker, whose
+    tasks run JAX one CPU wide: so does the policy's process)."""
+    return HostedPolicy(reference, scene_timeout_s, jax_width=1)
 
 
 def policy_spec(reference: str, label: str | None = None, scene_timeout_s: float = SCENE_TIMEOUT_S) -> MethodSpec:

@@ -11,6 +11,7 @@ This module imports little at its top: a placer's process loads only it, numpy a
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import inspect
 import json
@@ -108,30 +109,56 @@ def describe_error(error: BaseException) -> str:
 # ----------------------------------------------------------------------------- the policy's process
 
 
-def serve(reference: str, connection) -> None:
-    """The policy's process: loads it, says what it is, then answers requests until the pipe closes."""
+def serve(reference: str, connection, jax_width: int | None = None) -> None:
+    """The policy's process: loads it, says what it is, then answers requests until the pipe closes.
+
+    With `jax_width`, the process is pinned to that many CPUs while the policy is imported, made and answers its
+    first request: JAX, should the policy start it then, sizes itself to them as in the evaluation's worker (the
+    same bits anywhere), and a placer that never runs JAX pays nothing for it."""
     from ocplace.runtime.executor import exit_with_parent
+    from ocplace.runtime.width import pinned_cpus
 
     exit_with_parent()
+    with pinned_cpus(jax_width) if jax_width else contextlib.nullcontext():
+        policy = _loaded(reference, connection)
+        if policy is None or not _answered(policy, connection):
+            return
+    while _answered(policy, connection):
+        pass
+
+
+def _loaded(reference: str, connection):
+    """The policy, ready to answer, after telling the evaluation what it is; None (and why, sent) when it fails."""
     try:
         policy = made(import_policy(reference), reference)
+        ready = _ready(policy)
     except EvaluationError as error:
         connection.send_bytes(json.dumps({"error": str(error)}).encode())
-        return
-    if is_method(policy):
-        from ocplace import serial
-
-        ready = {"kind": "method", "describe": serial.to_dict(policy.describe())}
-    else:
-        ready = {"kind": "placer"}
-        policy = getattr(policy, "place", policy)
+        return None
     connection.send_bytes(json.dumps(ready).encode())
-    while True:
-        try:
-            request = connection.recv()
-        except EOFError:
-            return
-        connection.send_bytes(json.dumps(_answer(policy, request)).encode())
+    return getattr(policy, "place", policy) if ready["kind"] == "placer" else policy
+
+
+def _answered(policy, connection) -> bool:
+    """Answers the next request; False once the pipe is closed."""
+    try:
+        request = connection.recv()
+    except EOFError:
+        return False
+    connection.send_bytes(json.dumps(_answer(policy, request)).encode())
+    return True
+
+
+def _ready(policy) -> dict:
+    """What the policy is (and a `Method`'s description), JSON; EvaluationError when its `describe` fails."""
+    if not is_method(policy):
+        return {"kind": "placer"}
+    from ocplace import serial
+
+    try:
+        return {"kind": "method", "describe": json.loads(json.dumps(serial.to_dict(policy.describe())))}
+    except POLICY_ERRORS as error:
+        raise EvaluationError(f"the policy's describe() failed ({describe_error(error)})") from None
 
 
 def _answer(policy, request: tuple) -> dict:
@@ -174,29 +201,38 @@ def _output_json(output) -> dict:
 # ----------------------------------------------------------------------------- the evaluation's side
 
 
-def _stop(process) -> None:
+def _stop(process, connection) -> int | None:
+    """Kills `process` (if running) and frees its pipe and handles; its exit code."""
+    connection.close()
     if process.is_alive():
         process.kill()
     process.join()
+    code = process.exitcode
+    process.close()
+    return code
 
 
 class PolicyHost:
-    """The evaluation's handle on the policy's process, started on the first request and again after a kill."""
+    """The evaluation's handle on the policy's process, started on the first request and again after a kill.
 
-    def __init__(self, reference: str):
-        self.reference = reference
-        self._process = None
-        self._connection = None
+    The process is not a daemon, so that a policy may start processes of its own; it ends when its pipe closes,
+    when this handle is collected or the interpreter exits (`weakref.finalize`), or within a second of its
+    parent's end (`exit_with_parent`)."""
+
+    def __init__(self, reference: str, jax_width: int | None = None):
+        self.reference, self.jax_width = reference, jax_width
+        self._process = self._connection = self._finalizer = None
         self.ready: dict = self._start()
 
     def _start(self) -> dict:
         context = multiprocessing.get_context("spawn")  # never fork a process that runs JAX or EGL
         connection, child_end = context.Pipe()
-        process = context.Process(target=serve, args=(self.reference, child_end), daemon=True, name="ocplace-policy")
+        arguments = (self.reference, child_end, self.jax_width)
+        process = context.Process(target=serve, args=arguments, daemon=False, name="ocplace-policy")
         process.start()
         child_end.close()
         self._process, self._connection = process, connection
-        weakref.finalize(self, _stop, process)
+        self._finalizer = weakref.finalize(self, _stop, process, connection)
         ready = self._receive(LOAD_TIMEOUT_S, loading=True)
         if "error" in ready:
             self.stop()
@@ -208,7 +244,11 @@ class PolicyHost:
         PolicyProcessEnded (its process then stopped, the next request starts another)."""
         if self._process is None:
             self._start()
-        self._connection.send(request)
+        try:
+            self._connection.send(request)
+        except OSError:  # it ended between two requests (killed from outside, out of memory)
+            code = self.stop()
+            raise PolicyProcessEnded(f"the policy's process had ended (exit code {code})") from None
         return self._receive(timeout_s if timeout_s > 0 else None)
 
     def _receive(self, timeout_s: float | None, loading: bool = False) -> dict:
@@ -225,9 +265,7 @@ class PolicyHost:
 
     def stop(self) -> int | None:
         """Kills the policy's process (if running); its exit code."""
-        process, self._process = self._process, None
-        if process is None:
+        if self._process is None:
             return None
-        self._connection.close()
-        _stop(process)
-        return process.exitcode
+        self._process = None
+        return self._finalizer()  # calls _stop once, and no more at exit

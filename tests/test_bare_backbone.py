@@ -68,6 +68,7 @@ def test_evaluate(default_offline_backbone, smoke_dataset, tmp_path):
     assert entry["description"]["backbone"]["spec"] == "offline"
 
 
+@pytest.mark.slow  # ~30 s; `evaluate` above resolves the bare spec in its tasks the same way (make test-all runs it)
 def test_reproduce(default_offline_backbone, smoke_dataset, tmp_path):
     out = tmp_path / "out"
     command = ["reproduce", "--experiment", "smoke", "--out", str(out), "--dataset", str(smoke_dataset)]

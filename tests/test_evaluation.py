@@ -216,7 +216,8 @@ def test_physical_check_on_the_first_k_scenes(smoke_dataset, oracle_run, arena):
 def test_results_json_round_trip(results_json, evaluations, tmp_path):
     path = results.write_results(tmp_path / "r.json", results_json)
     loaded = results.read_results(path)
-    assert loaded == json.loads(json.dumps(results_json))
+    assert loaded == json.loads(json.dumps(results.portable(results_json, tmp_path)))  # plus the relative paths
+    assert loaded["dataset"]["dir"] == results_json["dataset"]["dir"]
     assert {"schema", "created", "command", "environment", "dataset", "settings", "evaluations"} <= loaded.keys()
     assert loaded["dataset"]["dataset_hash"] and len(loaded["dataset"]["manifest_hash"]) == 64
     assert loaded["environment"]["packages"]["jax"] and loaded["environment"]["packages"]["mujoco"]

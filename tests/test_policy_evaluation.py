@@ -293,3 +293,22 @@ def test_the_your_own_policy_tutorial_runs_as_written(smoke_dataset, tmp_path, m
     assert "reproduced exactly" in capsys.readouterr().out
     exec(compile(python[1].replace('"DATA"', repr(str(smoke_dataset))), "evaluation.md", "exec"), {})
     assert "| Farthest point |" in capsys.readouterr().out
+
+
+def test_the_policys_process_is_as_wide_as_the_evaluations_jax_while_it_loads_and_first_answers(tmp_path, monkeypatch):
+    """What JAX starts while the policy is imported, made or answers its first scene sizes itself to `jax_width`
+    CPUs (as in the evaluation's worker); afterwards the pin is lifted."""
+    import os
+
+    from ocplace.methods.policy_host import PolicyHost
+
+    (tmp_path / "width_policy_of_the_host_test.py").write_text(
+        "import os\n\n\ndef place(observation):\n    return (len(os.sched_getaffinity(0)), 0.0)\n"
+    )
+    monkeypatch.syspath_prepend(str(tmp_path))
+    host = PolicyHost("width_policy_of_the_host_test:place", jax_width=1)
+    try:
+        assert host.request(("place", {}), 10.0) == {"mode": [1.0, 0.0]}
+        assert host.request(("place", {}), 10.0) == {"mode": [float(len(os.sched_getaffinity(0))), 0.0]}
+    finally:
+        assert host.stop() is not None and host.stop() is None  # stopped once

@@ -93,7 +93,7 @@ def test_a_killed_evaluation_on_two_workers_leaves_no_process_and_resumes_what_i
     killed = subprocess.run(command, cwd=tmp_path, env=env | {DIE_AFTER_EVALUATIONS_ENV: "1"}, capture_output=True)
     assert killed.returncode == -signal.SIGKILL, killed.stderr.decode()[-2000:]
     assert not (tmp_path / "results.json").exists()
-    (stored,) = (tmp_path / "results.evaluations").glob(f"{fast}-*.json")
+    (stored,) = (tmp_path / "results.evaluations").glob("fast_policy_of_the_kill_test_place-*.json")
     left = {int(pid) for line in (tmp_path / "pids").read_text().splitlines() for pid in line.split()}
     deadline = time.monotonic() + 10
     while any(pid_alive(pid) for pid in left) and time.monotonic() < deadline:

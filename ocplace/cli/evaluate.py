@@ -244,7 +244,7 @@ def _all_failed(name: str, evaluations) -> str | None:
 def finished_store(out: Path) -> Path:
     """Where the evaluations of `--out` OUT.json are kept while the command runs (OUT.evaluations/ beside it):
     a killed command run again with the same arguments reuses them; removed once OUT.json is written."""
-    return out.with_name(out.stem + ".evaluations")
+    return out.resolve().with_name(out.stem + ".evaluations")  # absolute: a Ray worker runs elsewhere
 
 
 def _policy_specs(references: list[str], labels: list[str], scene_timeout_s: float) -> list:

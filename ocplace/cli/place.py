@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 from pathlib import Path
 
 from ocplace.cli.options import count, finite
@@ -101,7 +102,9 @@ def run_place(args: argparse.Namespace) -> int:
     if args.policy is not None:
         from ocplace.models.policy_folder import read_policy_config
 
-        parser = make_parser(args.parser or read_policy_config(args.policy)["policy"]["parser"])
+        settings = read_policy_config(args.policy).get("policy")  # a damaged one fails typed when loaded below
+        recorded = settings.get("parser") if isinstance(settings, dict) else None
+        parser = make_parser(args.parser or recorded or "offline")
     else:
         parser = make_parser(args.parser or "offline")
     parser.parse(scene.instruction)  # the policy parses it again: a few milliseconds, or the LLM parser's cache
@@ -111,7 +114,9 @@ def run_place(args: argparse.Namespace) -> int:
     if args.policy is not None:
         if args.adapters is not None or args.backbone is not None:
             raise PolicyInputError("--policy holds its backbone and adapters: drop --backbone and --adapters")
-        policy = PlacementPolicy.from_pretrained(args.policy, parser=parser, **kwargs)
+        policy = PlacementPolicy.from_pretrained(args.policy, parser=parser)
+        sampler = dataclasses.replace(policy.sampler, num_samples=args.samples)  # the folder's, but the count
+        policy = dataclasses.replace(policy, sampler=sampler, threshold=kwargs.get("threshold", policy.threshold))
     else:
         adapters = None if args.adapters is None else load_adapters(args.adapters)  # a bad adapters file fails here
         backbone_spec = backbone_of(adapters, args.backbone) if adapters is not None else args.backbone or "offline"

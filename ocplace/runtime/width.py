@@ -13,9 +13,11 @@ was compiled for, so the cache has one folder per CPU type and width.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
 import platform
+from collections.abc import Iterator
 from pathlib import Path
 
 from ocplace.errors import ClusterError
@@ -43,15 +45,23 @@ def pin_jax_width(cpus: int) -> None:
             "JAX already runs in this process, so its CPU count can no longer be fixed; run the task in a "
             "process of its own (Task(pinned=True))"
         )
-    allowed = sorted(os.sched_getaffinity(0))
-    os.sched_setaffinity(0, allowed[:cpus])
-    try:
+    with pinned_cpus(cpus) as width:
         import jax
 
-        jax.config.update("jax_compilation_cache_dir", str(compiled_folder(min(cpus, len(allowed)))))
+        jax.config.update("jax_compilation_cache_dir", str(compiled_folder(width)))
         jax.config.update("jax_compilation_cache_max_size", COMPILED_CACHE_BYTES)
         jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
         jax.devices("cpu")
+
+
+@contextlib.contextmanager
+def pinned_cpus(cpus: int) -> Iterator[int]:
+    """Pins this process to its first `cpus` allowed CPUs inside the block (yields how many that is), then lifts
+    the pin from every thread: threads started inside inherit it, and Linux sets affinity per thread."""
+    allowed = sorted(os.sched_getaffinity(0))
+    os.sched_setaffinity(0, allowed[:cpus])
+    try:
+        yield min(cpus, len(allowed))
     finally:
         for thread in Path("/proc/self/task").iterdir():
             try:
