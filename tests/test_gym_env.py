@@ -85,6 +85,12 @@ def test_gymnasiums_episode_wrappers_work_on_it(smoke_dataset):
         gymnasium.make_vec(ENV_ID, num_envs=2, dataset=smoke_dataset, max_episode_steps=0)
 
 
+@pytest.mark.parametrize("mode", ["sync", "async"])
+def test_gymnasiums_own_vectorizers_are_refused_since_their_copies_would_replay_the_same_scenes(smoke_dataset, mode):
+    with pytest.raises(PlaceEnvError, match="use the default mode"):
+        gymnasium.make_vec(ENV_ID, num_envs=2, dataset=smoke_dataset, split="seen", vectorization_mode=mode)
+
+
 def test_generated_scenes_are_the_datasets_scenes(smoke_dataset, library):
     """Generated on the fly with the dataset's configuration, a scene is the one `ocplace generate` wrote."""
     generated = gymnasium.make(ENV_ID, split="seen", generator=smoke_config())

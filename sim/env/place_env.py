@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import os
+import sys
 from pathlib import Path
 from typing import ClassVar
 
@@ -30,7 +32,24 @@ from ocplace.sim.workspace import DEFAULT_TABLE
 
 SUCCESS_COLOUR = (40, 200, 60)  # RGB of a successful placement's footprint in `render()`
 FAILURE_COLOUR = (230, 40, 40)
+# Where Gymnasium's `make_vec` lives: its sync/async copies are refused (`_made_by_gymnasiums_vectorizer`).
+VECTORIZER_FILE = os.path.join("gymnasium", "envs", "registration.py")
 PIXEL_LIMIT = 1 << 15  # OpenCV draws with shifted fixed-point coordinates: larger ones overflow
+
+
+def _made_by_gymnasiums_vectorizer() -> bool:
+    """Whether Gymnasium's own sync/async vectorizer is making this environment: its `make_vec` builds each copy in
+    a closure named `create_single_env`, with nothing in the arguments that tells the copies apart (Gymnasium
+    offers no other hook), so that closure on the call stack is the only sign."""
+    frame = sys._getframe(1)
+    for _ in range(32):
+        if frame is None:
+            return False
+        code = frame.f_code
+        if code.co_name == "create_single_env" and code.co_filename.endswith(VECTORIZER_FILE):
+            return True
+        frame = frame.f_back
+    return False
 
 
 def placement_of(action) -> np.ndarray:
@@ -118,6 +137,12 @@ class PlaceEnv(gymnasium.Env):
         workers: int = 1,
         library_cache: str | Path | None = None,
     ):
+        if workers == 1 and _made_by_gymnasiums_vectorizer():
+            raise PlaceEnvError(
+                "gymnasium.make_vec(..., vectorization_mode='sync' or 'async') makes every copy of this environment "
+                "with the same arguments, so each would play the same scenes; use the default mode "
+                "(vectorization_mode=None), whose workers split the scenes without overlap (docs/evaluation.md)"
+            )
         if render_mode not in (None, *self.metadata["render_modes"]):
             raise PlaceEnvError(f"render_mode is None or 'rgb_array', got {render_mode!r}")
         if not 0 <= worker < workers:
