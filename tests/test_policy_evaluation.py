@@ -272,9 +272,8 @@ def test_a_scene_past_its_deadline_fails_as_a_timeout_and_the_rest_run(smoke_dat
 
 
 def _blocks_after(text: str, marker: str) -> list[tuple[str, str]]:
-    """(language, code) of the fenced blocks that follow `marker` in `text`, up to the next heading."""
-    section = text.split(marker, 1)[1].split("\n#", 1)[0]
-    return re.findall(r"```(\w+)\n(.*?)```", section, re.S)
+    """(language, code) of the fenced blocks that follow `marker` in `text`, in order."""
+    return re.findall(r"```(\w+)\n(.*?)```", text.split(marker, 1)[1], re.S)
 
 
 @pytest.mark.slow
@@ -312,3 +311,19 @@ def test_the_policys_process_is_as_wide_as_the_evaluations_jax_while_it_loads_an
         assert host.request(("place", {}), 10.0) == {"mode": [float(len(os.sched_getaffinity(0))), 0.0]}
     finally:
         assert host.stop() is not None and host.stop() is None  # stopped once
+
+
+@pytest.mark.slow
+def test_the_environment_listing_runs_as_written(smoke_dataset):
+    """docs/evaluation.md's Gymnasium listing, with the names its comments point to (DIR: the smoke dataset)."""
+    from ocplace.sim.dataset.config import make_config
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / "evaluation.md").read_text()
+    ((language, block),) = _blocks_after(text, "### The Gymnasium environment")[:1]
+    assert language == "python" and block.count("gymnasium.make") == 5
+    namespace = {"gymnasium": gymnasium, "make_config": make_config, "DIR": str(smoke_dataset)}
+    exec(compile(block, "evaluation.md", "exec"), namespace)
+    vector = namespace["env"]
+    observations, infos = vector.reset(seed=0)
+    assert list(infos["scene"]) == ["seen-00000", "seen-00001"] and observations["rgb"].shape[0] == 2
+    vector.close()
