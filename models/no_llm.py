@@ -203,10 +203,11 @@ def load_model(run_dir: Path) -> TrainedNoLlm:
     path = trained_weights(
         run_dir,
         "no_llm model",
-        "train it first (`ocplace evaluate` trains registered methods, or call ocplace.train.no_llm.train_no_llm)",
+        "train it first (`ocplace reproduce` trains every registered method's missing runs, or call "
+        "ocplace.train.no_llm.train_no_llm)",
     )
     arrays, metadata = load_weights(
-        path, f"delete {path.parent} and rerun `ocplace evaluate` or `ocplace reproduce` (they train missing runs)"
+        path, f"delete {path.parent} and rerun `ocplace reproduce` (it trains missing runs)"
     )
     config = serial.from_json(NoLlmConfig, metadata["model_config"])
     template = jax.eval_shape(lambda: init_params(config, jax.random.key(0)))

@@ -402,7 +402,7 @@ def _loaded_backbone(directory: Path, saved_fingerprint: str | None, max_batch: 
         directory / WEIGHTS_FILE,
         f"delete {directory} and rebuild it: re-run `ocplace backbone "
         "pretrain` (for the backbone/ of a no_pretrain run, delete that run and rerun "
-        "`ocplace evaluate` or `ocplace reproduce`)",
+        "`ocplace reproduce`, which trains missing runs)",
     )
     params = unflatten_params(arrays, config)
     backbone = OfflineBackbone(config, params, source=str(directory), max_batch=max_batch)

@@ -28,6 +28,10 @@ class SceneError(OcplaceError):
     """A scene could not be built, settled or rendered."""
 
 
+class ObjectsFellOff(SceneError):
+    """A drop ended with an object off the table."""
+
+
 class ParseError(OcplaceError, ValueError):
     """An instruction that cannot be turned into `<reference, relation>` tuples."""
 
@@ -73,6 +77,10 @@ class WeightsError(OcplaceError):
 
 class FeaturesError(OcplaceError):
     """A feature file that is missing, corrupt, or does not match the data or backbone asked for."""
+
+
+class EncoderUnavailable(OcplaceError):
+    """The sentence encoder's weights are not installed."""
 
 
 class PolicyFolderError(OcplaceError):

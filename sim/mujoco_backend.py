@@ -17,7 +17,7 @@ import mujoco
 import numpy as np
 import trimesh
 
-from ocplace.errors import SceneError
+from ocplace.errors import ObjectsFellOff, SceneError
 from ocplace.sim.camera import DEFAULT_CAMERA, Camera
 from ocplace.sim.library.types import CORPUS_SPLIT, ObjectAsset
 from ocplace.sim.render import OffscreenCamera
@@ -237,10 +237,6 @@ def _add_object(asset: ET.Element, world: ET.Element, index: int, obj: ObjectAss
             group=str(COLLISION_GROUP),
             rgba="0 0 0 0",
         )
-
-
-class ObjectsFellOff(SceneError):
-    """A drop ended with an object off the table."""
 
 
 class MujocoScenes:

@@ -56,3 +56,10 @@ def test_a_method_finds_its_recipe_by_name():
 def test_an_unknown_experiment_lists_the_choices():
     with pytest.raises(UnknownExperiment, match="unknown experiment 'huge'; choose one of smoke, demo, default"):
         configs.get("huge")
+
+
+def test_the_clis_experiment_names_are_the_configs():
+    """`vocabulary.EXPERIMENT_NAMES` restates `configs.EXPERIMENTS` so the CLI need not import the configs."""
+    from ocplace.vocabulary import EXPERIMENT_NAMES
+
+    assert tuple(configs.EXPERIMENTS) == EXPERIMENT_NAMES

@@ -507,7 +507,7 @@ def test_snapping_encoder_can_be_a_backbone_text_tower(tiny_clip_dir):
 
 
 def test_snapping_encoder_choices_are_checked():
-    from ocplace.models.parsing.encoder import EncoderUnavailable
+    from ocplace.errors import EncoderUnavailable
 
     with pytest.raises(EncoderUnavailable, match="backbone spec"):
         make_snapper(SnapConfig(encoder="backbone"))

@@ -21,9 +21,9 @@ def load_run(run_dir: Path) -> tuple[dict, dict[str, np.ndarray], str]:
 
     `weights_file.unflatten_state` makes the tree of the arrays.
     """
-    path = trained_weights(run_dir, "weights", "train the method first (`ocplace evaluate` trains missing runs)")
+    path = trained_weights(run_dir, "weights", "train the method first (`ocplace reproduce` trains missing runs)")
     run_meta = read_run_file(run_dir)
     arrays, _ = weights_file.load_weights(
-        path, f"delete {path.parent} and rerun `ocplace evaluate` or `ocplace reproduce` (they train missing runs)"
+        path, f"delete {path.parent} and rerun `ocplace reproduce` (it trains missing runs)"
     )
     return run_meta, arrays, hashlib.sha256(path.read_bytes()).hexdigest()

@@ -15,14 +15,10 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from ocplace.errors import OcplaceError
+from ocplace.errors import EncoderUnavailable
 
 TextEncoder = Callable[[Sequence[str]], np.ndarray]
 ENCODERS = ("minilm", "backbone")
-
-
-class EncoderUnavailable(OcplaceError):
-    """The sentence encoder's weights are not installed."""
 
 
 def minilm_path() -> str:
