@@ -140,9 +140,9 @@ def load_policy_folder(directory: str | Path, parser=None, **overrides):
         prompt = serial.from_dict(PromptConfig, adapters_doc["prompt"])
         if parser is None or isinstance(parser, str):
             parser = make_parser(settings["parser"] if parser is None else parser)
-    except OcplaceError as error:
-        if isinstance(error, PolicyFolderError):
-            raise
+    except PolicyFolderError:
+        raise
+    except OcplaceError as error:  # a damaged weights file, weights that do not fit the architecture, ...
         raise PolicyFolderError(f"cannot load the policy folder {directory}: {error}") from None
     except (KeyError, TypeError, ValueError) as error:
         raise PolicyFolderError(

@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 
 from ocplace.eval.results import read_results
+from ocplace.eval.statistics import full_runs, repeats
 from ocplace.vocabulary import TEST_SUBSETS
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -21,11 +22,11 @@ NAMES = {"seen": "Seen", "unseen_obj": "Unseen obj", "unseen_inst": "Unseen inst
 def demo_table(results: dict, source: str) -> str:
     """The block's markdown: one row per label, the mean overall success (%) of its whole-training-set runs."""
     subsets = [s for s in TEST_SUBSETS if s in results["settings"]["subsets"]]
-    rows: dict[str, list[list[float]]] = {}
-    for entry in results["evaluations"]:
-        if entry["fraction"] == 1.0:
-            overall = [entry["subsets"][s]["aggregate"]["overall"]["success"] for s in subsets]
-            rows.setdefault(entry["label"], []).append(overall)
+    rows = {
+        entry["label"]: [[run["subsets"][s]["aggregate"]["overall"]["success"] for s in subsets] for run in runs]
+        for entry in full_runs(results)
+        for runs in [repeats(results, entry)]
+    }
     git = results["environment"].get("git") or {}
     made = f"`{git.get('commit', '?')[:7]}`{' (modified)' if git.get('dirty') else ''}, {results['created'][:10]}"
     lines = [

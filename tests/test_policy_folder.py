@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from ocplace.cli import main
-from ocplace.errors import PolicyFolderError
+from ocplace.errors import GroundingUncertain, NoFeasiblePlacement, PolicyFolderError
 from ocplace.experiments import pipeline
 from ocplace.methods.policy_method import scene_input
 from ocplace.models.backbone import load_backbone
@@ -48,6 +48,13 @@ def test_the_readmes_robot_code_runs_as_written_after_make_demo(demo_root, tmp_p
         exec(compile(block, str(README), "exec"), {"__name__": "readme"})
     printed = capsys.readouterr().out
     assert printed.startswith(("[", "not placed: ")), printed  # a placement, or a typed error's advice
+    calling = (README.parent / "docs" / "policy.md").read_text().split("## Calling it", 1)[1]
+    namespace = {"__name__": "policy_md"}
+    try:  # the tiny stand-in model may refuse, as the real one is documented to: only a refusal is allowed
+        exec(compile(re.search(r"```python\n(.*?)```", calling, re.S)[1], "docs/policy.md", "exec"), namespace)
+    except (GroundingUncertain, NoFeasiblePlacement):
+        return
+    assert namespace["placement"].mode.shape == (2,) and "mode:" in capsys.readouterr().out
     assert not (tmp_path / "empty_cache").exists()
     card = (demo_root / "out/demo/policy/README.md").read_text()
     assert "PlacementPolicy.from_pretrained(" in card and "## Licences" in card
@@ -83,6 +90,10 @@ def test_cli_exports_a_run_and_places_with_the_folder(trained_run, tiny_backbone
     assert repr(scene.instruction) in capsys.readouterr().out
     assert main([*command, "--adapters", str(trained_run[0])]) == 2
     assert "drop --backbone and --adapters" in capsys.readouterr().err
+    (tmp_path / "a_file").write_text("keep me")
+    assert main(["export", "--run", str(trained_run[0]), "--out", str(tmp_path / "a_file")]) == 2
+    assert "it is a file, not a folder" in capsys.readouterr().err
+    assert (tmp_path / "a_file").read_text() == "keep me"
 
 
 def _tamper(folder: Path, how: str) -> None:

@@ -26,7 +26,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run_export(args: argparse.Namespace) -> int:
     from ocplace.methods.export import export_run
+    from ocplace.paths import check_writable
 
+    check_writable(args.out, as_folder=True)  # a file there is an OutputError, before the backbone loads
     folder = export_run(args.run, args.out, backbone=args.backbone, parser=args.parser)
     print(f"wrote the policy folder {folder}: load it with PlacementPolicy.from_pretrained({str(folder)!r})")
     return 0
