@@ -17,29 +17,25 @@ See docs/reliability.md and docs/parsing.md.
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import hashlib
-import http.client
 import json
 import logging
 import os
 import re
-import socket
-import threading
 import time
 import unicodedata
-import urllib.error
 import urllib.request
 from collections.abc import Callable
 from pathlib import Path
 
 from ocplace import paths
 from ocplace.errors import OcplaceError, OutputError, ParseError
-from ocplace.models.parsing import crosscheck, lexicon, text
+from ocplace.models.parsing import crosscheck, lexicon, text, transport
 from ocplace.models.parsing.config import LLMConfig
 from ocplace.models.parsing.offline import relation_of_phrase
 from ocplace.models.parsing.snapping import Snapper
+from ocplace.models.parsing.transport import NoAnswer, Transient
 from ocplace.models.parsing.types import ParsedTuple, Parser
 from ocplace.sim import language, relations
 from ocplace.vocabulary import MAX_PARSED_TUPLES
@@ -73,23 +69,6 @@ _NOT_A_NAME = (
 
 class _InvalidAnswer(Exception):
     """The endpoint answered, but not with a usable parse."""
-
-
-class _Transient(Exception):
-    """A failure that may pass on retry: no connection, a timeout, HTTP 429 or 5xx."""
-
-    def __init__(self, reason: str, retry_after: float | None = None):
-        super().__init__(reason)
-        self.retry_after = retry_after
-
-
-class NoAnswer(Exception):
-    """Retrying cannot help or time is up; the message says why (it becomes `fallback_reason`)."""
-
-    def __init__(self, reason: str, json_mode_refused: bool = False, transport: bool = False):
-        super().__init__(reason)
-        self.json_mode_refused = json_mode_refused  # an HTTP 400/422 whose body names JSON mode
-        self.transport = transport  # every attempt failed in transport: no connection, timeouts, 429, 5xx
 
 
 API_KEY_MARK = "<api key>"
@@ -264,7 +243,7 @@ class LLMParser:
                         f"invalid answer, not retried at temperature 0 (the same request gets the same answer): {error}"
                     ) from error
                 reason, wait, transport = f"invalid answer: {error}", backoff, False
-            except _Transient as error:
+            except Transient as error:
                 reason = str(error)
                 wait = backoff if error.retry_after is None else error.retry_after
             reasons.append(reason)
@@ -280,7 +259,7 @@ class LLMParser:
         raise NoAnswer(f"{config.max_attempts} attempts failed: {'; '.join(reasons)}", transport=transport)
 
     def _complete(self, instruction: str, deadline: float) -> str:
-        """The assistant message's content for `instruction`; raises _Transient or NoAnswer on a
+        """The assistant message's content for `instruction`; raises Transient or NoAnswer on a
         transport failure and _InvalidAnswer on a body that is not a chat completion."""
         request_fields = {
             "model": self.config.model,
@@ -302,7 +281,7 @@ class LLMParser:
             method="POST",
         )
         try:
-            payload = self._post(request, deadline)
+            payload = transport.post(request, self.config.timeout_s, deadline, self.config.max_body_bytes)
         except NoAnswer as error:
             if not (self._json_mode and error.json_mode_refused):
                 raise
@@ -315,36 +294,6 @@ class LLMParser:
             return scrub_decoded(json.loads(payload), key)["choices"][0]["message"]["content"]
         except (ValueError, KeyError, IndexError, TypeError, RecursionError) as error:
             raise _InvalidAnswer(f"response is not a chat completion: {quote(payload, key, 120)}") from error
-
-    def _post(self, request: urllib.request.Request, deadline: float) -> bytes:
-        """The response body, within `timeout_s` (and the parse's deadline) and the size cap."""
-        budget = min(self.config.timeout_s, deadline - time.monotonic())
-        timed_out = f"timed out after {max(budget, 0):.1f} s"
-        if budget <= 0:
-            raise _Transient(timed_out)
-        with _Watchdog(budget) as watchdog:
-            try:
-                with _opener(watchdog).open(request, timeout=budget) as response:
-                    payload = self._read_capped(response)
-            except urllib.error.HTTPError as error:
-                refused = error.code in (400, 422) and _names_json_mode(error)
-                error.close()
-                raise _http_failure(error, refused) from error
-            except (OSError, http.client.HTTPException) as error:
-                raise _Transient(timed_out if watchdog.fired else _describe(error)) from error
-            if watchdog.fired:  # the shut socket ended the body early: it is not the whole answer
-                raise _Transient(timed_out)
-        return payload
-
-    def _read_capped(self, response: http.client.HTTPResponse) -> bytes:
-        """The body; NoAnswer past `max_body_bytes` (unread when Content-Length announces it)."""
-        cap = self.config.max_body_bytes
-        if (response.length or 0) > cap or len(payload := response.read(cap + 1)) > cap:
-            raise NoAnswer(
-                f"the response is larger than the {cap:,}-byte cap (max_body_bytes); "
-                "is the base URL a chat-completions endpoint?"
-            )
-        return payload
 
     def _validated(self, content: object, instruction: str) -> tuple[str, list[ParsedTuple]]:
         """(the answer rewritten with its tuples alone, its tuples), or _InvalidAnswer. Only the rewrite is
@@ -375,131 +324,6 @@ class LLMParser:
     def _fall_back(self, instruction: str, reason: str) -> list[ParsedTuple]:
         log.warning("LLM parser fell back to the offline parser: %s", reason)
         return [dataclasses.replace(t, fallback_reason=reason) for t in self.offline.parse(instruction)]
-
-
-class _Watchdog:
-    """Shuts a request's socket down when its budget is spent, so that no read outlives it.
-
-    A socket timeout bounds each read, not the request: a server that sends a byte every
-    second would hold the parse for ever.
-    """
-
-    def __init__(self, seconds: float):
-        self.fired = False
-        self._sockets: list[socket.socket] = []
-        self._lock = threading.Lock()
-        self._timer = threading.Timer(seconds, self._fire)
-        self._timer.daemon = True
-
-    def __enter__(self) -> _Watchdog:
-        self._timer.start()
-        return self
-
-    def __exit__(self, *exc_info) -> None:
-        self._timer.cancel()
-
-    def watch(self, sock: socket.socket) -> None:
-        with self._lock:
-            self._sockets.append(sock)
-            if self.fired:
-                _shut(sock)
-
-    def _fire(self) -> None:
-        with self._lock:
-            self.fired = True
-            for sock in self._sockets:
-                _shut(sock)
-
-
-def _shut(sock: socket.socket) -> None:
-    with contextlib.suppress(OSError):  # already closed: the request ended on its own
-        sock.shutdown(socket.SHUT_RDWR)
-
-
-class _WatchedConnection:
-    """Hands its socket to the watchdog once connected."""
-
-    def __init__(self, *args, watchdog: _Watchdog, **kwargs):
-        super().__init__(*args, **kwargs)
-        self._watchdog = watchdog
-
-    def connect(self) -> None:
-        super().connect()
-        self._watchdog.watch(self.sock)
-
-
-class _HTTPConnection(_WatchedConnection, http.client.HTTPConnection):
-    pass
-
-
-class _HTTPSConnection(_WatchedConnection, http.client.HTTPSConnection):
-    pass
-
-
-class _WatchedHandler(urllib.request.HTTPHandler, urllib.request.HTTPSHandler):
-    """urllib's http and https handlers, opening watched connections."""
-
-    def __init__(self, watchdog: _Watchdog):
-        super().__init__()
-        self._watchdog = watchdog
-
-    def http_open(self, request):
-        return self.do_open(_HTTPConnection, request, watchdog=self._watchdog)
-
-    def https_open(self, request):
-        return self.do_open(_HTTPSConnection, request, watchdog=self._watchdog)
-
-
-class _NoRedirects(urllib.request.HTTPRedirectHandler):
-    """Following a redirect would resend the API key to wherever it points."""
-
-    def redirect_request(self, *args, **kwargs):
-        return None
-
-
-def _opener(watchdog: _Watchdog) -> urllib.request.OpenerDirector:
-    return urllib.request.build_opener(_WatchedHandler(watchdog), _NoRedirects())
-
-
-def _names_json_mode(error: urllib.error.HTTPError) -> bool:
-    """Whether an error body (its first 4 KB, read within the request's budget) is about JSON mode."""
-    with contextlib.suppress(OSError, http.client.HTTPException):
-        body = error.read(4096).lower()
-        return any(word in body for word in (b"response_format", b"json_object", b"json mode"))
-    return False
-
-
-def _http_failure(error: urllib.error.HTTPError, json_mode_refused: bool = False) -> Exception:
-    """_Transient for 429 and 5xx (with Retry-After for 429 and 503), else NoAnswer."""
-    if error.code == 429 or error.code >= 500:
-        retry_after = _retry_after(error.headers) if error.code in (429, 503) else None
-        note = "" if retry_after is None else f" (Retry-After {retry_after:g} s)"
-        return _Transient(f"HTTP {error.code}{note}", retry_after)
-    if 300 <= error.code < 400:
-        return NoAnswer(
-            f"the endpoint redirected the request (HTTP {error.code}); redirects are "
-            "not followed: give the final URL as the base URL"
-        )
-    return NoAnswer(f"endpoint refused the request: HTTP {error.code}", json_mode_refused)
-
-
-def _retry_after(headers) -> float | None:
-    """Retry-After in seconds; an HTTP date is ignored (the back-off applies instead)."""
-    value = (headers.get("Retry-After") or "").strip()
-    return float(value) if value.isdigit() else None
-
-
-def _describe(error: Exception) -> str:
-    """A reason that quotes nothing the server sent: http.client's errors can (a bad status
-    line that echoes the request would carry the API key)."""
-    cause = getattr(error, "reason", error)  # URLError wraps the socket's error
-    if isinstance(cause, TimeoutError):
-        return "timed out"
-    if isinstance(error, urllib.error.URLError):
-        return f"connection failed ({cause})"
-    if isinstance(error, http.client.HTTPException):
-        return f"malformed response ({type(error).__name__})"
-    return str(error) or type(error).__name__
 
 
 def text_words(phrase: str) -> list[str]:
