@@ -78,6 +78,31 @@ def validation_features(backbone, scenes, prompt, info):
     return Features(**arrays, scene_ids=tuple(map(str, ids)), phrases=((),) * len(ids), info=info)
 
 
+def selection_features(dataset: Path, dev: Path, backbone_spec: str):
+    """`(train, splits)`: the training split's features without the seen colour variants, and the scored splits
+    (`dev_seen`, `dev_colour` object tuples; `reach`, the corpus' held-out categories), on the backbone named."""
+    from ocplace.models.backbone import load_backbone
+    from ocplace.models.features import featurize_split, load_features, without_objects
+    from ocplace.models.offline_recipes import default_config as recipe
+    from ocplace.sim.corpus.build import build_corpus
+    from ocplace.sim.dataset.job import check_dev_scenes, read_manifest
+    from ocplace.sim.library import load_library
+    from ocplace.sim.library.library import colour_variants
+    from ocplace.train.pretrain.validation import validation_scenes
+
+    check_dev_scenes(dev, read_manifest(dev), read_manifest(dataset))
+    library, backbone = load_library(), load_backbone(backbone_spec)
+
+    def features_of(data: Path, split: str):
+        return load_features(featurize_split(data, split, backbone), backbone.fingerprint)
+
+    train = without_objects(features_of(dataset, "train"), dataset, "train", colour_variants(library))
+    splits = {split: object_tuples(features_of(dev, split)) for split in ("dev_seen", "dev_colour")}
+    scenes = validation_scenes(library, build_corpus(progress=False), recipe().render)
+    splits["reach"] = validation_features(backbone, scenes, train.info.config.prompt, train.info)
+    return train, splits
+
+
 def choose(rows: list[dict]) -> tuple[dict, str]:
     """Rule A (the module docstring): the chosen row and why."""
     best_seen = max(row["dev_seen"] for row in rows)
@@ -106,28 +131,11 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path("adapter_selection.json"))
     args = parser.parse_args()
 
-    from ocplace.models.backbone import load_backbone
-    from ocplace.models.features import featurize_split, load_features, without_objects
-    from ocplace.models.offline_recipes import default_config as recipe
-    from ocplace.sim.corpus.build import build_corpus
-    from ocplace.sim.dataset.job import check_dev_scenes, read_manifest
-    from ocplace.sim.library import load_library
-    from ocplace.sim.library.library import colour_variants
     from ocplace.train.config import TrainConfig
     from ocplace.train.metrics import evaluate_features
     from ocplace.train.ours import train_ours
-    from ocplace.train.pretrain.validation import validation_scenes
 
-    check_dev_scenes(args.dev, read_manifest(args.dev), read_manifest(args.dataset))
-    library, backbone = load_library(), load_backbone(args.backbone)
-
-    def features_of(data: Path, split: str):
-        return load_features(featurize_split(data, split, backbone), backbone.fingerprint)
-
-    train = without_objects(features_of(args.dataset, "train"), args.dataset, "train", colour_variants(library))
-    splits = {split: object_tuples(features_of(args.dev, split)) for split in ("dev_seen", "dev_colour")}
-    scenes = validation_scenes(library, build_corpus(progress=False), recipe().render)
-    splits["reach"] = validation_features(backbone, scenes, train.info.config.prompt, train.info)
+    train, splits = selection_features(args.dataset, args.dev, args.backbone)
     rows = []
     for (regime, changes), steps in itertools.product(REGIMES.items(), STEPS):
         config = dataclasses.replace(TrainConfig(), steps=steps, checkpoint_every=steps, eval_every=steps, **changes)

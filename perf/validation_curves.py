@@ -19,7 +19,7 @@ import dataclasses
 import json
 from pathlib import Path
 
-from adapter_selection import object_tuples, validation_features
+from adapter_selection import selection_features
 from selection_scores import standard_error
 
 import ocplace  # noqa: F401  (sets the headless OpenGL default before MuJoCo loads)
@@ -104,29 +104,16 @@ def main() -> None:
     parser.add_argument("--figure", type=Path, default=Path("validation_curves.png"))
     args = parser.parse_args()
 
-    from ocplace.models.backbone import load_backbone
-    from ocplace.models.features import featurize_split, load_features, without_objects
-    from ocplace.models.offline_recipes import default_config as backbone_recipe
-    from ocplace.sim.corpus.build import build_corpus
-    from ocplace.sim.dataset.job import check_dev_scenes, read_manifest
-    from ocplace.sim.library import load_library
-    from ocplace.sim.library.library import colour_variants
-    from ocplace.train.pretrain.validation import validation_scenes
-
-    check_dev_scenes(args.dev, read_manifest(args.dev), read_manifest(args.dataset))
-    library, backbone = load_library(), load_backbone(args.backbone)
-
-    def features_of(data: Path, split: str):
-        return load_features(featurize_split(data, split, backbone), backbone.fingerprint)
-
-    train = without_objects(features_of(args.dataset, "train"), args.dataset, "train", colour_variants(library))
-    splits = {split: object_tuples(features_of(args.dev, split)) for split in ("dev_seen", "dev_colour")}
-    scenes = validation_scenes(library, build_corpus(progress=False), backbone_recipe().render)
-    splits["reach"] = validation_features(backbone, scenes, train.info.config.prompt, train.info)
+    train, splits = selection_features(args.dataset, args.dev, args.backbone)
     curves = {
         name: curve(train, splits, recipe, args.work / name, args.every) for name, recipe in recipes(args.steps).items()
     }
-    result = {"backbone": args.backbone, "fingerprint": backbone.fingerprint, "every": args.every, "curves": curves}
+    result = {
+        "backbone": args.backbone,
+        "fingerprint": train.info.backbone_fingerprint,
+        "every": args.every,
+        "curves": curves,
+    }
     args.out.write_text(json.dumps(result, indent=1))
     draw(result, args.figure)
     print(f"wrote {args.out} and {args.figure}")
