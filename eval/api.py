@@ -11,11 +11,14 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Sequence
-from typing import Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
 from ocplace.sim.dataset.records import SceneRecord
+
+if TYPE_CHECKING:
+    import jax
 
 
 @dataclasses.dataclass(frozen=True)
@@ -36,10 +39,12 @@ class MethodOutput:
 class Method(Protocol):
     """A trained method, ready to place."""
 
-    name: str
+    @property
+    def name(self) -> str:
+        """The method's key in results (`ocplace evaluate --methods`)."""
 
-    def describe(self) -> dict:
+    def describe(self) -> dict[str, Any]:
         """JSON-able: configs, seeds, checkpoint sha256, backbone fingerprint, parser and its cache."""
 
-    def run(self, scenes: Sequence[SceneRecord], key) -> list[MethodOutput]:
+    def run(self, scenes: Sequence[SceneRecord], key: jax.Array) -> list[MethodOutput]:
         """One output per scene, in order. Must not read the records' tuples, oracle or token indices."""

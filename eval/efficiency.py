@@ -4,11 +4,13 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
-from ocplace.eval.table import base_runs, unseen_mean
+from ocplace.eval.statistics import base_runs
+from ocplace.eval.table import unseen_mean
 
 
-def efficiency_curves(results: Mapping) -> dict[str, dict[str, list[tuple[float, float]]]]:
+def efficiency_curves(results: Mapping[str, Any]) -> dict[str, dict[str, list[tuple[float, float]]]]:
     """Per method label: `seen` and `unseen` (1:1 mean of unseen_obj and unseen_inst) as (fraction, %) points."""
     curves: dict[str, dict[str, list[tuple[float, float]]]] = {}
     for entry in sorted(base_runs(results), key=lambda e: e["fraction"]):
@@ -22,7 +24,7 @@ def efficiency_curves(results: Mapping) -> dict[str, dict[str, list[tuple[float,
     return {label: lines for label, lines in curves.items() if len(lines["seen"]) > 1 or len(lines["unseen"]) > 1}
 
 
-def plot_sample_efficiency(results: Mapping, path: str | Path) -> Path:
+def plot_sample_efficiency(results: Mapping[str, Any], path: str | Path) -> Path:
     """Two panels (seen, unseen), one line per method with more than one fraction; a PNG at `path`."""
     import matplotlib
 

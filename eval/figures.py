@@ -10,11 +10,16 @@ from __future__ import annotations
 import textwrap
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ocplace.errors import EvaluationError
-from ocplace.eval.table import full_runs
+from ocplace.eval.statistics import full_runs
+
+if TYPE_CHECKING:
+    from ocplace.sim.dataset.job import ListedScene
+    from ocplace.sim.dataset.records import SceneRecord
 
 FIG5, FIG6, FIG7 = "fig5_placement_distributions.png", "fig6_cases.png", "fig7_sample_efficiency.png"
 CASE_METHODS = ("ours", "cliport")
@@ -22,16 +27,16 @@ CASE_LEVELS = ("1obj", "2obj")
 METHOD_COLOURS = ("deepskyblue", "orange", "magenta", "lime", "red", "yellow")
 
 
-def _full_runs_by_method(results: Mapping) -> dict[str, dict]:
+def _full_runs_by_method(results: Mapping[str, Any]) -> dict[str, dict[str, Any]]:
     return {entry["method"]: entry for entry in full_runs(results)}
 
 
-def _outcomes_by_scene(entry: Mapping, subset: str) -> dict[str, dict]:
+def _outcomes_by_scene(entry: Mapping[str, Any], subset: str) -> dict[str, dict[str, Any]]:
     return {scene["id"]: scene for scene in entry["subsets"].get(subset, {}).get("scenes", [])}
 
 
 def choose_cases(
-    results: Mapping, methods: Sequence[str] = CASE_METHODS, levels: Sequence[str] = CASE_LEVELS
+    results: Mapping[str, Any], methods: Sequence[str] = CASE_METHODS, levels: Sequence[str] = CASE_LEVELS
 ) -> list[tuple[str, str]]:
     """`(subset, scene id)` per evaluated subset and level: the first scene where the methods'
     successes differ, else the first scene of that level. Full-data runs only."""
@@ -54,13 +59,13 @@ def choose_cases(
     return cases
 
 
-def _draw_case(axis, record, outcomes: Sequence[tuple[str, dict]]) -> None:
+def _draw_case(axis: Any, record: SceneRecord, outcomes: Sequence[tuple[str, dict[str, Any]]]) -> None:
     from matplotlib.patches import Rectangle
 
     from ocplace.sim.dataset.show import feasible_overlay
 
     axis.imshow(feasible_overlay(record))
-    references = {t.reference_object_id for t in record.tuples}
+    references = {t.reference_object_id for t in record.tuples or ()}
     for object_id, (u0, v0, u1, v1) in zip(record.boxes.object_ids, record.boxes.boxes, strict=True):
         if object_id in references:
             axis.add_patch(
@@ -94,7 +99,7 @@ def _draw_case(axis, record, outcomes: Sequence[tuple[str, dict]]) -> None:
     axis.set_axis_off()
 
 
-def _listed_scene(dataset_dir: Path, subset: str, scene_id: str):
+def _listed_scene(dataset_dir: Path, subset: str, scene_id: str) -> ListedScene:
     """The `ListedScene` the results name, found among those the manifest lists, never joined from the name."""
     from ocplace.sim.dataset.job import listed_scenes
 
@@ -108,7 +113,7 @@ def _listed_scene(dataset_dir: Path, subset: str, scene_id: str):
 
 
 def plot_cases(
-    results: Mapping,
+    results: Mapping[str, Any],
     path: str | Path,
     dataset_dir: str | Path | None = None,
     methods: Sequence[str] = CASE_METHODS,
@@ -166,7 +171,7 @@ def plot_fig5(dataset_dir: str | Path, path: str | Path, seed: int = 0, subset: 
 
 
 def write_figures(
-    results: Mapping, out_dir: str | Path, dataset_dir: str | Path | None = None, seed: int = 0
+    results: Mapping[str, Any], out_dir: str | Path, dataset_dir: str | Path | None = None, seed: int = 0
 ) -> list[Path]:
     """Every paper figure the results allow: Fig. 5 always, Fig. 6 with Ours and CLIPort-Place
     evaluated (and per-scene outcomes, which a summary lacks), Fig. 7 with several training fractions."""

@@ -22,9 +22,9 @@ import contextlib
 import dataclasses
 import time
 import zlib
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
-from typing import NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
@@ -34,6 +34,12 @@ from ocplace.eval.api import Method, MethodOutput
 from ocplace.sim.boxes import Boxes
 from ocplace.sim.dataset.records import SceneRecord
 from ocplace.vocabulary import LEVELS, MAX_SAMPLES, TEST_SUBSETS, subsets_problem
+
+if TYPE_CHECKING:
+    import jax
+
+    from ocplace.sim.library.library import Library
+    from ocplace.sim.mujoco_backend import MujocoScenes
 
 STAGES = ("failure", "parse", "grounding", "sampling", "placement")
 # The per-subset columns pooled from levels besides Overall: each level alone, and the object-referenced
@@ -103,8 +109,9 @@ class MethodRun:
 
     def settings(self, settings: EvalSettings) -> EvalSettings:
         """The settings this run is scored with: its own seed and backbone, when it is a repeat."""
-        own = {"seed": self.seed, "backbone": self.backbone}
-        return dataclasses.replace(settings, **{name: value for name, value in own.items() if value is not None})
+        if self.seed is not None:
+            settings = dataclasses.replace(settings, seed=self.seed)
+        return settings if self.backbone is None else dataclasses.replace(settings, backbone=self.backbone)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -146,7 +153,7 @@ class Evaluation:
     label: str
     fraction: float
     run_dir: str | None
-    description: dict  # the method's describe(), made JSON-able
+    description: dict[str, Any]  # the method's describe(), made JSON-able
     subsets: dict[str, tuple[SceneOutcome, ...]]
     wall_s: float
     seed: int | None = None  # MethodRun.seed
@@ -161,14 +168,14 @@ def stable_id(name: str) -> int:
     return zlib.crc32(name.encode()) & 0x7FFFFFFF
 
 
-def subset_key(seed: int, method: str, subset: str):
+def subset_key(seed: int, method: str, subset: str) -> jax.Array:
     """The jax.random key of one method on one subset: independent of the other methods and subsets."""
     import jax
 
     return jax.random.fold_in(jax.random.fold_in(jax.random.key(seed), stable_id(method)), stable_id(subset))
 
 
-def subset_scenes(dataset_dir: Path, subset: str, limit: int | None) -> list:
+def subset_scenes(dataset_dir: Path, subset: str, limit: int | None) -> list[Any]:
     """The first `limit` (None: all) scenes the manifest lists for `subset`, as `ListedScene`s."""
     from ocplace.sim.dataset.job import listed_scenes
 
@@ -182,7 +189,7 @@ def redacted(record: SceneRecord) -> SceneRecord:
     return dataclasses.replace(record, meta=meta)
 
 
-def chunks(scenes: Sequence, size: int) -> Iterator[tuple[int, list[SceneRecord]]]:
+def chunks(scenes: Sequence[Any], size: int) -> Iterator[tuple[int, list[SceneRecord]]]:
     """`ListedScene`s read `size` at a time, each checked against its manifest hashes."""
     for index, start in enumerate(range(0, len(scenes), size)):
         yield index, [scene.read() for scene in scenes[start : start + size]]
@@ -195,7 +202,7 @@ def _describe_error(error: BaseException) -> str:
     return str(error) if isinstance(error, PolicyRaised) else f"{type(error).__name__}: {error}"
 
 
-def _checked(outputs, count: int) -> list[MethodOutput]:
+def _checked(outputs: object, count: int) -> list[MethodOutput]:
     if not isinstance(outputs, (list, tuple)) or len(outputs) != count:
         raise ValueError(
             f"run() returned {type(outputs).__name__} of length "
@@ -204,7 +211,7 @@ def _checked(outputs, count: int) -> list[MethodOutput]:
     return list(outputs)
 
 
-def run_chunk(method: Method, scenes: Sequence[SceneRecord], key) -> list[MethodOutput]:
+def run_chunk(method: Method, scenes: Sequence[SceneRecord], key: jax.Array) -> list[MethodOutput]:
     """The method's outputs for `scenes`; an exception is pinned on the scene(s) that raise it."""
     import jax
 
@@ -222,7 +229,7 @@ def run_chunk(method: Method, scenes: Sequence[SceneRecord], key) -> list[Method
     return outputs
 
 
-def run_scenes(method: Method, scenes: Sequence[SceneRecord], key) -> list[MethodOutput]:
+def run_scenes(method: Method, scenes: Sequence[SceneRecord], key: jax.Array) -> list[MethodOutput]:
     """`run_chunk`, with a single scene's exception turned into a failure."""
     try:
         return run_chunk(method, scenes, key)
@@ -246,11 +253,11 @@ def token_object_ids(boxes: Boxes, tokens: Sequence[int]) -> tuple[int, ...]:
     return tuple(box_ids[t] if 0 <= t < len(box_ids) else 0 if t == len(box_ids) else -1 for t in map(int, tokens))
 
 
-def _same(a, b) -> bool:
+def _same(a: Iterable[Any], b: Iterable[Any]) -> bool:
     return collections.Counter(a) == collections.Counter(b)
 
 
-def _stage(failure: str | None, parse_ok, grounding_ok, program_ok) -> str:
+def _stage(failure: str | None, parse_ok: bool | None, grounding_ok: bool | None, program_ok: bool | None) -> str:
     if failure is not None:
         return "failure"
     if program_ok:
@@ -270,7 +277,7 @@ class _Interpreted(NamedTuple):
     failure: str | None
 
 
-def _points(points, rows: bool) -> np.ndarray:
+def _points(points: object, rows: bool) -> np.ndarray[Any, Any]:
     array = np.asarray(points, dtype=np.float64)
     if array.shape[-1:] != (2,) or (array.ndim != 2 if rows else array.ndim != 1) or not np.all(np.isfinite(array)):
         raise ValueError(f"expected finite {'(num_samples, 2)' if rows else '(2,)'} points, got shape {array.shape}")
@@ -297,12 +304,12 @@ def score_scene(record: SceneRecord, output: MethodOutput) -> SceneOutcome:
     """Scores one output against the record's ground truth (no physical check)."""
     from ocplace.sim.metric import placement_success
 
-    truth = record.tuples
+    truth = record.tuples or ()
     if not isinstance(output, MethodOutput):  # anyone's Method may return anything
         output = MethodOutput(None, None, failure=f"malformed output: {type(output).__name__}, not a MethodOutput")
     mode, samples, parsed, tokens, failure = interpret(output)
     problem = record.problem()
-    success = failure is None and bool(placement_success(mode[None], problem)[0])
+    success = failure is None and mode is not None and bool(placement_success(mode[None], problem)[0])
     if failure is not None:
         sample_success = 0.0
     elif samples is None or len(samples) == 0:
@@ -339,16 +346,16 @@ def score_scene(record: SceneRecord, output: MethodOutput) -> SceneOutcome:
     )
 
 
-def _probability(value) -> float | None:
+def _probability(value: object) -> float | None:
     """`value` as a float in [0, 1], or None when it is missing or not a probability."""
     try:
-        number = float(value)
+        number = float(value)  # type: ignore[arg-type]  # anything a Method returned; not a number: None
     except (TypeError, ValueError):
         return None
     return number if 0.0 <= number <= 1.0 else None
 
 
-def physical_outcome(arena, record: SceneRecord, outcome: SceneOutcome) -> PhysicalOutcome:
+def physical_outcome(arena: MujocoScenes, record: SceneRecord, outcome: SceneOutcome) -> PhysicalOutcome:
     """Physical success = metric success and the drop check; nothing is dropped when the metric failed."""
     from ocplace.sim.physical import physical_check
 
@@ -362,7 +369,13 @@ def physical_outcome(arena, record: SceneRecord, outcome: SceneOutcome) -> Physi
 
 
 def evaluate_subset(
-    method: Method, name: str, dataset_dir: Path, subset: str, settings: EvalSettings, arena=None, progress: bool = True
+    method: Method,
+    name: str,
+    dataset_dir: Path,
+    subset: str,
+    settings: EvalSettings,
+    arena: MujocoScenes | None = None,
+    progress: bool = True,
 ) -> tuple[SceneOutcome, ...]:
     """Every scene of `subset` (up to `settings.limit`), scored; the first K also physically."""
     import jax
@@ -371,7 +384,7 @@ def evaluate_subset(
     scenes = subset_scenes(dataset_dir, subset, settings.limit)
     physical_limit = len(scenes) if settings.physical_scenes is None else settings.physical_scenes
     base_key = subset_key(settings.seed, name, subset)
-    outcomes = []
+    outcomes: list[SceneOutcome] = []
     bar = tqdm(total=len(scenes), desc=f"{name} {subset}", unit="scene", disable=not progress, leave=False)
     for chunk_index, records in chunks(scenes, settings.chunk_size):
         outputs = run_scenes(method, [redacted(r) for r in records], jax.random.fold_in(base_key, chunk_index))
@@ -386,7 +399,12 @@ def evaluate_subset(
 
 
 def evaluate_run(
-    run: MethodRun, method: Method, dataset_dir: str | Path, settings: EvalSettings, arena=None, progress: bool = True
+    run: MethodRun,
+    method: Method,
+    dataset_dir: str | Path,
+    settings: EvalSettings,
+    arena: MujocoScenes | None = None,
+    progress: bool = True,
 ) -> Evaluation:
     """Scores `method`, loaded from `run`, on every subset of `settings`.
 
@@ -429,12 +447,12 @@ def evaluate_in_own_arena(
 # ----------------------------------------------------------------------------- aggregates
 
 
-def _rate(values: list) -> float | None:
+def _rate(values: list[Any]) -> float | None:
     known = [float(v) for v in values if v is not None]
     return float(np.mean(known)) if known else None
 
 
-def aggregate(outcomes: Sequence[SceneOutcome]) -> dict:
+def aggregate(outcomes: Sequence[SceneOutcome]) -> dict[str, Any]:
     """Rates (0..1) over `outcomes`; a rate is None when no scene reports that part."""
     physical = [o.physical for o in outcomes if o.physical is not None]
     stages = collections.Counter(o.stage for o in outcomes if o.stage is not None)
@@ -453,7 +471,7 @@ def aggregate(outcomes: Sequence[SceneOutcome]) -> dict:
     }
 
 
-def aggregate_subset(outcomes: Sequence[SceneOutcome]) -> dict:
+def aggregate_subset(outcomes: Sequence[SceneOutcome]) -> dict[str, Any]:
     """Per level, `objects` (the object-referenced levels pooled: 1 Obj and 2 Obj) and `overall` (pooled over
     the subset's scenes, as the paper's Overall column)."""
     by_level = {level: aggregate([o for o in outcomes if o.level in LEVEL_GROUPS[level]]) for level in LEVEL_GROUPS}
@@ -461,7 +479,7 @@ def aggregate_subset(outcomes: Sequence[SceneOutcome]) -> dict:
 
 
 @contextlib.contextmanager
-def physical_arena(settings: EvalSettings, library=None):
+def physical_arena(settings: EvalSettings, library: Library | None = None) -> Iterator[MujocoScenes | None]:
     """The MuJoCo arena for the physical check, or None when `settings` asks for no physical check."""
     if settings.physical_scenes == 0:
         yield None

@@ -31,6 +31,7 @@ import subprocess
 from collections.abc import Collection, Mapping, Sequence
 from importlib import metadata
 from pathlib import Path
+from typing import Any
 
 from ocplace import serial
 from ocplace.errors import ResultsError
@@ -65,12 +66,13 @@ COMPARED_FIELDS = (
 
 
 # What readers of a results file index (rerun, tables, figures, the notebook), checked when it is read.
-_DATASET_FIELDS = {"dir": str, "dataset_hash": str, "manifest_hash": str}
-_ENTRY_FIELDS = {"key": str, "method": str, "label": str, "fraction": (int, float), "subsets": dict}
-_SUBSET_FIELDS = {"aggregate": dict, "scenes": list}
+_FieldTypes = dict[str, type | tuple[type, ...]]
+_DATASET_FIELDS: _FieldTypes = {"dir": str, "dataset_hash": str, "manifest_hash": str}
+_ENTRY_FIELDS: _FieldTypes = {"key": str, "method": str, "label": str, "fraction": (int, float), "subsets": dict}
+_SUBSET_FIELDS: _FieldTypes = {"aggregate": dict, "scenes": list}
 
 
-def git_state() -> dict:
+def git_state() -> dict[str, Any]:
     """The commit of the ocplace source tree and whether it had uncommitted changes."""
     import ocplace
 
@@ -100,10 +102,10 @@ def cpu_model() -> str | None:
     return platform.processor() or None
 
 
-def environment() -> dict:
+def environment() -> dict[str, Any]:
     import ocplace
 
-    versions = {}
+    versions: dict[str, str | None] = {}
     for package in PACKAGES:
         try:
             versions[package] = metadata.version(package)
@@ -119,7 +121,7 @@ def environment() -> dict:
     }
 
 
-def dataset_identity(dataset_dir: str | Path) -> dict:
+def dataset_identity(dataset_dir: str | Path) -> dict[str, Any]:
     """Where the dataset is and hashes that change whenever any of its files does."""
     from ocplace.sim.dataset.job import read_manifest
 
@@ -135,7 +137,7 @@ def dataset_identity(dataset_dir: str | Path) -> dict:
     }
 
 
-def evaluation_to_json(evaluation: Evaluation) -> dict:
+def evaluation_to_json(evaluation: Evaluation) -> dict[str, Any]:
     return {
         "key": evaluation.key,
         "method": evaluation.method,
@@ -159,7 +161,7 @@ def evaluation_to_json(evaluation: Evaluation) -> dict:
     }
 
 
-def evaluation_from_json(entry: dict) -> Evaluation:
+def evaluation_from_json(entry: dict[str, Any]) -> Evaluation:
     return Evaluation(
         key=entry["key"],
         method=entry["method"],
@@ -179,8 +181,11 @@ def evaluation_from_json(entry: dict) -> Evaluation:
 
 
 def build_results(
-    evaluations: Sequence[Evaluation], dataset_dir: str | Path, settings: EvalSettings, command=None
-) -> dict:
+    evaluations: Sequence[Evaluation],
+    dataset_dir: str | Path,
+    settings: EvalSettings,
+    command: object = None,
+) -> dict[str, Any]:
     """The results file's content. Its paths (the dataset, each run directory) are absolute, so that
     `ocplace evaluate --rerun` finds them from any folder."""
     return {
@@ -201,11 +206,11 @@ def _with_absolute_run_dir(evaluation: Evaluation) -> Evaluation:
     return dataclasses.replace(evaluation, run_dir=str(Path(evaluation.run_dir).resolve()))
 
 
-def summarise(results: Mapping) -> dict:
+def summarise(results: Mapping[str, Any]) -> dict[str, Any]:
     """The results without per-scene outcomes, small enough to keep beside the tables: every table of
     `eval.table.render` comes out the same, except that failures are counted, not listed."""
 
-    def counts_only(body: Mapping) -> dict:
+    def counts_only(body: Mapping[str, Any]) -> dict[str, Any]:
         return {
             "aggregate": body["aggregate"],
             "scenes": [],
@@ -237,7 +242,7 @@ OUTCOME_FIELDS = (
 )
 
 
-def write_outcomes(path: str | Path, results: Mapping, fractions: Collection[float] | None = None) -> Path:
+def write_outcomes(path: str | Path, results: Mapping[str, Any], fractions: Collection[float] | None = None) -> Path:
     """Every scene's outcome of `results` as gzipped JSON lines (the fields of `OUTCOME_FIELDS`, a failure by its
     error type), small enough to keep beside a summary: `with_outcomes` puts them back, and the intervals are
     computed from them. The bytes depend on the outcomes only (no time stamp in the gzip header). `fractions`:
@@ -259,21 +264,21 @@ def write_outcomes(path: str | Path, results: Mapping, fractions: Collection[flo
     return path
 
 
-def _kept(scene: Mapping, name: str):
+def _kept(scene: Mapping[str, Any], name: str) -> Any:
     """A scene's field as the outcomes file keeps it: a failure by its error type (the message is in the full
     results), every other field as it is."""
     value = scene.get(name)
     return value.partition(":")[0] if name == "failure" and value is not None else value
 
 
-def with_outcomes(summary: Mapping, path: str | Path) -> dict:
+def with_outcomes(summary: Mapping[str, Any], path: str | Path) -> dict[str, Any]:
     """A summary (`summarise`) with each scene's outcome read back from its outcomes file (`write_outcomes`)."""
     try:
         text = gzip.decompress(Path(path).read_bytes()).decode()
         lines = [json.loads(line) for line in text.splitlines() if line.strip()]
     except (OSError, ValueError, EOFError) as error:
         raise ResultsError(f"{path} is missing or not an outcomes file ({error})") from None
-    scenes: dict[tuple[str, str], list[dict]] = {}
+    scenes: dict[tuple[str, str], list[dict[str, Any]]] = {}
     for line in lines:
         scenes.setdefault((line["key"], line["subset"]), []).append({name: line.get(name) for name in OUTCOME_FIELDS})
     evaluations, partial = [], False
@@ -292,7 +297,7 @@ def with_outcomes(summary: Mapping, path: str | Path) -> dict:
     return restored | {"evaluations": evaluations} | ({"summary": True} if partial else {})
 
 
-def write_results(path: str | Path, results: dict) -> Path:
+def write_results(path: str | Path, results: dict[str, Any]) -> Path:
     """Writes the JSON atomically (a kill never leaves half a file), each path also relative to the file's folder
     (`portable`)."""
     path = Path(path)
@@ -300,7 +305,7 @@ def write_results(path: str | Path, results: dict) -> Path:
     return path
 
 
-def portable(results: dict, folder: Path) -> dict:
+def portable(results: dict[str, Any], folder: Path) -> dict[str, Any]:
     """`results` with the dataset folder and each run directory also written relative to `folder` (`dir_relative`,
     `run_dir_relative`) beside their absolute form, so that a results file moved or copied together with the
     folders it names still finds them (`anchored`)."""
@@ -318,7 +323,7 @@ def portable(results: dict, folder: Path) -> dict:
     return results | {"dataset": dataset | {"dir_relative": relative(dataset["dir"])}, "evaluations": evaluations}
 
 
-def anchored(results: dict, folder: Path) -> dict:
+def anchored(results: dict[str, Any], folder: Path) -> dict[str, Any]:
     """`results` with each path that is gone replaced by its relative form resolved from `folder`, where that exists
     (the absolute form wins while it exists; files written before relative forms were kept are read as written)."""
 
@@ -339,7 +344,7 @@ def anchored(results: dict, folder: Path) -> dict:
     }
 
 
-def write_outputs(results: dict, out: Path) -> str:
+def write_outputs(results: dict[str, Any], out: Path) -> str:
     """Writes RESULTS.json and RESULTS.md (the tables) beside it; returns the markdown."""
     from ocplace.eval.table import render
 
@@ -349,7 +354,7 @@ def write_outputs(results: dict, out: Path) -> str:
     return markdown
 
 
-def read_results(path: str | Path) -> dict:
+def read_results(path: str | Path) -> dict[str, Any]:
     path = Path(path)
     try:
         results = json.loads(path.read_text())
@@ -364,14 +369,15 @@ def read_results(path: str | Path) -> dict:
     return anchored(results, path.parent)
 
 
-def _has(value, fields: Mapping[str, type | tuple]) -> bool:
+def _has(value: object, fields: Mapping[str, type | tuple[type, ...]]) -> bool:
     """Whether `value` is a dict whose `fields` hold values of their types."""
     return isinstance(value, dict) and all(isinstance(value.get(name), kind) for name, kind in fields.items())
 
 
-def _is_entry(entry) -> bool:
+def _is_entry(entry: object) -> bool:
     return (
-        _has(entry, _ENTRY_FIELDS)
+        isinstance(entry, dict)
+        and _has(entry, _ENTRY_FIELDS)
         and isinstance(entry.get("run_dir"), (str, type(None)))
         and all(
             _has(body, _SUBSET_FIELDS) and all(_has(scene, {"id": str}) for scene in body["scenes"])
@@ -380,11 +386,12 @@ def _is_entry(entry) -> bool:
     )
 
 
-def _check_sections(path: Path, results: dict) -> None:
+def _check_sections(path: Path, results: dict[str, Any]) -> None:
     """Refuses a results file cut short or edited by hand, before anything reads or draws from it."""
     bad = [] if _has(results.get("dataset"), _DATASET_FIELDS) else ["dataset"]
     settings = results.get("settings")
-    if not _has(settings, {"subsets": list}) or not all(isinstance(s, str) for s in settings["subsets"]):
+    subsets = settings.get("subsets") if isinstance(settings, dict) else None
+    if not isinstance(subsets, list) or not all(isinstance(s, str) for s in subsets):
         bad.append("settings")
     entries = results.get("evaluations")
     if not isinstance(entries, list):
@@ -398,11 +405,11 @@ def _check_sections(path: Path, results: dict) -> None:
         )
 
 
-def evaluations(results: Mapping) -> list[Evaluation]:
+def evaluations(results: Mapping[str, Any]) -> list[Evaluation]:
     return [evaluation_from_json(entry) for entry in results["evaluations"]]
 
 
-def settings_of(results: Mapping) -> EvalSettings:
+def settings_of(results: Mapping[str, Any]) -> EvalSettings:
     try:
         fields = results["settings"]
         # Results written before the field's rename name the experiment `scale`; before the paper's protocol,
@@ -420,7 +427,7 @@ def settings_of(results: Mapping) -> EvalSettings:
 # ----------------------------------------------------------------------------- comparing two results
 
 
-def _by_content(description):
+def _by_content(description: object) -> object:
     """`description` without the names of what it also identifies by content: a `path` beside its `sha256`, a
     backbone `spec` beside its `fingerprint` (a run named relative in one command and absolute in the other is
     the same run)."""
@@ -436,7 +443,7 @@ def _by_content(description):
     return description
 
 
-def compare(expected: Mapping, actual: Mapping) -> list[str]:
+def compare(expected: Mapping[str, Any], actual: Mapping[str, Any]) -> list[str]:
     """Every difference that matters between two results: dataset, settings, methods and outcomes."""
     differences = []
     for part in ("dataset_hash", "manifest_hash"):
@@ -461,7 +468,7 @@ def compare(expected: Mapping, actual: Mapping) -> list[str]:
     return differences
 
 
-def _compare_scenes(key: str, subset: str, expected: list[dict], actual: list[dict]) -> list[str]:
+def _compare_scenes(key: str, subset: str, expected: list[dict[str, Any]], actual: list[dict[str, Any]]) -> list[str]:
     differences = []
     if [s["id"] for s in expected] != [s["id"] for s in actual]:
         return [f"{key}/{subset}: different scenes ({len(expected)} vs {len(actual)})"]

@@ -13,6 +13,7 @@ scenes, so a summary's tables are its full results' tables.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -24,22 +25,22 @@ from ocplace.vocabulary import GATE_THRESHOLD
 COLUMNS = (*LEVEL_GROUPS, "overall")  # Table I's columns per subset: each level, the object levels, all
 
 
-def base_runs(results: Mapping) -> list[dict]:
+def base_runs(results: Mapping[str, Any]) -> list[dict[str, Any]]:
     """Evaluations with the experiment's own seeds: every one unless `--seeds` or backbone seeds added repeats."""
     return [e for e in results["evaluations"] if e.get("seed") is None and e.get("backbone_seed") is None]
 
 
-def full_runs(results: Mapping) -> list[dict]:
+def full_runs(results: Mapping[str, Any]) -> list[dict[str, Any]]:
     """Evaluations of runs trained on the whole training set (Table I's rows), in results order."""
     return [e for e in base_runs(results) if e["fraction"] == 1.0]
 
 
-def repeats(results: Mapping, entry: Mapping) -> list[dict]:
+def repeats(results: Mapping[str, Any], entry: Mapping[str, Any]) -> list[dict[str, Any]]:
     """`entry` and its repeats with other seeds: the same method and fraction."""
     return [e for e in results["evaluations"] if e["method"] == entry["method"] and e["fraction"] == entry["fraction"]]
 
 
-def subset_scenes(entry: Mapping, subset: str) -> list[dict]:
+def subset_scenes(entry: Mapping[str, Any], subset: str) -> list[dict[str, Any]]:
     """The per-scene outcomes of `entry` on `subset`; ResultsError when the results hold none (a summary)."""
     body = entry["subsets"].get(subset)
     if body is None:
@@ -50,10 +51,11 @@ def subset_scenes(entry: Mapping, subset: str) -> list[dict]:
             "selective table need them: read the full results.json that `ocplace reproduce` or `ocplace evaluate` "
             "wrote (or the committed per-scene outcomes, docs/results/)"
         )
-    return body["scenes"]
+    scenes: list[dict[str, Any]] = body["scenes"]
+    return scenes
 
 
-def successes(runs: Sequence[Mapping], subset: str, column: str) -> np.ndarray:
+def successes(runs: Sequence[Mapping[str, Any]], subset: str, column: str) -> np.ndarray:
     """`(runs, scenes)` success of the mode in `column`'s scenes of `subset` (`overall`: every scene); every
     run must hold the same scenes in the same order."""
     levels = LEVEL_GROUPS.get(column)
@@ -67,7 +69,7 @@ def successes(runs: Sequence[Mapping], subset: str, column: str) -> np.ndarray:
     return np.array(rows, bool).reshape(len(rows), -1)
 
 
-def row_intervals(runs: Sequence[Mapping], subsets: Sequence[str]) -> dict:
+def row_intervals(runs: Sequence[Mapping[str, Any]], subsets: Sequence[str]) -> dict[str, Any]:
     """`{subset: {column: [mean, low, high, runs, scenes]}}`; a column without scenes is left out."""
     intervals = {}
     for subset in subsets:
@@ -81,7 +83,7 @@ def row_intervals(runs: Sequence[Mapping], subsets: Sequence[str]) -> dict:
     return intervals
 
 
-def row_selective(runs: Sequence[Mapping], subsets: Sequence[str], threshold: float) -> dict:
+def row_selective(runs: Sequence[Mapping[str, Any]], subsets: Sequence[str], threshold: float) -> dict[str, Any]:
     """`{subset: {coverage, success_when_placed, placed_success, scenes}}` at `threshold`, pooled over the
     runs; a subset where no scene reports a confidence (the method does not ground) is left out. A scene
     without one where others have it (nothing was grounded: the parse failed) is not placed."""
@@ -102,7 +104,7 @@ def row_selective(runs: Sequence[Mapping], subsets: Sequence[str], threshold: fl
     return selective
 
 
-def derive(results: Mapping) -> dict:
+def derive(results: Mapping[str, Any]) -> dict[str, Any]:
     """Intervals and the selective table of every Table I row (`full_runs`), keyed by the row's key."""
     threshold = results.get("gate_threshold", GATE_THRESHOLD)
     subsets = results["settings"]["subsets"]
@@ -114,6 +116,6 @@ def derive(results: Mapping) -> dict:
     }
 
 
-def derived(results: Mapping) -> dict:
+def derived(results: Mapping[str, Any]) -> dict[str, Any]:
     """The stored derivation of a summary, else `derive` (which needs the per-scene outcomes)."""
     return results.get("derived") or derive(results)

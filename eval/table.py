@@ -15,6 +15,7 @@ diagnostic tables, the sample-efficiency table and the figures show the experime
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
+from typing import Any
 
 from ocplace.errors import ResultsError
 from ocplace.eval.harness import LEVEL_GROUPS, STAGES
@@ -53,12 +54,12 @@ def spread(values: Sequence[float | None], digits: int = 2) -> str:
     return f"{100 * mean:.{digits}f} ± {100 * std:.{digits}f}"
 
 
-def _subsets(results: Mapping) -> list[str]:
+def _subsets(results: Mapping[str, Any]) -> list[str]:
     evaluated = results["settings"]["subsets"]
     return [s for s in SCORED_SPLITS if s in evaluated]
 
 
-def level_table(results: Mapping, metric: str, title: str) -> str:
+def level_table(results: Mapping[str, Any], metric: str, title: str) -> str:
     """Rows = methods; per subset Table / 1 Obj / 2 Obj / Obj (1 and 2 Obj pooled) / Overall of `metric` (an
     aggregate rate) in %; with repeats over seeds, their mean ± sample standard deviation."""
     subsets = _subsets(results)
@@ -90,19 +91,20 @@ UNSEEN_INST_NOTE = (
 )
 
 
-def _rate(aggregate: Mapping, column: str, metric: str) -> float | None:
+def _rate(aggregate: Mapping[str, Any], column: str, metric: str) -> float | None:
     """A per-scene rate of one Table I column; `objects` pooled from its levels in results written before it
     was stored."""
     if column in aggregate:
-        return aggregate[column][metric]
+        rate: float | None = aggregate[column][metric]
+        return rate
     parts = [aggregate[level] for level in LEVEL_GROUPS[column] if level in aggregate]
     scenes = sum(part["scenes"] for part in parts)
     if not scenes or any(part[metric] is None for part in parts if part["scenes"]):
         return None
-    return sum(part[metric] * part["scenes"] for part in parts if part["scenes"]) / scenes
+    return float(sum(part[metric] * part["scenes"] for part in parts if part["scenes"]) / scenes)
 
 
-def table_one(results: Mapping) -> str:
+def table_one(results: Mapping[str, Any]) -> str:
     settings = results["settings"]
     threshold = settings.get("threshold", LEGACY_THRESHOLD)
     protocol = (
@@ -116,18 +118,18 @@ def table_one(results: Mapping) -> str:
     return table
 
 
-def _interval(cell) -> str:
+def _interval(cell: Sequence[float] | None) -> str:
     return MISSING if cell is None else f"{percent(cell[1], 1)}–{percent(cell[2], 1)}"
 
 
-def _derived(results: Mapping) -> dict | ResultsError:
+def _derived(results: Mapping[str, Any]) -> dict[str, Any] | ResultsError:
     try:
         return derived(results)
     except ResultsError as error:
         return error
 
 
-def interval_table(results: Mapping, found: dict | ResultsError | None = None) -> str:
+def interval_table(results: Mapping[str, Any], found: dict[str, Any] | ResultsError | None = None) -> str:
     """Table I's 95% intervals (eval/intervals.py: scenes and seeds), cell by cell; `found`: `derived(results)`
     when the caller has it."""
     found = _derived(results) if found is None else found
@@ -149,11 +151,11 @@ def interval_table(results: Mapping, found: dict | ResultsError | None = None) -
     return "\n".join(lines)
 
 
-def _selective(cell: Mapping) -> str:
+def _selective(cell: Mapping[str, Any]) -> str:
     return f"{percent(cell['coverage'], 1)} / {percent(cell['success_when_placed'], 1)}"
 
 
-def selective_table(results: Mapping, found: dict | ResultsError | None = None) -> str:
+def selective_table(results: Mapping[str, Any], found: dict[str, Any] | ResultsError | None = None) -> str:
     """The robot's refusal gate at its threshold: coverage and success when placed, per subset."""
     found = _derived(results) if found is None else found
     if isinstance(found, ResultsError):
@@ -176,7 +178,7 @@ def selective_table(results: Mapping, found: dict | ResultsError | None = None) 
     return "\n".join(lines)
 
 
-def subset_table(results: Mapping, title: str, columns: Mapping[str, Callable[[dict], str]]) -> str:
+def subset_table(results: Mapping[str, Any], title: str, columns: Mapping[str, Callable[[dict[str, Any]], str]]) -> str:
     """Rows = methods; per subset the named columns, each computed from the subset's overall aggregate."""
     subsets = _subsets(results)
     lines = [
@@ -195,14 +197,14 @@ def subset_table(results: Mapping, title: str, columns: Mapping[str, Callable[[d
     return "\n".join(lines)
 
 
-def _physical(overall: dict) -> str:
+def _physical(overall: dict[str, Any]) -> str:
     if not overall["physical_scenes"]:
         return MISSING
     checked = overall["physical_scenes"]
     return f"{percent(overall['physical_success'], 1)} ({round(overall['physical_success'] * checked)}/{checked})"
 
 
-def physical_table(results: Mapping) -> str:
+def physical_table(results: Mapping[str, Any]) -> str:
     return subset_table(
         results,
         "Physical success (%, successes/scenes checked: the first K scenes of a subset), "
@@ -214,7 +216,7 @@ def physical_table(results: Mapping) -> str:
     )
 
 
-def diagnosis_table(results: Mapping) -> str:
+def diagnosis_table(results: Mapping[str, Any]) -> str:
     return subset_table(
         results,
         "Parse, grounding and program accuracy (%, per scene)",
@@ -226,7 +228,7 @@ def diagnosis_table(results: Mapping) -> str:
     )
 
 
-def stage_table(results: Mapping) -> str:
+def stage_table(results: Mapping[str, Any]) -> str:
     """Unsuccessful scenes by the stage they went wrong at, per method and subset."""
     lines = [
         "**Unsuccessful scenes by stage** (failure: the method gave no placement or raised; parse: "
@@ -255,7 +257,7 @@ def stage_table(results: Mapping) -> str:
     return "\n".join(lines)
 
 
-def failure_list(results: Mapping, limit: int = MAX_LISTED_FAILURES) -> str:
+def failure_list(results: Mapping[str, Any], limit: int = MAX_LISTED_FAILURES) -> str:
     """Scenes where a method gave no placement, with its message (the first `limit` per method)."""
     lines = ["**Method failures**", ""]
     for entry in results["evaluations"]:
@@ -277,7 +279,7 @@ def failure_list(results: Mapping, limit: int = MAX_LISTED_FAILURES) -> str:
     return "\n".join(lines if len(lines) > 2 else [*lines, "none"])
 
 
-def unseen_mean(entry: Mapping) -> float | None:
+def unseen_mean(entry: Mapping[str, Any]) -> float | None:
     """The 1:1 mean of the unseen_obj and unseen_inst overall success (the paper's Fig. 7 'unseen')."""
     values = [
         entry["subsets"].get(s, {}).get("aggregate", {}).get("overall", {}).get("success")
@@ -287,7 +289,7 @@ def unseen_mean(entry: Mapping) -> float | None:
     return None if None in values else sum(values) / 2
 
 
-def efficiency_table(results: Mapping) -> str:
+def efficiency_table(results: Mapping[str, Any]) -> str:
     """Overall success on seen and unseen per method and training fraction (empty without fractions)."""
     fractions = sorted({e["fraction"] for e in base_runs(results)})
     if fractions == [1.0]:
@@ -304,7 +306,7 @@ def efficiency_table(results: Mapping) -> str:
     return "\n".join(lines)
 
 
-def render(results: Mapping) -> str:
+def render(results: Mapping[str, Any]) -> str:
     """Every table of a results JSON as one markdown document."""
     settings = results["settings"]
     found = _derived(results)  # the bootstrap once for both tables

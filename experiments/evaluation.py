@@ -14,6 +14,7 @@ import re
 import signal
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from ocplace import serial
 from ocplace.errors import ResultsError
@@ -24,16 +25,20 @@ from ocplace.methods import registry
 from ocplace.methods.api import MethodSpec
 from ocplace.methods.registry import load_method, method_run
 
+if TYPE_CHECKING:
+    from ocplace.runtime.executor import Executor
+    from ocplace.sim.mujoco_backend import MujocoScenes
+
 
 def evaluate_in_worker(
-    spec: MethodSpec, run: MethodRun, dataset_dir: str | Path, settings: EvalSettings, method: Method | None = None
+    spec: MethodSpec[Any], run: MethodRun, dataset_dir: str | Path, settings: EvalSettings, method: Method | None = None
 ) -> Evaluation:
     """`run` loaded by `spec` (unless `method` is given) and scored, with its own physical arena."""
     method = method or load_method(spec, run, settings)
     return evaluate_in_own_arena(run, method, dataset_dir, settings)
 
 
-def evaluation_key(run: MethodRun, description: dict, settings: EvalSettings, dataset_hash: str) -> str:
+def evaluation_key(run: MethodRun, description: dict[str, Any], settings: EvalSettings, dataset_hash: str) -> str:
     """Everything that decides an evaluation's outcome, hashed: a stored evaluation with it is reused."""
     from ocplace.eval.results import SCHEMA
 
@@ -49,7 +54,12 @@ def evaluation_key(run: MethodRun, description: dict, settings: EvalSettings, da
 
 
 def stored_evaluation(
-    spec: MethodSpec, run: MethodRun, settings: EvalSettings, dataset_dir: str | Path, dataset_hash: str, store: Path
+    spec: MethodSpec[Any],
+    run: MethodRun,
+    settings: EvalSettings,
+    dataset_dir: str | Path,
+    dataset_hash: str,
+    store: Path,
 ) -> tuple[Path, bool, Evaluation]:
     """(its file in `store`, reused, the evaluation): read from `store` when an evaluation with the same
     `evaluation_key` (run, the loaded method's description, settings, dataset) is there, else scored and stored
@@ -70,11 +80,11 @@ def stored_evaluation(
 
 
 def evaluate_runs(
-    specs: Mapping[str, MethodSpec],
+    specs: Mapping[str, MethodSpec[Any]],
     runs: Sequence[MethodRun],
     dataset_dir: str | Path,
     settings: EvalSettings,
-    executor,
+    executor: Executor,
     progress: bool = True,
     store: Path | None = None,
 ) -> list[Evaluation]:
@@ -98,7 +108,7 @@ def evaluate_runs(
             done = "stored by an earlier, interrupted command" if reused else f"in {evaluation.wall_s:.1f} s"
             print(f"evaluated {runs[index].key} {done}", flush=True)
         _die_after(count)
-    return evaluations
+    return [evaluation for evaluation in evaluations if evaluation is not None]  # all of them: map_tasks ends
 
 
 DIE_AFTER_EVALUATIONS_ENV = "OCPLACE_TEST_DIE_AFTER_EVALUATIONS"
@@ -110,7 +120,7 @@ def _die_after(count: int) -> None:
         os.kill(os.getpid(), signal.SIGKILL)
 
 
-def runs_of(results: Mapping, specs: Mapping[str, MethodSpec] | None = None) -> list[MethodRun]:
+def runs_of(results: Mapping[str, Any], specs: Mapping[str, MethodSpec[Any]] | None = None) -> list[MethodRun]:
     """The method runs a results file evaluated, looked up in `specs` (default: the registry)."""
     specs = registry.method_specs() if specs is None else specs
     runs = []
@@ -140,13 +150,13 @@ def runs_of(results: Mapping, specs: Mapping[str, MethodSpec] | None = None) -> 
 
 
 def rerun(
-    results: Mapping,
-    specs: Mapping[str, MethodSpec] | None = None,
-    arena=None,
+    results: Mapping[str, Any],
+    specs: Mapping[str, MethodSpec[Any]] | None = None,
+    arena: MujocoScenes | None = None,
     progress: bool = True,
-    command=None,
-    executor=None,
-) -> dict:
+    command: object = None,
+    executor: Executor | None = None,
+) -> dict[str, Any]:
     """Evaluates again every run of `results` with its settings, on its dataset; returns the new results.
 
     With `executor`, each run is a task as in `ocplace evaluate` and `reproduce` (JAX one CPU wide);

@@ -11,8 +11,9 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Collection
+from collections.abc import Callable, Collection
 from pathlib import Path
+from typing import Any
 
 from ocplace.errors import ConfigError, OcplaceError
 from ocplace.models.offline_recipes import PretrainConfig
@@ -82,7 +83,7 @@ class MethodRecipes:
     grids: GridsRecipe
     cliport: CliportRecipe
 
-    def of(self, method: str):
+    def of(self, method: str) -> Any:
         """The recipe of a registered method; None for a method without one (it learns nothing)."""
         return getattr(self, method) if method in {field.name for field in dataclasses.fields(self)} else None
 
@@ -168,7 +169,7 @@ class TaskCpus:
     pretrain: int = 2
     train: int = TRAIN_CPUS  # each training, and the inputs trainings share (features)
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         if min(self.pretrain, self.train) < 1:
             raise ConfigError(f"task CPUs must be at least 1, got {self}")
 
@@ -213,7 +214,7 @@ class Experiment:
             )
 
 
-def _refusal(key: str, validate) -> str | None:
+def _refusal(key: str, validate: Callable[[], object]) -> str | None:
     """What `validate()` refuses, prefixed by `key`; None when it accepts."""
     try:
         validate()
@@ -222,7 +223,7 @@ def _refusal(key: str, validate) -> str | None:
     return None
 
 
-def number_problems(node, key: str) -> list[str]:
+def number_problems(node: object, key: str) -> list[str]:
     """Rules every recipe shares, by field name, anywhere in the tree under `node`: every number is
     finite, every `learning_rate` positive (a negative one trains by gradient ascent), every
     `warmup_steps` at least 0."""
@@ -237,16 +238,17 @@ def number_problems(node, key: str) -> list[str]:
     if isinstance(node, float) and not math.isfinite(node):
         return [f"{key} is {node}; numbers must be finite"]
     name = key.rsplit(".", 1)[-1]
-    if name == "learning_rate" and not node > 0:
+    if name == "learning_rate" and isinstance(node, int | float) and not node > 0:
         return [f"{key} must be positive, got {node}"]
-    if name == "warmup_steps" and node < 0:
+    if name == "warmup_steps" and isinstance(node, int) and node < 0:
         return [f"{key} must be at least 0, got {node}"]
     return []
 
 
-def _is_default(node, path: list[str]) -> bool:
+def _is_default(node: object, path: list[str]) -> bool:
     """Whether the field at the dotted `path` under the dataclass `node` holds its class default."""
     for name in path[:-1]:
         node = getattr(node, name)
+    assert dataclasses.is_dataclass(node), path
     field = next(field for field in dataclasses.fields(node) if field.name == path[-1])
-    return getattr(node, field.name) == field.default
+    return bool(getattr(node, field.name) == field.default)

@@ -21,11 +21,13 @@ its outcome (settings, dataset, the method's describe()). Outputs are written at
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import time
 import traceback
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from ocplace import serial
 from ocplace.errors import ConfigError
@@ -34,7 +36,12 @@ from ocplace.experiments.experiment import Experiment
 from ocplace.methods.api import MethodSpec, TrainContext
 from ocplace.methods.registry import method_run, method_specs, select_specs
 from ocplace.runtime import Executor, ExecutorConfig, Task, open_executor
-from ocplace.runtime.graph import Node, run_graph
+from ocplace.runtime.graph import Node, Outcome, run_graph
+
+if TYPE_CHECKING:
+    from ocplace.models.offline_recipes import PretrainConfig
+    from ocplace.sim.dataset.config import DatasetConfig
+    from ocplace.sim.library.library import Library
 
 SUMMARY_FILE = "results.summary.json"  # aggregates, no per-scene outcomes: small enough to commit
 OUTCOMES_FILE = "results.outcomes.jsonl.gz"  # each scene's outcome, compact: small enough to commit
@@ -53,7 +60,7 @@ class PipelineConfig:
     executor: ExecutorConfig = ExecutorConfig()  # where the graph's tasks run (local pool or Ray)
     progress: bool = True
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         self.experiment.validate()  # a value that cannot work fails here, not hours into the run
 
 
@@ -72,7 +79,7 @@ class Step:
 class PipelineSummary:
     out: Path
     steps: list[Step] = dataclasses.field(default_factory=list)
-    errors: list[dict] = dataclasses.field(default_factory=list)  # {"key", "stage", "message"}
+    errors: list[dict[str, Any]] = dataclasses.field(default_factory=list)  # {"key", "stage", "message"}
     results_path: Path | None = None
     markdown: str = ""
     figures: list[Path] = dataclasses.field(default_factory=list)
@@ -92,11 +99,11 @@ class _Timer:
     def __init__(self, summary: PipelineSummary, name: str, cpus: int = 1):
         self.summary, self.name, self.detail, self.cpus = summary, name, "", cpus
 
-    def __enter__(self):
+    def __enter__(self) -> _Timer:
         self.began = time.perf_counter()
         return self
 
-    def __exit__(self, *exc):
+    def __exit__(self, *exc: object) -> None:
         detail = self.detail if exc[0] is None else "failed"
         step = Step(self.name, time.perf_counter() - self.began, detail, self.cpus)
         self.summary.steps.append(step)
@@ -106,14 +113,14 @@ class _Timer:
 # ----------------------------------------------------------------------------- steps in this process
 
 
-def build_library_step(executor: Executor, progress: bool):
+def build_library_step(executor: Executor, progress: bool) -> Library:
     from ocplace.sim.library import build_library
     from ocplace.sim.library import default_config as library_config
 
     return build_library(library_config(), progress=progress, executor=executor)
 
 
-def dataset_config(config: PipelineConfig):
+def dataset_config(config: PipelineConfig) -> DatasetConfig:
     from ocplace.sim.dataset.config import make_config
 
     sizes = config.experiment.dataset
@@ -132,12 +139,12 @@ def dataset_step(config: PipelineConfig, dataset_dir: Path, executor: Executor) 
     return f"{dataset_dir}: {sum(sum(c.values()) for c in manifest['counts'].values())} scenes"
 
 
-def selected_specs(config: PipelineConfig, specs: Mapping[str, MethodSpec]) -> list[MethodSpec]:
+def selected_specs(config: PipelineConfig, specs: Mapping[str, MethodSpec[Any]]) -> list[MethodSpec[Any]]:
     methods = config.experiment.evaluation.methods
     return select_specs("all" if methods is None else ",".join(methods), dict(specs))
 
 
-def planned_runs(config: PipelineConfig, specs: Sequence[MethodSpec]) -> list[MethodRun]:
+def planned_runs(config: PipelineConfig, specs: Sequence[MethodSpec[Any]]) -> list[MethodRun]:
     """Every run to train and evaluate: each method on the whole training set, the sample-efficiency
     methods on every fraction, and each of those again per extra seed (`EvalPlan.seeds`) and, if it uses the
     backbone, on each extra backbone seed (`EvalPlan.backbone_seeds`); only the `EvalPlan.seed_methods` and
@@ -207,7 +214,7 @@ def placement_figure_task(run_dir: Path, parser: str, seed: int, dataset_dir: Pa
 # ----------------------------------------------------------------------------- tasks of the graph (any worker)
 
 
-def pretrain_task(recipe, progress: bool, cpus: int = 1) -> str:
+def pretrain_task(recipe: PretrainConfig, progress: bool, cpus: int = 1) -> str:
     """The offline backbone of `recipe`, pretrained unless cached (rendering in `cpus` processes); returns its spec."""
     from ocplace.sim.library import load_library
     from ocplace.train.pretrain.loop import pretrain
@@ -215,7 +222,9 @@ def pretrain_task(recipe, progress: bool, cpus: int = 1) -> str:
     return f"offline:{pretrain(recipe, load_library(), progress=progress, render_workers=cpus).directory}"
 
 
-def train_context(run: MethodRun, config: PipelineConfig, dataset_dir: Path, backbone: str, out: Path) -> TrainContext:
+def train_context(
+    run: MethodRun, config: PipelineConfig, dataset_dir: Path, backbone: str, out: Path
+) -> TrainContext[Any]:
     experiment = config.experiment
     return TrainContext(
         dataset_dir=dataset_dir,
@@ -228,12 +237,13 @@ def train_context(run: MethodRun, config: PipelineConfig, dataset_dir: Path, bac
     )
 
 
-def prepare_task(spec: MethodSpec, context: TrainContext) -> str:
+def prepare_task(spec: MethodSpec[Any], context: TrainContext[Any]) -> str:
+    assert spec.prepare is not None, "the graph prepares for methods with shared inputs only"
     spec.prepare(context)
     return "shared inputs ready"
 
 
-def train_task(spec: MethodSpec, context: TrainContext) -> tuple[Path, bool]:
+def train_task(spec: MethodSpec[Any], context: TrainContext[Any]) -> tuple[Path, bool]:
     """(run directory, reused). A finished training is recorded beside its run directory and not
     repeated: a method's own resume may rewrite its files, which would change checkpoint hashes."""
     from ocplace.paths import write_text_atomic
@@ -244,14 +254,15 @@ def train_task(spec: MethodSpec, context: TrainContext) -> tuple[Path, bool]:
         done = json.loads(record.read_text())
         if done["context"] == wanted and Path(done["run_dir"]).exists():
             return Path(done["run_dir"]), True
+    assert spec.train is not None, "the graph trains methods that learn only"
     run_dir = Path(spec.train(context))
     write_text_atomic(record, json.dumps({"context": wanted, "run_dir": str(run_dir)}, indent=1))
     return run_dir, False
 
 
 def evaluate_task(
-    spec: MethodSpec, run: MethodRun, settings: EvalSettings, dataset_dir: Path, dataset_hash: str, out: Path
-):
+    spec: MethodSpec[Any], run: MethodRun, settings: EvalSettings, dataset_dir: Path, dataset_hash: str, out: Path
+) -> tuple[Path, bool, str]:
     """(stored evaluation's path, reused, seen success): from OUT/evaluations/ when an identical one is
     stored, else scored now and stored."""
     from ocplace.experiments.evaluation import stored_evaluation
@@ -266,7 +277,7 @@ def evaluate_task(
 
 def task_graph(
     config: PipelineConfig,
-    specs: Mapping[str, MethodSpec],
+    specs: Mapping[str, MethodSpec[Any]],
     runs: list[MethodRun],
     dataset_dir: Path,
     out: Path,
@@ -278,8 +289,9 @@ def task_graph(
     compiles for that many wherever it runs and the results are the same bits on any executor
     (ocplace/runtime/width.py).
     """
-    nodes = []
+    nodes: list[Node] = []
     cpus = config.experiment.cpus
+    backbone_of: Callable[[Mapping[str, Any], MethodRun], str]
     if config.backbone is None:
         for seed in dict.fromkeys(run.backbone_seed for run in [MethodRun("", ""), *runs]):  # the base one first
             task = Task(
@@ -288,36 +300,48 @@ def task_graph(
                 cpus=cpus.pretrain,
                 pinned=True,
             )
-            nodes.append(Node(backbone_key(seed), lambda done, task=task: task))
+            nodes.append(Node(backbone_key(seed), functools.partial(_given, task)))
 
         def backbone_after(run: MethodRun) -> tuple[str, ...]:
             return (backbone_key(run.backbone_seed),)
 
-        def backbone_of(done, run: MethodRun) -> str:
-            return done[backbone_key(run.backbone_seed)]
+        def backbone_of(done: Mapping[str, Any], run: MethodRun) -> str:
+            spec: str = done[backbone_key(run.backbone_seed)]
+            return spec
     else:
 
         def backbone_after(run: MethodRun) -> tuple[str, ...]:
             return ()
 
-        def backbone_of(done, run: MethodRun) -> str:
-            return config.backbone
+        given = config.backbone
 
-    def method_node(key: str, function, run: MethodRun, after: tuple[str, ...]) -> Node:
+        def backbone_of(done: Mapping[str, Any], run: MethodRun) -> str:
+            return given
+
+    def method_node(
+        key: str,
+        function: Callable[[MethodSpec[Any], TrainContext[Any]], object],
+        run: MethodRun,
+        after: tuple[str, ...],
+    ) -> Node:
         """A node running `function(spec, TrainContext)` for `run`, once its backbone is known."""
 
-        def make(done):
+        def make(done: Mapping[str, Any]) -> Task:
             context = train_context(run, config, dataset_dir, backbone_of(done, run), out)
             return Task(function, (specs[run.method], context), cpus=cpus.train, pinned=True)
 
         return Node(key, make, after)
 
-    sharing: dict = {}  # (prepare function, backbone seed) -> the runs whose trainings need those inputs
+    sharing: dict[
+        tuple[object, int | None], list[MethodRun]
+    ] = {}  # (prepare function, backbone seed) -> the runs whose trainings need those inputs
     for run in runs:
         spec = specs[run.method]
         if spec.prepare is not None and spec.train is not None:
             sharing.setdefault((spec.prepare, run.backbone_seed), []).append(run)
-    prepare_key = {}  # (method, backbone seed) -> the key of the node making its shared inputs, once for all
+    prepare_key: dict[
+        tuple[str, int | None], str
+    ] = {}  # (method, backbone seed) -> the key of the node making its shared inputs, once for all
     for (_, backbone_seed), shared in sharing.items():
         names = list(dict.fromkeys(run.method for run in shared))
         key = f"prepare {'+'.join(names)}" + ("" if backbone_seed is None else f" ~backbone{backbone_seed}")
@@ -339,12 +363,16 @@ def task_graph(
     return nodes
 
 
+def _given(task: Task, done: Mapping[str, Any]) -> Task:
+    return task
+
+
 def backbone_key(seed: int | None) -> str:
     """The graph node pretraining the experiment's backbone (None) or its repeat with another optimiser seed."""
     return "backbone" if seed is None else f"backbone seed {seed}"
 
 
-def evaluation_order(runs: list[MethodRun], specs: Mapping[str, MethodSpec]) -> list[MethodRun]:
+def evaluation_order(runs: list[MethodRun], specs: Mapping[str, MethodSpec[Any]]) -> list[MethodRun]:
     """The order the graph starts evaluations in, when their CPUs free up: the first that encodes the
     backbone's shared test features, then those that encode their own, then those that read the shared ones.
 
@@ -356,8 +384,16 @@ def evaluation_order(runs: list[MethodRun], specs: Mapping[str, MethodSpec]) -> 
     return sharing[:1] + own + sharing[1:]
 
 
-def _evaluate_maker(config, spec, run, dataset_dir, out, dataset_hash, backbone_of):
-    def make(done):
+def _evaluate_maker(
+    config: PipelineConfig,
+    spec: MethodSpec[Any],
+    run: MethodRun,
+    dataset_dir: Path,
+    out: Path,
+    dataset_hash: str,
+    backbone_of: Callable[[Mapping[str, Any], MethodRun], str],
+) -> Callable[[Mapping[str, Any]], Task]:
+    def make(done: Mapping[str, Any]) -> Task:
         backbone = backbone_of(done, run)
         trained = done.get(f"train {run.key}")
         ready = run if trained is None else dataclasses.replace(run, run_dir=trained[0])
@@ -369,8 +405,14 @@ def _evaluate_maker(config, spec, run, dataset_dir, out, dataset_hash, backbone_
     return make
 
 
-def _figure_maker(config, dataset_dir, out, backbone_of, run: MethodRun):
-    def make(done):
+def _figure_maker(
+    config: PipelineConfig,
+    dataset_dir: Path,
+    out: Path,
+    backbone_of: Callable[[Mapping[str, Any], MethodRun], str],
+    run: MethodRun,
+) -> Callable[[Mapping[str, Any]], Task]:
+    def make(done: Mapping[str, Any]) -> Task:
         run_dir = done[f"train {run.key}"][0]
         experiment = config.experiment
         arguments = (run_dir, experiment.evaluation.parser, experiment.seed, dataset_dir, backbone_of(done, run))
@@ -379,14 +421,14 @@ def _figure_maker(config, dataset_dir, out, backbone_of, run: MethodRun):
     return make
 
 
-def _node_detail(key: str, value) -> str:
+def _node_detail(key: str, value: Any) -> str:
     if key.startswith(("backbone", "prepare ")) or key == FIGURE_NODE:
         return str(value)
     if key.startswith("train "):
         run_dir, reused = value
         return ("done before: " if reused else "") + str(run_dir)
     _, reused, seen = value
-    return ("stored " if reused else "") + seen
+    return ("stored " if reused else "") + str(seen)
 
 
 # ----------------------------------------------------------------------------- the pipeline
@@ -395,9 +437,9 @@ def _node_detail(key: str, value) -> str:
 def run_pipeline(
     config: PipelineConfig,
     out: str | Path | None = None,
-    specs: Mapping[str, MethodSpec] | None = None,
-    command=None,
-    library=None,
+    specs: Mapping[str, MethodSpec[Any]] | None = None,
+    command: object = None,
+    library: Library | None = None,
 ) -> PipelineSummary:
     """Runs (or resumes) every step; a method whose training or evaluation raises is reported, not fatal.
 
@@ -421,7 +463,14 @@ def run_pipeline(
         return _run(config, executor, out, specs, command, library)
 
 
-def _run(config, executor, out, specs, command, library) -> PipelineSummary:
+def _run(
+    config: PipelineConfig,
+    executor: Executor,
+    out: Path,
+    specs: Mapping[str, MethodSpec[Any]],
+    command: object,
+    library: Library | None,
+) -> PipelineSummary:
     from ocplace.eval.results import dataset_identity
     from ocplace.models.offline_recipes import output_dir
 
@@ -458,7 +507,7 @@ def _run(config, executor, out, specs, command, library) -> PipelineSummary:
     return summary
 
 
-def _card_row(folder: Path, results: dict | None) -> None:
+def _card_row(folder: Path, results: dict[str, Any] | None) -> None:
     """The exported Ours policy's Table I row, from this run's results, into its model card."""
     from ocplace.eval.table import table_one
     from ocplace.methods.export import write_table_row
@@ -472,16 +521,19 @@ def _card_row(folder: Path, results: dict | None) -> None:
         write_table_row(folder, "\n".join(table[:3] + rows) + "\n\n" + note)
 
 
-def _run_graph(summary: PipelineSummary, executor: Executor, nodes: list[Node]) -> dict:
+def _run_graph(summary: PipelineSummary, executor: Executor, nodes: list[Node]) -> dict[str, Any]:
     """Runs the graph, printing each step as it starts and ends; records steps and errors in graph order
     (not the order they happened to end in), so results.json does not depend on the executor."""
-    started, cpus, steps, errors = {}, {}, {}, {}
+    started: dict[str, float] = {}
+    cpus: dict[str, int] = {}
+    steps: dict[str, Step] = {}
+    errors: dict[str, dict[str, Any]] = {}
 
-    def on_start(key, task):
+    def on_start(key: str, task: Task) -> None:
         started[key], cpus[key] = time.perf_counter(), task.cpus
         print(f"[{key}] started", flush=True)
 
-    def on_outcome(outcome):
+    def on_outcome(outcome: Outcome) -> None:
         if outcome.skipped_because is not None:
             print(f"[{outcome.key}] skipped: {outcome.skipped_because} failed", flush=True)
             return
@@ -501,14 +553,21 @@ def _run_graph(summary: PipelineSummary, executor: Executor, nodes: list[Node]) 
     return outcomes
 
 
-def _evaluations(runs: list[MethodRun], outcomes: dict) -> list[Evaluation]:
+def _evaluations(runs: list[MethodRun], outcomes: dict[str, Any]) -> list[Evaluation]:
     from ocplace.eval.results import evaluation_from_json
 
     evaluated = [outcomes[f"evaluate {run.key}"] for run in runs]
     return [evaluation_from_json(json.loads(o.value[0].read_text())) for o in evaluated if o.ok]
 
 
-def _results_and_figures(summary, config, evaluations, dataset_dir, settings, command) -> dict:
+def _results_and_figures(
+    summary: PipelineSummary,
+    config: PipelineConfig,
+    evaluations: list[Evaluation],
+    dataset_dir: Path,
+    settings: EvalSettings,
+    command: object,
+) -> dict[str, Any]:
     """The results (written by `_write_results` once the run's steps and total wall are known) and the
     paper's figures drawn from them."""
     from ocplace.eval.results import build_results
@@ -534,7 +593,7 @@ def _results_and_figures(summary, config, evaluations, dataset_dir, settings, co
     return results
 
 
-def _write_results(summary: PipelineSummary, config: PipelineConfig, results: dict) -> None:
+def _write_results(summary: PipelineSummary, config: PipelineConfig, results: dict[str, Any]) -> None:
     """results.json, its tables and its summary, once, with the run itself: its config, each step's wall
     and CPUs, its errors and its total wall (known only at the end: the figures come after the results
     they draw)."""
@@ -546,18 +605,22 @@ def _write_results(summary: PipelineSummary, config: PipelineConfig, results: di
         "errors": summary.errors,
         "total_wall_s": summary.wall_s,
     }
+    assert summary.results_path is not None, "set by _results_and_figures"
     summary.markdown = write_outputs(results, summary.results_path)
     write_results(summary.out / SUMMARY_FILE, summarise(results))
     write_outcomes(summary.out / OUTCOMES_FILE, results)
 
 
-def _error(key: str, stage: str, error: BaseException) -> dict:
+def _error(key: str, stage: str, error: BaseException) -> dict[str, Any]:
     print(f"ERROR in step {stage} of {key}:", flush=True)
     traceback.print_exception(error)
     return {"key": key, "stage": stage, "message": f"{type(error).__name__}: {error}"}
 
 
-def _config_json(config: PipelineConfig) -> dict:
+def _config_json(config: PipelineConfig) -> dict[str, Any]:
     """The experiment and its inputs; not the executor, which changes nothing in the results."""
 
-    return serial.to_dict({field: value for field, value in dataclasses.asdict(config).items() if field != "executor"})
+    described: dict[str, Any] = serial.to_dict(
+        {field: value for field, value in dataclasses.asdict(config).items() if field != "executor"}
+    )
+    return described

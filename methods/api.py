@@ -12,6 +12,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Generic, TypeVar
 
+from ocplace.errors import EvaluationError
 from ocplace.eval.api import Method
 
 Recipe = TypeVar("Recipe")
@@ -39,6 +40,16 @@ class LoadContext:
     parser: str = "offline"  # parser name for methods that parse (models.parsing.make_parser)
     num_samples: int = 1024
     threshold: float = 0.0  # EvalSettings.threshold: least grounding probability to place against (0: always)
+
+    @property
+    def trained_run(self) -> Path:
+        """`run_dir`, for a method that loads a trained run (EvaluationError without one)."""
+        if self.run_dir is None:
+            raise EvaluationError(
+                "this method loads a trained run and none was given: train it first "
+                "(`ocplace reproduce` trains missing runs)"
+            )
+        return self.run_dir
 
 
 @dataclasses.dataclass(frozen=True)

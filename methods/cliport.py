@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import jax
 import numpy as np
@@ -20,6 +21,9 @@ from ocplace.models.baselines.common import top_down_camera
 from ocplace.sim.dataset.records import SceneRecord
 from ocplace.train.recipes import CliportRecipe as Recipe
 
+if TYPE_CHECKING:
+    from ocplace.models.backbone import Backbone
+
 SCENES_PER_BATCH = 8  # CLIPort scenes per network call (a fixed shape: one compilation)
 
 
@@ -27,15 +31,15 @@ SCENES_PER_BATCH = 8  # CLIPort scenes per network call (a fixed shape: one comp
 class CliportMethod:
     """The argmax pixel of the affordance map as the mode; samples drawn from the map."""
 
-    backbone: object
-    params: dict
+    backbone: Backbone
+    params: dict[str, Any]
     config: cliport.CliportConfig
-    run_meta: dict
+    run_meta: dict[str, Any]
     weights_sha256: str
     num_samples: int
     name: str = "cliport"
 
-    def describe(self) -> dict:
+    def describe(self) -> dict[str, Any]:
         return describe_baseline(self.name, self.run_meta, self.weights_sha256, self.backbone, self.num_samples)
 
     def distributions(self, scenes: Sequence[SceneRecord]) -> np.ndarray:
@@ -55,7 +59,7 @@ class CliportMethod:
             out.append(np.asarray(probabilities)[: len(batch)])
         return np.concatenate(out) if out else np.zeros((0, self.config.num_pixels), np.float32)
 
-    def run(self, scenes: Sequence[SceneRecord], key) -> list[MethodOutput]:
+    def run(self, scenes: Sequence[SceneRecord], key: jax.Array) -> list[MethodOutput]:
         try:
             distributions = self.distributions(scenes)
         except OcplaceError as error:
@@ -76,7 +80,7 @@ def train(context: TrainContext[Recipe]) -> Path:
 
 
 def load(context: LoadContext) -> CliportMethod:
-    params, run_meta, sha = cliport.load_params(context.run_dir)
+    params, run_meta, sha = cliport.load_params(context.trained_run)
     config = serial.from_dict(cliport.CliportConfig, run_meta["network"])
     return CliportMethod(
         load_checked_backbone(context.backbone, run_meta, "CLIPort-Place"),

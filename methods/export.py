@@ -7,9 +7,14 @@ card (`README.md`) and, once an evaluation is at hand, the card's Table I row.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from ocplace.errors import BackboneUnavailable
 from ocplace.models.policy_folder import CARD_FILE, export_policy, read_policy_config
+
+if TYPE_CHECKING:
+    from ocplace.models.policy import PlacementPolicy
+    from ocplace.models.trained_adapters import TrainedAdapters
 
 CARD = """# ocplace placement policy
 
@@ -63,7 +68,7 @@ system and was never tested on a real robot.
 NOT_EVALUATED = "Not evaluated at export: `ocplace evaluate --policy FOLDER` gives it (`reproduce` writes it here)."
 
 
-def backbone_of(adapters, given: str | None = None) -> str:
+def backbone_of(adapters: TrainedAdapters, given: str | None = None) -> str:
     """`given`; else the saved offline backbone whose fingerprint the adapters record (BackboneUnavailable)."""
     from ocplace.models.offline_backbone import saved_backbone_with
     from ocplace.models.policy import backbone_hint
@@ -91,7 +96,15 @@ def export_run(run_dir: str | Path, out: str | Path, *, backbone: str | None = N
     return export_trained(policy, out, parser=parser, run_dir=run_dir, backbone=spec)
 
 
-def export_trained(policy, out: str | Path, *, parser: str, run_dir, backbone: str, dataset=None) -> Path:
+def export_trained(
+    policy: PlacementPolicy,
+    out: str | Path,
+    *,
+    parser: str,
+    run_dir: str | Path,
+    backbone: str,
+    dataset: str | Path | None = None,
+) -> Path:
     """`policy` (loaded from `run_dir`) written as a policy folder with its model card."""
     import json
 
@@ -112,7 +125,7 @@ def write_table_row(folder: str | Path, row: str) -> None:
     write_text_atomic(folder / CARD_FILE, _card(folder, read_policy_config(folder)["source"], row))
 
 
-def _card(folder: Path, source: dict, row: str) -> str:
+def _card(folder: Path, source: dict[str, Any], row: str) -> str:
     return CARD.format(
         folder=folder,
         dataset=source.get("dataset", "its dataset"),

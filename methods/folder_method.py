@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 from pathlib import Path
+from typing import Any
 
 from ocplace.methods.api import LoadContext, MethodSpec
 from ocplace.methods.policy_method import PolicyMethod, describe_policy
@@ -24,7 +25,7 @@ def is_folder_reference(reference: str) -> bool:
     return reference.startswith(FOLDER_PREFIX) or (Path(reference) / CONFIG_FILE).is_file()
 
 
-def folder_spec(reference: str, label: str | None = None) -> MethodSpec:
+def folder_spec(reference: str, label: str | None = None) -> MethodSpec[Any]:
     """The spec of a policy folder; its config is read here, so that a bad folder fails before any work."""
     from ocplace.models.policy_folder import read_policy_config
 
@@ -47,7 +48,7 @@ def load_folder(folder: str, context: LoadContext) -> FolderMethod:
 class FolderMethod(PolicyMethod):
     """`PolicyMethod` whose adapters come from a policy folder's `model.safetensors`."""
 
-    def describe(self) -> dict:
+    def describe(self) -> dict[str, Any]:
         from ocplace.models.policy_folder import MODEL_FILE, read_policy_config
 
         folder = self.name.removeprefix(FOLDER_PREFIX)

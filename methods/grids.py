@@ -8,6 +8,7 @@ import hashlib
 import json
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import jax
 import numpy as np
@@ -24,27 +25,31 @@ from ocplace.paths import atomic_path, baselines_cache
 from ocplace.sim.dataset.records import SceneRecord
 from ocplace.train.recipes import GridsRecipe as Recipe
 
+if TYPE_CHECKING:
+    from ocplace.models.backbone import Backbone
+    from ocplace.models.parsing.types import Parser
+
 
 @dataclasses.dataclass
 class GridsMethod:
     """Chooses the cell most similar to all tuple texts and samples a collision-free point inside it."""
 
-    backbone: object
-    parser: object
-    params: dict
+    backbone: Backbone
+    parser: Parser
+    params: dict[str, Any]
     config: grids.GridConfig
-    run_meta: dict
+    run_meta: dict[str, Any]
     weights_sha256: str
     num_samples: int
     cells_cache: Path | None = None  # encoded cells per image, by content: evaluations of several runs share them
     name: str = "grids"
 
-    def describe(self) -> dict:
+    def describe(self) -> dict[str, Any]:
         return describe_baseline(
             self.name, self.run_meta, self.weights_sha256, self.backbone, self.num_samples, self.parser
         )
 
-    def run(self, scenes: Sequence[SceneRecord], key) -> list[MethodOutput]:
+    def run(self, scenes: Sequence[SceneRecord], key: jax.Array) -> list[MethodOutput]:
         return [self._place(scene, scene_key) for scene, scene_key in zip(scenes, jax.random.split(key, len(scenes)))]
 
     def chosen_cell(self, scene: SceneRecord, parsed: Sequence[tuple[str, str]]) -> tuple[int, np.ndarray]:
@@ -61,7 +66,7 @@ class GridsMethod:
     def encoded_cells(self, scene: SceneRecord) -> np.ndarray:
         """`(num_cells, D)` backbone features of the scene's cells, read from `cells_cache` when there."""
 
-        def encode():
+        def encode() -> np.ndarray[Any, Any]:
             crops = grids.cell_crops(scene.rgb, top_down_camera(scene), self.config)
             return np.asarray(self.backbone.encode_images(crops))
 
@@ -71,7 +76,8 @@ class GridsMethod:
         image_key = scene.rgb.tobytes() + json.dumps(scene.meta["camera"], sort_keys=True).encode()
         path = self.cells_cache / f"{hashlib.sha256(image_key).hexdigest()[:32]}.npy"
         try:
-            return np.load(path)
+            cached: np.ndarray[Any, Any] = np.load(path)
+            return cached
         except (OSError, ValueError):  # not cached yet, or a damaged file: encode (again)
             cells = encode()
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -79,7 +85,7 @@ class GridsMethod:
             np.save(file, cells)
         return cells
 
-    def _place(self, scene: SceneRecord, key) -> MethodOutput:
+    def _place(self, scene: SceneRecord, key: jax.Array) -> MethodOutput:
         try:
             tuples = self.parser.parse(scene.instruction)
             parsed = tuple(as_pairs(tuples))
@@ -99,7 +105,7 @@ def train(context: TrainContext[Recipe]) -> Path:
 def load(context: LoadContext) -> GridsMethod:
     from ocplace.models.parsing import make_parser
 
-    params, run_meta, sha = grids.load_params(context.run_dir)
+    params, run_meta, sha = grids.load_params(context.trained_run)
     config = serial.from_dict(grids.GridConfig, run_meta["grid"])
     backbone = load_checked_backbone(context.backbone, run_meta, "Raw Image Grids")
     grid_key = hashlib.sha256(serial.to_json(config).encode()).hexdigest()[:12]

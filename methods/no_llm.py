@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -22,6 +23,12 @@ from ocplace.methods.policy_method import prepare_train_features, scene_input
 from ocplace.paths import WEIGHTS_FILE
 from ocplace.sim.dataset.records import SceneRecord
 from ocplace.train.recipes import NoLlmTrainConfig as Recipe
+
+if TYPE_CHECKING:
+    import jax
+
+    from ocplace.models.no_llm import TrainedNoLlm
+    from ocplace.models.policy import GroundedReference, PlacementPolicy, PreparedScene
 
 
 def train(ctx: TrainContext[Recipe]) -> Path:
@@ -43,30 +50,29 @@ class NoLlmMethod:
     """A `Method` around a trained no_llm model; `policy` lends its scene preparation and sampler."""
 
     name: str
-    policy: object  # PlacementPolicy: prepare, encode (visual tokens only), sample
-    trained: object  # models.no_llm.TrainedNoLlm
+    policy: PlacementPolicy  # lends prepare, encode (visual tokens only) and sample
+    trained: TrainedNoLlm
     backbone_spec: str
     run_dir: Path
 
-    def run(self, scenes: Sequence[SceneRecord], key) -> list[MethodOutput]:
-        prepared: list = []
+    def run(self, scenes: Sequence[SceneRecord], key: jax.Array) -> list[MethodOutput]:
+        prepared: list[PreparedScene | OcplaceError] = []
         for scene in scenes:
             try:
                 prepared.append(self.policy.prepare(scene_input(scene)))
             except OcplaceError as error:
                 prepared.append(error)
-        ready = [i for i, p in enumerate(prepared) if not isinstance(p, OcplaceError)]
-        references: dict[int, tuple] = {}
+        ready = {i: p for i, p in enumerate(prepared) if not isinstance(p, OcplaceError)}
+        references: dict[int, tuple[GroundedReference, ...]] = {}
         chunk_size = self.policy.encode_scenes
-        for start in range(0, len(ready), chunk_size):
-            chunk = ready[start : start + chunk_size]
-            references.update(zip(chunk, self.program([prepared[i] for i in chunk], [scenes[i].level for i in chunk])))
-        sampled = dict(
-            zip(ready, self.policy.sample([prepared[i] for i in ready], [references[i] for i in ready], key))
-        )
+        indices = list(ready)
+        for start in range(0, len(indices), chunk_size):
+            chunk = indices[start : start + chunk_size]
+            references.update(zip(chunk, self.program([ready[i] for i in chunk], [scenes[i].level for i in chunk])))
+        sampled = dict(zip(ready, self.policy.sample(list(ready.values()), [references[i] for i in ready], key)))
         return [self._output(prepared[i], references.get(i), sampled.get(i)) for i in range(len(scenes))]
 
-    def program(self, prepared: Sequence, levels: Sequence[str]) -> list[tuple]:
+    def program(self, prepared: Sequence[PreparedScene], levels: Sequence[str]) -> list[tuple[GroundedReference, ...]]:
         """Per scene, the chosen references with their predicted relations (`GroundedReference`s)."""
         from ocplace.models.no_llm import REFERENCES_BY_LEVEL, encode_sentences
         from ocplace.models.policy import GroundedReference
@@ -101,21 +107,26 @@ class NoLlmMethod:
         return programs
 
     @staticmethod
-    def _output(prepared, references, sampled) -> MethodOutput:
+    def _output(
+        prepared: PreparedScene | OcplaceError,
+        references: tuple[GroundedReference, ...] | None,
+        sampled: tuple[Any, ...] | OcplaceError | None,
+    ) -> MethodOutput:
         failure = next((x for x in (prepared, sampled) if isinstance(x, OcplaceError)), None)
         grounded = tuple(ref.token for ref in references) if references else None
         if failure is not None:
             return MethodOutput(
                 mode=None, samples=None, grounded=grounded, failure=f"{type(failure).__name__}: {failure}"
             )
+        assert isinstance(sampled, tuple), "every prepared scene is sampled"
         samples, _, mode = sampled
         return MethodOutput(
             mode=np.asarray(mode, np.float64), samples=np.asarray(samples, np.float64), parsed=None, grounded=grounded
         )
 
-    def describe(self) -> dict:
+    def describe(self) -> dict[str, Any]:
         model = self.trained.model
-        return serial.to_dict(
+        described: dict[str, Any] = serial.to_dict(
             {
                 "method": self.name,
                 "backbone": {"spec": self.backbone_spec, "fingerprint": self.policy.backbone.fingerprint},
@@ -138,6 +149,7 @@ class NoLlmMethod:
                 },
             },
         )
+        return described
 
 
 def load(ctx: LoadContext) -> NoLlmMethod:
@@ -148,9 +160,7 @@ def load(ctx: LoadContext) -> NoLlmMethod:
     from ocplace.models.policy import PlacementPolicy
     from ocplace.models.shared_features import SharedFeatures
 
-    if ctx.run_dir is None:
-        raise TrainingError("no_llm needs a run directory; train it first")
-    trained = load_model(ctx.run_dir)
+    trained = load_model(ctx.trained_run)
     backbone = load_backbone(ctx.backbone)
     if trained.backbone_fingerprint != backbone.fingerprint:
         raise TrainingError(
@@ -166,7 +176,7 @@ def load(ctx: LoadContext) -> NoLlmMethod:
         parser=None,
         sampler=SamplerConfig(num_samples=ctx.num_samples),
     )
-    return NoLlmMethod("no_llm", policy, trained, ctx.backbone, Path(ctx.run_dir))
+    return NoLlmMethod("no_llm", policy, trained, ctx.backbone, ctx.trained_run)
 
 
 SPEC: MethodSpec[Recipe] = MethodSpec(

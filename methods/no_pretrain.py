@@ -9,11 +9,15 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from ocplace.methods.api import LoadContext, MethodSpec, TrainContext
 from ocplace.methods.policy_method import PolicyMethod, describe_policy, trained_run_weights
 from ocplace.paths import read_run_file
 from ocplace.train.recipes import NoPretrainRecipe as Recipe
+
+if TYPE_CHECKING:
+    from ocplace.models.offline_backbone import OfflineBackbone
 
 
 def train(ctx: TrainContext[Recipe]) -> Path:
@@ -27,14 +31,15 @@ def train(ctx: TrainContext[Recipe]) -> Path:
 
 @dataclasses.dataclass
 class NoPretrainMethod(PolicyMethod):
-    run_dir: Path | None = None
+    run_dir: Path
+    tower: OfflineBackbone  # the policy's backbone: the tower trained from random weights
 
-    def describe(self) -> dict:
+    def describe(self) -> dict[str, Any]:
         described = describe_policy(self.policy, self.name, self.backbone_spec, self.adapters_file)
         from ocplace.models.no_llm import params_sha256
 
         described["from_scratch"] = read_run_file(self.run_dir)
-        described["backbone"]["weights_sha256"] = params_sha256(self.policy.backbone.params)
+        described["backbone"]["weights_sha256"] = params_sha256(self.tower.params)
         described["adapters"]["weights_sha256"] = params_sha256(self.policy.grounding.params)
         return described
 
@@ -46,7 +51,7 @@ def load(ctx: LoadContext) -> NoPretrainMethod:
     from ocplace.models.policy import PlacementPolicy
 
     adapters_file = trained_run_weights(ctx.run_dir, "tower and adapters", "no_pretrain")
-    run_dir = Path(ctx.run_dir)
+    run_dir = ctx.trained_run
     backbone = load_saved_backbone(run_dir / BACKBONE_DIR)
     policy = PlacementPolicy.from_run(
         backbone,
@@ -55,7 +60,9 @@ def load(ctx: LoadContext) -> NoPretrainMethod:
         sampler=SamplerConfig(num_samples=ctx.num_samples),
         threshold=ctx.threshold,
     )
-    return NoPretrainMethod("no_pretrain", policy, f"offline:{run_dir / BACKBONE_DIR}", adapters_file, run_dir)
+    return NoPretrainMethod(
+        "no_pretrain", policy, f"offline:{run_dir / BACKBONE_DIR}", adapters_file, run_dir, backbone
+    )
 
 
 SPEC: MethodSpec[Recipe] = MethodSpec(

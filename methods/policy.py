@@ -22,8 +22,10 @@ import importlib.util
 import inspect
 import signal
 import threading
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Collection, Iterator, Mapping, Sequence
 from pathlib import Path
+from types import FrameType
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -47,11 +49,14 @@ from ocplace.methods.registry import method_run
 from ocplace.sim.dataset.records import SceneRecord
 from ocplace.vocabulary import SCENE_TIMEOUT_S
 
+if TYPE_CHECKING:
+    import jax
+
 __all__ = ["evaluate_policy", "import_policy", "is_policy_name", "policy_spec", "with_policies"]
 
 
 @contextlib.contextmanager
-def deadline(seconds: float):
+def deadline(seconds: float) -> Iterator[None]:
     """Raises `SceneTimeout` in this thread once `seconds` have passed, and again every second until the block
     ends (a policy that swallows the first does not hang the evaluation). For a policy given as an object, which
     runs in this process: a signal timer, only in the main thread (elsewhere, and for `seconds <= 0`, no
@@ -61,7 +66,7 @@ def deadline(seconds: float):
         yield
         return
 
-    def expire(signum, frame):
+    def expire(signum: int, frame: FrameType | None) -> None:
         raise SceneTimeout(f"timeout: the policy took more than {seconds:g} s (--scene-timeout)")
 
     previous = signal.signal(signal.SIGALRM, expire)
@@ -80,7 +85,7 @@ def _placer_failure(error: BaseException) -> MethodOutput:
 PLACER_DESCRIPTION = "place(observation) -> (x, y)"
 
 
-def placer_description(reference: str, scene_timeout_s: float) -> dict:
+def placer_description(reference: str, scene_timeout_s: float) -> dict[str, Any]:
     """A placer's `describe()`: its name, deadline and the sha256 of its module's file, so that a stored
     evaluation (a resumed `evaluate`) or a `--rerun` sees an edited policy as another one."""
     return {
@@ -108,13 +113,13 @@ class PlacerMethod:
     in the harness's scene order."""
 
     name: str
-    place: Callable
+    place: Callable[..., Any]
     scene_timeout_s: float = SCENE_TIMEOUT_S
 
-    def describe(self) -> dict:
+    def describe(self) -> dict[str, Any]:
         return placer_description(self.name, self.scene_timeout_s)
 
-    def run(self, scenes: Sequence[SceneRecord], key) -> list[MethodOutput]:
+    def run(self, scenes: Sequence[SceneRecord], key: jax.Array) -> list[MethodOutput]:
         from ocplace.sim.env.observation import observation
 
         outputs = []
@@ -127,7 +132,7 @@ class PlacerMethod:
             except POLICY_ERRORS as error:
                 outputs.append(_placer_failure(error))
             else:  # the harness checks the shape and finiteness: anything else is a failure there
-                outputs.append(MethodOutput(mode=mode, samples=None))
+                outputs.append(MethodOutput(mode=np.asarray(mode, np.float64), samples=None))
         return outputs
 
 
@@ -139,10 +144,14 @@ class TimedMethod:
     method: Method
     scene_timeout_s: float = SCENE_TIMEOUT_S
 
-    def describe(self) -> dict:
+    @property
+    def name(self) -> str:
+        return self.method.name
+
+    def describe(self) -> dict[str, Any]:
         return self.method.describe()
 
-    def run(self, scenes: Sequence[SceneRecord], key) -> list[MethodOutput]:
+    def run(self, scenes: Sequence[SceneRecord], key: jax.Array) -> list[MethodOutput]:
         with deadline(self.scene_timeout_s * len(scenes)):
             return self.method.run(scenes, key)
 
@@ -156,12 +165,13 @@ class HostedPolicy:
         self.scene_timeout_s = scene_timeout_s
         self.host = PolicyHost(reference, jax_width)
 
-    def describe(self) -> dict:
+    def describe(self) -> dict[str, Any]:
         if self.host.ready["kind"] == "method":
-            return self.host.ready["describe"]
+            described: dict[str, Any] = self.host.ready["describe"]
+            return described
         return placer_description(self.name, self.scene_timeout_s)
 
-    def run(self, scenes: Sequence[SceneRecord], key) -> list[MethodOutput]:
+    def run(self, scenes: Sequence[SceneRecord], key: jax.Array) -> list[MethodOutput]:
         if self.host.ready["kind"] == "method":
             return self._run_method(scenes, key)
         from ocplace.sim.env.observation import observation
@@ -176,10 +186,10 @@ class HostedPolicy:
             if "error" in answer:
                 outputs.append(MethodOutput(mode=None, samples=None, failure=answer["error"]))
             else:
-                outputs.append(MethodOutput(mode=answer["mode"], samples=None))
+                outputs.append(MethodOutput(mode=np.asarray(answer["mode"], np.float64), samples=None))
         return outputs
 
-    def _run_method(self, scenes: Sequence[SceneRecord], key) -> list[MethodOutput]:
+    def _run_method(self, scenes: Sequence[SceneRecord], key: jax.Array) -> list[MethodOutput]:
         """The policy's `run` in its process; whatever goes wrong is raised, so that the harness runs the chunk
         again scene by scene and only the scene at fault fails."""
         import jax
@@ -191,7 +201,7 @@ class HostedPolicy:
         return [MethodOutput(**output) for output in answer["outputs"]]
 
 
-def as_method(policy, name: str, scene_timeout_s: float = SCENE_TIMEOUT_S) -> Method:
+def as_method(policy: object, name: str, scene_timeout_s: float = SCENE_TIMEOUT_S) -> Method:
     """The `Method` that runs `policy` (a Method, a placer, an object with a `place` method, or a class) in this
     process, each scene under a deadline of `scene_timeout_s` (0: none)."""
     policy = made(policy, name)
@@ -209,7 +219,7 @@ def load_policy(reference: str, context: LoadContext | None = None, scene_timeou
     return HostedPolicy(reference, scene_timeout_s, jax_width=1)
 
 
-def policy_spec(reference: str, label: str | None = None, scene_timeout_s: float = SCENE_TIMEOUT_S) -> MethodSpec:
+def policy_spec(reference: str, label: str | None = None, scene_timeout_s: float = SCENE_TIMEOUT_S) -> MethodSpec[Any]:
     """The spec of the policy `MODULE:CALLABLE`, imported here so that a bad reference fails before any work.
 
     Its Table I label: `label`, else the policy's `label` attribute, else the reference. A policy folder
@@ -220,19 +230,19 @@ def policy_spec(reference: str, label: str | None = None, scene_timeout_s: float
     return _spec(import_policy(reference), reference, label, scene_timeout_s)
 
 
-def _spec(policy, name: str, label: str | None, scene_timeout_s: float = SCENE_TIMEOUT_S) -> MethodSpec:
+def _spec(policy: object, name: str, label: str | None, scene_timeout_s: float = SCENE_TIMEOUT_S) -> MethodSpec[Any]:
     label = label or getattr(policy, "label", None) or name
     load = functools.partial(load_policy, name, scene_timeout_s=scene_timeout_s)
     return MethodSpec(name=name, label=label, load=load)
 
 
 def with_policies(
-    specs: Mapping[str, MethodSpec],
-    results: Mapping,
-    trusted: set[str] = frozenset(),
+    specs: Mapping[str, MethodSpec[Any]],
+    results: Mapping[str, Any],
+    trusted: Collection[str] = frozenset(),
     trust_all: bool = False,
     scene_timeout_s: float = SCENE_TIMEOUT_S,
-) -> dict[str, MethodSpec]:
+) -> dict[str, MethodSpec[Any]]:
     """`specs` plus a spec for each policy a results file evaluated (method names `MODULE:CALLABLE`).
 
     No module is imported because a file names it: only the policies the user names again (`trusted`, the
@@ -249,21 +259,21 @@ def with_policies(
     return dict(specs) | {name: policy_spec(name, labels[name], scene_timeout_s) for name in named}
 
 
-def reference_of(policy) -> str:
+def reference_of(policy: object) -> str:
     """`MODULE:QUALNAME` of a function or class, or of an object's class."""
     named = policy if inspect.isclass(policy) or inspect.isroutine(policy) else type(policy)
     return f"{named.__module__}:{named.__qualname__}"
 
 
 def evaluate_policy(
-    policy,
+    policy: object,
     dataset_dir: str | Path,
     settings: EvalSettings = EvalSettings(),
     *,
     label: str | None = None,
     progress: bool = False,
     scene_timeout_s: float = SCENE_TIMEOUT_S,
-) -> dict:
+) -> dict[str, Any]:
     """Scores `policy` on the test subsets of `dataset_dir` with the harness.
 
     `policy` is a `MODULE:CALLABLE` reference, run in a process of its own (killed at its deadline), or the
@@ -274,6 +284,7 @@ def evaluate_policy(
     """
     from ocplace.eval.results import build_results
 
+    method: Method
     if isinstance(policy, str):
         name = policy
         spec, method = _spec(import_policy(name), name, label, scene_timeout_s), HostedPolicy(name, scene_timeout_s)

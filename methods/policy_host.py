@@ -17,10 +17,19 @@ import inspect
 import json
 import multiprocessing
 import weakref
+from typing import TYPE_CHECKING, Any, TypeGuard
 
 import numpy as np
 
 from ocplace.errors import POLICY_ERRORS, EvaluationError
+
+if TYPE_CHECKING:
+    from multiprocessing.connection import Connection
+    from multiprocessing.process import BaseProcess
+
+    from ocplace.eval.api import Method
+
+    Pipe = Connection[Any, Any]
 
 LOAD_TIMEOUT_S = 600.0  # importing and constructing the policy; a scene's deadline starts after it
 
@@ -43,7 +52,7 @@ def is_policy_name(name: str) -> bool:
     return ":" in name
 
 
-def import_policy(reference: str):
+def import_policy(reference: str) -> object:
     """The object `MODULE:ATTRIBUTE[.ATTRIBUTE...]` names; EvaluationError when it cannot be imported."""
     module_name, _, attributes = reference.partition(":")
     if not module_name or not attributes:
@@ -57,7 +66,7 @@ def import_policy(reference: str):
             "put it in a module (a .py file in the current folder will do) and name it MODULE:CALLABLE"
         )
     try:
-        target = importlib.import_module(module_name)
+        target: object = importlib.import_module(module_name)
     except ImportError as error:
         raise EvaluationError(f"cannot import the policy module {module_name!r} ({error}); {REFERENCE_HELP}") from None
     except POLICY_ERRORS as error:  # a SyntaxError, or anything its own code raises while it is imported
@@ -77,11 +86,11 @@ def import_policy(reference: str):
     return target
 
 
-def is_method(policy) -> bool:
+def is_method(policy: object) -> TypeGuard[Method]:
     return callable(getattr(policy, "run", None)) and callable(getattr(policy, "describe", None))
 
 
-def made(policy, name: str):
+def made(policy: object, name: str) -> object:
     """`policy`, or the object its class makes with no arguments (EvaluationError when that fails)."""
     if not inspect.isclass(policy):
         return policy
@@ -93,13 +102,14 @@ def made(policy, name: str):
         ) from None
 
 
-def placement_numbers(mode) -> list:
+def placement_numbers(mode: object) -> list[Any]:
     """A placer's answer as nested float lists (the harness checks the shape); strings, booleans and objects
     are no placements, as in the environment (`"0.1"` would convert)."""
     kind = np.asarray(mode).dtype.kind
     if kind in "USb":
         raise TypeError(f"a placement is numbers, not {np.asarray(mode).dtype} ({type(mode).__name__})")
-    return np.asarray(mode, dtype=np.float64).tolist()
+    numbers: list[Any] = np.asarray(mode, dtype=np.float64).tolist()
+    return numbers
 
 
 def describe_error(error: BaseException) -> str:
@@ -109,7 +119,7 @@ def describe_error(error: BaseException) -> str:
 # ----------------------------------------------------------------------------- the policy's process
 
 
-def serve(reference: str, connection, jax_width: int | None = None) -> None:
+def serve(reference: str, connection: Pipe, jax_width: int | None = None) -> None:
     """The policy's process: loads it, says what it is, then answers requests until the pipe closes.
 
     With `jax_width`, the process is pinned to that many CPUs while the policy is imported, made and answers its
@@ -127,7 +137,7 @@ def serve(reference: str, connection, jax_width: int | None = None) -> None:
         pass
 
 
-def _loaded(reference: str, connection):
+def _loaded(reference: str, connection: Pipe) -> Any:
     """The policy, ready to answer, after telling the evaluation what it is; None (and why, sent) when it fails."""
     try:
         policy = made(import_policy(reference), reference)
@@ -139,7 +149,7 @@ def _loaded(reference: str, connection):
     return getattr(policy, "place", policy) if ready["kind"] == "placer" else policy
 
 
-def _answered(policy, connection) -> bool:
+def _answered(policy: Any, connection: Pipe) -> bool:
     """Answers the next request; False once the pipe is closed."""
     try:
         request = connection.recv()
@@ -149,7 +159,7 @@ def _answered(policy, connection) -> bool:
     return True
 
 
-def _ready(policy) -> dict:
+def _ready(policy: object) -> dict[str, Any]:
     """What the policy is (and a `Method`'s description), JSON; EvaluationError when its `describe` fails."""
     if not is_method(policy):
         return {"kind": "placer"}
@@ -161,20 +171,21 @@ def _ready(policy) -> dict:
         raise EvaluationError(f"the policy's describe() failed ({describe_error(error)})") from None
 
 
-def _answer(policy, request: tuple) -> dict:
+def _answer(policy: Any, request: tuple[Any, ...]) -> dict[str, Any]:
     try:
         if request[0] == "place":
             return {"mode": placement_numbers(policy(request[1]))}
         import jax
+        import jax.numpy as jnp
 
         scenes, key_data = request[1], request[2]
-        outputs = policy.run(scenes, jax.random.wrap_key_data(np.asarray(key_data, np.uint32)))
+        outputs = policy.run(scenes, jax.random.wrap_key_data(jnp.asarray(key_data, jnp.uint32)))
         return {"outputs": [_output_json(output) for output in outputs]}
     except POLICY_ERRORS as error:
         return {"error": describe_error(error)}
 
 
-def _output_json(output) -> dict:
+def _output_json(output: object) -> dict[str, Any]:
     """A `MethodOutput` as JSON (numbers as lists; the harness checks them as it checks any method's)."""
     from ocplace.eval.api import MethodOutput
 
@@ -182,7 +193,7 @@ def _output_json(output) -> dict:
         return {"failure": f"malformed output: {type(output).__name__}, not a MethodOutput"}
     try:
 
-        def numbers(value):
+        def numbers(value: object) -> Any:
             return None if value is None else np.asarray(value, dtype=np.float64).tolist()
 
         return {
@@ -201,7 +212,7 @@ def _output_json(output) -> dict:
 # ----------------------------------------------------------------------------- the evaluation's side
 
 
-def _stop(process, connection) -> int | None:
+def _stop(process: BaseProcess, connection: Pipe) -> int | None:
     """Kills `process` (if running) and frees its pipe and handles; its exit code."""
     connection.close()
     if process.is_alive():
@@ -221,10 +232,12 @@ class PolicyHost:
 
     def __init__(self, reference: str, jax_width: int | None = None):
         self.reference, self.jax_width = reference, jax_width
-        self._process = self._connection = self._finalizer = None
-        self.ready: dict = self._start()
+        self._process: BaseProcess | None = None
+        self._connection: Pipe | None = None
+        self._finalizer: weakref.finalize[[BaseProcess, Pipe], PolicyHost] | None = None
+        self.ready: dict[str, Any] = self._start()
 
-    def _start(self) -> dict:
+    def _start(self) -> dict[str, Any]:
         context = multiprocessing.get_context("spawn")  # never fork a process that runs JAX or EGL
         connection, child_end = context.Pipe()
         arguments = (self.reference, child_end, self.jax_width)
@@ -239,11 +252,12 @@ class PolicyHost:
             raise EvaluationError(ready["error"])
         return ready
 
-    def request(self, request: tuple, timeout_s: float) -> dict:
+    def request(self, request: tuple[Any, ...], timeout_s: float) -> dict[str, Any]:
         """The policy's JSON answer to `request` within `timeout_s` (0: no deadline); SceneTimeout or
         PolicyProcessEnded (its process then stopped, the next request starts another)."""
         if self._process is None:
             self._start()
+        assert self._connection is not None, "started above"
         try:
             self._connection.send(request)
         except OSError:  # it ended between two requests (killed from outside, out of memory)
@@ -251,13 +265,15 @@ class PolicyHost:
             raise PolicyProcessEnded(f"the policy's process had ended (exit code {code})") from None
         return self._receive(timeout_s if timeout_s > 0 else None)
 
-    def _receive(self, timeout_s: float | None, loading: bool = False) -> dict:
+    def _receive(self, timeout_s: float | None, loading: bool = False) -> dict[str, Any]:
+        assert self._connection is not None, "called on a started process"
         if not self._connection.poll(timeout_s):
             self.stop()
             what = "to load" if loading else "(--scene-timeout)"
             raise SceneTimeout(f"timeout: the policy took more than {timeout_s:g} s {what}")
         try:
-            return json.loads(self._connection.recv_bytes())
+            answer: dict[str, Any] = json.loads(self._connection.recv_bytes())
+            return answer
         except (EOFError, OSError):
             code = self.stop()
             when = " while it was loaded" if loading else ""
@@ -268,4 +284,5 @@ class PolicyHost:
         if self._process is None:
             return None
         self._process = None
+        assert self._finalizer is not None, "set with the process"
         return self._finalizer()  # calls _stop once, and no more at exit

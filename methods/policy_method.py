@@ -11,6 +11,7 @@ import dataclasses
 import hashlib
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -19,8 +20,13 @@ from ocplace.eval.api import MethodOutput
 from ocplace.methods.api import LoadContext, TrainContext
 from ocplace.sim.dataset.records import SceneRecord
 
+if TYPE_CHECKING:
+    import jax
 
-def prepare_train_features(ctx: TrainContext) -> Path:
+    from ocplace.models.policy import Placement, PlacementPolicy, SceneInput
+
+
+def prepare_train_features(ctx: TrainContext[Any]) -> Path:
     """The training split's features, which Ours and no_llm read (one file per backbone and dataset)."""
     from ocplace.models.backbone import load_backbone
     from ocplace.models.features import featurize_split
@@ -28,14 +34,14 @@ def prepare_train_features(ctx: TrainContext) -> Path:
     return featurize_split(Path(ctx.dataset_dir), "train", load_backbone(ctx.backbone), progress=False)
 
 
-def scene_input(record: SceneRecord):
+def scene_input(record: SceneRecord) -> SceneInput:
     """What a method may see of a dataset scene, as the policy's input (no tuples, no oracle)."""
     from ocplace.models.policy import SceneInput
 
     return SceneInput(**record.policy_inputs(), name=record.id)
 
 
-def output_of(placement) -> MethodOutput:
+def output_of(placement: Placement) -> MethodOutput:
     from ocplace.models.parsing.types import parse_note
 
     return MethodOutput(
@@ -55,19 +61,21 @@ class PolicyMethod:
     """A `Method` around a PlacementPolicy."""
 
     name: str
-    policy: object  # PlacementPolicy
+    policy: PlacementPolicy
     backbone_spec: str
     adapters_file: Path | None
 
-    def run(self, scenes: Sequence[SceneRecord], key) -> list[MethodOutput]:
+    def run(self, scenes: Sequence[SceneRecord], key: jax.Array) -> list[MethodOutput]:
         placements = self.policy.place_many([scene_input(s) for s in scenes], key, progress=len(scenes) > 64)
         return [output_of(p) for p in placements]
 
-    def describe(self) -> dict:
+    def describe(self) -> dict[str, Any]:
         return describe_policy(self.policy, self.name, self.backbone_spec, self.adapters_file)
 
 
-def describe_policy(policy, name: str, backbone_spec: str, adapters_file: Path | None) -> dict:
+def describe_policy(
+    policy: PlacementPolicy, name: str, backbone_spec: str, adapters_file: Path | None
+) -> dict[str, Any]:
     """JSON-able record of everything that decides the policy's placements."""
     from ocplace.models.parsing import default_config as parsing_config
     from ocplace.paths import llm_cache
@@ -85,7 +93,7 @@ def describe_policy(policy, name: str, backbone_spec: str, adapters_file: Path |
             "steps": trained.steps,
             "features_key": trained.features_key,
         }
-    return serial.to_dict(
+    described: dict[str, Any] = serial.to_dict(
         {
             "method": name,
             "backbone": {"spec": backbone_spec, "fingerprint": policy.backbone.fingerprint},
@@ -113,9 +121,10 @@ def describe_policy(policy, name: str, backbone_spec: str, adapters_file: Path |
             },
         },
     )
+    return described
 
 
-def policy_of(ctx: LoadContext, adapters_file: Path | None):
+def policy_of(ctx: LoadContext, adapters_file: Path | None) -> PlacementPolicy:
     """The placement policy on `ctx`'s backbone, parser and sample count, with these adapters (None: zero-shot).
     Its backbone reads the test features that another evaluation on it encoded (models/shared_features.py)."""
     from ocplace.models.backbone import load_backbone

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import importlib
+from pathlib import Path
+from typing import Any
 
 from ocplace.errors import EvaluationError
 from ocplace.eval.api import Method
@@ -27,9 +29,9 @@ def registered_names() -> tuple[str, ...]:
     return tuple(module_name.rsplit(".", 1)[-1] for module_name in METHOD_MODULES)
 
 
-def method_specs() -> dict[str, MethodSpec]:
+def method_specs() -> dict[str, MethodSpec[Any]]:
     """Every registered method by its command-line name, in registration order."""
-    specs: dict[str, MethodSpec] = {}
+    specs: dict[str, MethodSpec[Any]] = {}
     for module_name, name in zip(METHOD_MODULES, registered_names()):
         spec = importlib.import_module(module_name).SPEC
         if spec.name != name:
@@ -38,7 +40,7 @@ def method_specs() -> dict[str, MethodSpec]:
     return specs
 
 
-def select_specs(names: str, specs: dict) -> list:
+def select_specs(names: str, specs: dict[str, Any]) -> list[Any]:
     """The specs named in a comma-separated list (`all`: every registered one), in that order."""
     if names.strip() == "all":
         if not specs:
@@ -52,13 +54,17 @@ def select_specs(names: str, specs: dict) -> list:
 
 
 def method_run(
-    spec: MethodSpec, run_dir=None, fraction: float = 1.0, seed: int | None = None, backbone_seed: int | None = None
+    spec: MethodSpec[Any],
+    run_dir: Path | None = None,
+    fraction: float = 1.0,
+    seed: int | None = None,
+    backbone_seed: int | None = None,
 ) -> MethodRun:
     """The harness's row for a run of `spec`."""
     return MethodRun(spec.name, spec.label, run_dir, fraction, seed, backbone_seed)
 
 
-def load_method(spec: MethodSpec, run: MethodRun, settings: EvalSettings) -> Method:
+def load_method(spec: MethodSpec[Any], run: MethodRun, settings: EvalSettings) -> Method:
     """The `Method` of `run`, loaded by its spec with the settings' backbone, parser and sample count."""
     settings = run.settings(settings)
     return spec.load(

@@ -8,13 +8,20 @@ the camera, the instruction and the held object's footprint; never the tuples or
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from ocplace.errors import TrainingError
 from ocplace.eval.api import MethodOutput
 from ocplace.methods.api import TrainContext
 
+if TYPE_CHECKING:
+    from collections.abc import Callable
 
-def load_checked_backbone(spec: str, run_meta: dict, name: str):
+    from ocplace.models.backbone import Backbone
+    from ocplace.models.parsing.types import Parser
+
+
+def load_checked_backbone(spec: str, run_meta: dict[str, Any], name: str) -> Backbone:
     from ocplace.models.backbone import load_backbone
 
     backbone = load_backbone(spec)
@@ -31,7 +38,14 @@ def failure_output(error: Exception) -> MethodOutput:
     return MethodOutput(mode=None, samples=None, failure=f"{type(error).__name__}: {error}")
 
 
-def describe_baseline(name: str, run_meta: dict, weights_sha256: str, backbone, num_samples: int, parser=None) -> dict:
+def describe_baseline(
+    name: str,
+    run_meta: dict[str, Any],
+    weights_sha256: str,
+    backbone: Backbone,
+    num_samples: int,
+    parser: Parser | None = None,
+) -> dict[str, Any]:
     """What decides a trained baseline's placements: its run, weights, backbone, parser (if any), sample count."""
     described = {
         "method": name,
@@ -44,7 +58,7 @@ def describe_baseline(name: str, run_meta: dict, weights_sha256: str, backbone, 
     return {**described, "num_samples": num_samples}
 
 
-def train_baseline(train, context: TrainContext) -> Path:
+def train_baseline(train: Callable[..., Path], context: TrainContext[Any]) -> Path:
     """`train` (`train.grids.train_grids` or `train.cliport.train_cliport`) on the context's fields."""
     return train(
         context.dataset_dir,

@@ -178,7 +178,7 @@ class PlacementPolicy:
     backbone: Backbone
     grounding: GroundingModel
     prompt: PromptConfig
-    parser: Parser
+    parser: Parser | None  # None: a policy that is never asked to parse (w/o LLM grounds the sentence itself)
     sampler: SamplerConfig = SamplerConfig()
     threshold: float = DEFAULT_THRESHOLD  # least max-probability a reference needs to be placed against
     detector: DetectorConfig = DetectorConfig()
@@ -330,6 +330,8 @@ class PlacementPolicy:
     def parse(self, instruction: str) -> tuple[ParsedTuple, ...]:
         from ocplace.errors import InvalidPlacementProblem
 
+        if self.parser is None:
+            raise TypeError("this policy was built without a parser (w/o LLM's): it cannot parse instructions")
         parsed = tuple(self.parser.parse(instruction))
         if not 1 <= len(parsed) <= self.max_tuples:
             raise InvalidPlacementProblem(

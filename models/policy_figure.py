@@ -4,10 +4,14 @@ probabilities, the placement density, samples and the mode (built on `placement.
 from __future__ import annotations
 
 import textwrap
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ocplace.models.placement.figures import Panel, draw_panels
+
+if TYPE_CHECKING:
+    from ocplace.models.policy import Placement
 
 REFERENCE_COLOURS = ("cyan", "magenta", "yellow", "orange")
 
@@ -76,7 +80,7 @@ def _rectangle(axis, box, colour: str, width: float, style: str) -> None:
     )
 
 
-def save_placement(policy, scene, key, path) -> object:
+def save_placement(policy, scene, key, path) -> Placement:
     """Places the held object in `scene` (a `models.policy.SceneInput`) and saves the figure to `path`."""
     [placement] = policy.place_many([scene], key)
     save_placement_figure(placement, scene, path)

@@ -14,12 +14,16 @@ import functools
 import json
 import types
 import typing
+from collections.abc import Mapping
 from pathlib import Path
+from typing import Any, TypeVar
 
 import numpy as np
 
+T = TypeVar("T")
 
-def to_dict(value):
+
+def to_dict(value: object) -> Any:
     """`value` as JSON types; a dataclass as a dict of its fields (less its `serial_omitted()` ones); what JSON
     has no type for (a path, ...) as its `str`."""
     if dataclasses.is_dataclass(value) and not isinstance(value, type):
@@ -38,12 +42,12 @@ def to_dict(value):
     return str(value)  # a path, or anything else a method describes itself with
 
 
-def to_json(value) -> str:
+def to_json(value: object) -> str:
     """The canonical text of `to_dict(value)`: sorted keys, JSON's default separators."""
     return json.dumps(to_dict(value), sort_keys=True)
 
 
-def from_dict(cls: type, fields: dict):
+def from_dict(cls: type[T], fields: Mapping[str, Any]) -> T:
     """The `cls` dataclass of `to_dict`'s output (or of JSON text read back); fields it lacks keep their defaults.
     A field `cls` does not have is a TypeError, as in `cls(**fields)`: such text was written by something else."""
     hints = _hints(cls)
@@ -53,7 +57,7 @@ def from_dict(cls: type, fields: dict):
     return cls(**{name: _from(value, hints[name]) for name, value in fields.items()})
 
 
-def from_json(cls: type, text: str):
+def from_json(cls: type[T], text: str) -> T:
     return from_dict(cls, json.loads(text))
 
 
