@@ -1,57 +1,36 @@
 """Type-check ocplace with mypy (`make lint`): the packages pyproject's [tool.mypy] names, strictly; the rest is read.
 
 The package's folders sit at the repository's root and setuptools maps them into `ocplace` (pyproject's
-`package-dir`); the editable install does that with an import hook, which no type checker follows. So the
-mapping is laid out as links under `build/typecheck/ocplace`, and mypy reads that tree. Exit status: mypy's.
+`package-dir`); the editable install does that with an import hook, which no type checker follows. So the map is
+laid out under `build/typecheck/` as `scripts/check_layers.py` lays it out for import-linter, and mypy reads that
+tree (its cache in `build/mypy_cache/`). Messages name the checkout's files. Exit status: mypy's.
 """
 
 from __future__ import annotations
 
 import os
+import shutil
 import sys
 import tomllib
 from pathlib import Path
 
+from check_layers import lay_out
 from mypy import api
 
 ROOT = Path(__file__).resolve().parent.parent
 TREE = ROOT / "build" / "typecheck"
 
 
-def package_dirs(root: Path) -> dict[str, str]:
-    """pyproject's `package-dir`: package name -> folder."""
-    return tomllib.loads((root / "pyproject.toml").read_text())["tool"]["setuptools"]["package-dir"]
-
-
-def package_tree(root: Path, tree: Path) -> Path:
-    """`tree/ocplace`, a tree of links to the folders and files pyproject's `package-dir` maps into `ocplace`."""
-    for package, folder in sorted(package_dirs(root).items()):
-        target = tree.joinpath(*package.split("."))
-        if package.count(".") == 0:  # the top package: link its files, so that its subpackages can be links too
-            target.mkdir(parents=True, exist_ok=True)
-            for path in (root / folder).iterdir():
-                _link(target / path.name, path)
-        else:
-            _link(target, root / folder)
-    return tree / "ocplace"
-
-
-def _link(link: Path, target: Path) -> None:
-    if link.is_symlink() and link.resolve() == target.resolve():
-        return
-    if link.is_symlink():
-        link.unlink()
-    link.symlink_to(target)
-
-
 def main() -> int:
-    package_tree(ROOT, TREE)
+    package_dirs = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["package-dir"]
+    shutil.rmtree(TREE, ignore_errors=True)
+    lay_out(ROOT, package_dirs, TREE)
     os.chdir(ROOT)  # the config's cache folder is relative to it
     stdout, stderr, status = api.run(
         ["--config-file", str(ROOT / "pyproject.toml"), "--python-executable", sys.executable]
     )
-    for package, folder in sorted(package_dirs(ROOT).items(), reverse=True):  # messages name the real files
-        stdout = stdout.replace(str(Path("build", "typecheck", *package.split("."))) + "/", folder + "/")
+    for package, folder in sorted(package_dirs.items(), reverse=True):  # the deepest first: ocplace.sim before ocplace
+        stdout = stdout.replace(str(TREE.relative_to(ROOT).joinpath(*package.split("."))) + "/", folder + "/")
     sys.stdout.write(stdout)
     sys.stderr.write(stderr)
     return status
