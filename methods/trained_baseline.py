@@ -58,14 +58,18 @@ def describe_baseline(
     return {**described, "num_samples": num_samples}
 
 
-def train_baseline(train: Callable[..., Path], context: TrainContext[Any]) -> Path:
-    """`train` (`train.grids.train_grids` or `train.cliport.train_cliport`) on the context's fields."""
-    return train(
-        context.dataset_dir,
-        context.backbone,
-        context.out_dir,
-        context.recipe,
-        context.fraction,
-        context.seed,
-        experiment=context.experiment,
-    )
+def train_baseline(train: Callable[..., None], context: TrainContext[Any]) -> Path:
+    """`train` (`train.grids.train_grids` or `train.cliport.train_cliport`) on the context's fields, unless its run
+    directory holds a finished run (kept as it is)."""
+    from ocplace.models.backbone import load_backbone
+    from ocplace.train.baseline_runs import BaselineRun, is_finished
+
+    if not is_finished(context.out_dir):
+        backbone = load_backbone(context.backbone)
+        train(
+            BaselineRun(
+                backbone, context.dataset_dir, context.out_dir, context.fraction, context.seed, context.experiment
+            ),
+            context.recipe,
+        )
+    return context.out_dir

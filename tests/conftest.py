@@ -51,6 +51,16 @@ def smoke_dataset(tmp_path_factory, library):
 
 
 @pytest.fixture(scope="session")
+def tokenizer_dir(tmp_path_factory):
+    """A tiny CLIP tokenizer's files (tests/tiny_clip.py)."""
+    from tiny_clip import write_tokenizer
+
+    directory = tmp_path_factory.mktemp("tokenizer")
+    write_tokenizer(directory)
+    return directory
+
+
+@pytest.fixture(scope="session")
 def tiny_backbone_spec(tmp_path_factory):
     """`offline:<dir>`: a randomly initialised smoke-size offline backbone saved to disk."""
     import jax

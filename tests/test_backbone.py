@@ -4,7 +4,7 @@ import socket
 
 import numpy as np
 import pytest
-from tiny_clip import build_tiny_clip, write_tokenizer
+from tiny_clip import build_tiny_clip
 
 from ocplace import serial
 from ocplace.errors import BackboneError, BackboneUnavailable
@@ -18,13 +18,6 @@ from ocplace.models.backbone import (
     normalize_pixels,
     resize_and_crop,
 )
-
-
-@pytest.fixture(scope="module")
-def tokenizer_dir(tmp_path_factory):
-    directory = tmp_path_factory.mktemp("tokenizer")
-    write_tokenizer(directory)
-    return directory
 
 
 @pytest.fixture(scope="module")

@@ -7,7 +7,7 @@ import time
 
 import numpy as np
 import pytest
-from tiny_clip import build_tiny_clip, write_tokenizer
+from tiny_clip import build_tiny_clip
 
 from ocplace.errors import FeaturesError
 from ocplace.models.backbone import PromptConfig, load_clip_backbone
@@ -22,13 +22,6 @@ from ocplace.models.features import (
 from ocplace.models.shared_features import SharedFeatures
 
 CONFIG = FeaturizeConfig(chunk_scenes=2)
-
-
-@pytest.fixture(scope="module")
-def tokenizer_dir(tmp_path_factory):
-    directory = tmp_path_factory.mktemp("tokenizer")
-    write_tokenizer(directory)
-    return directory
 
 
 @pytest.fixture(scope="module")

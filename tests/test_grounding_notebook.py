@@ -4,15 +4,13 @@ the smoke dataset's `seen` split (8 scenes), a tiny CLIP and 100 training steps.
 import dataclasses
 from pathlib import Path
 
+from notebook_run import executed_outputs, printed
 from tiny_clip import build_tiny_clip
 
 NOTEBOOK = Path(__file__).resolve().parents[1] / "notebooks" / "01_grounding_logits.ipynb"
 
 
 def test_grounding_notebook_executes(tmp_path, smoke_dataset, monkeypatch):
-    import nbformat
-    from nbclient import NotebookClient
-
     from ocplace.models.backbone import load_clip_backbone
     from ocplace.models.features import featurize, load_features
     from ocplace.sim.dataset.identity import dataset_hash
@@ -38,12 +36,7 @@ def test_grounding_notebook_executes(tmp_path, smoke_dataset, monkeypatch):
         "OCPLACE_RUN": run,
     }.items():
         monkeypatch.setenv(name, str(value))
-    notebook = nbformat.read(NOTEBOOK, as_version=4)
-    NotebookClient(
-        notebook, timeout=600, kernel_name="python3", resources={"metadata": {"path": str(tmp_path)}}
-    ).execute()
-    outputs = [output for cell in notebook.cells if cell.cell_type == "code" for output in cell.outputs]
-    assert not [o for o in outputs if o.output_type == "error"]
-    text = "".join(o.get("text", "") for o in outputs if o.output_type == "stream")
+    outputs = executed_outputs(NOTEBOOK, tmp_path)
+    text = printed(outputs)
     assert "with adapters: GroundingAccuracy" in text and "scenes of 'seen'" in text
     assert sum(o.output_type == "display_data" for o in outputs) >= 4  # P matrices, confusion, bars, sweeps

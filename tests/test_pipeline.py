@@ -205,17 +205,11 @@ def test_figures_command_writes_what_the_results_allow(first_run, tmp_path, caps
 
 @pytest.mark.parametrize("file_name, images_expected", [("results.json", 4), (pipeline.SUMMARY_FILE, 3)])
 def test_results_notebook_executes_on_the_smoke_results(first_run, tmp_path, monkeypatch, file_name, images_expected):
-    import nbformat
-    from nbclient import NotebookClient
+    from notebook_run import executed_outputs, printed
 
-    notebook = nbformat.read(NOTEBOOK, as_version=4)
     monkeypatch.setenv("OCPLACE_RESULTS", str(first_run.out / file_name))
-    NotebookClient(
-        notebook, timeout=600, kernel_name="python3", resources={"metadata": {"path": str(tmp_path)}}
-    ).execute()
-    outputs = [output for cell in notebook.cells if cell.cell_type == "code" for output in cell.outputs]
-    assert not [o for o in outputs if o.output_type == "error"]
-    text = "".join(o.get("text", "") for o in outputs if o.output_type == "stream")
+    outputs = executed_outputs(NOTEBOOK, tmp_path)
+    text = printed(outputs)
     assert "4 evaluations (3 on the whole training set)" in text
     markdown = "".join(o["data"].get("text/markdown", "") for o in outputs if o.output_type == "display_data")
     assert "Table I: success rate of the mode" in markdown and "| Oracle | 100.00 |" in markdown

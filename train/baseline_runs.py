@@ -15,6 +15,7 @@ are functions of (seed, step) alone, so a resumed run ends where an uninterrupte
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from collections.abc import Callable
 from pathlib import Path
@@ -23,9 +24,24 @@ import jax
 import numpy as np
 
 from ocplace.models import weights_file
+from ocplace.models.backbone import Backbone
 from ocplace.paths import WEIGHTS_FILE
 from ocplace.train import checkpoints, runner
 from ocplace.train.recipes import Schedule
+
+
+@dataclasses.dataclass(frozen=True)
+class BaselineRun:
+    """What a baseline's training reads beside its recipe: the backbone, the dataset, its run directory, the share
+    of the training split and the seed; `experiment` names the experiment in the run's metadata only."""
+
+    backbone: Backbone
+    dataset_dir: Path
+    out_dir: Path
+    fraction: float = 1.0
+    seed: int = 0
+    experiment: str = "default"
+    progress: bool = True
 
 
 def is_finished(run_dir: Path) -> bool:

@@ -27,7 +27,7 @@ from ocplace.paths import atomic_path, baselines_cache
 from ocplace.sim import metric
 from ocplace.sim.dataset.job import listed_scenes
 from ocplace.train import baseline_runs
-from ocplace.train.baseline_runs import Schedule
+from ocplace.train.baseline_runs import BaselineRun, Schedule
 from ocplace.train.batches import batch_indices, subset_indices
 from ocplace.train.recipes import CliportRecipe
 
@@ -120,34 +120,17 @@ def train_chunk(config: cliport.CliportConfig, schedule: Schedule, state, data, 
     return state, jnp.stack(losses)
 
 
-def train_cliport(
-    dataset_dir: Path,
-    backbone_spec: str,
-    out_dir: Path,
-    recipe: CliportRecipe,
-    fraction: float = 1.0,
-    seed: int = 0,
-    progress: bool = True,
-    experiment: str = "default",
-) -> Path:
-    """Trains CLIPort-Place into `out_dir` (skipped when finished, resumed when interrupted).
-
-    `experiment` names the experiment in the run's metadata only.
-    """
-    from ocplace.models.backbone import load_backbone
-
-    out_dir = Path(out_dir)
-    if baseline_runs.is_finished(out_dir):
-        return out_dir
+def train_cliport(run: BaselineRun, recipe: CliportRecipe) -> None:
+    """Trains CLIPort-Place into `run.out_dir`, resumed when interrupted (`baseline_runs.train`)."""
+    backbone, dataset_dir, out_dir, fraction, seed = run.backbone, run.dataset_dir, run.out_dir, run.fraction, run.seed
     config = recipe.network
-    backbone = load_backbone(backbone_spec)
-    arrays, data_key = training_data(Path(dataset_dir), backbone, recipe, progress=progress)
+    arrays, data_key = training_data(Path(dataset_dir), backbone, recipe, progress=run.progress)
     num_scenes = len(arrays["rgb"])
     subset = subset_indices(num_scenes, fraction, 0)
     camera = top_down_camera(listed_scenes(dataset_dir, "train")[0].read())
     run_meta = {
         "method": "cliport",
-        "scale": experiment,
+        "scale": run.experiment,
         "fraction": fraction,
         "seed": seed,
         "network": serial.to_dict(config),
@@ -171,5 +154,4 @@ def train_cliport(
         keys = baseline_runs.step_keys(seed, start, count)
         return train_chunk(config, recipe.schedule, state, data, mask, jnp.asarray(indices), keys)
 
-    baseline_runs.train(out_dir, run_meta, init_params, chunk, recipe.schedule, progress, "cliport")
-    return out_dir
+    baseline_runs.train(out_dir, run_meta, init_params, chunk, recipe.schedule, run.progress, "cliport")

@@ -30,7 +30,7 @@ from ocplace.paths import baselines_cache
 from ocplace.sim.dataset.job import listed_scenes, scene_dirs
 from ocplace.sim.dataset.loader import letterbox
 from ocplace.train import baseline_runs
-from ocplace.train.baseline_runs import Schedule
+from ocplace.train.baseline_runs import BaselineRun, Schedule
 from ocplace.train.batches import batch_indices, subset_indices
 from ocplace.train.recipes import GridsRecipe
 from ocplace.vocabulary import MAX_INSTRUCTION_TUPLES
@@ -96,32 +96,15 @@ def train_chunk(config: grids.GridConfig, schedule: Schedule, logit_scale: float
     return jax.lax.scan(lambda carry, step_indices: step(carry, data, step_indices), state, indices)
 
 
-def train_grids(
-    dataset_dir: Path,
-    backbone_spec: str,
-    out_dir: Path,
-    recipe: GridsRecipe,
-    fraction: float = 1.0,
-    seed: int = 0,
-    progress: bool = True,
-    experiment: str = "default",
-) -> Path:
-    """Trains Raw Image Grids into `out_dir` (skipped when finished, resumed when interrupted).
-
-    `experiment` names the experiment in the run's metadata only.
-    """
-    from ocplace.models.backbone import load_backbone
-
-    out_dir = Path(out_dir)
-    if baseline_runs.is_finished(out_dir):
-        return out_dir
-    backbone = load_backbone(backbone_spec)
-    features = cell_features(Path(dataset_dir), backbone, recipe.grid, progress=progress)
+def train_grids(run: BaselineRun, recipe: GridsRecipe) -> None:
+    """Trains Raw Image Grids into `run.out_dir`, resumed when interrupted (`baseline_runs.train`)."""
+    backbone, dataset_dir, out_dir, fraction, seed = run.backbone, run.dataset_dir, run.out_dir, run.fraction, run.seed
+    features = cell_features(Path(dataset_dir), backbone, recipe.grid, progress=run.progress)
     subset = features.subset(subset_indices(features.num_scenes, fraction, 0))
     logit_scale = float(features.info.logit_scale)
     run_meta = {
         "method": "grids",
-        "scale": experiment,
+        "scale": run.experiment,
         "fraction": fraction,
         "seed": seed,
         "grid": serial.to_dict(recipe.grid),
@@ -141,5 +124,4 @@ def train_grids(
         indices = batch_indices(subset.num_scenes, seed, start, count, recipe.schedule.batch_size)
         return train_chunk(recipe.grid, recipe.schedule, logit_scale, state, data, jnp.asarray(indices))
 
-    baseline_runs.train(out_dir, run_meta, init_params, chunk, recipe.schedule, progress, "grids")
-    return out_dir
+    baseline_runs.train(out_dir, run_meta, init_params, chunk, recipe.schedule, run.progress, "grids")
