@@ -265,6 +265,34 @@ def test_train_command_gives_the_bits_of_a_reproduce_training_task(tmp_path, fea
     assert all(np.array_equal(by_command[name], by_task[name]) for name in by_command)
 
 
+def test_train_method_trains_a_row_through_its_spec_as_reproduce_does(
+    trained_run, smoke_dataset, tiny_backbone_spec, tmp_path, monkeypatch, capsys
+):
+    """`ocplace train --method ours` gives the weights of the same row trained through its `MethodSpec` with the
+    same recipe, fraction and seed (the `trained_run` fixture: what a `reproduce` task does, in this process)."""
+    from ocplace.cli import main
+
+    run_dir, features = trained_run
+    monkeypatch.setenv("OCPLACE_CACHE", str(features[0].parents[1]))  # its cache: the same features, not made again
+    common = ["--dataset", str(smoke_dataset), "--backbone", tiny_backbone_spec, "--experiment", "smoke", "--cpus", "0"]
+    command = ["train", "--method", "ours", *common, "--fraction", "0.5", "--seed", "3", "--out", str(tmp_path / "run")]
+    assert main(command) == 0
+    assert "Ours trained (smoke recipe, fraction 0.5, seed 3)" in capsys.readouterr().out
+    by_command, by_spec = adapter_arrays(tmp_path / "run"), adapter_arrays(run_dir)
+    assert by_command.keys() == by_spec.keys()
+    assert all(np.array_equal(by_command[name], by_spec[name]) for name in by_command)
+    refusals = {
+        "no_adapter": "no_adapter learns nothing",
+        "nothing": "unknown method 'nothing'; registered: ours, ",
+    }
+    for method, message in refusals.items():
+        assert main(["train", "--method", method, *common, "--out", str(tmp_path / method)]) == 2
+        assert message in capsys.readouterr().err
+    assert main(["train", "--method", "ours", *common, "--steps", "5", "--out", str(tmp_path / "steps")]) == 2
+    assert "change it with --set recipes.NAME.FIELD=VALUE" in capsys.readouterr().err
+    assert not (tmp_path / "steps").exists()
+
+
 @pytest.mark.parametrize("content", ['{"train_config": {"st', "", "[]"])
 def test_a_damaged_run_file_is_typed_when_the_run_resumes_or_loads(tmp_path, features, capsys, content):
     from ocplace.cli import main

@@ -1,24 +1,50 @@
-"""`ocplace train`: the CLIP-Adapters trained on cached features."""
+"""`ocplace train`: the CLIP-Adapters trained on cached features, or any Table I row through its method."""
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 from pathlib import Path
 
-from ocplace.cli.options import add_config_arguments, config_from_arguments, count
+from ocplace.cli.options import add_config_arguments, add_dataset_argument, config_from_arguments, count
 from ocplace.runtime.width import TRAIN_CPUS, pin_jax_width
 from ocplace.train.config import TrainConfig, default_config, paper_config, smoke_config  # light: no JAX behind it
+from ocplace.vocabulary import EXPERIMENT_NAMES
 
 
 def register(subparsers) -> None:
     parser = subparsers.add_parser(
         "train",
-        help="train the CLIP-Adapters on cached features",
-        description="Adam on cached backbone features, steps fused with lax.scan. Resumes from the newest "
-        "checkpoint in --out; the same seed gives the same weights.",
+        help="train the CLIP-Adapters on cached features, or any Table I row (--method)",
+        description="With --features: Ours' adapters by Adam on cached backbone features, steps fused with "
+        "lax.scan. With --method: that registered row trained on --dataset through its method, with its recipe "
+        "from --experiment (as `ocplace reproduce` trains it). Resumes from the newest checkpoint in --out; the "
+        "same seed gives the same weights.",
     )
-    parser.add_argument("--features", required=True, type=Path, help="training feature file")
+    source = parser.add_mutually_exclusive_group(required=True)
+    source.add_argument("--features", type=Path, help="training feature file (Ours' adapters)")
+    source.add_argument(
+        "--method",
+        help="a registered method that learns, trained on --dataset (an unknown name lists them)",
+    )
     parser.add_argument("--out", required=True, type=Path, help="run directory")
+    row = parser.add_argument_group("with --method")
+    add_dataset_argument(row, "dataset folder holding the training split")
+    row.add_argument("--backbone", default="offline", help="backbone spec the method trains on (default: offline)")
+    row.add_argument(
+        "--experiment",
+        choices=EXPERIMENT_NAMES,
+        default="default",
+        help="whose recipe (ocplace/configs; default: default)",
+    )
+    row.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="set a setting of the experiment, e.g. recipes.no_llm.steps=100 (repeatable)",
+    )
     parser.add_argument("--val-features", type=Path, help="feature file to report validation accuracy on")
     start = parser.add_mutually_exclusive_group()
     start.add_argument("--smoke", action="store_true", help="start from the tiny smoke configuration")
@@ -50,6 +76,8 @@ def train_config_from_args(args: argparse.Namespace) -> TrainConfig:
 
 
 def run_train(args) -> int:
+    if args.method is not None:
+        return train_method(args)
     from ocplace.errors import TrainingError
     from ocplace.experiments.experiment import number_problems
 
@@ -75,4 +103,51 @@ def run_train(args) -> int:
             f"validation: {result.val_accuracy.tuple_accuracy:.4f} per tuple, "
             f"{result.val_accuracy.scene_accuracy:.4f} per scene"
         )
+    return 0
+
+
+def train_method(args: argparse.Namespace) -> int:
+    """The row `args.method` trained through its `MethodSpec` (its shared inputs made first), as a task of
+    `reproduce` trains it; the TrainConfig flags belong to --features."""
+    from ocplace import configs
+    from ocplace.cli.options import apply_overrides
+    from ocplace.errors import ConfigError
+    from ocplace.experiments.experiment import refuse_run_keys
+    from ocplace.methods.api import TrainContext
+    from ocplace.methods.registry import method_specs
+
+    run_keys = ("fraction", "seed")  # the run's, as a reproduce task sets them: the flags --fraction and --seed
+    fields = [field.name for field in dataclasses.fields(TrainConfig) if field.name not in run_keys]
+    given = [name for name in fields if getattr(args, name, None) is not None]
+    if given or args.smoke or args.paper_adapters or args.val_features:
+        raise ConfigError("with --method the recipe is the experiment's: change it with --set recipes.NAME.FIELD=VALUE")
+    specs = method_specs()
+    if args.method not in specs:
+        raise ConfigError(f"unknown method {args.method!r}; registered: {', '.join(specs)}")
+    spec = specs[args.method]
+    if spec.train is None:
+        raise ConfigError(f"{args.method} learns nothing: there is no run to train (evaluate it directly)")
+    if args.dataset is None:
+        raise ConfigError("--method trains on a dataset: give --dataset DATA")
+    fraction, seed = 1.0 if args.fraction is None else args.fraction, args.seed or 0
+    if not 0.0 < fraction <= 1.0 or seed < 0:
+        raise ConfigError(f"--fraction lies in (0, 1] and --seed is at least 0, got {fraction}, {seed}")
+    refuse_run_keys([item.partition("=")[0].strip() for item in args.overrides])
+    experiment = apply_overrides(configs.get(args.experiment), args.overrides)
+    experiment.validate()
+    context = TrainContext(
+        args.dataset,
+        args.backbone,
+        args.out,
+        experiment.recipes.of(args.method),
+        fraction,
+        seed,
+        experiment.name,
+    )
+    if args.cpus:
+        pin_jax_width(args.cpus)
+    if spec.prepare is not None:
+        spec.prepare(context)
+    run_dir = spec.train(context)
+    print(f"{run_dir}: {spec.label} trained ({args.experiment} recipe, fraction {fraction:g}, seed {seed})")
     return 0
