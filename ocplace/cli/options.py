@@ -62,6 +62,19 @@ def config_from_arguments(args: argparse.Namespace, base_config, fields: Sequenc
     )
 
 
+def add_set_argument(parser: argparse.ArgumentParser | argparse._ArgumentGroup, example: str) -> None:
+    """`--set KEY=VALUE` (repeatable, into `overrides`): any setting of the experiment, `apply_overrides`' input."""
+    parser.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="set any setting of the experiment (ocplace.configs); KEY is a dotted path such as "
+        f"{example}, an unknown one lists the valid keys (repeatable; see docs/evaluation.md)",
+    )
+
+
 def apply_overrides(config, overrides: Iterable[str]):
     """`config` with each `KEY=VALUE` applied in order; KEY is a dotted path into nested frozen dataclasses.
 

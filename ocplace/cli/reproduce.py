@@ -7,7 +7,7 @@ from pathlib import Path
 
 from ocplace.cli.evaluate import command_record, physical_setting
 from ocplace.cli.executor_options import add_executor_arguments, executor_config
-from ocplace.cli.options import DeprecatedAlias, add_dataset_argument, count
+from ocplace.cli.options import DeprecatedAlias, add_dataset_argument, add_set_argument, count
 from ocplace.vocabulary import EXPERIMENT_NAMES
 
 
@@ -60,16 +60,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="K",
         help="physical check on the first K scenes per subset (default: the experiment's; -1: all)",
     )
-    reproduce.add_argument(
-        "--set",
-        dest="overrides",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="set any setting of the experiment (ocplace.configs), applied after the other options; KEY is a "
-        "dotted path such as recipes.ours.steps or dataset.train_scenes, an unknown one lists the valid keys "
-        "(repeatable; see docs/evaluation.md)",
-    )
+    add_set_argument(reproduce, "recipes.ours.steps or dataset.train_scenes (applied after the other options)")
     reproduce.add_argument("--no-progress", action="store_true")
     add_executor_arguments(
         reproduce, "objects, scenes, the pretraining, each training and each evaluation are tasks of one graph"

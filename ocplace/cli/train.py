@@ -6,7 +6,13 @@ import argparse
 import dataclasses
 from pathlib import Path
 
-from ocplace.cli.options import add_config_arguments, add_dataset_argument, config_from_arguments, count
+from ocplace.cli.options import (
+    add_config_arguments,
+    add_dataset_argument,
+    add_set_argument,
+    config_from_arguments,
+    count,
+)
 from ocplace.runtime.width import TRAIN_CPUS, pin_jax_width
 from ocplace.train.config import TrainConfig, default_config, paper_config, smoke_config  # light: no JAX behind it
 from ocplace.vocabulary import EXPERIMENT_NAMES
@@ -37,14 +43,7 @@ def register(subparsers) -> None:
         default="default",
         help="whose recipe (ocplace/configs; default: default)",
     )
-    row.add_argument(
-        "--set",
-        dest="overrides",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="set a setting of the experiment, e.g. recipes.no_llm.steps=100 (repeatable)",
-    )
+    add_set_argument(row, "recipes.no_llm.steps")
     parser.add_argument("--val-features", type=Path, help="feature file to report validation accuracy on")
     start = parser.add_mutually_exclusive_group()
     start.add_argument("--smoke", action="store_true", help="start from the tiny smoke configuration")
