@@ -104,6 +104,30 @@ def trained_run(smoke_dataset, tiny_backbone_spec, tmp_path_factory):
 _BORROWED_CACHE_FOLDERS = ("library", "sources", "corpus", "weights", "primitives", "compiled")
 
 
+@pytest.fixture(scope="session")
+def smoke_rows(smoke_dataset, tiny_backbone_spec, tmp_path_factory):
+    """`{name: run directory}`: each registered row that learns, trained through its spec with the smoke recipe on
+    the tiny backbone when first asked for (its shared inputs made first), in a cache of its own."""
+    from lazy import Lazy
+
+    from ocplace.configs import smoke
+    from ocplace.methods.api import TrainContext
+    from ocplace.methods.registry import method_specs
+
+    cache, recipes = tmp_path_factory.mktemp("rows_cache"), smoke.get_config().recipes
+
+    def train(name):
+        spec = method_specs()[name]
+        context = TrainContext(smoke_dataset, tiny_backbone_spec, tmp_path_factory.mktemp(name), recipes.of(name))
+        with pytest.MonkeyPatch.context() as patch:
+            patch.setenv("OCPLACE_CACHE", str(cache))
+            if spec.prepare is not None:
+                spec.prepare(context)
+            return spec.train(context)
+
+    return Lazy(train)
+
+
 @pytest.fixture
 def borrowed_cache(tmp_path, monkeypatch):
     """A cache of the test's own, in this process and in the processes it starts, borrowing the built library,

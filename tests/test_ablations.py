@@ -6,6 +6,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from lazy import Lazy
 from safetensors.numpy import load_file
 
 from ocplace.configs import smoke
@@ -38,30 +39,14 @@ def specs():
     return {spec.name: spec for spec in (no_llm.SPEC, no_pretrain.SPEC)}
 
 
-class Lazy(dict):
-    """A dict that makes each value on first use, so a test trains only the methods it asks for."""
-
-    def __init__(self, make):
-        super().__init__()
-        self.make = make
-
-    def __missing__(self, name):
-        self[name] = self.make(name)
-        return self[name]
-
-
 METHOD_NAMES = ["no_llm", "no_pretrain"]
 
 
 @pytest.fixture(scope="module")
-def runs(isolated_cache, specs, smoke_dataset, tiny_backbone_spec, tmp_path_factory):
-    """Each method trained at smoke scale when first asked for: {name: run directory}."""
-
-    def train(name):
-        context = TrainContext(smoke_dataset, tiny_backbone_spec, tmp_path_factory.mktemp(name), RECIPES.of(name))
-        return specs[name].train(context)
-
-    return Lazy(train)
+def runs(isolated_cache, smoke_rows):
+    """Each method trained at smoke scale when first asked for: {name: run directory} (shared with
+    test_registered_rows.py)."""
+    return smoke_rows
 
 
 @pytest.fixture(scope="module")
