@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ocplace import serial
-from ocplace.errors import OcplaceError, TrainingError
+from ocplace.errors import TrainingError
 from ocplace.eval.api import MethodOutput
 from ocplace.methods.api import LoadContext, MethodSpec, TrainContext
 from ocplace.methods.policy_method import prepare_train_features, scene_input
@@ -28,7 +28,7 @@ if TYPE_CHECKING:
     import jax
 
     from ocplace.models.no_llm import TrainedNoLlm
-    from ocplace.models.policy import GroundedReference, PlacementPolicy, PreparedScene
+    from ocplace.models.policy import GroundedReference, PlacementPolicy, PreparedScene, SceneProgress
 
 
 def train(ctx: TrainContext[Recipe]) -> Path:
@@ -56,21 +56,19 @@ class NoLlmMethod:
     run_dir: Path
 
     def run(self, scenes: Sequence[SceneRecord], key: jax.Array) -> list[MethodOutput]:
-        prepared: list[PreparedScene | OcplaceError] = []
-        for scene in scenes:
-            try:
-                prepared.append(self.policy.prepare(scene_input(scene)))
-            except OcplaceError as error:
-                prepared.append(error)
-        ready = {i: p for i, p in enumerate(prepared) if not isinstance(p, OcplaceError)}
-        references: dict[int, tuple[GroundedReference, ...]] = {}
-        chunk_size = self.policy.encode_scenes
-        indices = list(ready)
-        for start in range(0, len(indices), chunk_size):
-            chunk = indices[start : start + chunk_size]
-            references.update(zip(chunk, self.program([ready[i] for i in chunk], [scenes[i].level for i in chunk])))
-        sampled = dict(zip(ready, self.policy.sample(list(ready.values()), [references[i] for i in ready], key)))
-        return [self._output(prepared[i], references.get(i), sampled.get(i)) for i in range(len(scenes))]
+        from ocplace.models.policy import SceneProgress
+
+        runs = [SceneProgress(scene_input(scene)) for scene in scenes]
+        for run in runs:
+            run.prepared = run.attempt(self.policy.prepare, run.scene)
+        ready = [(run, run.prepared, scene.level) for run, scene in zip(runs, scenes) if run.prepared is not None]
+        for start in range(0, len(ready), self.policy.encode_scenes):
+            chunk = ready[start : start + self.policy.encode_scenes]
+            programs = self.program([prepared for _, prepared, _ in chunk], [level for _, _, level in chunk])
+            for (run, _, _), references in zip(chunk, programs):
+                run.references = references
+        self.policy.sample([run for run, _, _ in ready], key)
+        return [self._output(run) for run in runs]
 
     def program(self, prepared: Sequence[PreparedScene], levels: Sequence[str]) -> list[tuple[GroundedReference, ...]]:
         """Per scene, the chosen references with their predicted relations (`GroundedReference`s)."""
@@ -107,19 +105,14 @@ class NoLlmMethod:
         return programs
 
     @staticmethod
-    def _output(
-        prepared: PreparedScene | OcplaceError,
-        references: tuple[GroundedReference, ...] | None,
-        sampled: tuple[Any, ...] | OcplaceError | None,
-    ) -> MethodOutput:
-        failure = next((x for x in (prepared, sampled) if isinstance(x, OcplaceError)), None)
-        grounded = tuple(ref.token for ref in references) if references else None
-        if failure is not None:
+    def _output(run: SceneProgress) -> MethodOutput:
+        grounded = tuple(ref.token for ref in run.references) if run.references else None
+        if run.error is not None:
             return MethodOutput(
-                mode=None, samples=None, grounded=grounded, failure=f"{type(failure).__name__}: {failure}"
+                mode=None, samples=None, grounded=grounded, failure=f"{type(run.error).__name__}: {run.error}"
             )
-        assert isinstance(sampled, tuple), "every prepared scene is sampled"
-        samples, _, mode = sampled
+        assert run.sampled is not None, "every prepared scene is sampled"
+        samples, _, mode = run.sampled
         return MethodOutput(
             mode=np.asarray(mode, np.float64), samples=np.asarray(samples, np.float64), parsed=None, grounded=grounded
         )

@@ -11,7 +11,9 @@ given), `parse`, `encode` (N + 1 crops and L phrases through the frozen backbone
 (adapters + softmax over the N + 1 tokens), `sample` (the truncated-Gaussian sampler, one
 vmapped call for every scene). `place` runs them on one scene and raises typed errors;
 `place_many` runs the same stages on many scenes at once (crops encoded in batches, one sampler
-call) and flags failures per scene instead of raising.
+call): each scene goes through them as a `SceneProgress`, a stage refuses a scene by raising an
+`OcplaceError` (kept on that scene, which the later stages skip), and its `Placement` carries the error and
+its `flag` instead of raising.
 """
 
 from __future__ import annotations
@@ -114,6 +116,36 @@ class GroundedReference:
     @property
     def is_table(self) -> bool:
         return self.box is None
+
+
+Sampled = tuple[np.ndarray, np.ndarray, np.ndarray]  # (samples (S, 2), heatmap (nx, ny), mode (2,))
+
+
+@dataclasses.dataclass
+class SceneProgress:
+    """One scene on its way through the policy's stages: what each made, until one refused it (`error`).
+
+    A stage refuses a scene by raising an `OcplaceError`; `attempt` keeps it here, so that one scene's refusal
+    never stops the others of a batch (`place_many`), and `place` raises it."""
+
+    scene: SceneInput
+    prepared: PreparedScene | None = None
+    parsed: tuple[ParsedTuple, ...] | None = None
+    references: tuple[GroundedReference, ...] | None = None
+    sampled: Sampled | None = None
+    error: OcplaceError | None = None
+
+    @property
+    def ok(self) -> bool:
+        return self.error is None
+
+    def attempt(self, stage: Callable[..., Any], *args: Any) -> Any:
+        """`stage(*args)`, or None with its OcplaceError kept as this scene's `error`."""
+        try:
+            return stage(*args)
+        except OcplaceError as error:
+            self.error = error
+            return None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -263,28 +295,23 @@ class PlacementPolicy:
     def place_many(self, scenes: Sequence[SceneInput], key, progress: bool = False) -> list[Placement]:
         """`place` on many scenes: crops encoded in batches, one vmapped sampler call. Never raises an
         `OcplaceError` for one scene: that scene's Placement carries it (`error`, `failure`)."""
-        prepared = [_attempt(self.prepare, scene) for scene in scenes]
-        parses = [
-            _attempt(self.parse, scene.instruction) if not _failed(p) else p for scene, p in zip(scenes, prepared)
-        ]
-        groundings: list[Any] = [None] * len(scenes)
-        ready = [i for i in range(len(scenes)) if not _failed(prepared[i]) and not _failed(parses[i])]
-        outcome = {i: _attempt(_check_boxes_for, prepared[i], parses[i]) for i in ready}
-        ready = [i for i in ready if not _failed(outcome[i])]
+        runs = [SceneProgress(scene) for scene in scenes]
+        for run in runs:
+            run.prepared = run.attempt(self.prepare, run.scene)
+            if run.ok:
+                run.parsed = run.attempt(self.parse, run.scene.instruction)
+            if run.ok:
+                run.attempt(_check_boxes_for, run.prepared, run.parsed)
+        ready = [run for run in runs if run.ok]
         chunks = [ready[start : start + self.encode_scenes] for start in range(0, len(ready), self.encode_scenes)]
         for chunk in _progress(chunks, progress, "encode"):
-            tokens = self.encode([prepared[i] for i in chunk], [parses[i] for i in chunk])
+            tokens = self.encode([run.prepared for run in chunk], [run.parsed for run in chunk])
             probabilities = self.ground(tokens)
-            for row, i in enumerate(chunk):
-                groundings[i] = self.decide(prepared[i], parses[i], probabilities[row])
-                outcome[i] = _attempt(self.check_confidence, prepared[i], groundings[i])
-        sampled = [i for i in ready if not _failed(outcome[i])]
-        results = self.sample([prepared[i] for i in sampled], [groundings[i] for i in sampled], key)
-        outcome.update(zip(sampled, results))
-        return [
-            self._assemble(scene, prepared[i], parses[i], groundings[i], outcome.get(i))
-            for i, scene in enumerate(scenes)
-        ]
+            for row, run in enumerate(chunk):
+                run.references = self.decide(run.prepared, run.parsed, probabilities[row])
+                run.attempt(self.check_confidence, run.prepared, run.references)
+        self.sample([run for run in ready if run.ok], key)
+        return [self._assemble(run) for run in runs]
 
     # ------------------------------------------------------------------ stages
 
@@ -415,49 +442,46 @@ class PlacementPolicy:
             max_boxes=max(self.min_boxes, len(scene.aabbs)),
         )
 
-    def sample(
-        self, scenes: Sequence[PreparedScene], references: Sequence[Sequence[GroundedReference]], key
-    ) -> list[Any]:
-        """One sampler call for all scenes: per scene `(samples, heatmap, mode)` or an OcplaceError."""
+    def sample(self, runs: Sequence[SceneProgress], key) -> None:
+        """One sampler call for the prepared and grounded scenes of `runs`: each gets `sampled` or its `error`."""
         import jax
 
         from ocplace.models.placement import explain_empty, sample_placements
 
-        problems = [_attempt(self.problem, scene, refs) for scene, refs in zip(scenes, references)]
-        valid = [i for i, p in enumerate(problems) if not _failed(p)]
-        if valid:
-            batch = [problems[i] for i in valid]
-            batch += batch[:1] * (_padded_count(len(batch), self.sampler.scenes_per_step) - len(batch))
-            result = jax.device_get(sample_placements(key, metric.stack_problems(batch), self.sampler))
-            for row, i in enumerate(valid):
-                if result.empty[row]:
-                    problems[i] = NoFeasiblePlacement(scenes[i].name, explain_empty(problems[i], self.sampler.grid))
-                else:
-                    problems[i] = (result.samples[row], result.heatmap[row], result.mode[row])
-        return problems
+        problems = [(run, run.attempt(self.problem, run.prepared, run.references)) for run in runs]
+        valid = [(run, problem) for run, problem in problems if run.ok]
+        if not valid:
+            return
+        batch = [problem for _, problem in valid]
+        batch += batch[:1] * (_padded_count(len(batch), self.sampler.scenes_per_step) - len(batch))
+        result = jax.device_get(sample_placements(key, metric.stack_problems(batch), self.sampler))
+        for row, (run, problem) in enumerate(valid):
+            if result.empty[row]:
+                run.error = NoFeasiblePlacement(run.prepared.name, explain_empty(problem, self.sampler.grid))
+            else:
+                run.sampled = (result.samples[row], result.heatmap[row], result.mode[row])
 
     # ------------------------------------------------------------------ assembly
 
-    def _assemble(self, scene: SceneInput, prepared, parsed, references, sampled) -> Placement:
-        error = next((x for x in (prepared, parsed, references, sampled) if _failed(x)), None)
-        ok_prepared = not _failed(prepared)
-        boxes = prepared.boxes if ok_prepared else np.zeros((0, 4), np.int32)
-        flags = list(prepared.flags) if ok_prepared else []
-        if ok_prepared and not len(boxes):
+    def _assemble(self, run: SceneProgress) -> Placement:
+        prepared, error = run.prepared, run.error
+        boxes = prepared.boxes if prepared is not None else np.zeros((0, 4), np.int32)
+        flags = list(prepared.flags) if prepared is not None else []
+        if prepared is not None and not len(boxes):
             flags.append("no_boxes")
         if error is not None:
-            flags.append(_FAILURE_FLAGS.get(type(error).__name__, "failed"))
+            flags.append(error.flag)
         samples = mode = heatmap = samples_px = mode_px = None
-        if error is None:
-            samples, heatmap, mode = (np.asarray(x) for x in sampled)
+        if error is None and run.sampled is not None and prepared is not None:
+            samples, heatmap, mode = (np.asarray(x) for x in run.sampled)
             samples_px, mode_px = prepared.camera.table_to_pixel(samples), prepared.camera.table_to_pixel(mode)
         return Placement(
-            name=scene.name,
-            instruction=scene.instruction,
-            parsed=tuple(parsed) if not _failed(parsed) and parsed is not None else (),
-            references=references or (),
+            name=run.scene.name,
+            instruction=run.scene.instruction,
+            parsed=run.parsed or (),
+            references=run.references or (),
             boxes=boxes,
-            aabbs=prepared.aabbs if ok_prepared else np.zeros((0, 2, 2)),
+            aabbs=prepared.aabbs if prepared is not None else np.zeros((0, 2, 2)),
             samples=samples,
             samples_px=samples_px,
             mode=mode,
@@ -469,31 +493,10 @@ class PlacementPolicy:
         )
 
 
-_FAILURE_FLAGS = {
-    "GroundingUncertain": "low_confidence",
-    "NoFeasiblePlacement": "empty_region",
-    "NoObjectBoxes": "no_boxes_for_reference",
-    "ParseError": "parse_failed",
-    "InvalidPlacementProblem": "invalid_problem",
-}
-
-
 def _padded_count(count: int, step: int) -> int:
     """One scene stays one (a robot's latency); batches round up to whole sampler steps, so a batched
     evaluation compiles the sampler for few shapes."""
     return count if count == 1 else -(-count // step) * step
-
-
-def _attempt(function: Callable, *args):
-    """`function(*args)`, or the OcplaceError it raised: one scene's failure must not stop a batch."""
-    try:
-        return function(*args)
-    except OcplaceError as error:
-        return error
-
-
-def _failed(value) -> bool:
-    return isinstance(value, OcplaceError)
 
 
 def _progress(items, enabled: bool, desc: str):

@@ -4,6 +4,8 @@
 class OcplaceError(Exception):
     """Base class of every error ocplace raises on purpose."""
 
+    flag = "failed"  # what a placement that failed with it says among its flags (`models.policy.Placement.flags`)
+
 
 class MissingAssetPackage(OcplaceError):
     """An object source package is not installed."""
@@ -35,13 +37,19 @@ class ObjectsFellOff(SceneError):
 class ParseError(OcplaceError, ValueError):
     """An instruction that cannot be turned into `<reference, relation>` tuples."""
 
+    flag = "parse_failed"
+
 
 class InvalidPlacementProblem(OcplaceError, ValueError):
     """Grounded tuples or scene geometry that cannot describe a placement problem."""
 
+    flag = "invalid_problem"
+
 
 class NoFeasiblePlacement(OcplaceError):
     """No placement satisfies every tuple and avoids every object; names the scene and the cause."""
+
+    flag = "empty_region"
 
     def __init__(self, scene: str, reason: str):
         super().__init__(scene, reason)
@@ -98,9 +106,13 @@ class PolicyInputError(OcplaceError, ValueError):
 class NoObjectBoxes(PolicyInputError):
     """The image has no object box, but the instruction refers to an object."""
 
+    flag = "no_boxes_for_reference"
+
 
 class GroundingUncertain(OcplaceError):
     """A reference phrase whose best visual token is below the policy's confidence threshold."""
+
+    flag = "low_confidence"
 
     def __init__(self, phrase: str, candidates: list[tuple[str, float]], threshold: float):
         super().__init__(phrase, candidates, threshold)

@@ -28,7 +28,7 @@ from random_clip import TINY_CLIP, VIT_B32, random_clip_backbone
 
 from ocplace.models.backbone import load_backbone
 from ocplace.models.placement.sampler import SamplerConfig
-from ocplace.models.policy import PlacementPolicy
+from ocplace.models.policy import PlacementPolicy, SceneProgress
 
 
 def random_offline_backbone(tiny: bool):
@@ -105,7 +105,7 @@ def stage_times(policy: PlacementPolicy, scene, repeats: int) -> dict[str, float
         "  texts alone": median_ms(lambda: policy.backbone.encode_texts(texts), repeats),
         "ground": median_ms(lambda: policy.ground(tokens), repeats),
         f"sample {policy.sampler.num_samples}": median_ms(
-            lambda: policy.sample([prepared], [references], key)[0], repeats
+            lambda: policy.sample([SceneProgress(scene, prepared, parsed, references)], key), repeats
         ),
         "place (end to end)": median_ms(place, repeats),
         "first place call (compiles)": first_s * 1000.0,
