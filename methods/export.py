@@ -70,8 +70,8 @@ NOT_EVALUATED = "Not evaluated at export: `ocplace evaluate --policy FOLDER` giv
 
 def backbone_of(adapters: TrainedAdapters, given: str | None = None) -> str:
     """`given`; else the saved offline backbone whose fingerprint the adapters record (BackboneUnavailable)."""
+    from ocplace.models.backbone import backbone_hint
     from ocplace.models.offline_backbone import saved_backbone_with
-    from ocplace.models.policy import backbone_hint
 
     if given is not None:
         return given

@@ -16,7 +16,6 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ocplace import serial
-from ocplace.errors import TrainingError
 from ocplace.eval.api import MethodOutput
 from ocplace.methods.api import LoadContext, MethodSpec, TrainContext
 from ocplace.methods.policy_method import prepare_train_features, scene_input
@@ -146,7 +145,7 @@ class NoLlmMethod:
 
 
 def load(ctx: LoadContext) -> NoLlmMethod:
-    from ocplace.models.backbone import PromptConfig, load_backbone
+    from ocplace.models.backbone import PromptConfig, check_trained_on, load_backbone
     from ocplace.models.grounding import GroundingModel
     from ocplace.models.no_llm import load_model
     from ocplace.models.placement.sampler import SamplerConfig
@@ -155,11 +154,7 @@ def load(ctx: LoadContext) -> NoLlmMethod:
 
     trained = load_model(ctx.trained_run)
     backbone = load_backbone(ctx.backbone)
-    if trained.backbone_fingerprint != backbone.fingerprint:
-        raise TrainingError(
-            f"the no_llm model in {ctx.run_dir} was trained on another backbone (fingerprint "
-            f"{trained.backbone_fingerprint[:12]}, {ctx.backbone} is {backbone.fingerprint[:12]})"
-        )
+    check_trained_on(backbone, trained.backbone_fingerprint, f"the no_llm model in {ctx.run_dir} was")
     # Grounding and parsing are the model's own; the policy only prepares scenes and samples. Its backbone
     # reads the test features Ours' evaluations encoded in the same batches (models/shared_features.py).
     policy = PlacementPolicy(

@@ -10,7 +10,6 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from ocplace.errors import TrainingError
 from ocplace.eval.api import MethodOutput
 from ocplace.methods.api import TrainContext
 
@@ -22,15 +21,10 @@ if TYPE_CHECKING:
 
 
 def load_checked_backbone(spec: str, run_meta: dict[str, Any], name: str) -> Backbone:
-    from ocplace.models.backbone import load_backbone
+    from ocplace.models.backbone import check_trained_on, load_backbone
 
     backbone = load_backbone(spec)
-    if backbone.fingerprint != run_meta["backbone_fingerprint"]:
-        raise TrainingError(
-            f"the {name} run was trained with another backbone (fingerprint "
-            f"{run_meta['backbone_fingerprint'][:12]}, loaded {backbone.fingerprint[:12]}); "
-            "evaluate with the backbone it was trained with, or retrain"
-        )
+    check_trained_on(backbone, run_meta["backbone_fingerprint"], f"the {name} run was")
     return backbone
 
 

@@ -30,9 +30,8 @@ from ocplace.errors import (
     NoObjectBoxes,
     OcplaceError,
     PolicyInputError,
-    TrainingError,
 )
-from ocplace.models.backbone import Backbone, PromptConfig
+from ocplace.models.backbone import Backbone, PromptConfig, check_trained_on
 from ocplace.models.detection import DetectorConfig, detect_boxes, estimate_aabbs
 from ocplace.models.grounding import GroundingModel
 from ocplace.models.parsing import ParsedTuple, Parser
@@ -46,21 +45,6 @@ from ocplace.vocabulary import GATE_THRESHOLD, MAX_PARSED_TUPLES
 
 DEFAULT_THRESHOLD = GATE_THRESHOLD
 TABLE_LABEL = "the table"
-
-
-def backbone_hint(fingerprint: str) -> str:
-    """How to get the backbone with `fingerprint`: its saved directory, or how to build or pass it."""
-    from ocplace.models.offline_backbone import saved_backbone_with
-    from ocplace.paths import backbones_cache
-
-    directory = saved_backbone_with(fingerprint)
-    if directory is not None:
-        return f"the backbone they were trained with is saved in {directory}: pass `--backbone offline:{directory}`"
-    return (
-        f"no saved offline backbone in {backbones_cache()} has that fingerprint: pass the backbone they were "
-        "trained with (`--backbone SPEC`, the spec their training used), or train adapters on a backbone you "
-        "have (`ocplace reproduce` pretrains its scale's backbone and trains on it)"
-    )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -235,12 +219,7 @@ class PlacementPolicy:
                 backbone, GroundingModel.zero_shot(backbone.dim, backbone.logit_scale), PromptConfig(), parser, **kwargs
             )
         trained = adapters if isinstance(adapters, TrainedAdapters) else load_adapters(adapters)
-        if trained.backbone_fingerprint != backbone.fingerprint:
-            raise TrainingError(
-                f"the adapters in {trained.source} were trained on features of another backbone "
-                f"(fingerprint {trained.backbone_fingerprint[:12]}, this one "
-                f"{backbone.fingerprint[:12]}); {backbone_hint(trained.backbone_fingerprint)}"
-            )
+        check_trained_on(backbone, trained.backbone_fingerprint, f"the adapters in {trained.source} were")
         return cls(backbone, trained.model, trained.prompt, parser, **kwargs)
 
     @classmethod
