@@ -85,7 +85,8 @@ class RenderConfig:
         keep their key."""
         return tuple(name for name in ("large_models", "cutouts") if getattr(self, name) in ("drop", ()))
 
-    def validate(self) -> list[str]:
+    def problems(self) -> list[str]:
+        """What is wrong with these settings (`PretrainConfig.validate` raises with them)."""
         problems = []
         if self.pool not in POOLS:
             problems.append(f"pool must be one of {', '.join(POOLS)}")
@@ -147,7 +148,8 @@ class OptimConfig:
     keep_checkpoints: int = 2
     seed: int = 0
 
-    def validate(self) -> list[str]:
+    def problems(self) -> list[str]:
+        """What is wrong with these settings (`PretrainConfig.validate` raises with them)."""
         problems = []
         if self.steps < 1 or self.batch_size < 2 or self.checkpoint_every < 1 or self.keep_checkpoints < 1:
             problems.append("steps, checkpoint_every and keep_checkpoints must be positive, batch_size >= 2")
@@ -172,7 +174,7 @@ class PretrainConfig:
     optim: OptimConfig = OptimConfig()
 
     def validate(self) -> None:
-        problems = self.render.validate() + self.optim.validate()
+        problems = self.render.problems() + self.optim.problems()
         if problems:
             raise TrainingError(f"invalid pretraining recipe {self.recipe!r}: " + "; ".join(problems))
 

@@ -334,7 +334,7 @@ def test_a_pool_over_the_material_limit_renders_from_groups_that_each_fit(librar
 
 
 def test_render_knobs_are_validated():
-    assert not RENDER.validate() and not default_config().render.validate()
+    assert not RENDER.problems() and not default_config().render.problems()
     for bad in (
         {"colours": ("teal",)},
         {"primitives_per_scene": 10},
