@@ -342,7 +342,7 @@ def test_render_knobs_are_validated():
         {"primitive_widths": (0.1, 0.05, 0.2)},
         {"primitive_shapes": ("star",)},
     ):
-        assert dataclasses.replace(RENDER, **bad).validate(), bad
+        assert dataclasses.replace(RENDER, **bad).problems(), bad
 
 
 # ----------------------------------------------------------------------------- captions a run reads
