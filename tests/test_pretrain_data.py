@@ -402,7 +402,7 @@ def test_group_balance_weighs_a_category_of_many_models_as_one():
         teapot_share[balance] = float(np.mean(drawn == 10))
     assert teapot_share["class"] == pytest.approx(1 / 12, abs=0.015)
     assert teapot_share["group"] == pytest.approx(1 / 3, abs=0.03)
-    assert dataclasses.replace(optim, balance="category").validate()
+    assert dataclasses.replace(optim, balance="category").problems()
 
 
 def test_open_colour_captions_keep_corpus_recolourings_that_name_a_test_object(library, corpus):
