@@ -421,5 +421,5 @@ def test_open_colour_captions_keep_corpus_recolourings_that_name_a_test_object(l
     assert kept < widened and added
     assert all(leaks(extra.description, forbidden) for extra in added)  # exactly the ones the rule dropped
     for bad in ({"protocol": "strict"}, {"pool": "task"}):
-        assert dataclasses.replace(open_rule, **bad).validate()
-    assert not open_rule.validate()
+        assert dataclasses.replace(open_rule, **bad).problems()
+    assert not open_rule.problems()
