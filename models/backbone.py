@@ -27,7 +27,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from ocplace.errors import BackboneError, BackboneUnavailable
+from ocplace.errors import BackboneError, BackboneUnavailable, TrainingError
 
 DEFAULT_CLIP = "openai/clip-vit-base-patch32"
 # kind -> "module:function(argument: str) -> Backbone"; the offline backbone adds its own kind.
@@ -99,8 +99,6 @@ def check_trained_on(backbone: Backbone, fingerprint: str, what: str) -> None:
     """TrainingError unless `backbone` is the one with `fingerprint`, which `what` ("the adapters in RUN were")
     was trained on; the message says where that backbone is, or how to get it. The one check every trained
     run's loader makes."""
-    from ocplace.errors import TrainingError
-
     if backbone.fingerprint != fingerprint:
         raise TrainingError(
             f"{what} trained on features of another backbone (fingerprint {fingerprint[:12]}, this one "

@@ -291,6 +291,12 @@ def test_train_method_trains_a_row_through_its_spec_as_reproduce_does(
     assert main(["train", "--method", "ours", *common, "--steps", "5", "--out", str(tmp_path / "steps")]) == 2
     assert "change it with --set recipes.NAME.FIELD=VALUE" in capsys.readouterr().err
     assert not (tmp_path / "steps").exists()
+    (tmp_path / "a file").write_text("kept")
+    assert main(["train", "--method", "ours", *common, "--out", str(tmp_path / "a file")]) == 2
+    assert "it is a file, not a folder" in capsys.readouterr().err and (tmp_path / "a file").read_text() == "kept"
+    missing = ["--dataset", str(tmp_path / "no dataset"), "--backbone", tiny_backbone_spec, "--cpus", "0"]
+    assert main(["train", "--method", "ours", *missing, "--out", str(tmp_path / "none")]) == 2
+    assert "has no manifest.json" in capsys.readouterr().err and not (tmp_path / "none").exists()
 
 
 @pytest.mark.parametrize("content", ['{"train_config": {"st', "", "[]"])

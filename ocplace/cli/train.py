@@ -114,6 +114,7 @@ def train_method(args: argparse.Namespace) -> int:
     from ocplace.experiments.experiment import refuse_run_keys
     from ocplace.methods.api import TrainContext
     from ocplace.methods.registry import method_specs
+    from ocplace.paths import check_writable
 
     run_keys = ("fraction", "seed")  # the run's, as a reproduce task sets them: the flags --fraction and --seed
     fields = [field.name for field in dataclasses.fields(TrainConfig) if field.name not in run_keys]
@@ -132,6 +133,7 @@ def train_method(args: argparse.Namespace) -> int:
     if not 0.0 < fraction <= 1.0 or seed < 0:
         raise ConfigError(f"--fraction lies in (0, 1] and --seed is at least 0, got {fraction}, {seed}")
     refuse_run_keys([item.partition("=")[0].strip() for item in args.overrides])
+    check_writable(args.out, as_folder=True)
     experiment = apply_overrides(configs.get(args.experiment), args.overrides)
     experiment.validate()
     context = TrainContext(
