@@ -3,18 +3,13 @@
 from pathlib import Path
 
 from ocplace.experiments.experiment import DatasetSizes, EvalPlan, Experiment, MethodRecipes, TaskCpus
-from ocplace.models import no_pretrain_config, offline_recipes
-from ocplace.models.baselines.cliport_config import CliportConfig
-from ocplace.models.baselines.grid_config import GridConfig
-from ocplace.train import config as ours
-from ocplace.train.recipes import (
-    CliportRecipe,
-    GridsRecipe,
-    NoLlmTrainConfig,
-    NoPretrainRecipe,
-    NoPretrainTrainConfig,
-    Schedule,
-)
+from ocplace.methods.cliport import recipe as cliport
+from ocplace.methods.grids import recipe as grids
+from ocplace.methods.no_llm.recipe import NoLlmTrainConfig
+from ocplace.methods.no_pretrain import recipe as no_pretrain
+from ocplace.methods.ours import recipe as ours
+from ocplace.models import offline_recipes
+from ocplace.train.schedule import Schedule
 from ocplace.vocabulary import TEST_SUBSETS
 
 
@@ -30,10 +25,10 @@ def get_config() -> Experiment:
             ours=ours.default_config(),
             ours_paper=ours.paper_config(),
             no_llm=NoLlmTrainConfig(),
-            no_pretrain=NoPretrainRecipe(no_pretrain_config.default_config(), NoPretrainTrainConfig()),
+            no_pretrain=no_pretrain.NoPretrainRecipe(no_pretrain.default_config(), no_pretrain.NoPretrainTrainConfig()),
             # The paper's budget for the adapters: 200K steps at batch 1, warm-up then cosine decay.
-            grids=GridsRecipe(
-                GridConfig(),
+            grids=grids.GridsRecipe(
+                grids.GridConfig(),
                 Schedule(
                     steps=200_000,
                     batch_size=1,
@@ -44,8 +39,8 @@ def get_config() -> Experiment:
                 ),
             ),
             # 0.6-1.3 s per step of 8 on 2 CPU cores: 10-20 min, 4 epochs of 2000 scenes (docs/baselines.md).
-            cliport=CliportRecipe(
-                CliportConfig(),
+            cliport=cliport.CliportRecipe(
+                cliport.CliportConfig(),
                 Schedule(
                     steps=1_000, batch_size=8, learning_rate=1e-3, warmup_steps=50, chunk_steps=50, checkpoint_every=250
                 ),

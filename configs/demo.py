@@ -7,22 +7,17 @@ them, or `--methods all`.
 from pathlib import Path
 
 from ocplace.experiments.experiment import DatasetSizes, EvalPlan, Experiment, MethodRecipes, TaskCpus
-from ocplace.models import no_pretrain_config, offline_recipes
-from ocplace.models.baselines.cliport_config import CliportConfig
-from ocplace.models.baselines.grid_config import GridConfig
-from ocplace.train.config import TrainConfig, chosen_adapters
-from ocplace.train.recipes import (
-    CliportRecipe,
-    GridsRecipe,
-    NoLlmTrainConfig,
-    NoPretrainRecipe,
-    NoPretrainTrainConfig,
-    Schedule,
-)
+from ocplace.methods.cliport import recipe as cliport
+from ocplace.methods.grids import recipe as grids
+from ocplace.methods.no_llm.recipe import NoLlmTrainConfig
+from ocplace.methods.no_pretrain import recipe as no_pretrain
+from ocplace.methods.ours import recipe as ours
+from ocplace.models import offline_recipes
+from ocplace.train.schedule import Schedule
 from ocplace.vocabulary import TEST_SUBSETS
 
 # A tenth of the paper's steps at a higher peak rate: the demo dataset is small too.
-DEMO_ADAPTERS = TrainConfig(
+DEMO_ADAPTERS = ours.TrainConfig(
     steps=20_000, learning_rate=5e-4, warmup_steps=500, eval_every=10_000, checkpoint_every=10_000
 )
 
@@ -35,15 +30,17 @@ def get_config() -> Experiment:
         dataset=DatasetSizes(train_scenes=200, test_scenes=40, physical_scenes=10, seed=0),
         backbone=offline_recipes.demo_config(),  # the default architecture, 100 scenes, 75 steps
         recipes=MethodRecipes(
-            ours=chosen_adapters(DEMO_ADAPTERS),
+            ours=ours.chosen_adapters(DEMO_ADAPTERS),
             ours_paper=DEMO_ADAPTERS,  # not in the demo's rows; `--methods ours,ours_paper` trains it
             no_llm=NoLlmTrainConfig(steps=3_000, warmup_steps=200, chunk_steps=500, checkpoint_every=1_500),
-            no_pretrain=NoPretrainRecipe(
-                no_pretrain_config.demo_config(),
-                NoPretrainTrainConfig(steps=75, batch_size=8, warmup_steps=8, log_every=25, checkpoint_every=25),
+            no_pretrain=no_pretrain.NoPretrainRecipe(
+                no_pretrain.demo_config(),
+                no_pretrain.NoPretrainTrainConfig(
+                    steps=75, batch_size=8, warmup_steps=8, log_every=25, checkpoint_every=25
+                ),
             ),
-            grids=GridsRecipe(
-                GridConfig(),
+            grids=grids.GridsRecipe(
+                grids.GridConfig(),
                 Schedule(
                     steps=4_000,
                     batch_size=4,
@@ -53,8 +50,8 @@ def get_config() -> Experiment:
                     checkpoint_every=2_000,
                 ),
             ),
-            cliport=CliportRecipe(
-                CliportConfig(),
+            cliport=cliport.CliportRecipe(
+                cliport.CliportConfig(),
                 Schedule(
                     steps=100, batch_size=8, learning_rate=1e-3, warmup_steps=10, chunk_steps=50, checkpoint_every=50
                 ),

@@ -3,17 +3,13 @@
 from pathlib import Path
 
 from ocplace.experiments.experiment import DatasetSizes, EvalPlan, Experiment, MethodRecipes, TaskCpus
-from ocplace.models import no_pretrain_config, offline_recipes
-from ocplace.models.baselines import cliport_config, grid_config
-from ocplace.train import config as ours
-from ocplace.train.recipes import (
-    CliportRecipe,
-    GridsRecipe,
-    NoLlmTrainConfig,
-    NoPretrainRecipe,
-    NoPretrainTrainConfig,
-    Schedule,
-)
+from ocplace.methods.cliport import recipe as cliport
+from ocplace.methods.grids import recipe as grids
+from ocplace.methods.no_llm.recipe import NoLlmTrainConfig
+from ocplace.methods.no_pretrain import recipe as no_pretrain
+from ocplace.methods.ours import recipe as ours
+from ocplace.models import offline_recipes
+from ocplace.train.schedule import Schedule
 from ocplace.vocabulary import TEST_SUBSETS
 
 
@@ -36,20 +32,20 @@ def get_config() -> Experiment:
                 checkpoint_every=40,
                 hidden=32,
             ),
-            no_pretrain=NoPretrainRecipe(
-                no_pretrain_config.smoke_config(),
-                NoPretrainTrainConfig(
+            no_pretrain=no_pretrain.NoPretrainRecipe(
+                no_pretrain.smoke_config(),
+                no_pretrain.NoPretrainTrainConfig(
                     steps=150, batch_size=4, learning_rate=1e-3, warmup_steps=3, log_every=10, checkpoint_every=50
                 ),
             ),
-            grids=GridsRecipe(
-                grid_config.smoke_grid_config(),
+            grids=grids.GridsRecipe(
+                grids.smoke_grid_config(),
                 Schedule(
                     steps=120, batch_size=4, learning_rate=1e-2, warmup_steps=5, chunk_steps=40, checkpoint_every=40
                 ),
             ),
-            cliport=CliportRecipe(
-                cliport_config.smoke_config(),
+            cliport=cliport.CliportRecipe(
+                cliport.smoke_config(),
                 Schedule(
                     steps=60, batch_size=4, learning_rate=3e-3, warmup_steps=5, chunk_steps=20, checkpoint_every=20
                 ),

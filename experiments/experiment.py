@@ -3,7 +3,7 @@
 `ocplace.configs` holds one `Experiment` per file (smoke, demo, default); `ocplace reproduce`
 runs one. Every method that learns finds its training recipe here by its registered name
 (`MethodRecipes.of`), typed with that method's `Recipe` (`ocplace.methods`; the types live in the
-JAX-free `train/config.py` and `train/recipes.py`, so building and checking an experiment is fast);
+JAX-free `methods/ours/recipe.py` and `train/schedule.py`, so building and checking an experiment is fast);
 the pipeline hands it to the method through `TrainContext.recipe`.
 """
 
@@ -16,11 +16,14 @@ from pathlib import Path
 from typing import Any
 
 from ocplace.errors import ConfigError, OcplaceError
+from ocplace.methods.cliport.recipe import CliportRecipe
+from ocplace.methods.grids.recipe import GridsRecipe
+from ocplace.methods.no_llm.recipe import NoLlmTrainConfig
+from ocplace.methods.no_pretrain.recipe import NoPretrainRecipe
+from ocplace.methods.ours.recipe import TrainConfig
 from ocplace.models.offline_recipes import PretrainConfig
 from ocplace.models.parsing.config import PARSER_NAMES
 from ocplace.runtime.width import TRAIN_CPUS
-from ocplace.train.config import TrainConfig
-from ocplace.train.recipes import CliportRecipe, GridsRecipe, NoLlmTrainConfig, NoPretrainRecipe
 from ocplace.vocabulary import MAX_SAMPLES, TEST_SUBSETS, subsets_problem
 
 

@@ -1,1 +1,2 @@
-"""The methods of Table I, one module per row: its recipe type, how it trains and how a run loads."""
+"""The methods of Table I, one folder per row (`recipe.py`, `model.py`, `train.py`, `method.py`), and the contract
+and hosts they share (`registry.py` finds the rows)."""

@@ -29,15 +29,13 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ocplace.errors import POLICY_ERRORS, EvaluationError, PolicyRaised
+from ocplace.errors import POLICY_ERRORS, EvaluationError, PolicyProcessEnded, PolicyRaised, SceneTimeout
 from ocplace.eval.api import Method, MethodOutput
 from ocplace.eval.harness import EvalSettings, evaluate_run, physical_arena
 from ocplace.methods.api import LoadContext, MethodSpec
 from ocplace.methods.folder_method import folder_spec, is_folder_reference
 from ocplace.methods.policy_host import (
     PolicyHost,
-    PolicyProcessEnded,
-    SceneTimeout,
     describe_error,
     import_policy,
     is_method,

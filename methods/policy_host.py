@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Any, TypeGuard
 
 import numpy as np
 
-from ocplace.errors import POLICY_ERRORS, EvaluationError
+from ocplace.errors import POLICY_ERRORS, EvaluationError, PolicyProcessEnded, SceneTimeout
 
 if TYPE_CHECKING:
     from multiprocessing.connection import Connection
@@ -37,14 +37,6 @@ REFERENCE_HELP = (
     "a policy is named MODULE:CALLABLE, e.g. my_policies:place or my_pkg.policies:MyPolicy; the module must be "
     "importable (the command adds the current folder to the import path; else set PYTHONPATH)"
 )
-
-
-class SceneTimeout(TimeoutError):
-    """A policy past its time on a scene (`--scene-timeout`): that scene fails, the evaluation goes on."""
-
-
-class PolicyProcessEnded(RuntimeError):
-    """The policy's process ended while it had a scene: that scene fails, the next one starts a new process."""
 
 
 def is_policy_name(name: str) -> bool:

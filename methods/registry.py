@@ -1,42 +1,59 @@
-"""Which methods `ocplace evaluate` and `reproduce` know: each module listed here exposes `SPEC`, a MethodSpec."""
+"""Which methods `ocplace evaluate` and `reproduce` know: every folder of `ocplace.methods` with a `method.py` is a
+row named after its folder, and so is every package another distribution names in the entry-point group
+`ocplace.methods` (`name = package`). A row's package sets its place in Table I (`TABLE_ROW`) in its JAX-free
+`__init__.py` and exposes `SPEC` (a MethodSpec) in `method.py`. No list restates them (docs/architecture.md)."""
 
 from __future__ import annotations
 
 import importlib
+import importlib.metadata
+import pkgutil
 from pathlib import Path
 from typing import Any
 
+from ocplace import methods
 from ocplace.errors import EvaluationError
 from ocplace.eval.api import Method
 from ocplace.eval.harness import EvalSettings, MethodRun
 from ocplace.methods.api import LoadContext, MethodSpec
 
-# One module per row of Table I. The order is the order of `all`, of runs and of results.json's evaluations.
-METHOD_MODULES: tuple[str, ...] = (
-    "ocplace.methods.ours",
-    "ocplace.methods.ours_paper",
-    "ocplace.methods.no_adapter",
-    "ocplace.methods.grids",
-    "ocplace.methods.cliport",
-    "ocplace.methods.no_llm",
-    "ocplace.methods.no_pretrain",
-)
+ENTRY_POINTS = "ocplace.methods"
+
+
+def row_packages() -> dict[str, str]:
+    """Each row's package by its command-line name, in Table I's order (`all`, runs, results.json), read from
+    the packages' light `__init__` modules without importing JAX."""
+    packages = {
+        row.name: f"{methods.__name__}.{row.name}"
+        for row in pkgutil.iter_modules(methods.__path__)
+        if row.ispkg and (Path(getattr(row.module_finder, "path", "")) / row.name / "method.py").is_file()
+    }
+    for entry in importlib.metadata.entry_points(group=ENTRY_POINTS):
+        if entry.name in packages:
+            raise EvaluationError(f"{entry.value} registers {entry.name!r}, a row {packages[entry.name]} has")
+        packages[entry.name] = entry.value
+    places = {}
+    for name, package_name in packages.items():
+        place = getattr(importlib.import_module(package_name), "TABLE_ROW", None)
+        if not isinstance(place, int):
+            raise EvaluationError(f"{package_name} must set TABLE_ROW, the row's place in Table I (an int)")
+        places[name] = place
+    return {name: packages[name] for name in sorted(packages, key=lambda name: (places[name], name))}
 
 
 def registered_names() -> tuple[str, ...]:
-    """The registered methods' command-line names, known without importing their modules (and JAX): a
-    method is named after its module."""
-    return tuple(module_name.rsplit(".", 1)[-1] for module_name in METHOD_MODULES)
+    """The rows' command-line names in Table I's order, known without importing JAX."""
+    return tuple(row_packages())
 
 
 def method_specs() -> dict[str, MethodSpec[Any]]:
-    """Every registered method by its command-line name, in registration order."""
+    """Every registered method by its command-line name, in Table I's order."""
     specs: dict[str, MethodSpec[Any]] = {}
-    for module_name, name in zip(METHOD_MODULES, registered_names()):
-        spec = importlib.import_module(module_name).SPEC
+    for name, package_name in row_packages().items():
+        spec = importlib.import_module(f"{package_name}.method").SPEC
         if spec.name != name:
-            raise ValueError(f"{module_name} registers {spec.name!r}: a method is named after its module")
-        specs[spec.name] = spec
+            raise EvaluationError(f"{package_name} registers {spec.name!r}: a row is named after its folder")
+        specs[name] = spec
     return specs
 
 
@@ -44,7 +61,7 @@ def select_specs(names: str, specs: dict[str, Any]) -> list[Any]:
     """The specs named in a comma-separated list (`all`: every registered one), in that order."""
     if names.strip() == "all":
         if not specs:
-            raise EvaluationError("no method is registered (ocplace.methods.registry.METHOD_MODULES is empty)")
+            raise EvaluationError("no method is registered (no folder of ocplace.methods has a method.py)")
         return list(specs.values())
     wanted = [n.strip() for n in names.split(",") if n.strip()]
     unknown = [n for n in wanted if n not in specs]

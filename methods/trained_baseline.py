@@ -1,5 +1,5 @@
-"""What the two competing approaches of Table I share (docs/baselines.md): the backbone check of a trained
-run, failures, descriptions and training from a context.
+"""What the two competing approaches of Table I share (docs/baselines.md): a trained run loaded with its
+backbone checked, failures, descriptions and training from a context.
 
 Both read only what eval/api.py allows: RGB-D, the record's boxes with the AABBs of those objects,
 the camera, the instruction and the held object's footprint; never the tuples or the oracle.
@@ -7,11 +7,12 @@ the camera, the instruction and the held object's footprint; never the tuples or
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ocplace.eval.api import MethodOutput
-from ocplace.methods.api import TrainContext
+from ocplace.methods.api import LoadContext, TrainContext
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -20,36 +21,41 @@ if TYPE_CHECKING:
     from ocplace.models.parsing.types import Parser
 
 
-def load_checked_backbone(spec: str, run_meta: dict[str, Any], name: str) -> Backbone:
-    from ocplace.models.backbone import check_trained_on, load_backbone
+@dataclasses.dataclass(frozen=True)
+class TrainedRun:
+    """A baseline's finished run, loaded: its parameters and record on the backbone it was trained on (checked)."""
 
-    backbone = load_backbone(spec)
-    check_trained_on(backbone, run_meta["backbone_fingerprint"], f"the {name} run was")
-    return backbone
+    backbone: Backbone
+    params: dict[str, Any]
+    run_meta: dict[str, Any]
+    weights_sha256: str
+    num_samples: int
+
+    @classmethod
+    def load(cls, context: LoadContext, load_params: Callable[[Path], tuple[Any, ...]], label: str) -> TrainedRun:
+        """`load_params(run_dir) -> (params, run_meta, sha256)` of the context's run, with its backbone."""
+        from ocplace.models.backbone import check_trained_on, load_backbone
+
+        params, run_meta, sha = load_params(context.trained_run)
+        backbone = load_backbone(context.backbone)
+        check_trained_on(backbone, run_meta["backbone_fingerprint"], f"the {label} run was")
+        return cls(backbone, params, run_meta, sha, context.num_samples)
+
+    def describe(self, name: str, parser: Parser | None = None) -> dict[str, Any]:
+        """What decides the baseline's placements: its run, weights, backbone, parser (if any), sample count."""
+        described = {
+            "method": name,
+            "run": self.run_meta,
+            "weights_sha256": self.weights_sha256,
+            "backbone_fingerprint": self.backbone.fingerprint,
+        }
+        if parser is not None:
+            described["parser"] = parser.name
+        return {**described, "num_samples": self.num_samples}
 
 
 def failure_output(error: Exception) -> MethodOutput:
     return MethodOutput(mode=None, samples=None, failure=f"{type(error).__name__}: {error}")
-
-
-def describe_baseline(
-    name: str,
-    run_meta: dict[str, Any],
-    weights_sha256: str,
-    backbone: Backbone,
-    num_samples: int,
-    parser: Parser | None = None,
-) -> dict[str, Any]:
-    """What decides a trained baseline's placements: its run, weights, backbone, parser (if any), sample count."""
-    described = {
-        "method": name,
-        "run": run_meta,
-        "weights_sha256": weights_sha256,
-        "backbone_fingerprint": backbone.fingerprint,
-    }
-    if parser is not None:
-        described["parser"] = parser.name
-    return {**described, "num_samples": num_samples}
 
 
 def train_baseline(train: Callable[..., None], context: TrainContext[Any]) -> Path:

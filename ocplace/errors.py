@@ -175,6 +175,24 @@ class InvalidAction(PlaceEnvError, ValueError):
     """An action that is not one table-frame placement `(x, y)`: the wrong shape, or not numbers."""
 
 
+# Internal conditions, not user errors (no `OcplaceError`): each is caught near where it is raised, or reported as
+# one scene's failure.
+class MshFormatError(ValueError):
+    """The bytes are not a well-formed legacy `.msh` file."""
+
+
+class UnsolvableScene(RuntimeError):
+    """No solvable instruction was found within the configured attempts."""
+
+
+class SceneTimeout(TimeoutError):
+    """A policy past its time on a scene (`--scene-timeout`): that scene fails, the evaluation goes on."""
+
+
+class PolicyProcessEnded(RuntimeError):
+    """The policy's process ended while it had a scene: that scene fails, the next one starts a new process."""
+
+
 # What anyone's policy (`ocplace evaluate --policy`) may raise without ending the evaluation: any exception,
 # and a `sys.exit` too; Ctrl-C (KeyboardInterrupt) still stops it.
 POLICY_ERRORS = (Exception, SystemExit)

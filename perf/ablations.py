@@ -24,7 +24,7 @@ from ocplace import serial
 
 def time_no_llm(experiment: str, dim: int, steps: int, num_scenes: int) -> dict:
     from ocplace import configs
-    from ocplace.train import no_llm
+    from ocplace.methods.no_llm import train as no_llm
 
     config = configs.get(experiment).recipes.no_llm
     rng = np.random.default_rng(0)
@@ -63,9 +63,9 @@ def time_no_llm(experiment: str, dim: int, steps: int, num_scenes: int) -> dict:
 
 def time_no_pretrain(experiment: str, steps: int, num_scenes: int) -> dict:
     from ocplace import configs
-    from ocplace.models import no_pretrain
+    from ocplace.methods.no_pretrain import model as no_pretrain
+    from ocplace.methods.no_pretrain import train as train_no_pretrain
     from ocplace.models.offline_backbone import split_trainable
-    from ocplace.train import no_pretrain as train_no_pretrain
 
     recipe = configs.get(experiment).recipes.no_pretrain
     model, config = recipe.model, recipe.train

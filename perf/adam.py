@@ -40,9 +40,9 @@ def problems() -> dict:
     import jax
     import numpy as np
 
+    from ocplace.methods.no_llm.model import NoLlmConfig, init_params, loss_terms
     from ocplace.models.adapters import AdapterConfig, init_adapters
     from ocplace.models.grounding import adapted_logits, grounding_loss
-    from ocplace.models.no_llm import NoLlmConfig, init_params, loss_terms
 
     rng = np.random.default_rng(0)
     scenes = 2_000

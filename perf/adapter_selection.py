@@ -131,9 +131,9 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path("adapter_selection.json"))
     args = parser.parse_args()
 
-    from ocplace.train.config import TrainConfig
+    from ocplace.methods.ours.recipe import TrainConfig
+    from ocplace.methods.ours.train import train_ours
     from ocplace.train.metrics import evaluate_features
-    from ocplace.train.ours import train_ours
 
     train, splits = selection_features(args.dataset, args.dev, args.backbone)
     rows = []

@@ -19,12 +19,13 @@ import jax.numpy as jnp
 import numpy as np
 
 from ocplace import configs
+from ocplace.methods.cliport import model as cliport
+from ocplace.methods.cliport import train as train_cliport
+from ocplace.methods.grids import model as grids
+from ocplace.methods.grids import train as train_grids
 from ocplace.models import offline_backbone as ob
 from ocplace.models import offline_config
-from ocplace.models.baselines import cliport, grids
 from ocplace.sim.camera import Camera
-from ocplace.train import cliport as train_cliport
-from ocplace.train import grids as train_grids
 
 CPU_SECONDS: dict[str, float] = {}  # process CPU time (all threads) per measurement, beside the wall clock
 

@@ -18,8 +18,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ocplace.models.baselines import cliport
-from ocplace.models.baselines.cliport_config import CliportConfig
+from ocplace.methods.cliport import model as cliport
+from ocplace.methods.cliport.recipe import CliportConfig
 
 
 def _maps(scenes: int, config: CliportConfig) -> list[jax.Array]:

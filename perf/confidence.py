@@ -52,11 +52,11 @@ def choose(right: np.ndarray) -> float:
 def selection_run(data: Path, backbone_spec: str, experiment: str, work: Path) -> Path:
     """Ours' recipe trained without the seen colour variants; returns the run directory."""
     from ocplace import configs
+    from ocplace.methods.ours.train import train_ours
     from ocplace.models.backbone import load_backbone
     from ocplace.models.features import featurize_split, load_features, without_objects
     from ocplace.sim.library import load_library
     from ocplace.sim.library.library import colour_variants
-    from ocplace.train.ours import train_ours
 
     backbone = load_backbone(backbone_spec)
     features = load_features(featurize_split(data, "train", backbone), backbone.fingerprint)

@@ -19,8 +19,8 @@ import sys
 import time
 from pathlib import Path
 
+from ocplace.methods.ours.recipe import default_config
 from ocplace.runtime.width import pin_jax_width
-from ocplace.train.config import default_config
 
 
 def main() -> None:
@@ -44,9 +44,9 @@ def run(args) -> None:
     import jax
     import jax.numpy as jnp
 
+    from ocplace.methods.ours.train import init_state, jit_train_chunk, jit_train_step, make_optimizer
     from ocplace.models.adapters import AdapterConfig, count_parameters
     from ocplace.train.batches import batch_indices
-    from ocplace.train.ours import init_state, jit_train_chunk, jit_train_step, make_optimizer
 
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # the test support: synthetic inputs
     from synthetic_features import synthetic_features

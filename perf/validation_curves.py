@@ -29,7 +29,7 @@ SPLITS = ("dev_seen", "dev_colour", "reach")
 
 def recipes(steps: int | None) -> dict:
     """Ours and the paper's adapters, at their budget or `steps` (a shorter look)."""
-    from ocplace.train import config
+    from ocplace.methods.ours import recipe as config
 
     chosen = {"ours": config.default_config(), "ours_paper": config.paper_config()}
     return {name: dataclasses.replace(recipe, steps=steps or recipe.steps) for name, recipe in chosen.items()}
@@ -49,10 +49,10 @@ def scores(model, splits: dict) -> dict:
 def curve(train, splits: dict, recipe, run_dir: Path, every: int) -> list[dict]:
     """One row per checkpoint of `recipe` trained on `train`, `{"step", split scores...}`, after the backbone's own
     (step 0: the adapters blended at ratio 0 on both towers)."""
+    from ocplace.methods.ours.train import init_state, make_optimizer, train_ours
     from ocplace.models.adapters import AdapterConfig
     from ocplace.models.grounding import GroundingModel
     from ocplace.train import checkpoints
-    from ocplace.train.ours import init_state, make_optimizer, train_ours
 
     keep = recipe.steps // every
     recipe = dataclasses.replace(recipe, checkpoint_every=every, eval_every=every, keep_checkpoints=keep)

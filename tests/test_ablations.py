@@ -12,7 +12,7 @@ from safetensors.numpy import load_file
 from ocplace.configs import smoke
 from ocplace.eval.harness import redacted
 from ocplace.methods.api import LoadContext, TrainContext
-from ocplace.models import no_llm
+from ocplace.methods.no_llm import model as no_llm
 from ocplace.paths import RUN_FILE, WEIGHTS_FILE
 from ocplace.sim.dataset.job import scene_dirs
 from ocplace.sim.dataset.records import read_scene
@@ -34,7 +34,8 @@ def isolated_cache(smoke_dataset, tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def specs():
-    from ocplace.methods import no_llm, no_pretrain
+    from ocplace.methods.no_llm import method as no_llm
+    from ocplace.methods.no_pretrain import method as no_pretrain
 
     return {spec.name: spec for spec in (no_llm.SPEC, no_pretrain.SPEC)}
 
@@ -153,7 +154,7 @@ def synthetic_scenes(num_scenes: int, dim: int, seed: int) -> dict:
 def test_no_llm_learns_references_and_relations_when_the_sentence_holds_them(tmp_path):
     import dataclasses
 
-    from ocplace.train.no_llm import train_on_arrays
+    from ocplace.methods.no_llm.train import train_on_arrays
 
     arrays = synthetic_scenes(96, 16, seed=0)
     config = dataclasses.replace(RECIPES.no_llm, steps=400, chunk_steps=200, checkpoint_every=200, hidden=64)
@@ -177,7 +178,7 @@ def test_training_at_smoke_scale_lowers_the_loss(runs, name):
 
 
 def test_training_is_deterministic_and_idempotent(runs, specs, smoke_dataset, tiny_backbone_spec, tmp_path):
-    from ocplace.models.no_llm import load_model
+    from ocplace.methods.no_llm.model import load_model
 
     again = specs["no_llm"].train(TrainContext(smoke_dataset, tiny_backbone_spec, tmp_path / "again", RECIPES.no_llm))
     assert load_model(again).sha256 == load_model(runs["no_llm"]).sha256
@@ -261,8 +262,9 @@ def test_methods_are_registered():
 def test_no_pretrain_is_ours_architecture_from_random_weights():
     import dataclasses
 
-    from ocplace.models import no_pretrain_config, offline_config
+    from ocplace.methods.no_pretrain import recipe as no_pretrain_config
     from ocplace.models import offline_backbone as ob
+    from ocplace.models import offline_config
     from ocplace.models.imagenet_weights import load_pretrained
 
     backbone = no_pretrain_config.default_config().backbone
@@ -279,10 +281,12 @@ def test_no_pretrain_is_ours_architecture_from_random_weights():
 def test_calibration_keeps_a_random_trunk_alive(smoke_dataset):
     """A random EfficientNet with identity batch-norm statistics gives near-constant features;
     statistics measured on training images restore their spread across images."""
-    from ocplace.models import efficientnet, no_pretrain, no_pretrain_config
+    from ocplace.methods.no_pretrain import model as no_pretrain
+    from ocplace.methods.no_pretrain import recipe as no_pretrain_config
+    from ocplace.methods.no_pretrain.train import no_pretrain_inputs
+    from ocplace.models import efficientnet
     from ocplace.models import offline_backbone as ob
     from ocplace.models.backbone import PromptConfig
-    from ocplace.train.no_pretrain import no_pretrain_inputs
 
     model = no_pretrain_config.smoke_config()
     arrays = no_pretrain_inputs(smoke_dataset, "train", model.backbone, PromptConfig(), progress=False).arrays

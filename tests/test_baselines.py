@@ -13,7 +13,9 @@ from llm_endpoint import fixed_answer, llm_parser
 
 from ocplace.configs import smoke
 from ocplace.methods.api import LoadContext, TrainContext
-from ocplace.models.baselines import cliport, cliport_config, grids
+from ocplace.methods.cliport import model as cliport
+from ocplace.methods.cliport import recipe as cliport_config
+from ocplace.methods.grids import model as grids
 from ocplace.paths import RUN_FILE, WEIGHTS_FILE
 from ocplace.sim.camera import Camera
 from ocplace.sim.dataset.job import scene_dirs
@@ -209,7 +211,8 @@ def _on_table(points, margin=1e-6):
 
 @pytest.fixture()
 def specs(monkeypatch, tmp_path):
-    from ocplace.methods import cliport, grids
+    from ocplace.methods.cliport import method as cliport
+    from ocplace.methods.grids import method as grids
 
     monkeypatch.setenv("OCPLACE_CACHE", str(tmp_path / "cache"))
     return {spec.name: spec for spec in (grids.SPEC, cliport.SPEC)}

@@ -11,12 +11,12 @@ NOTEBOOK = Path(__file__).resolve().parents[1] / "notebooks" / "01_grounding_log
 
 
 def test_grounding_notebook_executes(tmp_path, smoke_dataset, monkeypatch):
+    from ocplace.methods.ours.recipe import smoke_config
+    from ocplace.methods.ours.train import train_ours as train
     from ocplace.models.backbone import load_clip_backbone
     from ocplace.models.features import featurize, load_features
     from ocplace.sim.dataset.identity import dataset_hash
     from ocplace.sim.dataset.loader import iter_examples
-    from ocplace.train.config import smoke_config
-    from ocplace.train.ours import train_ours as train
 
     dataset, features_path, run = smoke_dataset, tmp_path / "seen.safetensors", tmp_path / "run"
     backbone = load_clip_backbone(str(build_tiny_clip(tmp_path / "clip")), max_batch=8)

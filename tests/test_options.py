@@ -24,7 +24,7 @@ from ocplace.cli.options import (
     parse_value,
 )
 from ocplace.errors import ConfigError, OcplaceError
-from ocplace.train.config import TrainConfig, smoke_config
+from ocplace.methods.ours.recipe import TrainConfig, smoke_config
 
 
 @dataclasses.dataclass(frozen=True)

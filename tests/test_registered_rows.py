@@ -4,6 +4,10 @@ environment. The tiny backbone knows nothing, so a row that grounds may ground w
 cannot place; what it may not do is fail any other way, place off the table, return NaN, or place nothing."""
 
 import json
+import os
+import subprocess
+import sys
+from pathlib import Path
 
 import jax
 import numpy as np
@@ -53,3 +57,81 @@ def test_every_row_trains_loads_and_places(name, smoke_rows, scenes, tiny_backbo
             assert samples.shape == (SAMPLES, 2) and np.all(np.isfinite(samples))
     described = json.loads(json.dumps(method.describe()))
     assert described
+
+
+TOY_ROW = {
+    "__init__.py": '"""A toy row: it places every object at the training split\'s mean oracle placement."""\n\n'
+    "TABLE_ROW = 99\n",
+    "method.py": """
+import dataclasses
+import json
+
+import numpy as np
+
+from ocplace.eval.api import MethodOutput
+from ocplace.methods.api import MethodSpec
+from ocplace.sim.dataset.job import scene_dirs
+from ocplace.sim.dataset.records import SceneInfo, read_meta
+
+
+def train(ctx):
+    placements = [SceneInfo(read_meta(folder)).oracle.placement for folder in scene_dirs(ctx.dataset_dir, "train")]
+    ctx.out_dir.mkdir(parents=True, exist_ok=True)
+    (ctx.out_dir / "mean.json").write_text(json.dumps(np.mean(placements, axis=0).tolist()))
+    return ctx.out_dir
+
+
+@dataclasses.dataclass
+class MeanPlacement:
+    mean: list
+    name: str = "toy_row"
+
+    def describe(self):
+        return {"mean": self.mean}
+
+    def run(self, scenes, key):
+        return [MethodOutput(mode=np.asarray(self.mean), samples=None) for _ in scenes]
+
+
+def load(ctx):
+    return MeanPlacement(json.loads((ctx.trained_run / "mean.json").read_text()))
+
+
+SPEC = MethodSpec("toy_row", "Toy mean placement", load=load, train=train, uses_backbone=False)
+""",
+}
+
+
+def test_a_new_row_is_one_folder_that_reproduce_trains_and_scores(smoke_dataset, tiny_backbone_spec, tmp_path):
+    """A row from outside the tree: its folder and one entry point, found by the registry in the `reproduce`
+    process and in the workers it starts, trained, evaluated, and last in Table I by its `TABLE_ROW`."""
+    from ocplace.eval import results
+    from ocplace.methods.registry import ENTRY_POINTS
+
+    site = tmp_path / "site"
+    (site / "toy_row").mkdir(parents=True)
+    for name, text in TOY_ROW.items():
+        (site / "toy_row" / name).write_text(text)
+    (site / "toy_row-0.1.dist-info").mkdir()
+    (site / "toy_row-0.1.dist-info" / "METADATA").write_text("Metadata-Version: 2.1\nName: toy-row\nVersion: 0.1\n")
+    (site / "toy_row-0.1.dist-info" / "entry_points.txt").write_text(f"[{ENTRY_POINTS}]\ntoy_row = toy_row\n")
+    env = {**os.environ, "PYTHONPATH": str(site)}
+    listed = subprocess.run(
+        [sys.executable, "-c", "from ocplace.methods.registry import registered_names as r; print(*r())"],
+        env=env,
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    assert listed.stdout.split() == [*registered_names(), "toy_row"]
+    out = tmp_path / "out"
+    command = ["reproduce", "--experiment", "smoke", "--methods", "toy_row", "--dataset", str(smoke_dataset)]
+    command += ["--backbone", tiny_backbone_spec, "--out", str(out), "--no-progress"]
+    command += ["--set", "dataset.physical_scenes=0"]
+    done = subprocess.run([sys.executable, "-m", "ocplace.cli", *command], env=env, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr[-2000:]
+    saved = results.read_results(out / "results.json")
+    (entry,) = saved["evaluations"]
+    assert entry["key"] == "toy_row" and Path(entry["run_dir"], "mean.json").is_file()
+    assert all(entry["subsets"][subset]["aggregate"]["overall"]["scenes"] == 8 for subset in TEST_SUBSETS)
+    assert "| Toy mean placement |" in done.stdout

@@ -8,13 +8,13 @@ import pytest
 
 from ocplace import configs, serial
 from ocplace.eval.harness import EvalSettings, PhysicalOutcome, SceneOutcome
+from ocplace.methods.cliport.model import CliportConfig
+from ocplace.methods.grids.model import GridConfig
+from ocplace.methods.no_llm.model import NoLlmConfig
+from ocplace.methods.ours.recipe import TrainConfig
 from ocplace.models import offline_config
 from ocplace.models.backbone import PromptConfig
-from ocplace.models.baselines.cliport import CliportConfig
-from ocplace.models.baselines.grids import GridConfig
-from ocplace.models.no_llm import NoLlmConfig
 from ocplace.models.offline_recipes import PretrainConfig
-from ocplace.train.config import TrainConfig
 
 EXPERIMENTS = [configs.get(name) for name in configs.EXPERIMENTS]
 

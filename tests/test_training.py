@@ -12,15 +12,15 @@ from synthetic_features import synthetic_features
 
 from ocplace.cli import train as train_command
 from ocplace.errors import TrainingError
+from ocplace.methods.ours.recipe import TrainConfig, default_config, smoke_config
+from ocplace.methods.ours.train import train_ours as train
 from ocplace.models import trained_adapters
 from ocplace.models.features import save_features
 from ocplace.models.grounding import GroundingModel
 from ocplace.paths import OLD_RUN_FILES, RUN_FILE, WEIGHTS_FILE
 from ocplace.train import checkpoints
 from ocplace.train.batches import batch_indices, subset_indices
-from ocplace.train.config import TrainConfig, default_config, smoke_config
 from ocplace.train.metrics import MetricsLog, evaluate_features
-from ocplace.train.ours import train_ours as train
 
 DIM = 32
 
@@ -78,7 +78,7 @@ def test_checkpoint_round_trip(fitted):
 
 
 def _state_template(result):
-    from ocplace.train.ours import init_state, make_optimizer
+    from ocplace.methods.ours.train import init_state, make_optimizer
 
     return init_state(result.model.config, make_optimizer(smoke_config()), seed=123)
 

@@ -21,22 +21,26 @@ from synthetic_features import synthetic_features
 
 from ocplace import serial
 from ocplace.errors import BackboneError, GroundingUncertain, TrainingError, WeightsError
+from ocplace.methods.cliport import model as cliport
+from ocplace.methods.cliport import recipe as cliport_config
+from ocplace.methods.grids import model as grids
+from ocplace.methods.grids import recipe as grid_config
+from ocplace.methods.no_llm import train as no_llm
+from ocplace.methods.no_llm.model import NoLlmConfig, NoLlmModel
+from ocplace.methods.no_llm.model import init_params as init_no_llm
+from ocplace.methods.no_llm.model import load_model as load_no_llm
+from ocplace.methods.ours.recipe import smoke_config
+from ocplace.methods.ours.train import init_state, make_optimizer
+from ocplace.methods.ours.train import train_ours as train
 from ocplace.models import offline_backbone as ob
 from ocplace.models import offline_config, trained_adapters, weights_file
 from ocplace.models.adapters import AdapterConfig, init_adapters
 from ocplace.models.backbone import PromptConfig
-from ocplace.models.baselines import cliport, cliport_config, grid_config, grids
 from ocplace.models.grounding import GroundingModel
-from ocplace.models.no_llm import NoLlmConfig, NoLlmModel
-from ocplace.models.no_llm import init_params as init_no_llm
-from ocplace.models.no_llm import load_model as load_no_llm
 from ocplace.models.policy import PlacementPolicy, PreparedScene
 from ocplace.paths import WEIGHTS_FILE
-from ocplace.train import baseline_runs, checkpoints, no_llm
-from ocplace.train.config import smoke_config
+from ocplace.train import baseline_runs, checkpoints
 from ocplace.train.metrics import MetricsLog
-from ocplace.train.ours import init_state, make_optimizer
-from ocplace.train.ours import train_ours as train
 
 DIM = 16
 KEY = jax.random.key(0)

@@ -27,7 +27,7 @@ from ocplace.models import weights_file
 from ocplace.models.backbone import Backbone
 from ocplace.paths import WEIGHTS_FILE
 from ocplace.train import checkpoints, runner
-from ocplace.train.recipes import Schedule
+from ocplace.train.schedule import Schedule
 
 
 @dataclasses.dataclass(frozen=True)
@@ -65,13 +65,10 @@ def train(
     schedule.validate()
     run_dir = Path(run_dir)
     weights_meta = {"run": json.dumps(run_meta, sort_keys=True)}
-    spec = runner.Run(
+    spec = runner.Run.on(
+        schedule,
         run_dir=run_dir,
         run_meta=run_meta,
-        steps=schedule.steps,
-        chunk_steps=schedule.chunk_steps,
-        checkpoint_every=schedule.checkpoint_every,
-        keep_checkpoints=schedule.keep_checkpoints,
         init_state=lambda: _with_adam_state(init_params(), schedule),
         chunk=chunk,
         record=runner.loss_and_learning_rate(schedule.learning_rate_schedule()),

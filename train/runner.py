@@ -58,6 +58,12 @@ class Run:
     checkpoint_meta: dict[str, str] = dataclasses.field(default_factory=dict)
     desc: str = "train"
 
+    @classmethod
+    def on(cls, budget: Any, **fields: Any) -> Run:
+        """A run on `budget`'s cadence (a recipe or a `Schedule`: its steps, chunk_steps, checkpoint_every and
+        keep_checkpoints), with the other fields given."""
+        return cls(**{name: getattr(budget, name) for name in _CADENCE}, **fields)
+
     @property
     def log_steps(self) -> int:
         return self.chunk_steps if self.log_every is None else self.log_every
@@ -71,6 +77,9 @@ class Run:
             raise TrainingError(f"{self.desc}: steps, cadences and keep_checkpoints must be positive")
         if self.log_steps % self.chunk_steps or self.checkpoint_every % self.chunk_steps:
             raise TrainingError(f"{self.desc}: log_every and checkpoint_every must be multiples of chunk_steps")
+
+
+_CADENCE = ("steps", "chunk_steps", "checkpoint_every", "keep_checkpoints")
 
 
 @dataclasses.dataclass(frozen=True)

@@ -6,7 +6,7 @@ ones given; `apply_overrides` applies `--set KEY=VALUE` items on dotted paths in
 Why argparse and not tyro: the whole CLI is argparse subcommands whose modules import heavy
 libraries (JAX, MuJoCo) only inside their handlers, so that `ocplace --help` stays instant. These
 helpers add flags to those existing parsers and import only the standard library; a config class
-is imported at registration only where its module is as light (`ocplace.train.config`).
+is imported at registration only where its module is as light (`ocplace.methods.ours.recipe`).
 """
 
 from __future__ import annotations

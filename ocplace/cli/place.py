@@ -88,13 +88,10 @@ def run_place(args: argparse.Namespace) -> int:
     import jax
 
     from ocplace.errors import PolicyInputError
-    from ocplace.methods.export import backbone_of
-    from ocplace.models.backbone import load_backbone
     from ocplace.models.parsing import make_parser
     from ocplace.models.placement.sampler import SamplerConfig
     from ocplace.models.policy import PlacementPolicy, check_scene
     from ocplace.models.policy_figure import save_placement_figure
-    from ocplace.models.trained_adapters import load_adapters
 
     # Everything given is read and checked before the backbone loads, which takes seconds to minutes.
     scene, record = _scene(args)
@@ -118,11 +115,11 @@ def run_place(args: argparse.Namespace) -> int:
         sampler = dataclasses.replace(policy.sampler, num_samples=args.samples)  # the folder's, but the count
         policy = dataclasses.replace(policy, sampler=sampler, threshold=kwargs.get("threshold", policy.threshold))
     else:
-        adapters = None if args.adapters is None else load_adapters(args.adapters)  # a bad adapters file fails here
-        backbone_spec = backbone_of(adapters, args.backbone) if adapters is not None else args.backbone or "offline"
+        from ocplace.methods.ours.method import placement_policy
+
         if args.adapters is None:
             print("no --adapters given: zero-shot grounding (plain backbone similarity, 'Ours w/o Adapter')")
-        policy = PlacementPolicy.from_run(load_backbone(backbone_spec), adapters, parser=parser, **kwargs)
+        policy = placement_policy(args.adapters, args.backbone, parser, **kwargs)
     [placement] = policy.place_many([scene], jax.random.key(args.seed))
     print(placement.summary())
     if record is not None:

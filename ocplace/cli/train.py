@@ -13,8 +13,13 @@ from ocplace.cli.options import (
     config_from_arguments,
     count,
 )
+from ocplace.methods.ours.recipe import (  # light: no JAX behind it
+    TrainConfig,
+    default_config,
+    paper_config,
+    smoke_config,
+)
 from ocplace.runtime.width import TRAIN_CPUS, pin_jax_width
-from ocplace.train.config import TrainConfig, default_config, paper_config, smoke_config  # light: no JAX behind it
 from ocplace.vocabulary import EXPERIMENT_NAMES
 
 
@@ -87,8 +92,8 @@ def run_train(args) -> int:
     config.validate()
     if args.cpus:  # before JAX starts, as in each task of `reproduce`: the width decides the last bits
         pin_jax_width(args.cpus)
+    from ocplace.methods.ours.train import train_ours as train
     from ocplace.models.features import load_features
-    from ocplace.train.ours import train_ours as train
 
     features = load_features(args.features)
     val_features = load_features(args.val_features, features.info.backbone_fingerprint) if args.val_features else None

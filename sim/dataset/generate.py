@@ -12,7 +12,7 @@ import json
 import numpy as np
 
 from ocplace import serial
-from ocplace.errors import SceneError
+from ocplace.errors import SceneError, UnsolvableScene
 from ocplace.sim import relations
 from ocplace.sim.boxes import boxes_from_segmentation
 from ocplace.sim.dataset.config import LEVEL_REFERENCES, SPLIT_NAMES, DatasetConfig, SplitConfig
@@ -21,10 +21,6 @@ from ocplace.sim.language import TABLE_NAME, ReferenceTuple, render_instruction
 from ocplace.sim.metric import DEFAULT_GRID, GroundedTuple, encode_problem, feasible_grid, oracle_placement
 from ocplace.sim.mujoco_backend import MujocoScenes
 from ocplace.sim.scene import RenderedScene, sample_scene_spec, split_pools
-
-
-class UnsolvableScene(RuntimeError):
-    """No solvable instruction was found within the configured attempts."""
 
 
 def scene_id(split: str, index: int) -> str:

@@ -8,8 +8,8 @@ import numpy as np
 import trimesh
 from PIL import Image
 
-from ocplace.errors import AssetBuildError
-from ocplace.sim.library.msh import MshFormatError, read_msh
+from ocplace.errors import AssetBuildError, MshFormatError
+from ocplace.sim.library.msh import read_msh
 from ocplace.sim.library.sources import SourceFiles
 
 

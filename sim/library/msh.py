@@ -13,11 +13,9 @@ from pathlib import Path
 
 import numpy as np
 
+from ocplace.errors import MshFormatError
+
 _HEADER_BYTES = 16
-
-
-class MshFormatError(ValueError):
-    """The bytes are not a well-formed legacy `.msh` file."""
 
 
 @dataclasses.dataclass(frozen=True)

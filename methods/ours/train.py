@@ -25,13 +25,13 @@ import jax.numpy as jnp
 import optax
 
 from ocplace import serial
+from ocplace.methods.ours.recipe import TrainConfig
 from ocplace.models import trained_adapters
 from ocplace.models.adapters import AdapterConfig, apply_adapters, init_adapters
 from ocplace.models.features import Features
 from ocplace.models.grounding import GroundingModel, cosine_logits, grounding_loss
 from ocplace.train import optim, runner
 from ocplace.train.batches import batch_indices, subset_indices
-from ocplace.train.config import TrainConfig
 from ocplace.train.metrics import GroundingAccuracy, evaluate_features
 
 
@@ -142,13 +142,10 @@ def train_ours(
             train_config_json=serial.to_json(recipe),
         )
 
-    spec = runner.Run(
+    spec = runner.Run.on(
+        recipe,
         run_dir=run_dir,
         run_meta=run_meta,
-        steps=recipe.steps,
-        chunk_steps=recipe.chunk_steps,
-        checkpoint_every=recipe.checkpoint_every,
-        keep_checkpoints=recipe.keep_checkpoints,
         init_state=lambda: init_state(adapter_config, make_optimizer(recipe), recipe.seed),
         chunk=chunk,
         record=record,

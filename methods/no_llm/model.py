@@ -27,10 +27,10 @@ import numpy as np
 import optax
 
 from ocplace import serial
+from ocplace.methods.no_llm.recipe import NoLlmConfig
 from ocplace.models.adapters import GroundingAdapters, apply_adapters
 from ocplace.models.backbone import Backbone, update_with_params
 from ocplace.models.grounding import cosine_logits, grounding_loss
-from ocplace.models.no_llm_config import NoLlmConfig
 from ocplace.models.weights_file import load_weights, unflatten_state
 from ocplace.paths import trained_weights
 from ocplace.sim.relations import RELATION_NAMES, RELATIONS
@@ -204,7 +204,7 @@ def load_model(run_dir: Path) -> TrainedNoLlm:
         run_dir,
         "no_llm model",
         "train it first (`ocplace reproduce` trains every registered method's missing runs, or call "
-        "ocplace.train.no_llm.train_no_llm)",
+        "ocplace.methods.no_llm.train.train_no_llm)",
     )
     arrays, metadata = load_weights(
         path, f"delete {path.parent} and rerun `ocplace reproduce` (it trains missing runs)"

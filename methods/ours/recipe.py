@@ -70,7 +70,7 @@ class TrainConfig:
             raise TrainingError("invalid training configuration: " + "; ".join(problems))
 
     @property
-    def adapters(self) -> dict:
+    def adapters(self) -> dict[str, object]:
         """The `AdapterConfig` fields this recipe sets (the width comes from the features)."""
         return {
             "reduction": self.reduction,

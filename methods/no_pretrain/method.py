@@ -1,4 +1,4 @@
-"""Table I row "Ours w/o CLIP pre-train" (`models/no_pretrain.py`, `train/no_pretrain.py`).
+"""Table I row "Ours w/o CLIP pre-train" (`methods/no_pretrain/model.py`, `methods/no_pretrain/train.py`).
 
 The offline backbone's architecture at random initialisation, trained with the adapters on the
 training split; at test time it is Ours' policy (parser, grounding, sampler) on that tower and those
@@ -12,9 +12,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ocplace.methods.api import LoadContext, MethodSpec, TrainContext
+from ocplace.methods.no_pretrain.recipe import NoPretrainRecipe as Recipe
 from ocplace.methods.policy_method import PolicyMethod, describe_policy, trained_run_weights
 from ocplace.paths import read_run_file
-from ocplace.train.recipes import NoPretrainRecipe as Recipe
 
 if TYPE_CHECKING:
     from ocplace.models.offline_backbone import OfflineBackbone
@@ -22,7 +22,7 @@ if TYPE_CHECKING:
 
 def train(ctx: TrainContext[Recipe]) -> Path:
     """Train the tower and adapters from random weights (`ctx.backbone` is not used: nothing is pretrained)."""
-    from ocplace.train import no_pretrain
+    from ocplace.methods.no_pretrain import train as no_pretrain
 
     train = dataclasses.replace(ctx.recipe.train, fraction=ctx.fraction, seed=ctx.seed)
     recipe = dataclasses.replace(ctx.recipe, train=train)
@@ -36,7 +36,7 @@ class NoPretrainMethod(PolicyMethod):
 
     def describe(self) -> dict[str, Any]:
         described = describe_policy(self.policy, self.name, self.backbone_spec, self.adapters_file)
-        from ocplace.models.no_llm import params_sha256
+        from ocplace.methods.no_llm.model import params_sha256
 
         described["from_scratch"] = read_run_file(self.run_dir)
         described["backbone"]["weights_sha256"] = params_sha256(self.tower.params)
@@ -45,7 +45,7 @@ class NoPretrainMethod(PolicyMethod):
 
 
 def load(ctx: LoadContext) -> NoPretrainMethod:
-    from ocplace.models.no_pretrain import BACKBONE_DIR
+    from ocplace.methods.no_pretrain.model import BACKBONE_DIR
     from ocplace.models.offline_backbone import load_saved_backbone
     from ocplace.models.placement.sampler import SamplerConfig
     from ocplace.models.policy import PlacementPolicy

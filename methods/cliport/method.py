@@ -15,14 +15,15 @@ from ocplace import serial
 from ocplace.errors import OcplaceError
 from ocplace.eval.api import MethodOutput
 from ocplace.methods.api import LoadContext, MethodSpec, TrainContext
-from ocplace.methods.trained_baseline import describe_baseline, failure_output, load_checked_backbone, train_baseline
-from ocplace.models.baselines import cliport
+from ocplace.methods.cliport import model as cliport
+from ocplace.methods.cliport.recipe import CliportConfig
+from ocplace.methods.cliport.recipe import CliportRecipe as Recipe
+from ocplace.methods.trained_baseline import TrainedRun, failure_output, train_baseline
 from ocplace.models.baselines.common import top_down_camera
 from ocplace.sim.dataset.records import SceneRecord
-from ocplace.train.recipes import CliportRecipe as Recipe
 
 if TYPE_CHECKING:
-    from ocplace.models.backbone import Backbone
+    pass
 
 SCENES_PER_BATCH = 8  # CLIPort scenes per network call (a fixed shape: one compilation)
 
@@ -31,16 +32,12 @@ SCENES_PER_BATCH = 8  # CLIPort scenes per network call (a fixed shape: one comp
 class CliportMethod:
     """The argmax pixel of the affordance map as the mode; samples drawn from the map."""
 
-    backbone: Backbone
-    params: dict[str, Any]
-    config: cliport.CliportConfig
-    run_meta: dict[str, Any]
-    weights_sha256: str
-    num_samples: int
+    trained: TrainedRun
+    config: CliportConfig
     name: str = "cliport"
 
     def describe(self) -> dict[str, Any]:
-        return describe_baseline(self.name, self.run_meta, self.weights_sha256, self.backbone, self.num_samples)
+        return self.trained.describe(self.name)
 
     def distributions(self, scenes: Sequence[SceneRecord]) -> np.ndarray:
         """`(num_scenes, h * w)` pixel distributions (each sums to 1 over the table's pixels)."""
@@ -49,13 +46,13 @@ class CliportMethod:
             batch = list(scenes[start : start + SCENES_PER_BATCH])
             cameras = [top_down_camera(scene) for scene in batch]
             images = [cliport.prepare_image(s.rgb, s.depth, c, self.config) for s, c in zip(batch, cameras)]
-            text = self.backbone.encode_texts([scene.instruction for scene in batch])
+            text = self.trained.backbone.encode_texts([scene.instruction for scene in batch])
             pad = SCENES_PER_BATCH - len(batch)
             rgb = np.stack([i[0] for i in images] + [np.zeros_like(images[0][0])] * pad)
             height = np.stack([i[1] for i in images] + [np.zeros_like(images[0][1])] * pad)
             text = np.concatenate([text, np.zeros((pad, text.shape[1]), text.dtype)])
             mask = np.stack([cliport.table_mask(camera, self.config) for camera in cameras + cameras[:1] * pad])
-            probabilities = cliport.jit_distribution(self.config, self.params, rgb, height, text, mask)
+            probabilities = cliport.jit_distribution(self.config, self.trained.params, rgb, height, text, mask)
             out.append(np.asarray(probabilities)[: len(batch)])
         return np.concatenate(out) if out else np.zeros((0, self.config.num_pixels), np.float32)
 
@@ -67,29 +64,21 @@ class CliportMethod:
         outputs = []
         for scene, probabilities, scene_key in zip(scenes, distributions, jax.random.split(key, len(scenes))):
             mode, samples = cliport.mode_and_samples(
-                scene_key, probabilities, self.num_samples, top_down_camera(scene), self.config
+                scene_key, probabilities, self.trained.num_samples, top_down_camera(scene), self.config
             )
             outputs.append(MethodOutput(mode=mode, samples=samples, parsed=None, grounded=None))
         return outputs
 
 
 def train(context: TrainContext[Recipe]) -> Path:
-    from ocplace.train.cliport import train_cliport
+    from ocplace.methods.cliport.train import train_cliport
 
     return train_baseline(train_cliport, context)
 
 
 def load(context: LoadContext) -> CliportMethod:
-    params, run_meta, sha = cliport.load_params(context.trained_run)
-    config = serial.from_dict(cliport.CliportConfig, run_meta["network"])
-    return CliportMethod(
-        load_checked_backbone(context.backbone, run_meta, "CLIPort-Place"),
-        params,
-        config,
-        run_meta,
-        sha,
-        context.num_samples,
-    )
+    run = TrainedRun.load(context, cliport.load_params, "CLIPort-Place")
+    return CliportMethod(run, serial.from_dict(CliportConfig, run.run_meta["network"]))
 
 
 SPEC: MethodSpec[Recipe] = MethodSpec("cliport", "CLIPort-Place", load=load, train=train)

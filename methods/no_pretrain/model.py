@@ -20,11 +20,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ocplace.methods.no_pretrain.recipe import NoPretrainConfig
 from ocplace.models import efficientnet
 from ocplace.models import offline_backbone as ob
 from ocplace.models.adapters import apply_adapters, init_adapters
 from ocplace.models.grounding import cosine_logits, grounding_loss
-from ocplace.models.no_pretrain_config import NoPretrainConfig
 
 BACKBONE_DIR = "backbone"  # the trained tower inside a run directory, an offline backbone directory
 

@@ -30,15 +30,15 @@ import optax
 
 from ocplace import serial
 from ocplace.errors import FeaturesError
+from ocplace.methods.no_llm.model import NoLlmConfig, NoLlmModel, encode_sentences, init_params, loss_terms
+from ocplace.methods.no_llm.recipe import NoLlmTrainConfig
 from ocplace.models.backbone import Backbone
 from ocplace.models.features import Features, featurize_split, load_features
-from ocplace.models.no_llm import NoLlmConfig, NoLlmModel, encode_sentences, init_params, loss_terms
 from ocplace.models.weights_file import save_weights
 from ocplace.paths import WEIGHTS_FILE, atomic_path, features_cache
 from ocplace.sim.relations import relation_index
 from ocplace.train import checkpoints, optim, runner
 from ocplace.train.batches import batch_indices, subset_indices
-from ocplace.train.recipes import NoLlmTrainConfig
 
 # The paper's name in the cache key: renaming it would orphan every cached sentence file.
 SENTENCES_FORMAT = "ocplace-gtref-sentences-v1"
@@ -190,13 +190,10 @@ def train_on_arrays(
         save_model(path, model, backbone_fingerprint=backbone_fingerprint, train_config=config)
         return model
 
-    spec = runner.Run(
+    spec = runner.Run.on(
+        config,
         run_dir=run_dir,
         run_meta=run_meta,
-        steps=config.steps,
-        chunk_steps=config.chunk_steps,
-        checkpoint_every=config.checkpoint_every,
-        keep_checkpoints=config.keep_checkpoints,
         init_state=init_state,
         chunk=chunk,
         record=record,

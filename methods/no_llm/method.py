@@ -1,4 +1,4 @@
-"""Table I row "Ours w/o LLM" (`models/no_llm.py`, `train/no_llm.py`).
+"""Table I row "Ours w/o LLM" (`methods/no_llm/model.py`, `methods/no_llm/train.py`).
 
 No parser: the instruction is one text token, the top-L visual tokens are the references (L from the
 scene's level, the one ground-truth input this ablation is allowed) and an MLP picks each one's
@@ -18,22 +18,22 @@ import numpy as np
 from ocplace import serial
 from ocplace.eval.api import MethodOutput
 from ocplace.methods.api import LoadContext, MethodSpec, TrainContext
+from ocplace.methods.no_llm.recipe import NoLlmTrainConfig as Recipe
 from ocplace.methods.policy_method import prepare_train_features, scene_input
 from ocplace.paths import WEIGHTS_FILE
 from ocplace.sim.dataset.records import SceneRecord
-from ocplace.train.recipes import NoLlmTrainConfig as Recipe
 
 if TYPE_CHECKING:
     import jax
 
-    from ocplace.models.no_llm import TrainedNoLlm
+    from ocplace.methods.no_llm.model import TrainedNoLlm
     from ocplace.models.policy import GroundedReference, PlacementPolicy, PreparedScene, SceneProgress
 
 
 def train(ctx: TrainContext[Recipe]) -> Path:
     """Featurize the training split (shared cache) and its sentences, then train no_llm (idempotent)."""
+    from ocplace.methods.no_llm import train as no_llm
     from ocplace.models.backbone import load_backbone
-    from ocplace.train import no_llm
 
     return no_llm.train_no_llm(
         Path(ctx.dataset_dir),
@@ -71,7 +71,7 @@ class NoLlmMethod:
 
     def program(self, prepared: Sequence[PreparedScene], levels: Sequence[str]) -> list[tuple[GroundedReference, ...]]:
         """Per scene, the chosen references with their predicted relations (`GroundedReference`s)."""
-        from ocplace.models.no_llm import REFERENCES_BY_LEVEL, encode_sentences
+        from ocplace.methods.no_llm.model import REFERENCES_BY_LEVEL, encode_sentences
         from ocplace.models.policy import GroundedReference
         from ocplace.sim.relations import RELATION_NAMES
 
@@ -145,9 +145,9 @@ class NoLlmMethod:
 
 
 def load(ctx: LoadContext) -> NoLlmMethod:
+    from ocplace.methods.no_llm.model import load_model
     from ocplace.models.backbone import PromptConfig, check_trained_on, load_backbone
     from ocplace.models.grounding import GroundingModel
-    from ocplace.models.no_llm import load_model
     from ocplace.models.placement.sampler import SamplerConfig
     from ocplace.models.policy import PlacementPolicy
     from ocplace.models.shared_features import SharedFeatures

@@ -30,14 +30,15 @@ import numpy as np
 import optax
 
 from ocplace import serial
-from ocplace.models import no_pretrain, offline_config, trained_adapters
+from ocplace.methods.no_pretrain import model as no_pretrain
+from ocplace.methods.no_pretrain.model import BACKBONE_DIR
+from ocplace.methods.no_pretrain.recipe import NoPretrainRecipe, NoPretrainTrainConfig
 from ocplace.models import offline_backbone as ob
+from ocplace.models import offline_config, trained_adapters
 from ocplace.models.backbone import PromptConfig
-from ocplace.models.no_pretrain import BACKBONE_DIR
 from ocplace.paths import WEIGHTS_FILE, atomic_path, scratch_cache
 from ocplace.train import checkpoints, optim, runner
 from ocplace.train.batches import batch_indices, subset_indices
-from ocplace.train.recipes import NoPretrainRecipe, NoPretrainTrainConfig
 from ocplace.vocabulary import MAX_INSTRUCTION_TUPLES as MAX_TUPLES
 
 # The format and its cache folder (`paths.scratch_cache`) keep their old name: renaming would orphan every cached input.
@@ -225,7 +226,7 @@ def save_trained(
         model.backbone,
         params["backbone"],
         text_digest,
-        {"trained_by": "ocplace.train.no_pretrain (Ours w/o CLIP pre-train)", "recipe": serial.to_dict(recipe)},
+        {"trained_by": "ocplace.methods.no_pretrain.train (Ours w/o CLIP pre-train)", "recipe": serial.to_dict(recipe)},
     )
     fingerprint = (backbone_dir / ob.FINGERPRINT_FILE).read_text().strip()
     scale = float(np.exp(min(float(params["backbone"]["log_logit_scale"]), math.log(model.max_logit_scale))))

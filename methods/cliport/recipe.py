@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 
 from ocplace.sim.workspace import DEFAULT_TABLE, Table
+from ocplace.train.schedule import Schedule
 
 
 @dataclasses.dataclass(frozen=True)
@@ -24,3 +25,10 @@ class CliportConfig:
 def smoke_config() -> CliportConfig:
     """40 x 30 pixels, two narrow levels: compiles and trains in seconds."""
     return CliportConfig(width=40, height=30, channels=(8, 16))
+
+
+@dataclasses.dataclass(frozen=True)
+class CliportRecipe:
+    network: CliportConfig
+    schedule: Schedule
+    num_targets: int = 16  # feasible pixels cached per scene

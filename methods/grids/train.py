@@ -22,9 +22,10 @@ import numpy as np
 import optax
 
 from ocplace import serial
+from ocplace.methods.grids import model as grids
+from ocplace.methods.grids.recipe import GridConfig, GridsRecipe
 from ocplace.models import features as feature_cache
 from ocplace.models.backbone import Backbone
-from ocplace.models.baselines import grids
 from ocplace.models.baselines.common import top_down_camera
 from ocplace.paths import baselines_cache
 from ocplace.sim.dataset.job import listed_scenes, scene_dirs
@@ -32,11 +33,10 @@ from ocplace.sim.dataset.loader import letterbox
 from ocplace.train import baseline_runs
 from ocplace.train.baseline_runs import BaselineRun, Schedule
 from ocplace.train.batches import batch_indices, subset_indices
-from ocplace.train.recipes import GridsRecipe
 from ocplace.vocabulary import MAX_INSTRUCTION_TUPLES
 
 
-def scene_examples(dataset_dir: Path, split: str, config: grids.GridConfig) -> Iterator[feature_cache.SceneToFeaturize]:
+def scene_examples(dataset_dir: Path, split: str, config: GridConfig) -> Iterator[feature_cache.SceneToFeaturize]:
     """The cache's scene examples: cells as crops, tuple texts, the oracle's cell as every tuple's target."""
     for scene in listed_scenes(dataset_dir, split):
         record = scene.read()
@@ -52,7 +52,7 @@ def scene_examples(dataset_dir: Path, split: str, config: grids.GridConfig) -> I
 
 
 def cell_features(
-    dataset_dir: Path, backbone: Backbone, config: grids.GridConfig, split: str = "train", progress: bool = True
+    dataset_dir: Path, backbone: Backbone, config: GridConfig, split: str = "train", progress: bool = True
 ) -> feature_cache.Features:
     """The split's cell features, from the cache (computed on first use)."""
     from ocplace.sim.dataset.identity import dataset_hash
@@ -76,12 +76,12 @@ def cell_features(
     return feature_cache.load_features(path, expected_fingerprint=backbone.fingerprint)
 
 
-def training_arrays(features: feature_cache.Features, config: grids.GridConfig) -> tuple[np.ndarray, ...]:
+def training_arrays(features: feature_cache.Features, config: GridConfig) -> tuple[np.ndarray, ...]:
     """`(cells (S, C, D), text (S, L, D), text_mask (S, L), targets (S,))` from cached features."""
     return (features.visual[:, : config.num_cells], features.text, features.text_mask, features.targets[:, 0])
 
 
-def train_step(config: grids.GridConfig, schedule: Schedule, logit_scale: float, state, data, indices):
+def train_step(config: GridConfig, schedule: Schedule, logit_scale: float, state, data, indices):
     params, opt_state = state
     batch = tuple(array[indices] for array in data)
     loss, grads = jax.value_and_grad(grids.grid_loss, argnums=1)(config, params, *batch, logit_scale)
@@ -90,7 +90,7 @@ def train_step(config: grids.GridConfig, schedule: Schedule, logit_scale: float,
 
 
 @functools.partial(jax.jit, static_argnums=(0, 1, 2), donate_argnums=3)
-def train_chunk(config: grids.GridConfig, schedule: Schedule, logit_scale: float, state, data, indices):
+def train_chunk(config: GridConfig, schedule: Schedule, logit_scale: float, state, data, indices):
     """`indices (num_steps, B)`: the steps fused with `lax.scan`; returns `(state, losses)`."""
     step = functools.partial(train_step, config, schedule, logit_scale)
     return jax.lax.scan(lambda carry, step_indices: step(carry, data, step_indices), state, indices)

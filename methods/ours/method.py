@@ -1,7 +1,7 @@
 """Table I row "Ours": CLIP-Adapters trained on the training split's features, on a frozen backbone.
 
 Training featurizes the training split with the frozen backbone (cached, shared with `ocplace
-featurize` and w/o LLM) and trains the adapters on it (`train/ours.py`); the run loads as the
+featurize` and w/o LLM) and trains the adapters on it (`methods/ours/train.py`); the run loads as the
 placement policy with those adapters.
 """
 
@@ -10,17 +10,22 @@ from __future__ import annotations
 import dataclasses
 import functools
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from ocplace.methods.api import LoadContext, MethodSpec, TrainContext
+from ocplace.methods.ours.recipe import TrainConfig as Recipe
 from ocplace.methods.policy_method import PolicyMethod, policy_of, prepare_train_features, trained_run_weights
-from ocplace.train.config import TrainConfig as Recipe
+
+if TYPE_CHECKING:
+    from ocplace.models.parsing.types import Parser
+    from ocplace.models.policy import PlacementPolicy
 
 
 def train(ctx: TrainContext[Recipe]) -> Path:
     """Featurize the training split, then train the adapters into `ctx.out_dir` (resumable)."""
+    from ocplace.methods.ours.train import train_ours
     from ocplace.models.backbone import load_backbone
     from ocplace.models.features import featurize_split, load_features
-    from ocplace.train.ours import train_ours
 
     backbone = load_backbone(ctx.backbone)
     features = load_features(featurize_split(Path(ctx.dataset_dir), "train", backbone), backbone.fingerprint)
@@ -32,6 +37,21 @@ def load_as(name: str, ctx: LoadContext) -> PolicyMethod:
     """Loads a run of a method that trains as Ours does, under its own name (`ours`, `ours_paper`)."""
     adapters_file = trained_run_weights(ctx.run_dir, "adapters", name)
     return PolicyMethod(name, policy_of(ctx, adapters_file), ctx.backbone, adapters_file)
+
+
+def placement_policy(
+    adapters_file: Path | None, backbone: str | None, parser: Parser, **policy_fields: Any
+) -> PlacementPolicy:
+    """Ours on one scene outside the benchmark (`ocplace place`): with these adapters on the backbone they were
+    trained on (`backbone` when given), or zero-shot, as w/o Adapter, without them."""
+    from ocplace.methods.export import backbone_of
+    from ocplace.models.backbone import load_backbone
+    from ocplace.models.policy import PlacementPolicy
+    from ocplace.models.trained_adapters import load_adapters
+
+    adapters = None if adapters_file is None else load_adapters(adapters_file)  # a bad file fails before the backbone
+    spec = backbone_of(adapters, backbone) if adapters is not None else backbone or "offline"
+    return PlacementPolicy.from_run(load_backbone(spec), adapters, parser=parser, **policy_fields)
 
 
 # A partial of a module-level function: specs travel to worker processes by pickle.

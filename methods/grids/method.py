@@ -17,16 +17,16 @@ from ocplace import serial
 from ocplace.errors import OcplaceError
 from ocplace.eval.api import MethodOutput
 from ocplace.methods.api import LoadContext, MethodSpec, TrainContext
-from ocplace.methods.trained_baseline import describe_baseline, failure_output, load_checked_backbone, train_baseline
-from ocplace.models.baselines import grids
+from ocplace.methods.grids import model as grids
+from ocplace.methods.grids.recipe import GridConfig
+from ocplace.methods.grids.recipe import GridsRecipe as Recipe
+from ocplace.methods.trained_baseline import TrainedRun, failure_output, train_baseline
 from ocplace.models.baselines.common import free_grid, top_down_camera
 from ocplace.models.parsing.types import as_pairs, parse_note
 from ocplace.paths import atomic_path, baselines_cache
 from ocplace.sim.dataset.records import SceneRecord
-from ocplace.train.recipes import GridsRecipe as Recipe
 
 if TYPE_CHECKING:
-    from ocplace.models.backbone import Backbone
     from ocplace.models.parsing.types import Parser
 
 
@@ -34,20 +34,14 @@ if TYPE_CHECKING:
 class GridsMethod:
     """Chooses the cell most similar to all tuple texts and samples a collision-free point inside it."""
 
-    backbone: Backbone
+    trained: TrainedRun
     parser: Parser
-    params: dict[str, Any]
-    config: grids.GridConfig
-    run_meta: dict[str, Any]
-    weights_sha256: str
-    num_samples: int
+    config: GridConfig
     cells_cache: Path | None = None  # encoded cells per image, by content: evaluations of several runs share them
     name: str = "grids"
 
     def describe(self) -> dict[str, Any]:
-        return describe_baseline(
-            self.name, self.run_meta, self.weights_sha256, self.backbone, self.num_samples, self.parser
-        )
+        return self.trained.describe(self.name, self.parser)
 
     def run(self, scenes: Sequence[SceneRecord], key: jax.Array) -> list[MethodOutput]:
         return [self._place(scene, scene_key) for scene, scene_key in zip(scenes, jax.random.split(key, len(scenes)))]
@@ -55,10 +49,17 @@ class GridsMethod:
     def chosen_cell(self, scene: SceneRecord, parsed: Sequence[tuple[str, str]]) -> tuple[int, np.ndarray]:
         """`(cell, logits (num_cells,))` for one scene and its parse."""
         cells = self.encoded_cells(scene)
-        text = self.backbone.encode_texts([grids.tuple_text(reference, relation) for reference, relation in parsed])
+        text = self.trained.backbone.encode_texts(
+            [grids.tuple_text(reference, relation) for reference, relation in parsed]
+        )
         logits = np.asarray(
             grids.jit_grid_logits(
-                self.config, self.params, cells, text, np.ones(len(text), bool), float(self.run_meta["logit_scale"])
+                self.config,
+                self.trained.params,
+                cells,
+                text,
+                np.ones(len(text), bool),
+                float(self.trained.run_meta["logit_scale"]),
             )
         )
         return int(np.argmax(logits)), logits
@@ -68,7 +69,7 @@ class GridsMethod:
 
         def encode() -> np.ndarray[Any, Any]:
             crops = grids.cell_crops(scene.rgb, top_down_camera(scene), self.config)
-            return np.asarray(self.backbone.encode_images(crops))
+            return np.asarray(self.trained.backbone.encode_images(crops))
 
         if self.cells_cache is None:
             return encode()
@@ -90,14 +91,14 @@ class GridsMethod:
             tuples = self.parser.parse(scene.instruction)
             parsed = tuple(as_pairs(tuples))
             cell, _ = self.chosen_cell(scene, parsed)
-            samples, mode, _ = grids.sample_in_cell(key, free_grid(scene), cell, self.num_samples, self.config)
+            samples, mode, _ = grids.sample_in_cell(key, free_grid(scene), cell, self.trained.num_samples, self.config)
         except OcplaceError as error:
             return failure_output(error)
         return MethodOutput(mode=mode, samples=samples, parsed=parsed, grounded=None, parse_note=parse_note(tuples))
 
 
 def train(context: TrainContext[Recipe]) -> Path:
-    from ocplace.train.grids import train_grids
+    from ocplace.methods.grids.train import train_grids
 
     return train_baseline(train_grids, context)
 
@@ -105,14 +106,11 @@ def train(context: TrainContext[Recipe]) -> Path:
 def load(context: LoadContext) -> GridsMethod:
     from ocplace.models.parsing import make_parser
 
-    params, run_meta, sha = grids.load_params(context.trained_run)
-    config = serial.from_dict(grids.GridConfig, run_meta["grid"])
-    backbone = load_checked_backbone(context.backbone, run_meta, "Raw Image Grids")
+    run = TrainedRun.load(context, grids.load_params, "Raw Image Grids")
+    config = serial.from_dict(GridConfig, run.run_meta["grid"])
     grid_key = hashlib.sha256(serial.to_json(config).encode()).hexdigest()[:12]
-    cells_cache = baselines_cache() / f"test-cells-{backbone.fingerprint[:16]}-{grid_key}"
-    return GridsMethod(
-        backbone, make_parser(context.parser), params, config, run_meta, sha, context.num_samples, cells_cache
-    )
+    cells_cache = baselines_cache() / f"test-cells-{run.backbone.fingerprint[:16]}-{grid_key}"
+    return GridsMethod(run, make_parser(context.parser), config, cells_cache)
 
 
 SPEC: MethodSpec[Recipe] = MethodSpec("grids", "Raw Image Grids", load=load, train=train)

@@ -20,8 +20,9 @@ import numpy as np
 import optax
 
 from ocplace import serial
+from ocplace.methods.cliport import model as cliport
+from ocplace.methods.cliport.recipe import CliportConfig, CliportRecipe
 from ocplace.models.backbone import Backbone
-from ocplace.models.baselines import cliport
 from ocplace.models.baselines.common import top_down_camera
 from ocplace.paths import atomic_path, baselines_cache
 from ocplace.sim import metric
@@ -29,13 +30,12 @@ from ocplace.sim.dataset.job import listed_scenes
 from ocplace.train import baseline_runs
 from ocplace.train.baseline_runs import BaselineRun, Schedule
 from ocplace.train.batches import batch_indices, subset_indices
-from ocplace.train.recipes import CliportRecipe
 
 CACHE_FORMAT = "ocplace-cliport-data-v1"
 DATA_ARRAYS = ("rgb", "height", "text", "targets")
 
 
-def target_pixels(record, num_targets: int, seed: int, config: cliport.CliportConfig) -> np.ndarray:
+def target_pixels(record, num_targets: int, seed: int, config: CliportConfig) -> np.ndarray:
     """`(num_targets,)` flat pixels of points drawn from the scene's feasible region (ground truth)."""
     feasible = metric.feasible_grid(record.problem())
     rng = np.random.default_rng([seed, record.index])
@@ -94,7 +94,7 @@ def training_data(
     return arrays, key
 
 
-def train_step(config: cliport.CliportConfig, schedule: Schedule, state, data, mask, indices, key):
+def train_step(config: CliportConfig, schedule: Schedule, state, data, mask, indices, key):
     params, opt_state = state
     rgb, height, text, targets = (data[name][indices] for name in DATA_ARRAYS)
     choice = jax.random.randint(key, (indices.shape[0],), 0, targets.shape[-1])
@@ -107,7 +107,7 @@ def train_step(config: cliport.CliportConfig, schedule: Schedule, state, data, m
 jit_train_step = jax.jit(train_step, static_argnums=(0, 1), donate_argnums=2)
 
 
-def train_chunk(config: cliport.CliportConfig, schedule: Schedule, state, data, mask, indices, keys):
+def train_chunk(config: CliportConfig, schedule: Schedule, state, data, mask, indices, keys):
     """`indices (num_steps, B)` and `keys (num_steps,)`: one jitted call per step; returns `(state, losses)`.
 
     Not a `lax.scan` like the adapters' loop: XLA:CPU runs convolutions inside a loop body with a

@@ -7,6 +7,7 @@ import dataclasses
 import numpy as np
 
 from ocplace.sim.workspace import DEFAULT_TABLE, Table
+from ocplace.train.schedule import Schedule
 
 
 @dataclasses.dataclass(frozen=True)
@@ -27,9 +28,16 @@ class GridConfig:
     @property
     def cell_size(self) -> np.ndarray:
         """`(2,)` metres."""
-        return 2.0 * np.asarray(self.table.half_extents) / np.array([self.columns, self.rows])
+        cell_size: np.ndarray = 2.0 * np.asarray(self.table.half_extents) / np.array([self.columns, self.rows])
+        return cell_size
 
 
 def smoke_grid_config() -> GridConfig:
     """A coarse 4 x 3 grid with small crops, for tests."""
     return GridConfig(columns=4, rows=3, crop_size=32, num_frequencies=2, position_hidden=16)
+
+
+@dataclasses.dataclass(frozen=True)
+class GridsRecipe:
+    grid: GridConfig
+    schedule: Schedule

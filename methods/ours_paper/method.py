@@ -1,15 +1,15 @@
 """Row "Ours, paper's adapters": Ours trained and blended as the paper does (residual ratio 0.2 on both towers,
 A(x) unnormalised, no regulariser), beside Ours with the adapters rule A chose (docs/settings.md). Same
-training and loading as Ours (`methods/ours.py`); only the recipe differs."""
+training and loading as Ours (`methods/ours/method.py`); only the recipe differs."""
 
 from __future__ import annotations
 
 import functools
 
-from ocplace.methods import ours
 from ocplace.methods.api import MethodSpec
+from ocplace.methods.ours import method as ours
+from ocplace.methods.ours.recipe import TrainConfig as Recipe
 from ocplace.methods.policy_method import prepare_train_features
-from ocplace.train.config import TrainConfig as Recipe
 
 SPEC: MethodSpec[Recipe] = MethodSpec(
     "ours_paper",

@@ -25,9 +25,9 @@ import numpy as np
 import optax
 
 from ocplace import serial
+from ocplace.methods.grids.recipe import GridConfig
 from ocplace.models.adapters import ClipAdapter, blend
 from ocplace.models.backbone import PromptConfig
-from ocplace.models.baselines.grid_config import GridConfig
 from ocplace.models.baselines.trained_run import load_run
 from ocplace.models.grounding import l2_normalize
 from ocplace.models.weights_file import unflatten_state

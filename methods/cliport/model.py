@@ -28,7 +28,7 @@ import numpy as np
 import optax
 
 from ocplace import serial
-from ocplace.models.baselines.cliport_config import CliportConfig
+from ocplace.methods.cliport.recipe import CliportConfig
 from ocplace.models.baselines.trained_run import load_run
 from ocplace.models.weights_file import unflatten_state
 from ocplace.sim.camera import Camera

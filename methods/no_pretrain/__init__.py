@@ -1,0 +1,3 @@
+"""Table I row "Ours w/o CLIP pre-train": Ours' backbone from random weights."""
+
+TABLE_ROW = 7
