@@ -33,7 +33,7 @@ from ocplace import serial
 from ocplace.errors import ConfigError
 from ocplace.eval.harness import EvalSettings, Evaluation, MethodRun
 from ocplace.experiments.experiment import Experiment
-from ocplace.methods.api import MethodSpec, TrainContext
+from ocplace.methods.api import MethodSpec, TrainContext, train_once
 from ocplace.methods.registry import method_run, method_specs, select_specs
 from ocplace.runtime import Executor, ExecutorConfig, Task, open_executor
 from ocplace.runtime.graph import Node, Outcome, run_graph
@@ -244,20 +244,8 @@ def prepare_task(spec: MethodSpec[Any], context: TrainContext[Any]) -> str:
 
 
 def train_task(spec: MethodSpec[Any], context: TrainContext[Any]) -> tuple[Path, bool]:
-    """(run directory, reused). A finished training is recorded beside its run directory and not
-    repeated: a method's own resume may rewrite its files, which would change checkpoint hashes."""
-    from ocplace.paths import write_text_atomic
-
-    record = context.out_dir.with_name(context.out_dir.name + ".done.json")
-    wanted = serial.to_dict(dataclasses.asdict(context))
-    if record.exists():
-        done = json.loads(record.read_text())
-        if done["context"] == wanted and Path(done["run_dir"]).exists():
-            return Path(done["run_dir"]), True
-    assert spec.train is not None, "the graph trains methods that learn only"
-    run_dir = Path(spec.train(context))
-    write_text_atomic(record, json.dumps({"context": wanted, "run_dir": str(run_dir)}, indent=1))
-    return run_dir, False
+    """(run directory, reused), by `methods.api.train_once`."""
+    return train_once(spec, context)
 
 
 def evaluate_task(

@@ -8,10 +8,12 @@ trained run into an `ocplace.eval.api.Method`, which the harness scores. Trainin
 from __future__ import annotations
 
 import dataclasses
+import json
 from collections.abc import Callable
 from pathlib import Path
-from typing import Generic, TypeVar
+from typing import Any, Generic, TypeVar
 
+from ocplace import serial
 from ocplace.errors import EvaluationError
 from ocplace.eval.api import Method
 
@@ -67,3 +69,28 @@ class MethodSpec(Generic[Recipe]):
     # It trains or places on the experiment's pretrained backbone, so `reproduce` repeats it over backbone seeds
     # (`EvalPlan.backbone_seeds`); False for a method that starts from random weights.
     uses_backbone: bool = True
+
+
+def done_record(run_dir: Path) -> Path:
+    """Where a finished training of `run_dir` is recorded, with its context: beside the run directory."""
+    return run_dir.with_name(run_dir.name + ".done.json")
+
+
+def train_once(spec: MethodSpec[Any], context: TrainContext[Any]) -> tuple[Path, bool]:
+    """(run directory, reused): the one "already done" check of every row, for `reproduce` and `ocplace train`.
+    A training whose record holds exactly this context is not repeated (a row's own resume may rewrite its files,
+    which would change their hashes); else the row trains (its shared inputs `prepare`d before) and the record is
+    written."""
+    from ocplace.paths import write_text_atomic
+
+    if spec.train is None:
+        raise EvaluationError(f"{spec.name} learns nothing: there is no run to train (evaluate it directly)")
+    record = done_record(Path(context.out_dir))
+    wanted = serial.to_dict(dataclasses.asdict(context))
+    if record.exists():
+        done = json.loads(record.read_text())
+        if done["context"] == wanted and Path(done["run_dir"]).exists():
+            return Path(done["run_dir"]), True
+    run_dir = Path(spec.train(context))
+    write_text_atomic(record, json.dumps({"context": wanted, "run_dir": str(run_dir)}, indent=1))
+    return run_dir, False

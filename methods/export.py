@@ -108,9 +108,11 @@ def export_trained(
     """`policy` (loaded from `run_dir`) written as a policy folder with its model card."""
     import json
 
+    from ocplace.methods.api import done_record
+
     run_dir = Path(run_dir)
     if dataset is None:
-        record = run_dir.with_name(run_dir.name + ".done.json")  # written by reproduce beside its runs
+        record = done_record(run_dir)  # written beside the runs that reproduce and ocplace train made
         dataset = json.loads(record.read_text())["context"]["dataset_dir"] if record.is_file() else "its dataset"
     source = {"run": str(run_dir), "backbone": backbone, "dataset": str(dataset)}
     card = _card(Path(out), source, NOT_EVALUATED)

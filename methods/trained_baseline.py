@@ -59,17 +59,14 @@ def failure_output(error: Exception) -> MethodOutput:
 
 
 def train_baseline(train: Callable[..., None], context: TrainContext[Any]) -> Path:
-    """`train` (`train.grids.train_grids` or `train.cliport.train_cliport`) on the context's fields, unless its run
-    directory holds a finished run (kept as it is)."""
+    """`train` (`train_grids` or `train_cliport`) on the context's fields (resumable; a finished run is kept by
+    `methods.api.train_once`)."""
     from ocplace.models.backbone import load_backbone
-    from ocplace.train.baseline_runs import BaselineRun, is_finished
+    from ocplace.train.baseline_runs import BaselineRun
 
-    if not is_finished(context.out_dir):
-        backbone = load_backbone(context.backbone)
-        train(
-            BaselineRun(
-                backbone, context.dataset_dir, context.out_dir, context.fraction, context.seed, context.experiment
-            ),
-            context.recipe,
-        )
+    backbone = load_backbone(context.backbone)
+    run = BaselineRun(
+        backbone, context.dataset_dir, context.out_dir, context.fraction, context.seed, context.experiment
+    )
+    train(run, context.recipe)
     return context.out_dir

@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from llm_endpoint import fixed_answer, llm_parser
 
 from ocplace.configs import smoke
-from ocplace.methods.api import LoadContext, TrainContext
+from ocplace.methods.api import LoadContext, TrainContext, done_record, train_once
 from ocplace.methods.cliport import model as cliport
 from ocplace.methods.cliport import recipe as cliport_config
 from ocplace.methods.grids import model as grids
@@ -224,12 +224,14 @@ def test_grids_trains_resumes_and_places_in_the_chosen_cell(specs, smoke_dataset
     grids_context = functools.partial(
         TrainContext, smoke_dataset, tiny_backbone_spec, recipe=SMOKE.recipes.grids, experiment="smoke"
     )
-    run_dir = spec.train(grids_context(tmp_path / "grids"))
+    run_dir, reused = train_once(spec, grids_context(tmp_path / "grids"))
     losses = _losses(run_dir)
-    assert losses[-1] < losses[0]
+    assert losses[-1] < losses[0] and not reused
     weights = (run_dir / WEIGHTS_FILE).read_bytes()
-    spec.train(grids_context(run_dir))  # finished: skipped
+    record = done_record(run_dir).read_bytes()
+    assert train_once(spec, grids_context(run_dir)) == (run_dir, True)  # finished: not touched
     assert (run_dir / WEIGHTS_FILE).read_bytes() == weights and _losses(run_dir) == losses
+    assert done_record(run_dir).read_bytes() == record
 
     resumed = tmp_path / "resumed"  # an interrupted run: no weights, newest checkpoint lost
     spec.train(grids_context(resumed))
@@ -237,6 +239,9 @@ def test_grids_trains_resumes_and_places_in_the_chosen_cell(specs, smoke_dataset
     sorted((resumed / "checkpoints").glob("step_*"))[-1].unlink()
     spec.train(grids_context(resumed))
     assert (resumed / WEIGHTS_FILE).read_bytes() == weights and _losses(resumed) == losses
+    written = (resumed / WEIGHTS_FILE).stat().st_mtime_ns
+    spec.train(grids_context(resumed))  # finished, with no record: the runner writes nothing
+    assert (resumed / WEIGHTS_FILE).stat().st_mtime_ns == written and _losses(resumed) == losses
 
     half = spec.train(grids_context(tmp_path / "half", fraction=0.5))
     assert json.loads((half / RUN_FILE).read_text())["train_scenes"] == 6

@@ -281,6 +281,10 @@ def test_train_method_trains_a_row_through_its_spec_as_reproduce_does(
     by_command, by_spec = adapter_arrays(tmp_path / "run"), adapter_arrays(run_dir)
     assert by_command.keys() == by_spec.keys()
     assert all(np.array_equal(by_command[name], by_spec[name]) for name in by_command)
+    weights = (tmp_path / "run" / WEIGHTS_FILE).read_bytes()
+    assert main(command) == 0  # the same context again: recorded as done (`train_once`, as reproduce), not touched
+    assert "Ours done before (smoke recipe" in capsys.readouterr().out
+    assert (tmp_path / "run" / WEIGHTS_FILE).read_bytes() == weights
     refusals = {
         "no_adapter": "no_adapter learns nothing",
         "nothing": "unknown method 'nothing'; registered: ours, ",

@@ -44,10 +44,6 @@ class BaselineRun:
     progress: bool = True
 
 
-def is_finished(run_dir: Path) -> bool:
-    return (Path(run_dir) / WEIGHTS_FILE).is_file()
-
-
 def train(
     run_dir: Path,
     run_meta: dict,

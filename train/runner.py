@@ -91,7 +91,9 @@ class RunOutcome:
 def run(
     spec: Run, progress: bool = True, callback: Callable[[dict], None] | None = None, stop_after: int | None = None
 ) -> RunOutcome:
-    """Claims the run directory, resumes, trains to `spec.steps` and saves the artefact.
+    """Claims the run directory, resumes, trains to `spec.steps` and saves the artefact. A finished run (its last
+    checkpoint and its artefact there) is the one "already done" of every training: returned with its final state,
+    nothing written (`saved` None).
 
     `callback(record)` runs after each metrics record (and its checkpoint), e.g. to stop by raising;
     `stop_after` returns after that many more steps without saving the artefact (to test resuming).
@@ -102,6 +104,8 @@ def run(
     run_dir = Path(spec.run_dir)
     checkpoints.claim_run_dir(run_dir, spec.run_meta)
     state, start = resume(run_dir, spec.init_state())
+    if start == spec.steps and spec.artefact_path.is_file():
+        return RunOutcome(state, None)  # finished before: its artefact is kept as it is, never written again
     metrics = MetricsLog(run_dir / METRICS_FILE)
     metrics.truncate_after(start)
     last = spec.steps if stop_after is None else min(spec.steps, start + stop_after)

@@ -35,7 +35,7 @@ from ocplace.methods.no_llm.recipe import NoLlmTrainConfig
 from ocplace.models.backbone import Backbone
 from ocplace.models.features import Features, featurize_split, load_features
 from ocplace.models.weights_file import save_weights
-from ocplace.paths import WEIGHTS_FILE, atomic_path, features_cache
+from ocplace.paths import atomic_path, features_cache
 from ocplace.sim.relations import relation_index
 from ocplace.train import checkpoints, optim, runner
 from ocplace.train.batches import batch_indices, subset_indices
@@ -207,7 +207,7 @@ def train_on_arrays(
 def train_no_llm(
     dataset_dir: Path, backbone: Backbone, run_dir: Path, recipe: NoLlmTrainConfig, progress: bool = True
 ) -> Path:
-    """Featurizes the train split (cached), trains, writes `run_dir/WEIGHTS_FILE`; a finished run is kept."""
+    """Featurizes the train split (cached), trains, writes `run_dir/WEIGHTS_FILE` (a finished run is kept)."""
     run_dir = Path(run_dir)
     features = load_features(featurize_split(dataset_dir, "train", backbone, progress=progress), backbone.fingerprint)
     sentences = split_sentences(dataset_dir, "train", backbone, recipe.model_config(backbone.dim))
@@ -220,9 +220,6 @@ def train_no_llm(
         "backbone_fingerprint": backbone.fingerprint,
         "train_scenes": int(len(chosen)),
     }
-    if (run_dir / WEIGHTS_FILE).exists():
-        checkpoints.claim_run_dir(run_dir, run_meta)
-        return run_dir
     logit_scale = float(features.info.logit_scale)
     train_on_arrays(arrays, run_dir, recipe, logit_scale, run_meta, progress, backbone_fingerprint=backbone.fingerprint)
     return run_dir

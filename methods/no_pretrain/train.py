@@ -36,8 +36,8 @@ from ocplace.methods.no_pretrain.recipe import NoPretrainRecipe, NoPretrainTrain
 from ocplace.models import offline_backbone as ob
 from ocplace.models import offline_config, trained_adapters
 from ocplace.models.backbone import PromptConfig
-from ocplace.paths import WEIGHTS_FILE, atomic_path, scratch_cache
-from ocplace.train import checkpoints, optim, runner
+from ocplace.paths import atomic_path, scratch_cache
+from ocplace.train import optim, runner
 from ocplace.train.batches import batch_indices, subset_indices
 from ocplace.vocabulary import MAX_INSTRUCTION_TUPLES as MAX_TUPLES
 
@@ -250,9 +250,6 @@ def train_no_pretrain(dataset_dir: Path, run_dir: Path, recipe: NoPretrainRecipe
     inputs = no_pretrain_inputs(dataset_dir, "train", recipe.model.backbone, prompt, progress)
     chosen = subset_indices(len(inputs.scene_ids), recipe.train.fraction, recipe.train.subset_seed)
     run_meta = {"recipe": serial.to_dict(recipe), "inputs_key": inputs.key, "train_scenes": int(len(chosen))}
-    if (run_dir / WEIGHTS_FILE).exists() and (run_dir / BACKBONE_DIR / ob.FINGERPRINT_FILE).exists():
-        checkpoints.claim_run_dir(run_dir, run_meta)
-        return run_dir
     arrays = {name: array[chosen] for name, array in inputs.arrays.items()}
     train_on_inputs(arrays, run_dir, recipe, run_meta, progress, prompt=prompt, inputs_key=inputs.key)
     return run_dir

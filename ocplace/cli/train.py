@@ -117,7 +117,7 @@ def train_method(args: argparse.Namespace) -> int:
     from ocplace.cli.options import apply_overrides
     from ocplace.errors import ConfigError
     from ocplace.experiments.experiment import refuse_run_keys
-    from ocplace.methods.api import TrainContext
+    from ocplace.methods.api import TrainContext, train_once
     from ocplace.methods.registry import method_specs
     from ocplace.paths import check_writable
 
@@ -154,6 +154,7 @@ def train_method(args: argparse.Namespace) -> int:
         pin_jax_width(args.cpus)
     if spec.prepare is not None:
         spec.prepare(context)
-    run_dir = spec.train(context)
-    print(f"{run_dir}: {spec.label} trained ({args.experiment} recipe, fraction {fraction:g}, seed {seed})")
+    run_dir, reused = train_once(spec, context)
+    done = "done before" if reused else "trained"
+    print(f"{run_dir}: {spec.label} {done} ({args.experiment} recipe, fraction {fraction:g}, seed {seed})")
     return 0
