@@ -15,6 +15,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 from pathlib import Path
+from typing import ClassVar
 
 from ocplace import serial
 from ocplace.errors import TrainingError
@@ -130,6 +131,8 @@ class RenderConfig:
 
 @dataclasses.dataclass(frozen=True)
 class OptimConfig:
+    TRAINS_TOWER: ClassVar[bool] = True  # clipped AdamW, decaying to a share of the peak (`train/optim.make`)
+
     steps: int = 700
     batch_size: int = 64
     table_share: float = 1 / 16  # share of each batch that is whole-workspace images ("a table")

@@ -20,6 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ocplace import serial
+from ocplace.train import optim
 
 
 def time_no_llm(experiment: str, dim: int, steps: int, num_scenes: int) -> dict:
@@ -38,7 +39,7 @@ def time_no_llm(experiment: str, dim: int, steps: int, num_scenes: int) -> dict:
     }
     model_config = config.model_config(dim)
     params = no_llm.init_params(model_config, jax.random.key(0))
-    state = (params, no_llm.make_optimizer(config).init(params))
+    state = (params, optim.make(config).init(params))
     data = jax.device_put(arrays)
 
     def run(count, start):
@@ -80,7 +81,7 @@ def time_no_pretrain(experiment: str, steps: int, num_scenes: int) -> dict:
     }
     params = no_pretrain.init_params(model, jax.random.key(0))
     trainable, frozen = split_trainable(no_pretrain.trainable_mask(model, params), params)
-    state = (trainable, train_no_pretrain.make_optimizer(config).init(trainable))
+    state = (trainable, optim.make(config).init(trainable))
 
     def step(index):
         nonlocal state

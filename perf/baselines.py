@@ -26,6 +26,7 @@ from ocplace.methods.grids import train as train_grids
 from ocplace.models import offline_backbone as ob
 from ocplace.models import offline_config
 from ocplace.sim.camera import Camera
+from ocplace.train import optim
 
 CPU_SECONDS: dict[str, float] = {}  # process CPU time (all threads) per measurement, beside the wall clock
 
@@ -63,7 +64,7 @@ def grid_step_seconds(recipe: train_grids.GridsRecipe, dim: int, steps: int) -> 
 
     def run():
         fresh = jax.tree_util.tree_map(jnp.copy, params)  # the step donates its state
-        state = (fresh, schedule.optimizer().init(fresh))
+        state = (fresh, optim.make(schedule).init(fresh))
         indices = jnp.asarray(rng.integers(0, 200, (steps, schedule.batch_size)), jnp.int32)
         return train_grids.train_chunk(config, schedule, 30.0, state, data, indices)[1]
 
@@ -86,7 +87,7 @@ def cliport_seconds(recipe: train_cliport.CliportRecipe, dim: int, steps: int) -
 
     def run():
         fresh = jax.tree_util.tree_map(jnp.copy, params)  # the step donates its state
-        state = (fresh, schedule.optimizer().init(fresh))
+        state = (fresh, optim.make(schedule).init(fresh))
         indices = jnp.asarray(rng.integers(0, count, (steps, schedule.batch_size)), jnp.int32)
         keys = jax.random.split(jax.random.key(0), steps)
         return train_cliport.train_chunk(config, schedule, state, data, mask, indices, keys)[1]

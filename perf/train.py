@@ -44,8 +44,9 @@ def run(args) -> None:
     import jax
     import jax.numpy as jnp
 
-    from ocplace.methods.ours.train import init_state, jit_train_chunk, jit_train_step, make_optimizer
+    from ocplace.methods.ours.train import init_state, jit_train_chunk, jit_train_step
     from ocplace.models.adapters import AdapterConfig, count_parameters
+    from ocplace.train import optim
     from ocplace.train.batches import batch_indices
 
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # the test support: synthetic inputs
@@ -56,7 +57,7 @@ def run(args) -> None:
     )
     features = synthetic_features(args.scenes, args.dim)
     adapter_config = AdapterConfig(args.dim, config.reduction, config.residual_ratio)
-    optimizer = make_optimizer(config)
+    optimizer = optim.make(config)
     fresh_state = functools.partial(init_state, adapter_config, optimizer, config.seed)
     scale = features.info.logit_scale
     train_chunk = functools.partial(jit_train_chunk, adapter_config, config, scale)

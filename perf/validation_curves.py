@@ -49,16 +49,16 @@ def scores(model, splits: dict) -> dict:
 def curve(train, splits: dict, recipe, run_dir: Path, every: int) -> list[dict]:
     """One row per checkpoint of `recipe` trained on `train`, `{"step", split scores...}`, after the backbone's own
     (step 0: the adapters blended at ratio 0 on both towers)."""
-    from ocplace.methods.ours.train import init_state, make_optimizer, train_ours
+    from ocplace.methods.ours.train import init_state, train_ours
     from ocplace.models.adapters import AdapterConfig
     from ocplace.models.grounding import GroundingModel
-    from ocplace.train import checkpoints
+    from ocplace.train import checkpoints, optim
 
     keep = recipe.steps // every
     recipe = dataclasses.replace(recipe, checkpoint_every=every, eval_every=every, keep_checkpoints=keep)
     trained = train_ours(train, run_dir, recipe, progress=False).model
     adapter_config = AdapterConfig(train.dim, **recipe.adapters)
-    template = init_state(adapter_config, make_optimizer(recipe), recipe.seed)
+    template = init_state(adapter_config, optim.make(recipe), recipe.seed)
     rows = [{"step": 0, **scores(trained.with_ratios(0.0, 0.0), splits)}]
     for path in checkpoints.list_checkpoints(run_dir):
         state, step, _ = checkpoints.load_checkpoint(path, template)

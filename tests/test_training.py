@@ -78,9 +78,10 @@ def test_checkpoint_round_trip(fitted):
 
 
 def _state_template(result):
-    from ocplace.methods.ours.train import init_state, make_optimizer
+    from ocplace.methods.ours.train import init_state
+    from ocplace.train import optim
 
-    return init_state(result.model.config, make_optimizer(smoke_config()), seed=123)
+    return init_state(result.model.config, optim.make(smoke_config()), seed=123)
 
 
 def test_same_seed_same_weights_and_resume_equals_uninterrupted(tmp_path, features):

@@ -30,7 +30,7 @@ from ocplace.methods.no_llm.model import NoLlmConfig, NoLlmModel
 from ocplace.methods.no_llm.model import init_params as init_no_llm
 from ocplace.methods.no_llm.model import load_model as load_no_llm
 from ocplace.methods.ours.recipe import smoke_config
-from ocplace.methods.ours.train import init_state, make_optimizer
+from ocplace.methods.ours.train import init_state
 from ocplace.methods.ours.train import train_ours as train
 from ocplace.models import offline_backbone as ob
 from ocplace.models import offline_config, trained_adapters, weights_file
@@ -39,7 +39,7 @@ from ocplace.models.backbone import PromptConfig
 from ocplace.models.grounding import GroundingModel
 from ocplace.models.policy import PlacementPolicy, PreparedScene
 from ocplace.paths import WEIGHTS_FILE
-from ocplace.train import baseline_runs, checkpoints
+from ocplace.train import baseline_runs, checkpoints, optim
 from ocplace.train.metrics import MetricsLog
 
 DIM = 16
@@ -58,7 +58,7 @@ def _random_like(init):
 
 
 def _checkpoint(run_dir):
-    template = jax.eval_shape(lambda: init_state(AdapterConfig(dim=DIM), make_optimizer(smoke_config()), seed=0))
+    template = jax.eval_shape(lambda: init_state(AdapterConfig(dim=DIM), optim.make(smoke_config()), seed=0))
     state = _random_like(lambda: template)
     path = checkpoints.save_checkpoint(run_dir, 100, state, {"run": "test"}, keep=2)
     return path, lambda: checkpoints.load_checkpoint(path, template)[0], state

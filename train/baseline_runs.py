@@ -26,7 +26,7 @@ import numpy as np
 from ocplace.models import weights_file
 from ocplace.models.backbone import Backbone
 from ocplace.paths import WEIGHTS_FILE
-from ocplace.train import checkpoints, runner
+from ocplace.train import checkpoints, optim, runner
 from ocplace.train.schedule import Schedule
 
 
@@ -67,7 +67,7 @@ def train(
         run_meta=run_meta,
         init_state=lambda: _with_adam_state(init_params(), schedule),
         chunk=chunk,
-        record=runner.loss_and_learning_rate(schedule.learning_rate_schedule()),
+        record=runner.loss_and_learning_rate(optim.learning_rates(schedule)),
         save_artefact=lambda _artefact, state: save_weights(run_dir, state[0], weights_meta),
         desc=desc,
     )
@@ -75,7 +75,7 @@ def train(
 
 
 def _with_adam_state(params, schedule: Schedule) -> tuple:
-    return params, schedule.optimizer().init(params)
+    return params, optim.make(schedule).init(params)
 
 
 def save_weights(run_dir: Path, params, metadata: dict[str, str]) -> Path:

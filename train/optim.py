@@ -21,7 +21,7 @@ the two). `lr_t` is the schedule at the step index before the update, as in opta
 from __future__ import annotations
 
 import functools
-from typing import NamedTuple
+from typing import NamedTuple, Protocol
 
 import jax
 import jax.numpy as jnp
@@ -77,6 +77,31 @@ def warmup_cosine(learning_rate: float, warmup_steps: int, steps: int, end_share
 
 # Image towers (the backbone's pretraining, no_pretrain's tower) decay to this share of the peak, not to 0.
 TOWER_END_SHARE = 0.02
+
+
+class Budget(Protocol):
+    """What `make` reads of every recipe (Ours', no_llm's, a `Schedule`, an image tower's). A recipe may also set
+    `weight_decay` (default 0) and say `TRAINS_TOWER = True` (a class constant: clipped AdamW, decay to
+    `TOWER_END_SHARE`)."""
+
+    learning_rate: float  # the peak
+    warmup_steps: int
+    steps: int
+
+
+def learning_rates(budget: Budget) -> optax.Schedule:
+    """The recipe's learning-rate schedule: `warmup_cosine` of its peak, warm-up and steps."""
+    end_share = TOWER_END_SHARE if getattr(budget, "TRAINS_TOWER", False) else 0.0
+    return warmup_cosine(budget.learning_rate, budget.warmup_steps, budget.steps, end_share)
+
+
+def make(budget: Budget) -> optax.GradientTransformation:
+    """The recipe's optimiser, the one place every training gets it (as big_vision's `optax.make`): an image
+    tower's clipped AdamW; else this module's Adam, with AdamW's decay where the recipe sets `weight_decay`."""
+    weight_decay = getattr(budget, "weight_decay", 0.0)
+    if getattr(budget, "TRAINS_TOWER", False):
+        return clipped_adamw(learning_rates(budget), weight_decay)
+    return adam(learning_rates(budget), weight_decay=weight_decay)
 
 
 def clipped_adamw(schedule: optax.Schedule, weight_decay: float) -> optax.GradientTransformation:

@@ -10,7 +10,7 @@ from ocplace.errors import TrainingError
 
 @dataclasses.dataclass(frozen=True)
 class Schedule:
-    """Optimisation budget of a recipe: Adam, linear warm-up then cosine decay to 0."""
+    """Optimisation budget of a recipe: Adam, linear warm-up then cosine decay to 0 (`train/optim.make`)."""
 
     steps: int
     batch_size: int
@@ -26,15 +26,3 @@ class Schedule:
             or self.checkpoint_every % self.chunk_steps
         ):
             raise TrainingError(f"invalid schedule {self}: positive sizes, checkpoint_every a multiple of chunk_steps")
-
-    def learning_rate_schedule(self):
-        """`optim.warmup_cosine` of this budget (an optax schedule)."""
-        from ocplace.train import optim  # JAX behind it: this module stays light
-
-        return optim.warmup_cosine(self.learning_rate, self.warmup_steps, self.steps)
-
-    def optimizer(self):
-        """`train/optim.py`'s Adam on this learning-rate schedule."""
-        from ocplace.train import optim
-
-        return optim.adam(self.learning_rate_schedule())

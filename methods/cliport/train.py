@@ -27,7 +27,7 @@ from ocplace.models.baselines.common import top_down_camera
 from ocplace.paths import atomic_path, baselines_cache
 from ocplace.sim import metric
 from ocplace.sim.dataset.job import listed_scenes
-from ocplace.train import baseline_runs
+from ocplace.train import baseline_runs, optim
 from ocplace.train.baseline_runs import BaselineRun, Schedule
 from ocplace.train.batches import batch_indices, subset_indices
 
@@ -100,7 +100,7 @@ def train_step(config: CliportConfig, schedule: Schedule, state, data, mask, ind
     choice = jax.random.randint(key, (indices.shape[0],), 0, targets.shape[-1])
     target = jnp.take_along_axis(targets, choice[:, None], axis=-1)[:, 0]
     loss, grads = jax.value_and_grad(cliport.pixel_loss, argnums=1)(config, params, rgb, height, text, mask, target)
-    updates, opt_state = schedule.optimizer().update(grads, opt_state, params)
+    updates, opt_state = optim.make(schedule).update(grads, opt_state, params)
     return (optax.apply_updates(params, updates), opt_state), loss
 
 

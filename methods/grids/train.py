@@ -30,7 +30,7 @@ from ocplace.models.baselines.common import top_down_camera
 from ocplace.paths import baselines_cache
 from ocplace.sim.dataset.job import listed_scenes, scene_dirs
 from ocplace.sim.dataset.loader import letterbox
-from ocplace.train import baseline_runs
+from ocplace.train import baseline_runs, optim
 from ocplace.train.baseline_runs import BaselineRun, Schedule
 from ocplace.train.batches import batch_indices, subset_indices
 from ocplace.vocabulary import MAX_INSTRUCTION_TUPLES
@@ -85,7 +85,7 @@ def train_step(config: GridConfig, schedule: Schedule, logit_scale: float, state
     params, opt_state = state
     batch = tuple(array[indices] for array in data)
     loss, grads = jax.value_and_grad(grids.grid_loss, argnums=1)(config, params, *batch, logit_scale)
-    updates, opt_state = schedule.optimizer().update(grads, opt_state, params)
+    updates, opt_state = optim.make(schedule).update(grads, opt_state, params)
     return (optax.apply_updates(params, updates), opt_state), loss
 
 

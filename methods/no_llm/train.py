@@ -118,15 +118,6 @@ def training_arrays(features: Features, sentences: Sentences) -> dict[str, np.nd
 # ----------------------------------------------------------------------------- the jitted loop
 
 
-def learning_rate_schedule(config: NoLlmTrainConfig) -> optax.Schedule:
-    return optim.warmup_cosine(config.learning_rate, config.warmup_steps, config.steps)
-
-
-def make_optimizer(config: NoLlmTrainConfig) -> optax.GradientTransformation:
-    """`train/optim.py`'s Adam, as Ours' (faster than optax's at no_llm's batch too: docs/performance.md)."""
-    return optim.adam(learning_rate_schedule(config))
-
-
 def train_step(model_config: NoLlmConfig, config: NoLlmTrainConfig, logit_scale: float, state, data, indices):
     """One Adam step on the scenes `indices` `(B,)`; returns `(state, (loss, reference, relation))`."""
 
@@ -137,7 +128,7 @@ def train_step(model_config: NoLlmConfig, config: NoLlmTrainConfig, logit_scale:
     params, opt_state = state
     batch = {name: array[indices] for name, array in data.items()}
     (loss, parts), grads = jax.value_and_grad(loss_fn, has_aux=True)(params, batch)
-    updates, opt_state = make_optimizer(config).update(grads, opt_state, params)
+    updates, opt_state = optim.make(config).update(grads, opt_state, params)
     return (optax.apply_updates(params, updates), opt_state), (loss, *parts)
 
 
@@ -166,11 +157,11 @@ def train_on_arrays(
     num_scenes = len(arrays["visual"])
     model_config = config.model_config(arrays["visual"].shape[-1])
     data = jax.device_put(arrays)
-    schedule = learning_rate_schedule(config)
+    schedule = optim.learning_rates(config)
 
     def init_state():
         params = init_params(model_config, jax.random.key(config.seed))
-        return params, make_optimizer(config).init(params)
+        return params, optim.make(config).init(params)
 
     def chunk(state, start: int, count: int):
         indices = batch_indices(num_scenes, config.seed, start, count, config.batch_size)

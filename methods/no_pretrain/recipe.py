@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, ClassVar
 
 from ocplace.errors import TrainingError
 from ocplace.models import offline_config
@@ -47,6 +47,8 @@ def smoke_config() -> NoPretrainConfig:
 
 @dataclasses.dataclass(frozen=True)
 class NoPretrainTrainConfig:
+    TRAINS_TOWER: ClassVar[bool] = True  # the backbone's pretraining optimiser (`train/optim.make`)
+
     steps: int = 600  # 28,800 crops through the trunk: ~10 min on 2 cores at 128 px
     batch_size: int = 8  # scenes per step (each with all its visual tokens)
     learning_rate: float = 1e-3  # AdamW peak; linear warm-up, cosine decay to 2% (as the backbone pretraining)

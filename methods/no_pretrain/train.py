@@ -133,12 +133,6 @@ def no_pretrain_inputs(
 # ----------------------------------------------------------------------------- the jitted step
 
 
-def make_optimizer(config: NoPretrainTrainConfig) -> optax.GradientTransformation:
-    """As the backbone's pretraining (`train.pretrain.loop.make_optimizer`)."""
-    schedule = optim.warmup_cosine(config.learning_rate, config.warmup_steps, config.steps, optim.TOWER_END_SHARE)
-    return optim.clipped_adamw(schedule, config.weight_decay)
-
-
 @functools.partial(jax.jit, static_argnums=(0, 1), donate_argnums=2)
 def train_step(model: no_pretrain.NoPretrainConfig, config: NoPretrainTrainConfig, state, frozen, batch, codes):
     """One AdamW step on the trainable half of the parameters (`ob.split_trainable`); returns `(state, loss)`."""
@@ -148,7 +142,7 @@ def train_step(model: no_pretrain.NoPretrainConfig, config: NoPretrainTrainConfi
         return no_pretrain.loss(model, ob.join_params(trainable, frozen), batch, codes)
 
     value, grads = jax.value_and_grad(loss_fn)(trainable)
-    updates, opt_state = make_optimizer(config).update(grads, opt_state, trainable)
+    updates, opt_state = optim.make(config).update(grads, opt_state, trainable)
     return (optax.apply_updates(trainable, updates), opt_state), value
 
 
@@ -205,7 +199,7 @@ def train_on_inputs(
         log_every=config.log_every,
         checkpoint_every=config.checkpoint_every,
         keep_checkpoints=config.keep_checkpoints,
-        init_state=lambda: (trainable, make_optimizer(config).init(trainable)),
+        init_state=lambda: (trainable, optim.make(config).init(trainable)),
         chunk=chunk,
         record=record,
         save_artefact=save,

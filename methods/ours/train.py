@@ -44,14 +44,6 @@ class TrainResult:
     val_accuracy: GroundingAccuracy | None
 
 
-def learning_rate_schedule(config: TrainConfig) -> optax.Schedule:
-    return optim.warmup_cosine(config.learning_rate, config.warmup_steps, config.steps)
-
-
-def make_optimizer(config: TrainConfig) -> optax.GradientTransformation:
-    return optim.adam(learning_rate_schedule(config), weight_decay=config.weight_decay)
-
-
 def anchor_penalty(adapted, original, mask) -> jax.Array:
     """Mean over the real tokens of the squared distance of the adapted features from the backbone's:
     `(..., N, D)` features, `(..., N)` mask."""
@@ -76,7 +68,7 @@ def train_step(adapter_config: AdapterConfig, config: TrainConfig, logit_scale: 
 
     params, opt_state = state
     loss, grads = jax.value_and_grad(loss_fn)(params, tuple(array[indices] for array in data))
-    updates, opt_state = make_optimizer(config).update(grads, opt_state, params)
+    updates, opt_state = optim.make(config).update(grads, opt_state, params)
     return (optax.apply_updates(params, updates), opt_state), loss
 
 
@@ -121,7 +113,7 @@ def train_ours(
         indices = batch_indices(train_set.num_scenes, recipe.seed, start, count, recipe.batch_size)
         return jit_train_chunk(adapter_config, recipe, logit_scale, state, data, jnp.asarray(indices))
 
-    usual_record = runner.loss_and_learning_rate(learning_rate_schedule(recipe))
+    usual_record = runner.loss_and_learning_rate(optim.learning_rates(recipe))
 
     def record(state, step: int, losses) -> dict:
         fields = usual_record(state, step, losses)
@@ -146,7 +138,7 @@ def train_ours(
         recipe,
         run_dir=run_dir,
         run_meta=run_meta,
-        init_state=lambda: init_state(adapter_config, make_optimizer(recipe), recipe.seed),
+        init_state=lambda: init_state(adapter_config, optim.make(recipe), recipe.seed),
         chunk=chunk,
         record=record,
         save_artefact=save,

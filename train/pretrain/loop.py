@@ -72,14 +72,6 @@ class PretrainResult:
 # ----------------------------------------------------------------------------- pure training pieces
 
 
-def learning_rate_schedule(optim: OptimConfig) -> optax.Schedule:
-    return optimisers.warmup_cosine(optim.learning_rate, optim.warmup_steps, optim.steps, optimisers.TOWER_END_SHARE)
-
-
-def make_optimizer(optim: OptimConfig) -> optax.GradientTransformation:
-    return optimisers.clipped_adamw(learning_rate_schedule(optim), optim.weight_decay)
-
-
 def colour_jitter(pixels, factors):
     """uint8 `(B, S, S, 3)` -> float32 in [0, 255]: per-image saturation, contrast, brightness factors `(B, 3)`."""
     x = pixels.astype(jnp.float32)
@@ -105,7 +97,7 @@ def make_train_step(model: OfflineConfig, optim: OptimConfig):
     Gradients are taken for the trainable half only, so no backward pass runs through a frozen
     trunk prefix. Cached per configuration: runs in one process (a resumed run, tests) compile once.
     """
-    optimizer = make_optimizer(optim)
+    optimizer = optimisers.make(optim)
     max_log_scale = math.log(optim.max_logit_scale)
 
     def loss_fn(trainable, frozen, pixels, sentences, positives):
@@ -335,7 +327,7 @@ def pretrain(
             losses.append(loss)
         return state, jnp.stack(losses)
 
-    usual_record = runner.loss_and_learning_rate(learning_rate_schedule(optim))
+    usual_record = runner.loss_and_learning_rate(optimisers.learning_rates(optim))
 
     def record(state, step: int, losses: np.ndarray) -> dict:
         return {**usual_record(state, step, losses), "logit_scale": float(jnp.exp(state[0]["log_logit_scale"]))}
@@ -373,7 +365,7 @@ def pretrain(
         log_every=LOG_EVERY,
         checkpoint_every=optim.checkpoint_every,
         keep_checkpoints=optim.keep_checkpoints,
-        init_state=lambda: (trainable, make_optimizer(optim).init(trainable)),
+        init_state=lambda: (trainable, optimisers.make(optim).init(trainable)),
         chunk=chunk,
         record=record,
         artefact=out_dir / FINGERPRINT_FILE,
