@@ -22,7 +22,7 @@ from ocplace.eval.api import Method
 from ocplace.eval.harness import EvalSettings, Evaluation, MethodRun, evaluate_in_own_arena, evaluate_run
 from ocplace.eval.results import build_results, dataset_identity, settings_of
 from ocplace.methods import registry
-from ocplace.methods.api import MethodSpec
+from ocplace.methods.contract import MethodSpec
 from ocplace.methods.registry import load_method, method_run
 
 if TYPE_CHECKING:

@@ -33,7 +33,7 @@ from ocplace import serial
 from ocplace.errors import ConfigError
 from ocplace.eval.harness import EvalSettings, Evaluation, MethodRun
 from ocplace.experiments.experiment import Experiment
-from ocplace.methods.api import MethodSpec, TrainContext, train_once
+from ocplace.methods.contract import MethodSpec, TrainContext, train_once
 from ocplace.methods.registry import method_run, method_specs, select_specs
 from ocplace.runtime import Executor, ExecutorConfig, Task, open_executor
 from ocplace.runtime.graph import Node, Outcome, run_graph

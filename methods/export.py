@@ -108,7 +108,7 @@ def export_trained(
     """`policy` (loaded from `run_dir`) written as a policy folder with its model card."""
     import json
 
-    from ocplace.methods.api import done_record
+    from ocplace.methods.contract import done_record
 
     run_dir = Path(run_dir)
     if dataset is None:

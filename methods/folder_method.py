@@ -12,7 +12,7 @@ import functools
 from pathlib import Path
 from typing import Any
 
-from ocplace.methods.api import LoadContext, MethodSpec
+from ocplace.methods.contract import LoadContext, MethodSpec
 from ocplace.methods.policy_method import PolicyMethod, describe_policy
 
 FOLDER_PREFIX = "folder:"

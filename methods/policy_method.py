@@ -17,7 +17,7 @@ import numpy as np
 
 from ocplace import serial
 from ocplace.eval.api import MethodOutput
-from ocplace.methods.api import LoadContext, TrainContext
+from ocplace.methods.contract import LoadContext, TrainContext
 from ocplace.sim.dataset.records import SceneRecord
 
 if TYPE_CHECKING:

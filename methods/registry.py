@@ -15,7 +15,7 @@ from ocplace import methods
 from ocplace.errors import EvaluationError
 from ocplace.eval.api import Method
 from ocplace.eval.harness import EvalSettings, MethodRun
-from ocplace.methods.api import LoadContext, MethodSpec
+from ocplace.methods.contract import LoadContext, MethodSpec
 
 ENTRY_POINTS = "ocplace.methods"
 

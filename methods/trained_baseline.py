@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ocplace.eval.api import MethodOutput
-from ocplace.methods.api import LoadContext, TrainContext
+from ocplace.methods.contract import LoadContext, TrainContext
 
 if TYPE_CHECKING:
     from collections.abc import Callable

@@ -80,7 +80,7 @@ def tiny_backbone_spec(tmp_path_factory):
 def trained_run(smoke_dataset, tiny_backbone_spec, tmp_path_factory):
     """`(run_dir, feature files)`: Ours trained at smoke size on the tiny backbone, in a cache of its own."""
     from ocplace.configs import smoke
-    from ocplace.methods.api import TrainContext
+    from ocplace.methods.contract import TrainContext
     from ocplace.methods.registry import method_specs
 
     cache = tmp_path_factory.mktemp("ours_cache")
@@ -111,7 +111,7 @@ def smoke_rows(smoke_dataset, tiny_backbone_spec, tmp_path_factory):
     from lazy import Lazy
 
     from ocplace.configs import smoke
-    from ocplace.methods.api import TrainContext
+    from ocplace.methods.contract import TrainContext
     from ocplace.methods.registry import method_specs
 
     cache, recipes = tmp_path_factory.mktemp("rows_cache"), smoke.get_config().recipes

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from ocplace.eval.api import MethodOutput
-from ocplace.methods.api import LoadContext, MethodSpec, TrainContext
+from ocplace.methods.contract import LoadContext, MethodSpec, TrainContext
 from ocplace.sim.workspace import DEFAULT_TABLE
 
 

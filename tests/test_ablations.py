@@ -11,7 +11,7 @@ from safetensors.numpy import load_file
 
 from ocplace.configs import smoke
 from ocplace.eval.harness import redacted
-from ocplace.methods.api import LoadContext, TrainContext
+from ocplace.methods.contract import LoadContext, TrainContext
 from ocplace.methods.no_llm import model as no_llm
 from ocplace.paths import RUN_FILE, WEIGHTS_FILE
 from ocplace.sim.dataset.job import scene_dirs

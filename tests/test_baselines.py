@@ -12,9 +12,9 @@ from hypothesis import strategies as st
 from llm_endpoint import fixed_answer, llm_parser
 
 from ocplace.configs import smoke
-from ocplace.methods.api import LoadContext, TrainContext, done_record, train_once
 from ocplace.methods.cliport import model as cliport
 from ocplace.methods.cliport import recipe as cliport_config
+from ocplace.methods.contract import LoadContext, TrainContext, done_record, train_once
 from ocplace.methods.grids import model as grids
 from ocplace.paths import RUN_FILE, WEIGHTS_FILE
 from ocplace.sim.camera import Camera

@@ -14,7 +14,7 @@ from ocplace.eval.api import MethodOutput
 from ocplace.eval.harness import EvalSettings
 from ocplace.experiments.evaluation import rerun
 from ocplace.methods import registry
-from ocplace.methods.api import TrainContext
+from ocplace.methods.contract import TrainContext
 from ocplace.methods.registry import load_method, method_run
 from ocplace.sim.dataset.job import scene_dirs
 from ocplace.sim.dataset.records import read_scene

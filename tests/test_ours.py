@@ -12,7 +12,7 @@ from ocplace import serial
 from ocplace.errors import TrainingError
 from ocplace.eval.api import MethodOutput
 from ocplace.eval.harness import SceneOutcome, score_scene
-from ocplace.methods.api import LoadContext
+from ocplace.methods.contract import LoadContext
 from ocplace.methods.ours import method as ours
 from ocplace.methods.registry import method_specs
 from ocplace.paths import RUN_FILE

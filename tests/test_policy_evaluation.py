@@ -18,7 +18,7 @@ from ocplace.cli import main
 from ocplace.eval.harness import EvalSettings
 from ocplace.eval.results import read_results
 from ocplace.eval.table import table_one
-from ocplace.methods.policy import evaluate_policy
+from ocplace.methods.external_policy import evaluate_policy
 from ocplace.sim.dataset.job import listed_scenes
 from ocplace.sim.env import ENV_ID
 from ocplace.sim.workspace import DEFAULT_TABLE

@@ -15,7 +15,7 @@ import pytest
 
 from ocplace.eval.api import MethodOutput
 from ocplace.eval.harness import redacted
-from ocplace.methods.api import LoadContext
+from ocplace.methods.contract import LoadContext
 from ocplace.methods.registry import method_specs, registered_names
 from ocplace.paths import WEIGHTS_FILE
 from ocplace.sim.dataset.job import scene_dirs
@@ -69,7 +69,7 @@ import json
 import numpy as np
 
 from ocplace.eval.api import MethodOutput
-from ocplace.methods.api import MethodSpec
+from ocplace.methods.contract import MethodSpec
 from ocplace.sim.dataset.job import scene_dirs
 from ocplace.sim.dataset.records import SceneInfo, read_meta
 

@@ -14,10 +14,10 @@ import numpy as np
 from ocplace import serial
 from ocplace.errors import OcplaceError
 from ocplace.eval.api import MethodOutput
-from ocplace.methods.api import LoadContext, MethodSpec, TrainContext
 from ocplace.methods.cliport import model as cliport
 from ocplace.methods.cliport.recipe import CliportConfig
 from ocplace.methods.cliport.recipe import CliportRecipe as Recipe
+from ocplace.methods.contract import LoadContext, MethodSpec, TrainContext
 from ocplace.methods.trained_baseline import TrainedRun, failure_output, train_baseline
 from ocplace.models.baselines.common import top_down_camera
 from ocplace.sim.dataset.records import SceneRecord

@@ -16,7 +16,7 @@ import numpy as np
 from ocplace import serial
 from ocplace.errors import OcplaceError
 from ocplace.eval.api import MethodOutput
-from ocplace.methods.api import LoadContext, MethodSpec, TrainContext
+from ocplace.methods.contract import LoadContext, MethodSpec, TrainContext
 from ocplace.methods.grids import model as grids
 from ocplace.methods.grids.recipe import GridConfig
 from ocplace.methods.grids.recipe import GridsRecipe as Recipe

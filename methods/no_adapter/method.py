@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from ocplace.methods.api import LoadContext, MethodSpec
+from ocplace.methods.contract import LoadContext, MethodSpec
 from ocplace.methods.policy_method import PolicyMethod, policy_of
 
 

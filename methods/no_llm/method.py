@@ -17,7 +17,7 @@ import numpy as np
 
 from ocplace import serial
 from ocplace.eval.api import MethodOutput
-from ocplace.methods.api import LoadContext, MethodSpec, TrainContext
+from ocplace.methods.contract import LoadContext, MethodSpec, TrainContext
 from ocplace.methods.no_llm.recipe import NoLlmTrainConfig as Recipe
 from ocplace.methods.policy_method import prepare_train_features, scene_input
 from ocplace.paths import WEIGHTS_FILE

@@ -11,7 +11,7 @@ import dataclasses
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from ocplace.methods.api import LoadContext, MethodSpec, TrainContext
+from ocplace.methods.contract import LoadContext, MethodSpec, TrainContext
 from ocplace.methods.no_pretrain.recipe import NoPretrainRecipe as Recipe
 from ocplace.methods.policy_method import PolicyMethod, describe_policy, trained_run_weights
 from ocplace.paths import read_run_file

@@ -12,7 +12,7 @@ import functools
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from ocplace.methods.api import LoadContext, MethodSpec, TrainContext
+from ocplace.methods.contract import LoadContext, MethodSpec, TrainContext
 from ocplace.methods.ours.recipe import TrainConfig as Recipe
 from ocplace.methods.policy_method import PolicyMethod, policy_of, prepare_train_features, trained_run_weights
 

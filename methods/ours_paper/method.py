@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import functools
 
-from ocplace.methods.api import MethodSpec
+from ocplace.methods.contract import MethodSpec
 from ocplace.methods.ours import method as ours
 from ocplace.methods.ours.recipe import TrainConfig as Recipe
 from ocplace.methods.policy_method import prepare_train_features

@@ -250,7 +250,7 @@ def finished_store(out: Path) -> Path:
 def _policy_specs(references: list[str], labels: list[str], scene_timeout_s: float) -> list:
     """The spec of each `--policy`, imported here (the current folder first on the import path, as for `python -m`)."""
     from ocplace.errors import EvaluationError
-    from ocplace.methods.policy import policy_spec
+    from ocplace.methods.external_policy import policy_spec
 
     if labels and len(labels) != len(references):
         raise EvaluationError(f"give one --label per --policy, or none: got {len(labels)} for {len(references)}")
@@ -270,7 +270,7 @@ def _import_from_here() -> None:
 def _rerun(args: argparse.Namespace) -> int:
     from ocplace.eval.results import compare, read_results, write_outputs
     from ocplace.experiments.evaluation import rerun
-    from ocplace.methods.policy import with_policies
+    from ocplace.methods.external_policy import with_policies
     from ocplace.methods.registry import method_specs
     from ocplace.runtime import open_executor
 

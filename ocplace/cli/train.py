@@ -117,7 +117,7 @@ def train_method(args: argparse.Namespace) -> int:
     from ocplace.cli.options import apply_overrides
     from ocplace.errors import ConfigError
     from ocplace.experiments.experiment import refuse_run_keys
-    from ocplace.methods.api import TrainContext, train_once
+    from ocplace.methods.contract import TrainContext, train_once
     from ocplace.methods.registry import method_specs
     from ocplace.paths import check_writable
 

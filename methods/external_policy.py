@@ -32,7 +32,7 @@ import numpy as np
 from ocplace.errors import POLICY_ERRORS, EvaluationError, PolicyProcessEnded, PolicyRaised, SceneTimeout
 from ocplace.eval.api import Method, MethodOutput
 from ocplace.eval.harness import EvalSettings, evaluate_run, physical_arena
-from ocplace.methods.api import LoadContext, MethodSpec
+from ocplace.methods.contract import LoadContext, MethodSpec
 from ocplace.methods.folder_method import folder_spec, is_folder_reference
 from ocplace.methods.policy_host import (
     PolicyHost,
@@ -291,5 +291,5 @@ def evaluate_policy(
         spec, method = _spec(policy, name, label, scene_timeout_s), as_method(policy, name, scene_timeout_s)
     with physical_arena(settings) as arena:
         evaluation = evaluate_run(method_run(spec), method, dataset_dir, settings, arena, progress=progress)
-    command = {"python": "ocplace.methods.policy.evaluate_policy", "policy": spec.name}
+    command = {"python": "ocplace.methods.external_policy.evaluate_policy", "policy": spec.name}
     return build_results([evaluation], dataset_dir, settings, command)
