@@ -44,3 +44,22 @@ def test_eval_and_train_importing_each_other_breaks_the_layers(checkout, sibling
     result = _check(checkout)
     assert result.returncode != 0
     assert f"ocplace.{sibling}.reach -> ocplace.{module}" in result.stdout
+
+
+def test_where_to_change_what_names_files_of_the_tree():
+    """Every file or folder the "Where to change what" table of docs/architecture.md tells a reader to edit exists;
+    `<row>` stands for some row folder of `methods/`."""
+    import re
+
+    text = (ROOT / "docs" / "architecture.md").read_text()
+    table = text[text.index("## Where to change what") :].split("\n\n")[1]
+    edits = [line.split(" | ")[1] for line in table.splitlines()[2:]]
+    named = {path for cell in edits for path in re.findall(r"`([\w./<>-]+/[\w.<>-]*)`", cell)}
+    rows = [folder.name for folder in (ROOT / "methods").iterdir() if (folder / "method.py").is_file()]
+    assert len(named) > 10 and rows
+    missing = [
+        path
+        for path in sorted(named)
+        if not any((ROOT / path.replace("<row>", row)).exists() for row in (rows if "<row>" in path else [""]))
+    ]
+    assert missing == []
