@@ -243,11 +243,6 @@ def prepare_task(spec: MethodSpec[Any], context: TrainContext[Any]) -> str:
     return "shared inputs ready"
 
 
-def train_task(spec: MethodSpec[Any], context: TrainContext[Any]) -> tuple[Path, bool]:
-    """(run directory, reused), by `methods.api.train_once`."""
-    return train_once(spec, context)
-
-
 def evaluate_task(
     spec: MethodSpec[Any], run: MethodRun, settings: EvalSettings, dataset_dir: Path, dataset_hash: str, out: Path
 ) -> tuple[Path, bool, str]:
@@ -339,7 +334,7 @@ def task_graph(
         if specs[run.method].train is not None:
             prepared = prepare_key.get((run.method, run.backbone_seed))
             after = backbone_after(run) + ((prepared,) if prepared else ())
-            nodes.append(method_node(f"train {run.key}", train_task, run, after))
+            nodes.append(method_node(f"train {run.key}", train_once, run, after))
     for run in evaluation_order(runs, specs):
         after = backbone_after(run) + ((f"train {run.key}",) if specs[run.method].train is not None else ())
         evaluate = _evaluate_maker(config, specs[run.method], run, dataset_dir, out, dataset_hash, backbone_of)

@@ -76,21 +76,30 @@ def done_record(run_dir: Path) -> Path:
     return run_dir.with_name(run_dir.name + ".done.json")
 
 
+def finished_run(context: TrainContext[Any]) -> Path | None:
+    """The run directory of a finished training of exactly this context (its record), else None."""
+    record = done_record(Path(context.out_dir))
+    if not record.exists():
+        return None
+    done = json.loads(record.read_text())
+    same = done["context"] == serial.to_dict(dataclasses.asdict(context)) and Path(done["run_dir"]).exists()
+    return Path(done["run_dir"]) if same else None
+
+
 def train_once(spec: MethodSpec[Any], context: TrainContext[Any]) -> tuple[Path, bool]:
-    """(run directory, reused): the one "already done" check of every row, for `reproduce` and `ocplace train`.
-    A training whose record holds exactly this context is not repeated (a row's own resume may rewrite its files,
-    which would change their hashes); else the row trains (its shared inputs `prepare`d before) and the record is
-    written."""
+    """(run directory, reused), for `reproduce` and `ocplace train --method`: a finished training of exactly this
+    context is not called again (its inputs not even loaded; the training itself would write nothing:
+    `train/runner.py`); else the row trains (its shared inputs `prepare`d before) and the record is written."""
     from ocplace.paths import write_text_atomic
 
     if spec.train is None:
         raise EvaluationError(f"{spec.name} learns nothing: there is no run to train (evaluate it directly)")
-    record = done_record(Path(context.out_dir))
-    wanted = serial.to_dict(dataclasses.asdict(context))
-    if record.exists():
-        done = json.loads(record.read_text())
-        if done["context"] == wanted and Path(done["run_dir"]).exists():
-            return Path(done["run_dir"]), True
+    done = finished_run(context)
+    if done is not None:
+        return done, True
     run_dir = Path(spec.train(context))
-    write_text_atomic(record, json.dumps({"context": wanted, "run_dir": str(run_dir)}, indent=1))
+    wanted = serial.to_dict(dataclasses.asdict(context))
+    write_text_atomic(
+        done_record(Path(context.out_dir)), json.dumps({"context": wanted, "run_dir": str(run_dir)}, indent=1)
+    )
     return run_dir, False

@@ -34,7 +34,14 @@ def row_packages() -> dict[str, str]:
         packages[entry.name] = entry.value
     places = {}
     for name, package_name in packages.items():
-        place = getattr(importlib.import_module(package_name), "TABLE_ROW", None)
+        try:
+            package = importlib.import_module(package_name)
+        except ImportError as error:  # an entry point naming a package that is not installed, or is broken
+            raise EvaluationError(
+                f"row {name!r}: its package {package_name} does not import ({error}); install it, or uninstall the "
+                f"distribution that names it in the entry-point group {ENTRY_POINTS}"
+            ) from error
+        place = getattr(package, "TABLE_ROW", None)
         if not isinstance(place, int):
             raise EvaluationError(f"{package_name} must set TABLE_ROW, the row's place in Table I (an int)")
         places[name] = place

@@ -60,7 +60,7 @@ def failure_output(error: Exception) -> MethodOutput:
 
 def train_baseline(train: Callable[..., None], context: TrainContext[Any]) -> Path:
     """`train` (`train_grids` or `train_cliport`) on the context's fields (resumable; a finished run is kept by
-    `methods.api.train_once`)."""
+    `methods.contract.train_once`)."""
     from ocplace.models.backbone import load_backbone
     from ocplace.train.baseline_runs import BaselineRun
 

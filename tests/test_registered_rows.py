@@ -135,3 +135,26 @@ def test_a_new_row_is_one_folder_that_reproduce_trains_and_scores(smoke_dataset,
     assert entry["key"] == "toy_row" and Path(entry["run_dir"], "mean.json").is_file()
     assert all(entry["subsets"][subset]["aggregate"]["overall"]["scenes"] == 8 for subset in TEST_SUBSETS)
     assert "| Toy mean placement |" in done.stdout
+
+
+@pytest.mark.parametrize(
+    "entry, package, message",
+    [
+        ("ghost_row", "no_such_row_package", "its package no_such_row_package does not import"),
+        ("ours", "toy_row", "toy_row registers 'ours', a row ocplace.methods.ours has"),
+        ("toy_row", "toy_row", "toy_row must set TABLE_ROW"),
+    ],
+)
+def test_a_bad_entry_point_is_a_typed_error_naming_it(entry, package, message, tmp_path, monkeypatch):
+    """A row another distribution names that is not installed, takes a name ours has, or has no place in Table I."""
+    from ocplace.errors import EvaluationError
+    from ocplace.methods.registry import ENTRY_POINTS
+
+    (tmp_path / "toy_row").mkdir()
+    (tmp_path / "toy_row" / "__init__.py").write_text('"""A toy row without its place in Table I."""\n')
+    (tmp_path / "toy_row-0.1.dist-info").mkdir()
+    (tmp_path / "toy_row-0.1.dist-info" / "METADATA").write_text("Metadata-Version: 2.1\nName: toy-row\nVersion: 0.1\n")
+    (tmp_path / "toy_row-0.1.dist-info" / "entry_points.txt").write_text(f"[{ENTRY_POINTS}]\n{entry} = {package}\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    with pytest.raises(EvaluationError, match=message):
+        registered_names()

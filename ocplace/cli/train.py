@@ -117,7 +117,7 @@ def train_method(args: argparse.Namespace) -> int:
     from ocplace.cli.options import apply_overrides
     from ocplace.errors import ConfigError
     from ocplace.experiments.experiment import refuse_run_keys
-    from ocplace.methods.contract import TrainContext, train_once
+    from ocplace.methods.contract import TrainContext, finished_run, train_once
     from ocplace.methods.registry import method_specs
     from ocplace.paths import check_writable
 
@@ -152,7 +152,7 @@ def train_method(args: argparse.Namespace) -> int:
     )
     if args.cpus:
         pin_jax_width(args.cpus)
-    if spec.prepare is not None:
+    if spec.prepare is not None and finished_run(context) is None:
         spec.prepare(context)
     run_dir, reused = train_once(spec, context)
     done = "done before" if reused else "trained"
