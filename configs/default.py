@@ -5,7 +5,7 @@ from pathlib import Path
 from ocplace.experiments.experiment import DatasetSizes, EvalPlan, Experiment, MethodRecipes, TaskCpus
 from ocplace.methods.cliport import recipe as cliport
 from ocplace.methods.grids import recipe as grids
-from ocplace.methods.no_llm.recipe import NoLlmTrainConfig
+from ocplace.methods.no_llm.recipe import NoLlmRecipe
 from ocplace.methods.no_pretrain import recipe as no_pretrain
 from ocplace.methods.ours import recipe as ours
 from ocplace.models import offline_recipes
@@ -24,8 +24,8 @@ def get_config() -> Experiment:
             # The paper's budget (200K steps at batch 1) with rule A's adapters; beside it the paper's adapters.
             ours=ours.default_config(),
             ours_paper=ours.paper_config(),
-            no_llm=NoLlmTrainConfig(),
-            no_pretrain=no_pretrain.NoPretrainRecipe(no_pretrain.default_config(), no_pretrain.NoPretrainTrainConfig()),
+            no_llm=NoLlmRecipe(),
+            no_pretrain=no_pretrain.NoPretrainRecipe(no_pretrain.default_config()),
             # The paper's budget for the adapters: 200K steps at batch 1, warm-up then cosine decay.
             grids=grids.GridsRecipe(
                 grids.GridConfig(),

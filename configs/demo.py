@@ -4,12 +4,13 @@ The baselines (Raw Image Grids, CLIPort-Place) take half the demo's time: `make 
 them, or `--methods all`.
 """
 
+import dataclasses
 from pathlib import Path
 
 from ocplace.experiments.experiment import DatasetSizes, EvalPlan, Experiment, MethodRecipes, TaskCpus
 from ocplace.methods.cliport import recipe as cliport
 from ocplace.methods.grids import recipe as grids
-from ocplace.methods.no_llm.recipe import NoLlmTrainConfig
+from ocplace.methods.no_llm.recipe import NoLlmRecipe
 from ocplace.methods.no_pretrain import recipe as no_pretrain
 from ocplace.methods.ours import recipe as ours
 from ocplace.models import offline_recipes
@@ -17,8 +18,11 @@ from ocplace.train.schedule import Schedule
 from ocplace.vocabulary import TEST_SUBSETS
 
 # A tenth of the paper's steps at a higher peak rate: the demo dataset is small too.
-DEMO_ADAPTERS = ours.TrainConfig(
-    steps=20_000, learning_rate=5e-4, warmup_steps=500, eval_every=10_000, checkpoint_every=10_000
+DEMO_ADAPTERS = ours.OursRecipe(
+    schedule=dataclasses.replace(
+        ours.PAPER_SCHEDULE, steps=20_000, learning_rate=5e-4, warmup_steps=500, checkpoint_every=10_000
+    ),
+    eval_every=10_000,
 )
 
 
@@ -32,12 +36,15 @@ def get_config() -> Experiment:
         recipes=MethodRecipes(
             ours=ours.chosen_adapters(DEMO_ADAPTERS),
             ours_paper=DEMO_ADAPTERS,  # not in the demo's rows; `--methods ours,ours_paper` trains it
-            no_llm=NoLlmTrainConfig(steps=3_000, warmup_steps=200, chunk_steps=500, checkpoint_every=1_500),
+            no_llm=NoLlmRecipe(
+                schedule=dataclasses.replace(
+                    NoLlmRecipe().schedule, steps=3_000, warmup_steps=200, chunk_steps=500, checkpoint_every=1_500
+                )
+            ),
             no_pretrain=no_pretrain.NoPretrainRecipe(
                 no_pretrain.demo_config(),
-                no_pretrain.NoPretrainTrainConfig(
-                    steps=75, batch_size=8, warmup_steps=8, log_every=25, checkpoint_every=25
-                ),
+                dataclasses.replace(no_pretrain.SCHEDULE, steps=75, warmup_steps=8, checkpoint_every=25),
+                log_every=25,
             ),
             grids=grids.GridsRecipe(
                 grids.GridConfig(),

@@ -1,11 +1,12 @@
 """Tests and CI: the smoke dataset (12 + 4 x 8 scenes), seconds-long recipes, every method."""
 
+import dataclasses
 from pathlib import Path
 
 from ocplace.experiments.experiment import DatasetSizes, EvalPlan, Experiment, MethodRecipes, TaskCpus
 from ocplace.methods.cliport import recipe as cliport
 from ocplace.methods.grids import recipe as grids
-from ocplace.methods.no_llm.recipe import NoLlmTrainConfig
+from ocplace.methods.no_llm.recipe import NoLlmRecipe
 from ocplace.methods.no_pretrain import recipe as no_pretrain
 from ocplace.methods.ours import recipe as ours
 from ocplace.models import offline_recipes
@@ -23,20 +24,16 @@ def get_config() -> Experiment:
         recipes=MethodRecipes(
             ours=ours.chosen_adapters(ours.smoke_config()),
             ours_paper=ours.smoke_config(),
-            no_llm=NoLlmTrainConfig(
-                steps=120,
-                batch_size=8,
-                learning_rate=3e-3,
-                warmup_steps=10,
-                chunk_steps=40,
-                checkpoint_every=40,
+            no_llm=NoLlmRecipe(
+                schedule=Schedule(
+                    steps=120, batch_size=8, learning_rate=3e-3, warmup_steps=10, chunk_steps=40, checkpoint_every=40
+                ),
                 hidden=32,
             ),
             no_pretrain=no_pretrain.NoPretrainRecipe(
                 no_pretrain.smoke_config(),
-                no_pretrain.NoPretrainTrainConfig(
-                    steps=150, batch_size=4, learning_rate=1e-3, warmup_steps=3, log_every=10, checkpoint_every=50
-                ),
+                dataclasses.replace(no_pretrain.SCHEDULE, steps=150, batch_size=4, warmup_steps=3, checkpoint_every=50),
+                log_every=10,
             ),
             grids=grids.GridsRecipe(
                 grids.smoke_grid_config(),

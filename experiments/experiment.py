@@ -11,16 +11,16 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable, Collection
+from collections.abc import Callable, Collection, Iterable
 from pathlib import Path
 from typing import Any
 
 from ocplace.errors import ConfigError, OcplaceError
 from ocplace.methods.cliport.recipe import CliportRecipe
 from ocplace.methods.grids.recipe import GridsRecipe
-from ocplace.methods.no_llm.recipe import NoLlmTrainConfig
+from ocplace.methods.no_llm.recipe import NoLlmRecipe
 from ocplace.methods.no_pretrain.recipe import NoPretrainRecipe
-from ocplace.methods.ours.recipe import TrainConfig
+from ocplace.methods.ours.recipe import OursRecipe
 from ocplace.models.offline_recipes import PretrainConfig
 from ocplace.models.parsing.config import PARSER_NAMES
 from ocplace.runtime.width import TRAIN_CPUS
@@ -51,11 +51,10 @@ class DatasetSizes:
 
 _SCENE_COUNTS = ("train_scenes", "test_scenes")
 
-# Recipe keys that each training run sets from its context, what sets them, and the key to change instead:
-# a value given here would be overwritten, so `--set` and `Experiment.validate` refuse one.
+# Keys a training run takes from its context, not from a recipe (`TrainContext`), and where they are set.
 RUN_KEYS = {
     f"recipes.{recipe}.{field}": source
-    for recipe in ("ours", "ours_paper", "no_llm", "no_pretrain.train")
+    for recipe in ("ours", "ours_paper", "no_llm", "no_pretrain")
     for field, source in (
         ("seed", "the experiment's `seed` (and `evaluation.seeds` for repeats)"),
         ("fraction", "`evaluation.fractions`"),
@@ -63,15 +62,17 @@ RUN_KEYS = {
 }
 
 
-def run_key_refusal(key: str) -> str:
-    return f"{key} is set for each run from {RUN_KEYS[key]}; change that instead"
-
-
-def refuse_run_keys(keys: Collection[str]) -> None:
-    """Raises ConfigError naming each of `keys` that a training run sets from its context (`RUN_KEYS`)."""
-    refused = [run_key_refusal(key) for key in keys if key in RUN_KEYS]
+def read_overrides(overrides: Iterable[str]) -> list[str]:
+    """`--set KEY=VALUE` items, once none of them sets a key that a training run takes from its context
+    (`RUN_KEYS`: ConfigError naming each, with where to set it)."""
+    overrides = list(overrides)
+    keys = [item.partition("=")[0].strip() for item in overrides]
+    refused = [
+        f"{key} is set for each run from {RUN_KEYS[key]}; change that instead" for key in keys if key in RUN_KEYS
+    ]
     if refused:
         raise ConfigError("; ".join(refused))
+    return overrides
 
 
 @dataclasses.dataclass(frozen=True)
@@ -79,9 +80,9 @@ class MethodRecipes:
     """The training recipe of each method that learns, keyed by its registered name; each field's type is
     the `Recipe` of that method's module in `ocplace.methods` (imported from `train/`, where it is light)."""
 
-    ours: TrainConfig
-    ours_paper: TrainConfig  # the paper's adapters, beside Ours' chosen ones
-    no_llm: NoLlmTrainConfig
+    ours: OursRecipe
+    ours_paper: OursRecipe  # the paper's adapters, beside Ours' chosen ones
+    no_llm: NoLlmRecipe
     no_pretrain: NoPretrainRecipe
     grids: GridsRecipe
     cliport: CliportRecipe
@@ -96,7 +97,7 @@ class MethodRecipes:
             "ours": self.ours.validate,
             "ours_paper": self.ours_paper.validate,
             "no_llm": self.no_llm.validate,
-            "no_pretrain.train": self.no_pretrain.train.validate,
+            "no_pretrain": self.no_pretrain.validate,
             "grids.schedule": self.grids.schedule.validate,
             "cliport.schedule": self.cliport.schedule.validate,
         }
@@ -208,7 +209,6 @@ class Experiment:
             problems.append(f"seed must be at least 0, got {self.seed}")
         problems += self.dataset.problems() + self.evaluation.problems() + self.recipes.problems()
         problems += [problem for problem in [_refusal("backbone", self.backbone.validate)] if problem]
-        problems += [run_key_refusal(key) for key in RUN_KEYS if not _is_default(self, key.split("."))]
         problems += number_problems(self, "")
         if problems:
             raise ConfigError(
@@ -246,12 +246,3 @@ def number_problems(node: object, key: str) -> list[str]:
     if name == "warmup_steps" and isinstance(node, int) and node < 0:
         return [f"{key} must be at least 0, got {node}"]
     return []
-
-
-def _is_default(node: object, path: list[str]) -> bool:
-    """Whether the field at the dotted `path` under the dataclass `node` holds its class default."""
-    for name in path[:-1]:
-        node = getattr(node, name)
-    assert dataclasses.is_dataclass(node), path
-    field = next(field for field in dataclasses.fields(node) if field.name == path[-1])
-    return bool(getattr(node, field.name) == field.default)

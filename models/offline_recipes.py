@@ -131,7 +131,7 @@ class RenderConfig:
 
 @dataclasses.dataclass(frozen=True)
 class OptimConfig:
-    TRAINS_TOWER: ClassVar[bool] = True  # clipped AdamW, decaying to a share of the peak (`train/optim.make`)
+    optimiser: ClassVar[str] = "adamw_clipped"  # decaying to a share of the peak (`train/optim.make`)
 
     steps: int = 700
     batch_size: int = 64

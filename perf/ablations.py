@@ -28,6 +28,7 @@ def time_no_llm(experiment: str, dim: int, steps: int, num_scenes: int) -> dict:
     from ocplace.methods.no_llm import train as no_llm
 
     config = configs.get(experiment).recipes.no_llm
+    schedule = config.schedule
     rng = np.random.default_rng(0)
     arrays = {
         "visual": rng.normal(size=(num_scenes, 6, dim)).astype(np.float32),
@@ -39,12 +40,12 @@ def time_no_llm(experiment: str, dim: int, steps: int, num_scenes: int) -> dict:
     }
     model_config = config.model_config(dim)
     params = no_llm.init_params(model_config, jax.random.key(0))
-    state = (params, optim.make(config).init(params))
+    state = (params, optim.make(schedule).init(params))
     data = jax.device_put(arrays)
 
     def run(count, start):
         nonlocal state
-        indices = no_llm.batch_indices(num_scenes, 0, start, count, config.batch_size)
+        indices = no_llm.batch_indices(num_scenes, 0, start, count, schedule.batch_size)
         with Timer() as timer:
             state, losses = no_llm.train_chunk(model_config, config, 100.0, state, data, jnp.asarray(indices))
             jax.block_until_ready(losses)
@@ -56,9 +57,9 @@ def time_no_llm(experiment: str, dim: int, steps: int, num_scenes: int) -> dict:
         "method": "no_llm",
         "experiment": experiment,
         "dim": dim,
-        "batch_size": config.batch_size,
-        "recipe_steps": config.steps,
-        **report_times(first, timed, steps, config.steps),
+        "batch_size": schedule.batch_size,
+        "recipe_steps": schedule.steps,
+        **report_times(first, timed, steps, schedule.steps),
     }
 
 
@@ -69,7 +70,7 @@ def time_no_pretrain(experiment: str, steps: int, num_scenes: int) -> dict:
     from ocplace.models.offline_backbone import split_trainable
 
     recipe = configs.get(experiment).recipes.no_pretrain
-    model, config = recipe.model, recipe.train
+    model, schedule = recipe.model, recipe.schedule
     size = model.backbone.image_size
     rng = np.random.default_rng(0)
     arrays = {
@@ -81,15 +82,14 @@ def time_no_pretrain(experiment: str, steps: int, num_scenes: int) -> dict:
     }
     params = no_pretrain.init_params(model, jax.random.key(0))
     trainable, frozen = split_trainable(no_pretrain.trainable_mask(model, params), params)
-    state = (trainable, optim.make(config).init(trainable))
+    state = (trainable, optim.make(schedule).init(trainable))
 
     def step(index):
         nonlocal state
-        rows = train_no_pretrain.batch_indices(num_scenes, 0, index, 1, config.batch_size)[0]
+        rows = train_no_pretrain.batch_indices(num_scenes, 0, index, 1, schedule.batch_size)[0]
         batch = {name: jnp.asarray(array[rows]) for name, array in arrays.items()}
-        state, loss = train_no_pretrain.train_step(
-            model, config, state, frozen, batch, jnp.asarray(train_no_pretrain.step_codes(config, index))
-        )
+        codes = jnp.asarray(train_no_pretrain.step_codes(recipe, 0, index))
+        state, loss = train_no_pretrain.train_step(model, schedule, state, frozen, batch, codes)
         return loss
 
     with Timer() as first:
@@ -104,9 +104,9 @@ def time_no_pretrain(experiment: str, steps: int, num_scenes: int) -> dict:
         "experiment": experiment,
         "model": serial.to_dict(model),
         "parameters": parameters,
-        "batch_scenes": config.batch_size,
-        "recipe_steps": config.steps,
-        **report_times(first, timed, steps, config.steps),
+        "batch_scenes": schedule.batch_size,
+        "recipe_steps": schedule.steps,
+        **report_times(first, timed, steps, schedule.steps),
     }
 
 

@@ -30,12 +30,12 @@ from selection_scores import standard_error
 
 import ocplace  # noqa: F401  (sets the headless OpenGL default before MuJoCo loads)
 
-# Training regimes: (name, TrainConfig changes); each trained for every step count.
+# Training regimes: (name, changes of Ours' recipe by dotted key); each trained for every step count.
 REGIMES = {
     "paper": {},
-    "normalised": {"normalise": True},
-    "normalised+decay": {"normalise": True, "weight_decay": 0.1},
-    "normalised+anchor": {"normalise": True, "anchor": 1.0},
+    "normalised": {"adapters.normalise": True},
+    "normalised+decay": {"adapters.normalise": True, "schedule.weight_decay": 0.1},
+    "normalised+anchor": {"adapters.normalise": True, "anchor": 1.0},
 }
 STEPS = (20_000, 200_000)
 RATIOS = (0.0, 0.1, 0.2, 0.3, 0.5)
@@ -131,14 +131,16 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path("adapter_selection.json"))
     args = parser.parse_args()
 
-    from ocplace.methods.ours.recipe import TrainConfig
+    from ocplace.cli.options import apply_overrides, format_value
+    from ocplace.methods.ours.recipe import OursRecipe
     from ocplace.methods.ours.train import train_ours
     from ocplace.train.metrics import evaluate_features
 
     train, splits = selection_features(args.dataset, args.dev, args.backbone)
     rows = []
     for (regime, changes), steps in itertools.product(REGIMES.items(), STEPS):
-        config = dataclasses.replace(TrainConfig(), steps=steps, checkpoint_every=steps, eval_every=steps, **changes)
+        changes = {**changes, "schedule.steps": steps, "schedule.checkpoint_every": steps, "eval_every": steps}
+        config = apply_overrides(OursRecipe(), [f"{key}={format_value(value)}" for key, value in changes.items()])
         model = train_ours(train, args.work / f"{regime}-{steps}", config, progress=False).model
         for visual, text in itertools.product(RATIOS, RATIOS):
             row = {"regime": regime, "steps": steps, "visual": visual, "text": text}

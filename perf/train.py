@@ -26,7 +26,7 @@ from ocplace.runtime.width import pin_jax_width
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=200_000)
-    parser.add_argument("--chunk-steps", type=int, default=default_config().chunk_steps)
+    parser.add_argument("--chunk-steps", type=int, default=default_config().schedule.chunk_steps)
     parser.add_argument("--loop-steps", type=int, default=5_000)
     parser.add_argument("--batch-size", type=int, default=1)
     parser.add_argument("--dim", type=int, default=512)
@@ -52,18 +52,19 @@ def run(args) -> None:
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # the test support: synthetic inputs
     from synthetic_features import synthetic_features
 
-    config = dataclasses.replace(
-        default_config(), steps=args.steps, batch_size=args.batch_size, chunk_steps=args.chunk_steps
+    schedule = dataclasses.replace(
+        default_config().schedule, steps=args.steps, batch_size=args.batch_size, chunk_steps=args.chunk_steps
     )
+    config = dataclasses.replace(default_config(), schedule=schedule)
     features = synthetic_features(args.scenes, args.dim)
-    adapter_config = AdapterConfig(args.dim, config.reduction, config.residual_ratio)
-    optimizer = optim.make(config)
-    fresh_state = functools.partial(init_state, adapter_config, optimizer, config.seed)
+    adapter_config = AdapterConfig(args.dim, config.adapters.reduction, config.adapters.residual_ratio)
+    optimizer = optim.make(schedule)
+    fresh_state = functools.partial(init_state, adapter_config, optimizer, 0)
     scale = features.info.logit_scale
     train_chunk = functools.partial(jit_train_chunk, adapter_config, config, scale)
     train_step = functools.partial(jit_train_step, adapter_config, config, scale)
     data = jax.device_put(features.arrays())
-    indices = jnp.asarray(batch_indices(features.num_scenes, config.seed, 0, args.steps, args.batch_size))
+    indices = jnp.asarray(batch_indices(features.num_scenes, 0, 0, args.steps, args.batch_size))
     load = " ".join(f"{x:.1f}" for x in os.getloadavg())
     print(
         f"{datetime.datetime.now():%Y-%m-%d %H:%M}, JAX {args.cpus or len(os.sched_getaffinity(0))} of "

@@ -2,7 +2,7 @@
 training run, never a test subset.
 
 Two recipes are trained on the training split's features without the seen colour variants (as rule A's selection
-runs, `perf/adapter_selection.py`): Ours (rule A's adapters, `train.config.default_config()`) and the paper's
+runs, `perf/adapter_selection.py`): Ours (rule A's adapters, `methods.ours.recipe.default_config()`) and the paper's
 adapters (`paper_config()`), each for its full budget with a checkpoint every `--every` steps. Every checkpoint is
 then scored as blended by its recipe: `dev_seen` and `dev_colour` object tuples (the colour variants are new
 instances to these runs) and reach (the held-out corpus categories). Step 0 is the backbone alone (w/o Adapter).
@@ -32,7 +32,12 @@ def recipes(steps: int | None) -> dict:
     from ocplace.methods.ours import recipe as config
 
     chosen = {"ours": config.default_config(), "ours_paper": config.paper_config()}
-    return {name: dataclasses.replace(recipe, steps=steps or recipe.steps) for name, recipe in chosen.items()}
+    return {
+        name: dataclasses.replace(
+            recipe, schedule=dataclasses.replace(recipe.schedule, steps=steps or recipe.schedule.steps)
+        )
+        for name, recipe in chosen.items()
+    }
 
 
 def scores(model, splits: dict) -> dict:
@@ -50,15 +55,15 @@ def curve(train, splits: dict, recipe, run_dir: Path, every: int) -> list[dict]:
     """One row per checkpoint of `recipe` trained on `train`, `{"step", split scores...}`, after the backbone's own
     (step 0: the adapters blended at ratio 0 on both towers)."""
     from ocplace.methods.ours.train import init_state, train_ours
-    from ocplace.models.adapters import AdapterConfig
     from ocplace.models.grounding import GroundingModel
     from ocplace.train import checkpoints, optim
 
-    keep = recipe.steps // every
-    recipe = dataclasses.replace(recipe, checkpoint_every=every, eval_every=every, keep_checkpoints=keep)
+    keep = recipe.schedule.steps // every
+    schedule = dataclasses.replace(recipe.schedule, checkpoint_every=every, keep_checkpoints=keep)
+    recipe = dataclasses.replace(recipe, schedule=schedule, eval_every=every)
     trained = train_ours(train, run_dir, recipe, progress=False).model
-    adapter_config = AdapterConfig(train.dim, **recipe.adapters)
-    template = init_state(adapter_config, optim.make(recipe), recipe.seed)
+    adapter_config = recipe.adapters.at(train.dim)
+    template = init_state(adapter_config, optim.make(schedule), 0)
     rows = [{"step": 0, **scores(trained.with_ratios(0.0, 0.0), splits)}]
     for path in checkpoints.list_checkpoints(run_dir):
         state, step, _ = checkpoints.load_checkpoint(path, template)

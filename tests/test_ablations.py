@@ -155,9 +155,11 @@ def test_no_llm_learns_references_and_relations_when_the_sentence_holds_them(tmp
     import dataclasses
 
     from ocplace.methods.no_llm.train import train_on_arrays
+    from ocplace.train.schedule import rescheduled
 
     arrays = synthetic_scenes(96, 16, seed=0)
-    config = dataclasses.replace(RECIPES.no_llm, steps=400, chunk_steps=200, checkpoint_every=200, hidden=64)
+    config = rescheduled(RECIPES.no_llm, steps=400, chunk_steps=200, checkpoint_every=200)
+    config = dataclasses.replace(config, hidden=64)
     model = train_on_arrays(
         arrays, tmp_path / "run", config, 10.0, {"synthetic": True}, progress=False, backbone_fingerprint="synthetic"
     )

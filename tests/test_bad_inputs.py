@@ -322,18 +322,27 @@ CANNOT_RUN = "experiment 'smoke' cannot run: "
 @pytest.mark.parametrize(
     "override, message",
     [
-        ("recipes.ours.stepz=1", "unknown key 'recipes.ours.stepz': valid keys under 'recipes.ours' are steps, "),
+        ("recipes.ours.stepz=1", "unknown key 'recipes.ours.stepz': valid keys under 'recipes.ours' are adapters.*, "),
         ("dataset.train_scenes=many", "--set dataset.train_scenes=many: expected an integer, got 'many'"),
         ("evaluation", "--set takes KEY=VALUE, got 'evaluation'"),
         ("evaluation.num_samples=-1", CANNOT_RUN + "evaluation.num_samples must be from 1 to 65,536, got -1"),
-        ("recipes.ours.learning_rate=-1", CANNOT_RUN + "recipes.ours.learning_rate must be positive, got -1.0"),
-        ("recipes.ours.learning_rate=nan", CANNOT_RUN + "recipes.ours.learning_rate is nan; numbers must be finite"),
+        (
+            "recipes.ours.schedule.learning_rate=-1",
+            CANNOT_RUN + "recipes.ours.schedule.learning_rate must be positive, got -1.0",
+        ),
+        (
+            "recipes.ours.schedule.learning_rate=nan",
+            CANNOT_RUN + "recipes.ours.schedule.learning_rate is nan; numbers must be finite",
+        ),
         ("recipes.cliport.schedule.learning_rate=inf", CANNOT_RUN + "recipes.cliport.schedule.learning_rate is inf"),
         ("backbone.optim.learning_rate=0", CANNOT_RUN + "backbone.optim.learning_rate must be positive, got 0.0"),
-        ("recipes.no_llm.warmup_steps=-5", CANNOT_RUN + "recipes.no_llm.warmup_steps must be at least 0, got -5"),
         (
-            "recipes.ours.steps=-1",
-            CANNOT_RUN + "recipes.ours: invalid training configuration: steps, batch_size and chunk_steps",
+            "recipes.no_llm.schedule.warmup_steps=-5",
+            CANNOT_RUN + "recipes.no_llm.schedule.warmup_steps must be at least 0, got -5",
+        ),
+        (
+            "recipes.ours.schedule.steps=-1",
+            CANNOT_RUN + "recipes.ours: invalid training configuration: steps, batch_size, chunk_steps and keep_",
         ),
         (
             "evaluation.fractions=0.5,2.0",
@@ -555,7 +564,8 @@ def test_a_full_disk_still_prints_the_placement(saved_cache, images, tmp_path, c
 
 
 @pytest.mark.parametrize(
-    "override", ["evaluation.num_samples=-1", "recipes.ours.learning_rate=nan", "evaluation.methods=nope", "out="]
+    "override",
+    ["evaluation.num_samples=-1", "recipes.ours.schedule.learning_rate=nan", "evaluation.methods=nope", "out="],
 )
 def test_a_bad_set_fails_before_jax_is_imported(override, tmp_path):
     """The experiment is built and checked from JAX-free modules, so a bad value fails at once (exit 2)."""
@@ -590,6 +600,7 @@ def test_registered_names_are_the_specs_names_without_importing_them():
             "argument --physical: -5 is out of range: give a whole number at least 0 (or -1)",
         ),
         (["place", "--seed", "x"], "argument --seed: 'x' is not a whole number"),
+        (["train", "--seed", "-1"], "argument --seed: -1 is out of range: give a whole number at least 0"),
     ],
 )
 def test_out_of_range_flags_are_usage_errors(capsys, argv, message):
@@ -609,9 +620,10 @@ def test_place_refuses_own_image_flags_beside_a_dataset_scene(tmp_path, capsys):
 @pytest.mark.parametrize(
     "flags, message",
     [
-        (["--chunk-steps", "0"], "steps, batch_size and chunk_steps must be positive"),
+        (["--chunk-steps", "0"], "steps, batch_size, chunk_steps and keep_checkpoints must be positive"),
         (["--reduction", "0"], "reduction must be at least 1"),
-        (["--seed", "-1"], "seed and subset_seed must be at least 0, got -1"),
+        (["--subset-seed", "-1"], "subset_seed must be at least 0, got -1"),
+        (["--fraction", "1.5"], "--fraction lies in (0, 1], got 1.5"),
     ],
 )
 def test_train_refuses_settings_that_cannot_train(tmp_path, capsys, flags, message):

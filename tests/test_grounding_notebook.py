@@ -1,7 +1,6 @@
 """notebooks/01_grounding_logits.ipynb runs end to end on a tiny dataset, backbone and run, in the default suite:
 the smoke dataset's `seen` split (8 scenes), a tiny CLIP and 100 training steps."""
 
-import dataclasses
 from pathlib import Path
 
 from notebook_run import executed_outputs, printed
@@ -17,6 +16,7 @@ def test_grounding_notebook_executes(tmp_path, smoke_dataset, monkeypatch):
     from ocplace.models.features import featurize, load_features
     from ocplace.sim.dataset.identity import dataset_hash
     from ocplace.sim.dataset.loader import iter_examples
+    from ocplace.train.schedule import rescheduled
 
     dataset, features_path, run = smoke_dataset, tmp_path / "seen.safetensors", tmp_path / "run"
     backbone = load_clip_backbone(str(build_tiny_clip(tmp_path / "clip")), max_batch=8)
@@ -27,7 +27,7 @@ def test_grounding_notebook_executes(tmp_path, smoke_dataset, monkeypatch):
         dataset_hash=dataset_hash(dataset, "seen"),
         progress=False,
     )
-    train(load_features(features_path), run, dataclasses.replace(smoke_config(), steps=100), progress=False)
+    train(load_features(features_path), run, rescheduled(smoke_config(), steps=100), progress=False)
 
     for name, value in {
         "OCPLACE_DATASET": dataset,

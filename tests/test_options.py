@@ -24,7 +24,8 @@ from ocplace.cli.options import (
     parse_value,
 )
 from ocplace.errors import ConfigError, OcplaceError
-from ocplace.methods.ours.recipe import TrainConfig, smoke_config
+from ocplace.methods.ours.recipe import OursRecipe, smoke_config
+from ocplace.train.schedule import rescheduled
 
 
 @dataclasses.dataclass(frozen=True)
@@ -206,7 +207,7 @@ def test_a_value_may_hold_equals_signs():
 
 
 def test_every_setting_of_every_experiment_and_training_config_round_trips():
-    for config in (TrainConfig(), smoke_config(), *(configs.get(name) for name in configs.EXPERIMENTS)):
+    for config in (OursRecipe(), smoke_config(), *(configs.get(name) for name in configs.EXPERIMENTS)):
         for key in _leaf_keys(config):
             assert apply_overrides(config, [f"{key}={format_value(_get(config, key))}"]) == config, key
 
@@ -214,11 +215,11 @@ def test_every_setting_of_every_experiment_and_training_config_round_trips():
 def test_an_experiment_takes_nested_overrides():
     experiment = configs.get("smoke")
     changed = apply_overrides(
-        experiment, ["recipes.ours.steps=5000", "dataset.train_scenes=100", "evaluation.methods=ours, grids"]
+        experiment, ["recipes.ours.schedule.steps=5000", "dataset.train_scenes=100", "evaluation.methods=ours, grids"]
     )
     assert changed == dataclasses.replace(
         experiment,
-        recipes=dataclasses.replace(experiment.recipes, ours=dataclasses.replace(experiment.recipes.ours, steps=5000)),
+        recipes=dataclasses.replace(experiment.recipes, ours=rescheduled(experiment.recipes.ours, steps=5000)),
         dataset=dataclasses.replace(experiment.dataset, train_scenes=100),
         evaluation=dataclasses.replace(experiment.evaluation, methods=("ours", "grids")),
     )

@@ -11,7 +11,7 @@ from ocplace.eval.harness import EvalSettings, PhysicalOutcome, SceneOutcome
 from ocplace.methods.cliport.model import CliportConfig
 from ocplace.methods.grids.model import GridConfig
 from ocplace.methods.no_llm.model import NoLlmConfig
-from ocplace.methods.ours.recipe import TrainConfig
+from ocplace.methods.ours.recipe import OursRecipe
 from ocplace.models import offline_config
 from ocplace.models.backbone import PromptConfig
 from ocplace.models.offline_recipes import PretrainConfig
@@ -36,7 +36,7 @@ def test_every_experiment_round_trips_through_json_text(experiment):
 
 @pytest.mark.parametrize(
     "config",
-    [TrainConfig(), PromptConfig(), NoLlmConfig(dim=32), GridConfig(), CliportConfig(), EvalSettings()],
+    [OursRecipe(), PromptConfig(), NoLlmConfig(dim=32), GridConfig(), CliportConfig(), EvalSettings()],
     ids=lambda c: type(c).__name__,
 )
 def test_the_text_is_what_dataclasses_asdict_gave(config):

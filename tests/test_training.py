@@ -12,15 +12,17 @@ from synthetic_features import synthetic_features
 
 from ocplace.cli import train as train_command
 from ocplace.errors import TrainingError
-from ocplace.methods.ours.recipe import TrainConfig, default_config, smoke_config
+from ocplace.methods.ours.recipe import OursRecipe, default_config, smoke_config
 from ocplace.methods.ours.train import train_ours as train
 from ocplace.models import trained_adapters
+from ocplace.models.adapter_settings import AdapterSettings
 from ocplace.models.features import save_features
 from ocplace.models.grounding import GroundingModel
 from ocplace.paths import OLD_RUN_FILES, RUN_FILE, WEIGHTS_FILE
 from ocplace.train import checkpoints
 from ocplace.train.batches import batch_indices, subset_indices
 from ocplace.train.metrics import MetricsLog, evaluate_features
+from ocplace.train.schedule import Schedule, rescheduled
 
 DIM = 32
 
@@ -37,7 +39,7 @@ def fitted(tmp_path_factory, features):
 
 
 def short_config():
-    return dataclasses.replace(smoke_config(), steps=200, checkpoint_every=100)
+    return rescheduled(smoke_config(), steps=200, checkpoint_every=100)
 
 
 def adapter_arrays(run_dir):
@@ -81,7 +83,7 @@ def _state_template(result):
     from ocplace.methods.ours.train import init_state
     from ocplace.train import optim
 
-    return init_state(result.model.config, optim.make(smoke_config()), seed=123)
+    return init_state(result.model.config, optim.make(smoke_config().schedule), seed=123)
 
 
 def test_same_seed_same_weights_and_resume_equals_uninterrupted(tmp_path, features):
@@ -97,7 +99,7 @@ def test_same_seed_same_weights_and_resume_equals_uninterrupted(tmp_path, featur
         train(features, tmp_path / "c", config, progress=False, callback=crash_after_first_checkpoint)
     assert not (tmp_path / "c" / WEIGHTS_FILE).exists()
     train(features, tmp_path / "c", config, progress=False)
-    train(features, tmp_path / "d", dataclasses.replace(config, seed=1), progress=False)
+    train(features, tmp_path / "d", config, seed=1, progress=False)
 
     a, b, c, d = (adapter_arrays(tmp_path / name) for name in "abcd")
     for key in a:
@@ -109,10 +111,12 @@ def test_same_seed_same_weights_and_resume_equals_uninterrupted(tmp_path, featur
 
 
 def test_a_run_directory_refuses_other_settings(tmp_path, features):
-    config = dataclasses.replace(short_config(), steps=50, checkpoint_every=50, eval_every=50)
+    config = dataclasses.replace(rescheduled(short_config(), steps=50, checkpoint_every=50), eval_every=50)
     train(features, tmp_path, config, progress=False)
     with pytest.raises(TrainingError, match="holds another run"):
-        train(features, tmp_path, dataclasses.replace(config, learning_rate=1e-3), progress=False)
+        train(features, tmp_path, rescheduled(config, learning_rate=1e-3), progress=False)
+    with pytest.raises(TrainingError, match="holds another run"):
+        train(features, tmp_path, config, seed=1, progress=False)
 
 
 @pytest.mark.parametrize("old_name", OLD_RUN_FILES)
@@ -236,7 +240,7 @@ def test_train_command(tmp_path, features):
     )  # 0: do not pin the test process
     assert args.func(args) == 0
     meta = json.loads((run / RUN_FILE).read_text())
-    assert meta["train_scenes"] == 24 and meta["train_config"]["steps"] == 100
+    assert meta["train_scenes"] == 24 and meta["train_config"]["recipe"]["schedule"]["steps"] == 100
     assert trained_adapters.load_adapters(run).steps == 100
 
 
@@ -257,7 +261,7 @@ def test_train_command_gives_the_bits_of_a_reproduce_training_task(tmp_path, fea
     command = ["train", "--features", str(path), "--out", str(tmp_path / "command"), "--smoke", "--steps", "100"]
     subprocess.run([sys.executable, "-m", "ocplace.cli", *command], check=True, capture_output=True)
     assert list(compiled_folder(min(TaskCpus().train, len(os.sched_getaffinity(0)))).glob("*-cache"))
-    config = dataclasses.replace(smoke_config(), steps=100)
+    config = rescheduled(smoke_config(), steps=100)
     task = Task(train, (features, tmp_path / "task", config), cpus=TaskCpus().train, pinned=True)
     with open_executor(ExecutorConfig(workers=1)) as executor:
         next(map_tasks(executor, [task]))
@@ -331,7 +335,7 @@ def _train_args(*options):
 def test_train_flags_mirror_every_config_field_and_keep_the_old_names():
     assert train_command.train_config_from_args(_train_args()) == default_config()
     assert train_command.train_config_from_args(_train_args("--smoke")) == smoke_config()
-    assert train_command.train_config_from_args(_train_args("--paper-adapters")) == TrainConfig()
+    assert train_command.train_config_from_args(_train_args("--paper-adapters")) == OursRecipe()
     every_field = [
         *("--steps", "7", "--batch-size", "2", "--lr", "0.5", "--warmup-steps", "3", "--seed", "4"),
         *("--fraction", "0.25", "--subset-seed", "5", "--reduction", "8", "--residual-ratio", "0.3"),
@@ -339,24 +343,23 @@ def test_train_flags_mirror_every_config_field_and_keep_the_old_names():
         *("--keep-checkpoints", "3", "--text-ratio", "0.1", "--normalise", "--weight-decay", "0.01"),
         *("--anchor", "2"),
     ]
-    assert train_command.train_config_from_args(_train_args("--smoke", *every_field)) == TrainConfig(
-        steps=7,
-        batch_size=2,
-        learning_rate=0.5,
-        warmup_steps=3,
-        seed=4,
-        fraction=0.25,
-        subset_seed=5,
-        reduction=8,
-        residual_ratio=0.3,
-        logit_scale=50.0,
-        chunk_steps=10,
-        eval_every=20,
-        checkpoint_every=30,
-        keep_checkpoints=3,
-        text_ratio=0.1,
-        normalise=True,
-        weight_decay=0.01,
+    args = _train_args("--smoke", *every_field)
+    assert train_command.train_config_from_args(args) == OursRecipe(
+        AdapterSettings(reduction=8, residual_ratio=0.3, text_ratio=0.1, normalise=True),
+        Schedule(
+            steps=7,
+            batch_size=2,
+            learning_rate=0.5,
+            warmup_steps=3,
+            chunk_steps=10,
+            checkpoint_every=30,
+            keep_checkpoints=3,
+            weight_decay=0.01,
+        ),
         anchor=2.0,
+        logit_scale=50.0,
+        eval_every=20,
+        subset_seed=5,
     )
-    assert train_command.train_config_from_args(_train_args("--learning-rate", "0.25")).learning_rate == 0.25
+    assert train_command.run_keys(args) == (4, 0.25)  # the run's, apart from its recipe
+    assert train_command.train_config_from_args(_train_args("--learning-rate", "0.25")).schedule.learning_rate == 0.25

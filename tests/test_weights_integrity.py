@@ -41,6 +41,7 @@ from ocplace.models.policy import PlacementPolicy, PreparedScene
 from ocplace.paths import WEIGHTS_FILE
 from ocplace.train import baseline_runs, checkpoints, optim
 from ocplace.train.metrics import MetricsLog
+from ocplace.train.schedule import rescheduled
 
 DIM = 16
 KEY = jax.random.key(0)
@@ -58,7 +59,7 @@ def _random_like(init):
 
 
 def _checkpoint(run_dir):
-    template = jax.eval_shape(lambda: init_state(AdapterConfig(dim=DIM), optim.make(smoke_config()), seed=0))
+    template = jax.eval_shape(lambda: init_state(AdapterConfig(dim=DIM), optim.make(smoke_config().schedule), seed=0))
     state = _random_like(lambda: template)
     path = checkpoints.save_checkpoint(run_dir, 100, state, {"run": "test"}, keep=2)
     return path, lambda: checkpoints.load_checkpoint(path, template)[0], state
@@ -103,7 +104,10 @@ def _no_llm(run_dir):
     params = _random_like(lambda: init_no_llm(config, KEY))
     path = run_dir / WEIGHTS_FILE
     no_llm.save_model(
-        path, NoLlmModel(config, params, 30.0), backbone_fingerprint="f", train_config=no_llm.NoLlmTrainConfig()
+        path,
+        NoLlmModel(config, params, 30.0),
+        backbone_fingerprint="f",
+        train_config={"recipe": {}, "seed": 0, "fraction": 1.0},
     )
     return path, lambda: load_no_llm(run_dir).model.params, params
 
@@ -267,7 +271,7 @@ def test_a_nan_grounding_probability_never_passes_the_threshold():
 
 def test_a_torn_last_metrics_line_is_dropped_and_the_run_resumes(tmp_path, caplog):
     features = synthetic_features(24, DIM, seed=0)
-    config = dataclasses.replace(smoke_config(), steps=100, checkpoint_every=50, eval_every=50)
+    config = dataclasses.replace(rescheduled(smoke_config(), steps=100, checkpoint_every=50), eval_every=50)
 
     def crash_at_50(record):
         if record["step"] == 50:

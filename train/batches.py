@@ -5,6 +5,21 @@ from __future__ import annotations
 
 import numpy as np
 
+from ocplace import serial
+from ocplace.errors import TrainingError
+
+
+def check_run_keys(seed: int, fraction: float) -> None:
+    """Refuses a run's seed or share of the training split that no run can have."""
+    if seed < 0 or not 0.0 < fraction <= 1.0:
+        raise TrainingError(f"a run's seed is at least 0 and its fraction lies in (0, 1], got {seed}, {fraction}")
+
+
+def run_config(recipe: object, seed: int, fraction: float) -> dict:
+    """What a run recorded of how it trained (its `run.json` and its weights file): the recipe, and the seed and
+    fraction its context gave it."""
+    return {"recipe": serial.to_dict(recipe), "seed": seed, "fraction": fraction}
+
 
 def subset_indices(num_scenes: int, fraction: float, subset_seed: int) -> np.ndarray:
     """Sorted indices of a seeded `fraction` of the scenes; smaller fractions are prefixes of larger."""

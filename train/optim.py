@@ -80,28 +80,30 @@ TOWER_END_SHARE = 0.02
 
 
 class Budget(Protocol):
-    """What `make` reads of every recipe (Ours', no_llm's, a `Schedule`, an image tower's). A recipe may also set
-    `weight_decay` (default 0) and say `TRAINS_TOWER = True` (a class constant: clipped AdamW, decay to
-    `TOWER_END_SHARE`)."""
+    """What `make` reads of a training's budget: a `Schedule` (every row's), or the backbone pretraining's
+    `OptimConfig`, whose optimiser is a class constant (not serialised: its recipe key stays as it was)."""
 
     learning_rate: float  # the peak
     warmup_steps: int
     steps: int
+    weight_decay: float
+
+    @property
+    def optimiser(self) -> str: ...  # "adam" or "adamw_clipped" (an image tower's)
 
 
 def learning_rates(budget: Budget) -> optax.Schedule:
-    """The recipe's learning-rate schedule: `warmup_cosine` of its peak, warm-up and steps."""
-    end_share = TOWER_END_SHARE if getattr(budget, "TRAINS_TOWER", False) else 0.0
+    """The budget's learning-rate schedule: `warmup_cosine` of its peak, warm-up and steps."""
+    end_share = TOWER_END_SHARE if budget.optimiser == "adamw_clipped" else 0.0
     return warmup_cosine(budget.learning_rate, budget.warmup_steps, budget.steps, end_share)
 
 
 def make(budget: Budget) -> optax.GradientTransformation:
-    """The recipe's optimiser, the one place every training gets it (as big_vision's `optax.make`): an image
-    tower's clipped AdamW; else this module's Adam, with AdamW's decay where the recipe sets `weight_decay`."""
-    weight_decay = getattr(budget, "weight_decay", 0.0)
-    if getattr(budget, "TRAINS_TOWER", False):
-        return clipped_adamw(learning_rates(budget), weight_decay)
-    return adam(learning_rates(budget), weight_decay=weight_decay)
+    """The budget's optimiser, the one place every training gets it (as big_vision's `optax.make`): an image
+    tower's clipped AdamW; else this module's Adam, with AdamW's decay where the budget sets `weight_decay`."""
+    if budget.optimiser == "adamw_clipped":
+        return clipped_adamw(learning_rates(budget), budget.weight_decay)
+    return adam(learning_rates(budget), weight_decay=budget.weight_decay)
 
 
 def clipped_adamw(schedule: optax.Schedule, weight_decay: float) -> optax.GradientTransformation:

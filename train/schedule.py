@@ -4,13 +4,19 @@ check before JAX is imported and a bad `--set` fails at once."""
 from __future__ import annotations
 
 import dataclasses
+from typing import Any, Literal, TypeVar
 
 from ocplace.errors import TrainingError
+
+OPTIMISERS = ("adam", "adamw_clipped")
+R = TypeVar("R")
 
 
 @dataclasses.dataclass(frozen=True)
 class Schedule:
-    """Optimisation budget of a recipe: Adam, linear warm-up then cosine decay to 0 (`train/optim.make`)."""
+    """Optimisation budget of a recipe (`train/optim.make`): `adam` (the adapters', decoupled decay on every leaf
+    when `weight_decay` is set), or `adamw_clipped` (an image tower's: gradient norm clipped to 1, decay on
+    matrices only); both warm up linearly, then decay by a cosine (to 0, a tower's to a share of the peak)."""
 
     steps: int
     batch_size: int
@@ -19,10 +25,30 @@ class Schedule:
     chunk_steps: int  # steps fused into one jitted lax.scan call
     checkpoint_every: int  # a multiple of chunk_steps
     keep_checkpoints: int = 2
+    weight_decay: float = 0.0
+    optimiser: Literal["adam", "adamw_clipped"] = "adam"
+
+    def problems(self) -> list[str]:
+        """What is wrong with this budget (`validate` raises with it)."""
+        problems = []
+        if min(self.steps, self.batch_size, self.chunk_steps, self.keep_checkpoints) < 1:
+            problems.append("steps, batch_size, chunk_steps and keep_checkpoints must be positive")
+        elif self.checkpoint_every < 1 or self.checkpoint_every % self.chunk_steps:
+            problems.append(
+                f"checkpoint_every ({self.checkpoint_every}) must be a positive multiple of chunk_steps "
+                f"({self.chunk_steps})"
+            )
+        if self.weight_decay < 0:
+            problems.append(f"weight_decay must be at least 0, got {self.weight_decay}")
+        if self.optimiser not in OPTIMISERS:
+            problems.append(f"optimiser must be one of {', '.join(OPTIMISERS)}, got {self.optimiser!r}")
+        return problems
 
     def validate(self) -> None:
-        if (
-            min(self.steps, self.batch_size, self.chunk_steps, self.keep_checkpoints) < 1
-            or self.checkpoint_every % self.chunk_steps
-        ):
-            raise TrainingError(f"invalid schedule {self}: positive sizes, checkpoint_every a multiple of chunk_steps")
+        if problems := self.problems():
+            raise TrainingError(f"invalid schedule {self}: " + "; ".join(problems))
+
+
+def rescheduled(recipe: R, **changes: Any) -> R:
+    """`recipe` (any recipe holding a `schedule`) with those fields of its schedule changed."""
+    return dataclasses.replace(recipe, schedule=dataclasses.replace(recipe.schedule, **changes))  # type: ignore[attr-defined]

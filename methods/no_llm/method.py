@@ -18,7 +18,7 @@ import numpy as np
 from ocplace import serial
 from ocplace.eval.api import MethodOutput
 from ocplace.methods.contract import LoadContext, MethodSpec, TrainContext
-from ocplace.methods.no_llm.recipe import NoLlmTrainConfig as Recipe
+from ocplace.methods.no_llm.recipe import NoLlmRecipe as Recipe
 from ocplace.methods.policy_method import prepare_train_features, scene_input
 from ocplace.paths import WEIGHTS_FILE
 from ocplace.sim.dataset.records import SceneRecord
@@ -39,7 +39,9 @@ def train(ctx: TrainContext[Recipe]) -> Path:
         Path(ctx.dataset_dir),
         load_backbone(ctx.backbone),
         Path(ctx.out_dir),
-        dataclasses.replace(ctx.recipe, fraction=ctx.fraction, seed=ctx.seed),
+        ctx.recipe,
+        ctx.seed,
+        ctx.fraction,
         progress=False,
     )
 

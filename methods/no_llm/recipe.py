@@ -1,4 +1,4 @@
-"""Shapes of the no_llm model (`NoLlmConfig`), without JAX: a recipe holds one (docs/architecture.md)."""
+"""The no_llm model's shapes (`NoLlmConfig`) and its training recipe (`NoLlmRecipe`), without JAX."""
 
 from __future__ import annotations
 
@@ -6,6 +6,8 @@ import dataclasses
 from typing import TYPE_CHECKING
 
 from ocplace.errors import TrainingError
+from ocplace.models.adapter_settings import AdapterSettings
+from ocplace.train.schedule import Schedule
 
 if TYPE_CHECKING:
     from ocplace.models.adapters import AdapterConfig
@@ -34,29 +36,27 @@ class NoLlmConfig:
 
 
 @dataclasses.dataclass(frozen=True)
-class NoLlmTrainConfig:
-    steps: int = 10_000
-    batch_size: int = 32
-    learning_rate: float = 1e-3  # Adam peak, linear warm-up then cosine decay to 0
-    warmup_steps: int = 500
+class NoLlmRecipe:
+    adapters: AdapterSettings = AdapterSettings()
+    schedule: Schedule = Schedule(
+        steps=10_000, batch_size=32, learning_rate=1e-3, warmup_steps=500, chunk_steps=1_000, checkpoint_every=5_000
+    )
     relation_weight: float = 1.0  # loss = reference CE + relation_weight * relation CE
     hidden: int = 256  # relation MLP width
-    reduction: int = 4
-    residual_ratio: float = 0.2
-    seed: int = 0  # initial weights and example order
-    fraction: float = 1.0
-    subset_seed: int = 0  # nested subsets, as train.ours
-    chunk_steps: int = 1_000
-    checkpoint_every: int = 5_000
-    keep_checkpoints: int = 2
+    subset_seed: int = 0  # nested subsets, as Ours'
 
     def validate(self) -> None:
-        if self.steps < 1 or self.batch_size < 1 or self.chunk_steps < 1:
-            raise TrainingError("steps, batch_size and chunk_steps must be positive")
-        if not 0.0 < self.fraction <= 1.0:
-            raise TrainingError(f"fraction must be in (0, 1], got {self.fraction}")
-        if self.checkpoint_every % self.chunk_steps:
-            raise TrainingError("checkpoint_every must be a multiple of chunk_steps")
+        problems = self.schedule.problems() + self.adapters.problems()
+        if self.hidden < 1 or self.subset_seed < 0:
+            problems.append(
+                f"hidden must be positive and subset_seed at least 0, got {self.hidden}, {self.subset_seed}"
+            )
+        if self.adapters.text_ratio is not None or self.adapters.normalise:
+            problems.append("no_llm's adapters blend as the paper's: leave adapters.text_ratio none, normalise false")
+        if problems:
+            raise TrainingError("invalid training configuration: " + "; ".join(problems))
 
     def model_config(self, dim: int) -> NoLlmConfig:
-        return NoLlmConfig(dim=dim, reduction=self.reduction, residual_ratio=self.residual_ratio, hidden=self.hidden)
+        return NoLlmConfig(
+            dim=dim, reduction=self.adapters.reduction, residual_ratio=self.adapters.residual_ratio, hidden=self.hidden
+        )

@@ -31,14 +31,14 @@ import optax
 from ocplace import serial
 from ocplace.errors import FeaturesError
 from ocplace.methods.no_llm.model import NoLlmConfig, NoLlmModel, encode_sentences, init_params, loss_terms
-from ocplace.methods.no_llm.recipe import NoLlmTrainConfig
+from ocplace.methods.no_llm.recipe import NoLlmRecipe
 from ocplace.models.backbone import Backbone
 from ocplace.models.features import Features, featurize_split, load_features
 from ocplace.models.weights_file import save_weights
 from ocplace.paths import atomic_path, features_cache
 from ocplace.sim.relations import relation_index
 from ocplace.train import checkpoints, optim, runner
-from ocplace.train.batches import batch_indices, subset_indices
+from ocplace.train.batches import batch_indices, check_run_keys, run_config, subset_indices
 
 # The paper's name in the cache key: renaming it would orphan every cached sentence file.
 SENTENCES_FORMAT = "ocplace-gtref-sentences-v1"
@@ -118,7 +118,7 @@ def training_arrays(features: Features, sentences: Sentences) -> dict[str, np.nd
 # ----------------------------------------------------------------------------- the jitted loop
 
 
-def train_step(model_config: NoLlmConfig, config: NoLlmTrainConfig, logit_scale: float, state, data, indices):
+def train_step(model_config: NoLlmConfig, config: NoLlmRecipe, logit_scale: float, state, data, indices):
     """One Adam step on the scenes `indices` `(B,)`; returns `(state, (loss, reference, relation))`."""
 
     def loss_fn(params, batch):
@@ -128,12 +128,12 @@ def train_step(model_config: NoLlmConfig, config: NoLlmTrainConfig, logit_scale:
     params, opt_state = state
     batch = {name: array[indices] for name, array in data.items()}
     (loss, parts), grads = jax.value_and_grad(loss_fn, has_aux=True)(params, batch)
-    updates, opt_state = optim.make(config).update(grads, opt_state, params)
+    updates, opt_state = optim.make(config.schedule).update(grads, opt_state, params)
     return (optax.apply_updates(params, updates), opt_state), (loss, *parts)
 
 
 @functools.partial(jax.jit, static_argnums=(0, 1, 2), donate_argnums=3)
-def train_chunk(model_config: NoLlmConfig, config: NoLlmTrainConfig, logit_scale: float, state, data, indices):
+def train_chunk(model_config: NoLlmConfig, config: NoLlmRecipe, logit_scale: float, state, data, indices):
     """`indices` `(num_steps, B)`; returns `(state, losses (3, num_steps))`."""
     step = functools.partial(train_step, model_config, config, logit_scale)
     state, losses = jax.lax.scan(lambda carry, step_indices: step(carry, data, step_indices), state, indices)
@@ -143,28 +143,31 @@ def train_chunk(model_config: NoLlmConfig, config: NoLlmTrainConfig, logit_scale
 def train_on_arrays(
     arrays: dict[str, np.ndarray],
     run_dir: Path,
-    config: NoLlmTrainConfig,
+    config: NoLlmRecipe,
     logit_scale: float,
     run_meta: dict,
     progress: bool = True,
     *,
     backbone_fingerprint: str,
+    seed: int = 0,
+    fraction: float = 1.0,
 ) -> NoLlmModel:
     """Trains on the scene rows of `arrays` into `run_dir` (resuming from its newest checkpoint) and
-    saves `WEIGHTS_FILE`, tagged with the backbone whose features `arrays` hold."""
+    saves `WEIGHTS_FILE`, tagged with the backbone whose features `arrays` hold; `seed` draws the initial
+    weights and the example order, `fraction` (the share the caller chose the rows by) is recorded."""
     config.validate()
     run_dir = Path(run_dir)
     num_scenes = len(arrays["visual"])
     model_config = config.model_config(arrays["visual"].shape[-1])
     data = jax.device_put(arrays)
-    schedule = optim.learning_rates(config)
+    learning_rates = optim.learning_rates(config.schedule)
 
     def init_state():
-        params = init_params(model_config, jax.random.key(config.seed))
-        return params, optim.make(config).init(params)
+        params = init_params(model_config, jax.random.key(seed))
+        return params, optim.make(config.schedule).init(params)
 
     def chunk(state, start: int, count: int):
-        indices = batch_indices(num_scenes, config.seed, start, count, config.batch_size)
+        indices = batch_indices(num_scenes, seed, start, count, config.schedule.batch_size)
         return train_chunk(model_config, config, logit_scale, state, data, jnp.asarray(indices))
 
     def record(state, step: int, losses: np.ndarray) -> dict:
@@ -173,58 +176,79 @@ def train_on_arrays(
             "loss": loss,
             "reference_loss": reference,
             "relation_loss": relation,
-            "learning_rate": float(schedule(step)),
+            "learning_rate": float(learning_rates(step)),
         }
 
     def save(path: Path, state) -> NoLlmModel:
         model = NoLlmModel(model_config, jax.tree_util.tree_map(np.asarray, state[0]), logit_scale)
-        save_model(path, model, backbone_fingerprint=backbone_fingerprint, train_config=config)
+        save_model(
+            path, model, backbone_fingerprint=backbone_fingerprint, train_config=run_config(config, seed, fraction)
+        )
         return model
 
     spec = runner.Run.on(
-        config,
+        config.schedule,
         run_dir=run_dir,
         run_meta=run_meta,
         init_state=init_state,
         chunk=chunk,
         record=record,
         save_artefact=save,
-        checkpoint_meta={"step_of": str(config.steps)},
+        checkpoint_meta={"step_of": str(config.schedule.steps)},
         desc="train no_llm",
     )
     return runner.run(spec, progress).saved
 
 
 def train_no_llm(
-    dataset_dir: Path, backbone: Backbone, run_dir: Path, recipe: NoLlmTrainConfig, progress: bool = True
+    dataset_dir: Path,
+    backbone: Backbone,
+    run_dir: Path,
+    recipe: NoLlmRecipe,
+    seed: int = 0,
+    fraction: float = 1.0,
+    progress: bool = True,
 ) -> Path:
-    """Featurizes the train split (cached), trains, writes `run_dir/WEIGHTS_FILE` (a finished run is kept)."""
+    """Featurizes the train split (cached), trains on `fraction` of it with `seed`, writes `run_dir/WEIGHTS_FILE`
+    (a finished run is kept)."""
+    recipe.validate()
+    check_run_keys(seed, fraction)
     run_dir = Path(run_dir)
     features = load_features(featurize_split(dataset_dir, "train", backbone, progress=progress), backbone.fingerprint)
     sentences = split_sentences(dataset_dir, "train", backbone, recipe.model_config(backbone.dim))
-    chosen = subset_indices(features.num_scenes, recipe.fraction, recipe.subset_seed)
+    chosen = subset_indices(features.num_scenes, fraction, recipe.subset_seed)
     arrays = {name: array[chosen] for name, array in training_arrays(features, sentences).items()}
     run_meta = {
-        "train_config": serial.to_dict(recipe),
+        "train_config": run_config(recipe, seed, fraction),
         "features_key": features.info.key,
         "sentences_key": sentences.key,
         "backbone_fingerprint": backbone.fingerprint,
         "train_scenes": int(len(chosen)),
     }
     logit_scale = float(features.info.logit_scale)
-    train_on_arrays(arrays, run_dir, recipe, logit_scale, run_meta, progress, backbone_fingerprint=backbone.fingerprint)
+    train_on_arrays(
+        arrays,
+        run_dir,
+        recipe,
+        logit_scale,
+        run_meta,
+        progress,
+        backbone_fingerprint=backbone.fingerprint,
+        seed=seed,
+        fraction=fraction,
+    )
     return run_dir
 
 
 # ----------------------------------------------------------------------------- the model file
 
 
-def save_model(path: Path, model: NoLlmModel, *, backbone_fingerprint: str, train_config: NoLlmTrainConfig) -> None:
+def save_model(path: Path, model: NoLlmModel, *, backbone_fingerprint: str, train_config: dict) -> None:
     """Writes the model file that `models.no_llm.load_model` reads back."""
     metadata = {
         "model_config": serial.to_json(model.config),
         "logit_scale": repr(model.logit_scale),
         "backbone_fingerprint": backbone_fingerprint,
-        "train_config": serial.to_json(train_config),
+        "train_config": json.dumps(train_config),
     }
     save_weights(path, checkpoints.flatten_state(model.params), metadata)

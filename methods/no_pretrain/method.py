@@ -24,9 +24,9 @@ def train(ctx: TrainContext[Recipe]) -> Path:
     """Train the tower and adapters from random weights (`ctx.backbone` is not used: nothing is pretrained)."""
     from ocplace.methods.no_pretrain import train as no_pretrain
 
-    train = dataclasses.replace(ctx.recipe.train, fraction=ctx.fraction, seed=ctx.seed)
-    recipe = dataclasses.replace(ctx.recipe, train=train)
-    return no_pretrain.train_no_pretrain(Path(ctx.dataset_dir), Path(ctx.out_dir), recipe, progress=False)
+    return no_pretrain.train_no_pretrain(
+        Path(ctx.dataset_dir), Path(ctx.out_dir), ctx.recipe, ctx.seed, ctx.fraction, progress=False
+    )
 
 
 @dataclasses.dataclass

@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import dataclasses
-from typing import TYPE_CHECKING, ClassVar
+from typing import TYPE_CHECKING
 
 from ocplace.errors import TrainingError
 from ocplace.models import offline_config
+from ocplace.train.schedule import Schedule
 
 if TYPE_CHECKING:
     from ocplace.models.adapters import AdapterConfig
@@ -45,31 +46,33 @@ def smoke_config() -> NoPretrainConfig:
     return NoPretrainConfig(from_random(offline_config.smoke_config()))
 
 
-@dataclasses.dataclass(frozen=True)
-class NoPretrainTrainConfig:
-    TRAINS_TOWER: ClassVar[bool] = True  # the backbone's pretraining optimiser (`train/optim.make`)
-
-    steps: int = 600  # 28,800 crops through the trunk: ~10 min on 2 cores at 128 px
-    batch_size: int = 8  # scenes per step (each with all its visual tokens)
-    learning_rate: float = 1e-3  # AdamW peak; linear warm-up, cosine decay to 2% (as the backbone pretraining)
-    warmup_steps: int = 50
-    weight_decay: float = 0.05  # matrices only
-    augment: bool = True  # a random symmetry of the square per image
-    seed: int = 0
-    fraction: float = 1.0
-    subset_seed: int = 0
-    log_every: int = 50
-    checkpoint_every: int = 200
-    keep_checkpoints: int = 2
-
-    def validate(self) -> None:
-        if min(self.steps, self.batch_size, self.log_every, self.checkpoint_every) < 1:
-            raise TrainingError("steps, batch_size, log_every and checkpoint_every must be positive")
-        if not 0.0 < self.fraction <= 1.0:
-            raise TrainingError(f"fraction must be in (0, 1], got {self.fraction}")
+# ~10 min on 2 cores at 128 px: 28,800 crops through the trunk; AdamW as the backbone's pretraining (linear warm-up,
+# cosine decay to 2% of the peak). A step is one batch of scenes, each with all its visual tokens.
+SCHEDULE = Schedule(
+    steps=600,
+    batch_size=8,
+    learning_rate=1e-3,
+    warmup_steps=50,
+    chunk_steps=1,
+    checkpoint_every=200,
+    weight_decay=0.05,
+    optimiser="adamw_clipped",
+)
 
 
 @dataclasses.dataclass(frozen=True)
 class NoPretrainRecipe:
     model: NoPretrainConfig
-    train: NoPretrainTrainConfig
+    schedule: Schedule = SCHEDULE
+    augment: bool = True  # a random symmetry of the square per image
+    log_every: int = 50
+    subset_seed: int = 0
+
+    def validate(self) -> None:
+        problems = self.schedule.problems()
+        if self.log_every < 1 or self.subset_seed < 0:
+            problems.append(
+                f"log_every must be positive, subset_seed at least 0, got {self.log_every}, {self.subset_seed}"
+            )
+        if problems:
+            raise TrainingError("invalid training configuration: " + "; ".join(problems))

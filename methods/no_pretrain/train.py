@@ -32,13 +32,14 @@ import optax
 from ocplace import serial
 from ocplace.methods.no_pretrain import model as no_pretrain
 from ocplace.methods.no_pretrain.model import BACKBONE_DIR
-from ocplace.methods.no_pretrain.recipe import NoPretrainRecipe, NoPretrainTrainConfig
+from ocplace.methods.no_pretrain.recipe import NoPretrainRecipe
 from ocplace.models import offline_backbone as ob
 from ocplace.models import offline_config, trained_adapters
 from ocplace.models.backbone import PromptConfig
 from ocplace.paths import atomic_path, scratch_cache
 from ocplace.train import optim, runner
-from ocplace.train.batches import batch_indices, subset_indices
+from ocplace.train.batches import batch_indices, check_run_keys, run_config, subset_indices
+from ocplace.train.schedule import Schedule
 from ocplace.vocabulary import MAX_INSTRUCTION_TUPLES as MAX_TUPLES
 
 # The format and its cache folder (`paths.scratch_cache`) keep their old name: renaming would orphan every cached input.
@@ -134,7 +135,7 @@ def no_pretrain_inputs(
 
 
 @functools.partial(jax.jit, static_argnums=(0, 1), donate_argnums=2)
-def train_step(model: no_pretrain.NoPretrainConfig, config: NoPretrainTrainConfig, state, frozen, batch, codes):
+def train_step(model: no_pretrain.NoPretrainConfig, schedule: Schedule, state, frozen, batch, codes):
     """One AdamW step on the trainable half of the parameters (`ob.split_trainable`); returns `(state, loss)`."""
     trainable, opt_state = state
 
@@ -142,17 +143,16 @@ def train_step(model: no_pretrain.NoPretrainConfig, config: NoPretrainTrainConfi
         return no_pretrain.loss(model, ob.join_params(trainable, frozen), batch, codes)
 
     value, grads = jax.value_and_grad(loss_fn)(trainable)
-    updates, opt_state = optim.make(config).update(grads, opt_state, trainable)
+    updates, opt_state = optim.make(schedule).update(grads, opt_state, trainable)
     return (optax.apply_updates(trainable, updates), opt_state), value
 
 
-def step_codes(config: NoPretrainTrainConfig, step: int) -> np.ndarray:
+def step_codes(recipe: NoPretrainRecipe, seed: int, step: int) -> np.ndarray:
     """int32 `(batch_size, 6)` symmetry codes of a step (zeros without augmentation)."""
-    if not config.augment:
-        return np.zeros((config.batch_size, MAX_TOKENS), np.int32)
-    return np.random.default_rng([config.seed, step, 1]).integers(
-        8, size=(config.batch_size, MAX_TOKENS), dtype=np.int32
-    )
+    batch_size = recipe.schedule.batch_size
+    if not recipe.augment:
+        return np.zeros((batch_size, MAX_TOKENS), np.int32)
+    return np.random.default_rng([seed, step, 1]).integers(8, size=(batch_size, MAX_TOKENS), dtype=np.int32)
 
 
 def train_on_inputs(
@@ -164,12 +164,13 @@ def train_on_inputs(
     *,
     prompt: PromptConfig,
     inputs_key: str,
+    seed: int = 0,
 ) -> None:
     """Trains into `run_dir` (resuming from its newest checkpoint), then saves `backbone/` and the adapters."""
-    config, model = recipe.train, recipe.model
-    config.validate()
+    schedule, model = recipe.schedule, recipe.model
+    recipe.validate()
     run_dir = Path(run_dir)
-    params = no_pretrain.init_params(model, jax.random.key(config.seed))
+    params = no_pretrain.init_params(model, jax.random.key(seed))
     params["backbone"] = no_pretrain.calibrate(model, params["backbone"], arrays)
     trainable, frozen = ob.split_trainable(no_pretrain.trainable_mask(model, params), params)
     num_scenes = len(arrays["pixels"])
@@ -177,9 +178,10 @@ def train_on_inputs(
     def chunk(state, start: int, count: int):
         losses = []
         for step in range(start, start + count):
-            rows = batch_indices(num_scenes, config.seed, step, 1, config.batch_size)[0]
+            rows = batch_indices(num_scenes, seed, step, 1, schedule.batch_size)[0]
             batch = {name: jnp.asarray(array[rows]) for name, array in arrays.items()}
-            state, loss = train_step(model, config, state, frozen, batch, jnp.asarray(step_codes(config, step)))
+            codes = jnp.asarray(step_codes(recipe, seed, step))
+            state, loss = train_step(model, schedule, state, frozen, batch, codes)
             losses.append(loss)
         return state, jnp.stack(losses)
 
@@ -189,30 +191,34 @@ def train_on_inputs(
 
     def save(path: Path, state) -> None:
         trained = jax.tree_util.tree_map(np.asarray, ob.join_params(state[0], frozen))
-        save_trained(path, trained, recipe, prompt=prompt, inputs_key=inputs_key)
+        save_trained(path, trained, recipe, run_meta["recipe"], prompt=prompt, inputs_key=inputs_key)
 
-    spec = runner.Run(
+    spec = runner.Run.on(
+        schedule,
         run_dir=run_dir,
         run_meta=run_meta,
-        steps=config.steps,
-        chunk_steps=1,
-        log_every=config.log_every,
-        checkpoint_every=config.checkpoint_every,
-        keep_checkpoints=config.keep_checkpoints,
-        init_state=lambda: (trainable, optim.make(config).init(trainable)),
+        log_every=recipe.log_every,
+        init_state=lambda: (trainable, optim.make(schedule).init(trainable)),
         chunk=chunk,
         record=record,
         save_artefact=save,
-        checkpoint_meta={"step_of": str(config.steps)},
+        checkpoint_meta={"step_of": str(schedule.steps)},
         desc="train no_pretrain",
     )
     runner.run(spec, progress)
 
 
 def save_trained(
-    adapters_path: Path, params: dict, recipe: NoPretrainRecipe, *, prompt: PromptConfig, inputs_key: str
+    adapters_path: Path,
+    params: dict,
+    recipe: NoPretrainRecipe,
+    train_config: dict,
+    *,
+    prompt: PromptConfig,
+    inputs_key: str,
 ) -> None:
-    """Writes the tower to `backbone/` beside `adapters_path`, then the adapters (last: they mark the run finished)."""
+    """Writes the tower to `backbone/` beside `adapters_path`, then the adapters (last: they mark the run finished);
+    `train_config` is what the run recorded of its recipe, seed and fraction (`batches.run_config`)."""
     model = recipe.model
     text_digest = ob.FrozenTextTower.load(model.backbone.text_max_length).digest
     backbone_dir = ob.save_backbone(
@@ -220,7 +226,7 @@ def save_trained(
         model.backbone,
         params["backbone"],
         text_digest,
-        {"trained_by": "ocplace.methods.no_pretrain.train (Ours w/o CLIP pre-train)", "recipe": serial.to_dict(recipe)},
+        {"trained_by": "ocplace.methods.no_pretrain.train (Ours w/o CLIP pre-train)", "recipe": train_config},
     )
     fingerprint = (backbone_dir / ob.FINGERPRINT_FILE).read_text().strip()
     scale = float(np.exp(min(float(params["backbone"]["log_logit_scale"]), math.log(model.max_logit_scale))))
@@ -232,18 +238,32 @@ def save_trained(
         backbone_fingerprint=fingerprint,
         prompt=prompt,
         features_key=inputs_key,
-        steps=recipe.train.steps,
-        train_config_json=json.dumps(serial.to_dict(recipe)),
+        steps=recipe.schedule.steps,
+        train_config_json=json.dumps(train_config),
     )
 
 
-def train_no_pretrain(dataset_dir: Path, run_dir: Path, recipe: NoPretrainRecipe, progress: bool = True) -> Path:
-    """Caches the inputs, trains, saves `backbone/` and the adapters (`WEIGHTS_FILE`); a finished run is kept."""
+def train_no_pretrain(
+    dataset_dir: Path,
+    run_dir: Path,
+    recipe: NoPretrainRecipe,
+    seed: int = 0,
+    fraction: float = 1.0,
+    progress: bool = True,
+) -> Path:
+    """Caches the inputs, trains on `fraction` of them with `seed`, saves `backbone/` and the adapters
+    (`WEIGHTS_FILE`); a finished run is kept."""
+    recipe.validate()
+    check_run_keys(seed, fraction)
     run_dir = Path(run_dir)
     prompt = PromptConfig()
     inputs = no_pretrain_inputs(dataset_dir, "train", recipe.model.backbone, prompt, progress)
-    chosen = subset_indices(len(inputs.scene_ids), recipe.train.fraction, recipe.train.subset_seed)
-    run_meta = {"recipe": serial.to_dict(recipe), "inputs_key": inputs.key, "train_scenes": int(len(chosen))}
+    chosen = subset_indices(len(inputs.scene_ids), fraction, recipe.subset_seed)
+    run_meta = {
+        "recipe": run_config(recipe, seed, fraction),
+        "inputs_key": inputs.key,
+        "train_scenes": int(len(chosen)),
+    }
     arrays = {name: array[chosen] for name, array in inputs.arrays.items()}
-    train_on_inputs(arrays, run_dir, recipe, run_meta, progress, prompt=prompt, inputs_key=inputs.key)
+    train_on_inputs(arrays, run_dir, recipe, run_meta, progress, prompt=prompt, inputs_key=inputs.key, seed=seed)
     return run_dir

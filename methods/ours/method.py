@@ -7,13 +7,12 @@ placement policy with those adapters.
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ocplace.methods.contract import LoadContext, MethodSpec, TrainContext
-from ocplace.methods.ours.recipe import TrainConfig as Recipe
+from ocplace.methods.ours.recipe import OursRecipe as Recipe
 from ocplace.methods.policy_method import PolicyMethod, policy_of, prepare_train_features, trained_run_weights
 
 if TYPE_CHECKING:
@@ -29,7 +28,7 @@ def train(ctx: TrainContext[Recipe]) -> Path:
 
     backbone = load_backbone(ctx.backbone)
     features = load_features(featurize_split(Path(ctx.dataset_dir), "train", backbone), backbone.fingerprint)
-    train_ours(features, ctx.out_dir, dataclasses.replace(ctx.recipe, fraction=ctx.fraction, seed=ctx.seed))
+    train_ours(features, ctx.out_dir, ctx.recipe, ctx.seed, ctx.fraction)
     return Path(ctx.out_dir)
 
 

@@ -24,14 +24,13 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from ocplace import serial
-from ocplace.methods.ours.recipe import TrainConfig
+from ocplace.methods.ours.recipe import OursRecipe
 from ocplace.models import trained_adapters
 from ocplace.models.adapters import AdapterConfig, apply_adapters, init_adapters
 from ocplace.models.features import Features
 from ocplace.models.grounding import GroundingModel, cosine_logits, grounding_loss
 from ocplace.train import optim, runner
-from ocplace.train.batches import batch_indices, subset_indices
+from ocplace.train.batches import batch_indices, check_run_keys, run_config, subset_indices
 from ocplace.train.metrics import GroundingAccuracy, evaluate_features
 
 
@@ -51,7 +50,7 @@ def anchor_penalty(adapted, original, mask) -> jax.Array:
     return jnp.sum(jnp.where(mask, squared, 0.0)) / jnp.maximum(jnp.sum(mask), 1)
 
 
-def train_step(adapter_config: AdapterConfig, config: TrainConfig, logit_scale: float, state, data, indices):
+def train_step(adapter_config: AdapterConfig, config: OursRecipe, logit_scale: float, state, data, indices):
     """One Adam step on the examples `indices` `(B,)`; returns `(state, loss)`.
 
     `state` is `(params, opt_state)`; `data` is the tuple `Features.arrays()` on device.
@@ -68,11 +67,11 @@ def train_step(adapter_config: AdapterConfig, config: TrainConfig, logit_scale: 
 
     params, opt_state = state
     loss, grads = jax.value_and_grad(loss_fn)(params, tuple(array[indices] for array in data))
-    updates, opt_state = optim.make(config).update(grads, opt_state, params)
+    updates, opt_state = optim.make(config.schedule).update(grads, opt_state, params)
     return (optax.apply_updates(params, updates), opt_state), loss
 
 
-def train_chunk(adapter_config: AdapterConfig, config: TrainConfig, logit_scale: float, state, data, indices):
+def train_chunk(adapter_config: AdapterConfig, config: OursRecipe, logit_scale: float, state, data, indices):
     """`indices` `(num_steps, B)`: the steps fused with `lax.scan`; returns `(state, losses (num_steps,))`."""
     step = functools.partial(train_step, adapter_config, config, logit_scale)
     return jax.lax.scan(lambda carry, step_indices: step(carry, data, step_indices), state, indices)
@@ -91,33 +90,38 @@ def init_state(adapter_config: AdapterConfig, optimizer: optax.GradientTransform
 def train_ours(
     features: Features,
     run_dir,
-    recipe: TrainConfig,
+    recipe: OursRecipe,
+    seed: int = 0,
+    fraction: float = 1.0,
     val_features: Features | None = None,
     progress: bool = True,
     callback: Callable[[dict], None] | None = None,
 ) -> TrainResult:
-    """Trains the adapters on `features` into `run_dir`, resuming from its newest checkpoint.
+    """Trains the adapters on `fraction` of `features` (a seeded subset, nested) into `run_dir`, resuming from its
+    newest checkpoint; `seed` draws the initial weights and the example order.
 
     `callback(record)` is called after each chunk's metrics record is written (and its checkpoint,
     if one was due), e.g. to stop early by raising.
     """
     recipe.validate()
-    run_dir = Path(run_dir)
-    train_set = features.subset(subset_indices(features.num_scenes, recipe.fraction, recipe.subset_seed))
-    adapter_config = AdapterConfig(features.dim, **recipe.adapters)
+    check_run_keys(seed, fraction)
+    run_dir, schedule = Path(run_dir), recipe.schedule
+    train_set = features.subset(subset_indices(features.num_scenes, fraction, recipe.subset_seed))
+    adapter_config = recipe.adapters.at(features.dim)
     logit_scale = float(recipe.logit_scale or features.info.logit_scale)
-    run_meta = _run_metadata(recipe, features, val_features, train_set)
+    train_config = run_config(recipe, seed, fraction)
+    run_meta = _run_metadata(train_config, features, val_features, train_set)
     data = jax.device_put(train_set.arrays())
 
     def chunk(state, start: int, count: int):
-        indices = batch_indices(train_set.num_scenes, recipe.seed, start, count, recipe.batch_size)
+        indices = batch_indices(train_set.num_scenes, seed, start, count, schedule.batch_size)
         return jit_train_chunk(adapter_config, recipe, logit_scale, state, data, jnp.asarray(indices))
 
-    usual_record = runner.loss_and_learning_rate(optim.learning_rates(recipe))
+    usual_record = runner.loss_and_learning_rate(optim.learning_rates(schedule))
 
     def record(state, step: int, losses) -> dict:
         fields = usual_record(state, step, losses)
-        if step % recipe.eval_every == 0 or step == recipe.steps:
+        if step % recipe.eval_every == 0 or step == schedule.steps:
             fields.update(_evaluate(adapter_config, state[0], logit_scale, train_set, val_features))
         return fields
 
@@ -130,15 +134,15 @@ def train_ours(
             backbone_fingerprint=features.info.backbone_fingerprint,
             prompt=features.info.config.prompt,
             features_key=features.info.key,
-            steps=recipe.steps,
-            train_config_json=serial.to_json(recipe),
+            steps=schedule.steps,
+            train_config_json=json.dumps(train_config),
         )
 
     spec = runner.Run.on(
-        recipe,
+        schedule,
         run_dir=run_dir,
         run_meta=run_meta,
-        init_state=lambda: init_state(adapter_config, optim.make(recipe), recipe.seed),
+        init_state=lambda: init_state(adapter_config, optim.make(schedule), seed),
         chunk=chunk,
         record=record,
         save_artefact=save,
@@ -149,7 +153,7 @@ def train_ours(
     return TrainResult(
         run_dir,
         model,
-        recipe.steps,
+        schedule.steps,
         evaluate_features(model, train_set),
         evaluate_features(model, val_features) if val_features is not None else None,
     )
@@ -163,9 +167,9 @@ def _evaluate(adapter_config, params, logit_scale, train_set: Features, val_feat
     return record
 
 
-def _run_metadata(config: TrainConfig, features: Features, val_features: Features | None, train_set) -> dict:
+def _run_metadata(train_config: dict, features: Features, val_features: Features | None, train_set) -> dict:
     return {
-        "train_config": serial.to_dict(config),
+        "train_config": train_config,
         "features_key": features.info.key,
         "backbone_fingerprint": features.info.backbone_fingerprint,
         "val_features_key": val_features.info.key if val_features is not None else None,

@@ -8,7 +8,7 @@ import functools
 
 from ocplace.methods.contract import MethodSpec
 from ocplace.methods.ours import method as ours
-from ocplace.methods.ours.recipe import TrainConfig as Recipe
+from ocplace.methods.ours.recipe import OursRecipe as Recipe
 from ocplace.methods.policy_method import prepare_train_features
 
 SPEC: MethodSpec[Recipe] = MethodSpec(

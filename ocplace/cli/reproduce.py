@@ -60,7 +60,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="K",
         help="physical check on the first K scenes per subset (default: the experiment's; -1: all)",
     )
-    add_set_argument(reproduce, "recipes.ours.steps or dataset.train_scenes (applied after the other options)")
+    add_set_argument(reproduce, "recipes.ours.schedule.steps or dataset.train_scenes (applied after the other options)")
     reproduce.add_argument("--no-progress", action="store_true")
     add_executor_arguments(
         reproduce, "objects, scenes, the pretraining, each training and each evaluation are tasks of one graph"
@@ -94,7 +94,7 @@ def _reproduce(args: argparse.Namespace) -> int:
     from ocplace import configs
     from ocplace.cli.options import apply_overrides
     from ocplace.errors import ConfigError
-    from ocplace.experiments.experiment import refuse_run_keys
+    from ocplace.experiments.experiment import read_overrides
     from ocplace.methods.registry import registered_names
     from ocplace.paths import check_writable
 
@@ -114,8 +114,8 @@ def _reproduce(args: argparse.Namespace) -> int:
         plan = dataclasses.replace(plan, backbone_seeds=args.backbone_seeds)
     if args.physical is not None:
         sizes = dataclasses.replace(sizes, physical_scenes=physical_setting(args.physical, sizes.physical_scenes))
-    refuse_run_keys([item.partition("=")[0].strip() for item in args.overrides])
-    experiment = apply_overrides(dataclasses.replace(experiment, evaluation=plan, dataset=sizes), args.overrides)
+    overrides = read_overrides(args.overrides)
+    experiment = apply_overrides(dataclasses.replace(experiment, evaluation=plan, dataset=sizes), overrides)
     # Checked before the pipeline (and JAX behind it) is imported: a value that cannot work fails at once.
     experiment.validate()
     unknown = experiment.evaluation.unknown_methods(registered_names())

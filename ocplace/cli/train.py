@@ -14,12 +14,14 @@ from ocplace.cli.options import (
     count,
 )
 from ocplace.methods.ours.recipe import (  # light: no JAX behind it
-    TrainConfig,
+    OursRecipe,
     default_config,
     paper_config,
     smoke_config,
 )
+from ocplace.models.adapter_settings import AdapterSettings
 from ocplace.runtime.width import TRAIN_CPUS, pin_jax_width
+from ocplace.train.schedule import Schedule
 from ocplace.vocabulary import EXPERIMENT_NAMES
 
 
@@ -48,7 +50,7 @@ def register(subparsers) -> None:
         default="default",
         help="whose recipe (ocplace/configs; default: default)",
     )
-    add_set_argument(row, "recipes.no_llm.steps")
+    add_set_argument(row, "recipes.no_llm.schedule.steps")
     parser.add_argument("--val-features", type=Path, help="feature file to report validation accuracy on")
     start = parser.add_mutually_exclusive_group()
     start.add_argument("--smoke", action="store_true", help="start from the tiny smoke configuration")
@@ -64,19 +66,41 @@ def register(subparsers) -> None:
         help=f"CPUs JAX computes for (default {TRAIN_CPUS}, as `ocplace reproduce` trains: the same recipe gives the "
         "same bits; 1 may be faster on a busy machine, with other last bits; 0: every CPU this process may use)",
     )
+    parser.add_argument("--seed", type=count(0), help="initial weights and example order (default 0)")
+    parser.add_argument(
+        "--fraction",
+        type=float,
+        help="train on this seeded share of the scenes, nested (the sample-efficiency curve; default 1)",
+    )
     overrides = parser.add_argument_group(
         "configuration overrides",
-        "One flag per TrainConfig field. Defaults: Ours' recipe, the paper's schedule with rule A's adapters "
-        "(normalise, residual_ratio 0.1, text_ratio 0.5; the values shown are the class's, the paper's), or the "
-        "start --smoke or --paper-adapters names.",
+        "One flag per field of Ours' recipe (OursRecipe: its adapters, its schedule, its own fields). Defaults: "
+        "Ours' recipe, the paper's schedule with rule A's adapters (normalise, residual_ratio 0.1, text_ratio 0.5; "
+        "the values shown are the classes', the paper's), or the start --smoke or --paper-adapters names.",
     )
-    add_config_arguments(overrides, TrainConfig, aliases={"learning_rate": ("--lr",)})
+    add_config_arguments(overrides, AdapterSettings)
+    add_config_arguments(overrides, Schedule, SCHEDULE_FLAGS, aliases={"learning_rate": ("--lr",)})
+    add_config_arguments(overrides, OursRecipe)
     parser.set_defaults(func=run_train)
 
 
-def train_config_from_args(args: argparse.Namespace) -> TrainConfig:
+# Ours trains with Adam: the schedule's other fields are the flags' (`optimiser` is an image tower's choice).
+SCHEDULE_FLAGS = tuple(field.name for field in dataclasses.fields(Schedule) if field.name != "optimiser")
+
+
+def train_config_from_args(args: argparse.Namespace) -> OursRecipe:
     base = smoke_config() if args.smoke else paper_config() if args.paper_adapters else default_config()
-    return config_from_arguments(args, base)
+    return dataclasses.replace(
+        config_from_arguments(args, base),
+        adapters=config_from_arguments(args, base.adapters),
+        schedule=config_from_arguments(args, base.schedule, SCHEDULE_FLAGS),
+    )
+
+
+def recipe_flags_given(args: argparse.Namespace) -> list[str]:
+    """The recipe flags of --features given on the command line."""
+    names = [field.name for owner in (AdapterSettings, Schedule, OursRecipe) for field in dataclasses.fields(owner)]
+    return [name for name in names if getattr(args, name, None) is not None]
 
 
 def run_train(args) -> int:
@@ -86,6 +110,7 @@ def run_train(args) -> int:
     from ocplace.experiments.experiment import number_problems
 
     config = train_config_from_args(args)
+    seed, fraction = run_keys(args)
     problems = number_problems(config, "")
     if problems:
         raise TrainingError("invalid training configuration: " + "; ".join(problems))
@@ -97,7 +122,7 @@ def run_train(args) -> int:
 
     features = load_features(args.features)
     val_features = load_features(args.val_features, features.info.backbone_fingerprint) if args.val_features else None
-    result = train(features, args.out, config, val_features=val_features)
+    result = train(features, args.out, config, seed, fraction, val_features=val_features)
     print(
         f"{result.run_dir}: {result.steps} steps, train grounding accuracy "
         f"{result.train_accuracy.tuple_accuracy:.4f} per tuple, {result.train_accuracy.scene_accuracy:.4f} per scene"
@@ -112,19 +137,16 @@ def run_train(args) -> int:
 
 def train_method(args: argparse.Namespace) -> int:
     """The row `args.method` trained through its `MethodSpec` (its shared inputs made first), as a task of
-    `reproduce` trains it; the TrainConfig flags belong to --features."""
+    `reproduce` trains it; the recipe flags belong to --features."""
     from ocplace import configs
     from ocplace.cli.options import apply_overrides
     from ocplace.errors import ConfigError
-    from ocplace.experiments.experiment import refuse_run_keys
+    from ocplace.experiments.experiment import read_overrides
     from ocplace.methods.contract import TrainContext, finished_run, train_once
     from ocplace.methods.registry import method_specs
     from ocplace.paths import check_writable
 
-    run_keys = ("fraction", "seed")  # the run's, as a reproduce task sets them: the flags --fraction and --seed
-    fields = [field.name for field in dataclasses.fields(TrainConfig) if field.name not in run_keys]
-    given = [name for name in fields if getattr(args, name, None) is not None]
-    if given or args.smoke or args.paper_adapters or args.val_features:
+    if recipe_flags_given(args) or args.smoke or args.paper_adapters or args.val_features:
         raise ConfigError("with --method the recipe is the experiment's: change it with --set recipes.NAME.FIELD=VALUE")
     specs = method_specs()
     if args.method not in specs:
@@ -134,12 +156,10 @@ def train_method(args: argparse.Namespace) -> int:
         raise ConfigError(f"{args.method} learns nothing: there is no run to train (evaluate it directly)")
     if args.dataset is None:
         raise ConfigError("--method trains on a dataset: give --dataset DATA")
-    fraction, seed = 1.0 if args.fraction is None else args.fraction, args.seed or 0
-    if not 0.0 < fraction <= 1.0 or seed < 0:
-        raise ConfigError(f"--fraction lies in (0, 1] and --seed is at least 0, got {fraction}, {seed}")
-    refuse_run_keys([item.partition("=")[0].strip() for item in args.overrides])
+    seed, fraction = run_keys(args)
+    overrides = read_overrides(args.overrides)
     check_writable(args.out, as_folder=True)
-    experiment = apply_overrides(configs.get(args.experiment), args.overrides)
+    experiment = apply_overrides(configs.get(args.experiment), overrides)
     experiment.validate()
     context = TrainContext(
         args.dataset,
@@ -158,3 +178,13 @@ def train_method(args: argparse.Namespace) -> int:
     done = "done before" if reused else "trained"
     print(f"{run_dir}: {spec.label} {done} ({args.experiment} recipe, fraction {fraction:g}, seed {seed})")
     return 0
+
+
+def run_keys(args: argparse.Namespace) -> tuple[int, float]:
+    """(seed, fraction) of the run: what a reproduce task takes from its context."""
+    from ocplace.errors import ConfigError
+
+    fraction, seed = 1.0 if args.fraction is None else args.fraction, args.seed or 0
+    if not 0.0 < fraction <= 1.0:
+        raise ConfigError(f"--fraction lies in (0, 1], got {fraction}")
+    return seed, fraction
