@@ -60,6 +60,16 @@ def test_every_recipe_has_one_shape_and_leaves_seed_and_fraction_to_the_run(name
             assert not {"seed", "fraction"} & field_names(recipe), row
 
 
+def test_the_recipes_hold_one_field_per_learning_row_of_the_tree():
+    """`MethodRecipes` is where a learning row is named beside its folder (typed, so the type checker holds each
+    experiment's recipe to the row's `Recipe` and `--set` reaches it): no field without a row that learns, no
+    learning row of `methods/` without a field."""
+    from ocplace.experiments.experiment import MethodRecipes
+
+    learning = {name for name, spec in method_specs().items() if spec.train is not None}
+    assert {field.name for field in dataclasses.fields(MethodRecipes)} == learning
+
+
 def test_a_method_finds_its_recipe_by_name():
     recipes = configs.get("smoke").recipes
     assert recipes.of("grids") is recipes.grids and recipes.of("no_pretrain") is recipes.no_pretrain
