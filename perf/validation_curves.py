@@ -30,14 +30,10 @@ SPLITS = ("dev_seen", "dev_colour", "reach")
 def recipes(steps: int | None) -> dict:
     """Ours and the paper's adapters, at their budget or `steps` (a shorter look)."""
     from ocplace.methods.ours import recipe as config
+    from ocplace.train.schedule import rescheduled
 
     chosen = {"ours": config.default_config(), "ours_paper": config.paper_config()}
-    return {
-        name: dataclasses.replace(
-            recipe, schedule=dataclasses.replace(recipe.schedule, steps=steps or recipe.schedule.steps)
-        )
-        for name, recipe in chosen.items()
-    }
+    return {name: rescheduled(recipe, steps=steps or recipe.schedule.steps) for name, recipe in chosen.items()}
 
 
 def scores(model, splits: dict) -> dict:
