@@ -53,13 +53,13 @@ def curve(train, splits: dict, recipe, run_dir: Path, every: int) -> list[dict]:
     from ocplace.methods.ours.train import init_state, train_ours
     from ocplace.models.grounding import GroundingModel
     from ocplace.train import checkpoints, optim
+    from ocplace.train.schedule import rescheduled
 
     keep = recipe.schedule.steps // every
-    schedule = dataclasses.replace(recipe.schedule, checkpoint_every=every, keep_checkpoints=keep)
-    recipe = dataclasses.replace(recipe, schedule=schedule, eval_every=every)
+    recipe = dataclasses.replace(rescheduled(recipe, checkpoint_every=every, keep_checkpoints=keep), eval_every=every)
     trained = train_ours(train, run_dir, recipe, progress=False).model
     adapter_config = recipe.adapters.at(train.dim)
-    template = init_state(adapter_config, optim.make(schedule), 0)
+    template = init_state(adapter_config, optim.make(recipe.schedule), 0)
     rows = [{"step": 0, **scores(trained.with_ratios(0.0, 0.0), splits)}]
     for path in checkpoints.list_checkpoints(run_dir):
         state, step, _ = checkpoints.load_checkpoint(path, template)
