@@ -229,7 +229,7 @@ def test_scale_configs():
     assert str(default.out) == "out/reproduce"
     demo, default = pipeline.PipelineConfig(demo), pipeline.PipelineConfig(default)
     specs = registry.method_specs()
-    assert [s.name for s in pipeline.selected_specs(demo, specs)] == ["ours", "no_adapter", "no_llm", "no_pretrain"]
+    assert [s.name for s in pipeline.selected_specs(demo, specs)] == ["ours", "no_adapter", "no_llm"]
     assert [s.name for s in pipeline.selected_specs(default, specs)] == list(specs)
     runs = pipeline.planned_runs(default, list(eval_methods.SPECS.values()))
     assert [run.key for run in runs] == ["oracle", "centre", "failing", "flaky", "random"]
@@ -263,7 +263,8 @@ def test_scale_configs():
 
 
 def test_task_graph_of_the_demo(tmp_path):
-    demo = pipeline.PipelineConfig(with_seeds(configs.get("demo"), 2))
+    rows = ("ours", "no_adapter", "no_llm", "no_pretrain")  # a row with its own tower beside the shared ones
+    demo = pipeline.PipelineConfig(with_seeds(configs.get("demo"), 2, methods=rows))
     specs = registry.method_specs()
     runs = pipeline.planned_runs(demo, pipeline.selected_specs(demo, specs))
     nodes = {node.key: node for node in pipeline.task_graph(demo, specs, runs, tmp_path / "data", tmp_path, "hash")}
