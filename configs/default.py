@@ -2,7 +2,7 @@
 
 from pathlib import Path
 
-from ocplace.experiments.experiment import DatasetSizes, EvalPlan, Experiment, MethodRecipes, TaskCpus
+from ocplace.experiments.experiment import DatasetSizes, EvalPlan, Experiment, TaskCpus
 from ocplace.methods.cliport import recipe as cliport
 from ocplace.methods.grids import recipe as grids
 from ocplace.methods.no_llm.recipe import NoLlmRecipe
@@ -20,14 +20,14 @@ def get_config() -> Experiment:
         seed=0,
         dataset=DatasetSizes(train_scenes=2000, test_scenes=400, physical_scenes=100, seed=0),
         backbone=offline_recipes.default_config(),  # what `load_backbone("offline")` loads
-        recipes=MethodRecipes(
+        recipes={
             # The paper's budget (200K steps at batch 1) with rule A's adapters; beside it the paper's adapters.
-            ours=ours.default_config(),
-            ours_paper=ours.paper_config(),
-            no_llm=NoLlmRecipe(),
-            no_pretrain=no_pretrain.NoPretrainRecipe(no_pretrain.default_config()),
+            "ours": ours.default_config(),
+            "ours_paper": ours.paper_config(),
+            "no_llm": NoLlmRecipe(),
+            "no_pretrain": no_pretrain.NoPretrainRecipe(no_pretrain.default_config()),
             # The paper's budget for the adapters: 200K steps at batch 1, warm-up then cosine decay.
-            grids=grids.GridsRecipe(
+            "grids": grids.GridsRecipe(
                 grids.GridConfig(),
                 Schedule(
                     steps=200_000,
@@ -39,13 +39,13 @@ def get_config() -> Experiment:
                 ),
             ),
             # 0.6-1.3 s per step of 8 on 2 CPU cores: 10-20 min, 4 epochs of 2000 scenes (docs/baselines.md).
-            cliport=cliport.CliportRecipe(
+            "cliport": cliport.CliportRecipe(
                 cliport.CliportConfig(),
                 Schedule(
                     steps=1_000, batch_size=8, learning_rate=1e-3, warmup_steps=50, chunk_steps=50, checkpoint_every=250
                 ),
             ),
-        ),
+        },
         evaluation=EvalPlan(
             methods=None,
             fractions=(0.25, 0.5, 0.75, 1.0),

@@ -8,7 +8,7 @@ them, or `--methods all` with the recipes below.
 import dataclasses
 from pathlib import Path
 
-from ocplace.experiments.experiment import DatasetSizes, EvalPlan, Experiment, MethodRecipes, TaskCpus
+from ocplace.experiments.experiment import DatasetSizes, EvalPlan, Experiment, TaskCpus
 from ocplace.methods.cliport import recipe as cliport
 from ocplace.methods.grids import recipe as grids
 from ocplace.methods.no_llm.recipe import NoLlmRecipe
@@ -34,20 +34,20 @@ def get_config() -> Experiment:
         seed=0,
         dataset=DatasetSizes(train_scenes=200, test_scenes=40, physical_scenes=10, seed=0),
         backbone=offline_recipes.demo_config(),  # the default architecture, 100 scenes, 75 steps
-        recipes=MethodRecipes(
-            ours=ours.chosen_adapters(DEMO_ADAPTERS),
-            ours_paper=DEMO_ADAPTERS,  # not in the demo's rows; `--methods ours,ours_paper` trains it
-            no_llm=NoLlmRecipe(
+        recipes={
+            "ours": ours.chosen_adapters(DEMO_ADAPTERS),
+            "ours_paper": DEMO_ADAPTERS,  # not in the demo's rows; `--methods ours,ours_paper` trains it
+            "no_llm": NoLlmRecipe(
                 schedule=dataclasses.replace(
                     NoLlmRecipe().schedule, steps=3_000, warmup_steps=200, chunk_steps=500, checkpoint_every=1_500
                 )
             ),
-            no_pretrain=no_pretrain.NoPretrainRecipe(
+            "no_pretrain": no_pretrain.NoPretrainRecipe(
                 no_pretrain.demo_config(),
                 dataclasses.replace(no_pretrain.SCHEDULE, steps=75, warmup_steps=8, checkpoint_every=25),
                 log_every=25,
             ),
-            grids=grids.GridsRecipe(
+            "grids": grids.GridsRecipe(
                 grids.GridConfig(),
                 Schedule(
                     steps=4_000,
@@ -58,13 +58,13 @@ def get_config() -> Experiment:
                     checkpoint_every=2_000,
                 ),
             ),
-            cliport=cliport.CliportRecipe(
+            "cliport": cliport.CliportRecipe(
                 cliport.CliportConfig(),
                 Schedule(
                     steps=100, batch_size=8, learning_rate=1e-3, warmup_steps=10, chunk_steps=50, checkpoint_every=50
                 ),
             ),
-        ),
+        },
         evaluation=EvalPlan(
             methods=("ours", "no_adapter", "no_llm"),
             fractions=(1.0,),

@@ -1,26 +1,25 @@
 """What one experiment decides, as one tree of frozen dataclasses.
 
 `ocplace.configs` holds one `Experiment` per file (smoke, demo, default); `ocplace reproduce`
-runs one. Every method that learns finds its training recipe here by its registered name
-(`MethodRecipes.of`), typed with that method's `Recipe` (`ocplace.methods`; the types live in the
-JAX-free `methods/ours/recipe.py` and `train/schedule.py`, so building and checking an experiment is fast);
-the pipeline hands it to the method through `TrainContext.recipe`.
+runs one. Every row that learns finds its training recipe in `Experiment.recipes` under its registered
+name; the recipe's type is the row's own (`RECIPE` in its JAX-free package, `ocplace.methods.registry`), so
+building, checking and reading back an experiment is fast and names no row here. The pipeline hands the
+recipe to the row through `TrainContext.recipe`.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable, Collection, Iterable
+import re
+from collections.abc import Callable, Collection, Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
+from ocplace import serial
 from ocplace.errors import ConfigError, OcplaceError
-from ocplace.methods.cliport.recipe import CliportRecipe
-from ocplace.methods.grids.recipe import GridsRecipe
-from ocplace.methods.no_llm.recipe import NoLlmRecipe
-from ocplace.methods.no_pretrain.recipe import NoPretrainRecipe
-from ocplace.methods.ours.recipe import OursRecipe
+from ocplace.methods import registry
+from ocplace.methods.contract import Recipe
 from ocplace.models.offline_recipes import PretrainConfig
 from ocplace.models.parsing.config import PARSER_NAMES
 from ocplace.runtime.width import TRAIN_CPUS
@@ -52,59 +51,52 @@ class DatasetSizes:
 _SCENE_COUNTS = ("train_scenes", "test_scenes")
 
 # Keys a training run takes from its context, not from a recipe (`TrainContext`), and where they are set.
-RUN_KEYS = {
-    f"recipes.{recipe}.{field}": source
-    for recipe in ("ours", "ours_paper", "no_llm", "no_pretrain")
-    for field, source in (
-        ("seed", "the experiment's `seed` (and `evaluation.seeds` for repeats)"),
-        ("fraction", "`evaluation.fractions`"),
-    )
+RUN_FIELDS = {
+    "seed": "the experiment's `seed` (and `evaluation.seeds` for repeats)",
+    "fraction": "`evaluation.fractions`",
 }
+_RUN_KEY = re.compile(rf"recipes\.[^.]+\.({'|'.join(RUN_FIELDS)})")
 
 
 def read_overrides(overrides: Iterable[str]) -> list[str]:
     """`--set KEY=VALUE` items, once none of them sets a key that a training run takes from its context
-    (`RUN_KEYS`: ConfigError naming each, with where to set it)."""
+    (`recipes.ROW.seed`, `recipes.ROW.fraction`: ConfigError naming each, with where to set it)."""
     overrides = list(overrides)
     keys = [item.partition("=")[0].strip() for item in overrides]
     refused = [
-        f"{key} is set for each run from {RUN_KEYS[key]}; change that instead" for key in keys if key in RUN_KEYS
+        f"{key} is set for each run from {RUN_FIELDS[match.group(1)]}; change that instead"
+        for key in keys
+        if (match := _RUN_KEY.fullmatch(key))
     ]
     if refused:
         raise ConfigError("; ".join(refused))
     return overrides
 
 
-@dataclasses.dataclass(frozen=True)
-class MethodRecipes:
-    """The training recipe of each method that learns, keyed by its registered name; each field's type is
-    the `Recipe` of that method's module in `ocplace.methods` (imported from `train/`, where it is light)."""
+def read_recipes(recipes: Mapping[str, Any]) -> dict[str, Recipe]:
+    """`Experiment.recipes` from its JSON text: each entry rebuilt as its row's registered `RECIPE` type."""
+    types = registry.recipe_types()
+    unknown = [name for name in recipes if name not in types]
+    if unknown:
+        raise ConfigError(
+            f"recipes holds {', '.join(unknown)}, no registered row that learns with a recipe "
+            f"(those: {', '.join(types)})"
+        )
+    return {name: serial.from_dict(types[name], fields) for name, fields in recipes.items()}
 
-    ours: OursRecipe
-    ours_paper: OursRecipe  # the paper's adapters, beside Ours' chosen ones
-    no_llm: NoLlmRecipe
-    no_pretrain: NoPretrainRecipe
-    grids: GridsRecipe
-    cliport: CliportRecipe
 
-    def of(self, method: str) -> Any:
-        """The recipe of a registered method; None for a method without one (it learns nothing)."""
-        return getattr(self, method) if method in {field.name for field in dataclasses.fields(self)} else None
-
-    def problems(self) -> list[str]:
-        """What each recipe's own `validate` refuses, named by the recipe's key."""
-        checks = {
-            "ours": self.ours.validate,
-            "ours_paper": self.ours_paper.validate,
-            "no_llm": self.no_llm.validate,
-            "no_pretrain": self.no_pretrain.validate,
-            "grids.schedule": self.grids.schedule.validate,
-            "cliport.schedule": self.cliport.schedule.validate,
-        }
-        problems = [problem for key, check in checks.items() if (problem := _refusal(f"recipes.{key}", check))]
-        if self.cliport.num_targets < 1:
-            problems.append(f"recipes.cliport.num_targets must be at least 1, got {self.cliport.num_targets}")
-        return problems
+def recipe_problems(recipes: Mapping[str, Any]) -> list[str]:
+    """What each recipe's own `validate` refuses, and each entry that is not its row's registered type, by key."""
+    types = registry.recipe_types()
+    problems = []
+    for name, recipe in recipes.items():
+        if name not in types:
+            problems.append(f"recipes.{name} names no row that learns with a recipe (those: {', '.join(types)})")
+        elif not isinstance(recipe, types[name]):
+            problems.append(f"recipes.{name} is a {type(recipe).__name__}; {name} learns with a {types[name].__name__}")
+        elif problem := _refusal(f"recipes.{name}", recipe.validate):
+            problems.append(problem)
+    return problems
 
 
 @dataclasses.dataclass(frozen=True)
@@ -185,7 +177,8 @@ class Experiment:
     seed: int  # training and evaluation
     dataset: DatasetSizes
     backbone: PretrainConfig  # the offline backbone's pretraining recipe; its hash names its cache folder
-    recipes: MethodRecipes
+    # Each learning row's recipe by its registered name, of that row's `RECIPE` type (read back by it).
+    recipes: Mapping[str, Recipe] = dataclasses.field(metadata={serial.READ: read_recipes})
     evaluation: EvalPlan
     cpus: TaskCpus = TaskCpus()
 
@@ -200,6 +193,19 @@ class Experiment:
         first = self.backbone.optim.seed
         return list(range(first + 1, first + self.evaluation.backbone_seeds))
 
+    def recipe(self, method: str) -> Any:
+        """The recipe of a registered row; None for a row without one (it learns nothing)."""
+        return self.recipes.get(method)
+
+    def missing_recipes(self, methods: Iterable[str]) -> list[str]:
+        """For each of `methods` that learns with a recipe this experiment does not hold, what to add."""
+        types = registry.recipe_types()
+        return [
+            f"recipes has no entry for {name}, which learns with a {types[name].__name__}: add one to the experiment"
+            for name in methods
+            if name in types and name not in self.recipes
+        ]
+
     def validate(self) -> None:
         """Raises ConfigError, naming every key whose value cannot work, before any work starts: counts and
         ranges, finite numbers, positive learning rates, known subsets and parser, each recipe's own checks.
@@ -207,7 +213,7 @@ class Experiment:
         problems = [] if self.name else ["name must not be empty"]
         if self.seed < 0:
             problems.append(f"seed must be at least 0, got {self.seed}")
-        problems += self.dataset.problems() + self.evaluation.problems() + self.recipes.problems()
+        problems += self.dataset.problems() + self.evaluation.problems() + recipe_problems(self.recipes)
         problems += [problem for problem in [_refusal("backbone", self.backbone.validate)] if problem]
         problems += number_problems(self, "")
         if problems:
@@ -236,6 +242,8 @@ def number_problems(node: object, key: str) -> list[str]:
             for field in dataclasses.fields(node)
             for problem in number_problems(getattr(node, field.name), f"{key}.{field.name}".lstrip("."))
         ]
+    if isinstance(node, Mapping):
+        return [problem for name, item in node.items() for problem in number_problems(item, f"{key}.{name}")]
     if isinstance(node, tuple):
         return [problem for index, item in enumerate(node) for problem in number_problems(item, f"{key}[{index}]")]
     if isinstance(node, float) and not math.isfinite(node):

@@ -230,7 +230,7 @@ def train_context(
         dataset_dir=dataset_dir,
         backbone=backbone,
         out_dir=run_directory(out, run.method, run.fraction, run.seed, run.backbone_seed),
-        recipe=experiment.recipes.of(run.method),
+        recipe=experiment.recipe(run.method),
         fraction=run.fraction,
         seed=experiment.seed if run.seed is None else run.seed,
         experiment=experiment.name,
@@ -439,6 +439,8 @@ def run_pipeline(
             f"evaluation.backbone_seeds is {config.experiment.evaluation.backbone_seeds}, but a given backbone "
             f"({config.backbone}) has no pretraining to repeat: drop --backbone or set evaluation.backbone_seeds=1"
         )
+    if not unknown:
+        unknown = config.experiment.missing_recipes(spec.name for spec in selected_specs(config, specs))
     if unknown:
         raise ConfigError(f"experiment {config.experiment.name!r} cannot run: {'; '.join(unknown)}")
     check_writable(out, as_folder=True)

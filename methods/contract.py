@@ -11,23 +11,30 @@ import dataclasses
 import json
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Generic, TypeVar
+from typing import Any, Generic, Protocol, TypeVar
 
 from ocplace import serial
 from ocplace.errors import EvaluationError
 from ocplace.eval.api import Method
 
-Recipe = TypeVar("Recipe")
+
+class Recipe(Protocol):
+    """What every row's recipe offers (a row's `RECIPE` type): `validate` raises with what cannot train."""
+
+    def validate(self) -> None: ...
+
+
+RecipeT = TypeVar("RecipeT")
 
 
 @dataclasses.dataclass(frozen=True)
-class TrainContext(Generic[Recipe]):
+class TrainContext(Generic[RecipeT]):
     """Everything a method's training needs; `out_dir` is its run directory (resumable)."""
 
     dataset_dir: Path
     backbone: str  # backbone spec, e.g. "offline" or "clip:/path"
     out_dir: Path
-    recipe: Recipe  # the method's own training config (`Experiment.recipes.of(name)`); fraction and seed apart
+    recipe: RecipeT  # the method's own training config (`Experiment.recipe(name)`); fraction and seed apart
     fraction: float = 1.0  # share of the training split (seeded subsets, nested)
     seed: int = 0
     experiment: str = "default"  # the experiment's name, recorded in run metadata; decides nothing
@@ -55,14 +62,14 @@ class LoadContext:
 
 
 @dataclasses.dataclass(frozen=True)
-class MethodSpec(Generic[Recipe]):
+class MethodSpec(Generic[RecipeT]):
     name: str  # command-line key, e.g. "ours", "no_adapter", "no_llm", "no_pretrain", "grids", "cliport"
     label: str  # the row of Table I, e.g. "Ours w/o Adapter"
     load: Callable[[LoadContext], Method]
-    train: Callable[[TrainContext[Recipe]], Path] | None = None  # returns the run directory; None: learns nothing
+    train: Callable[[TrainContext[RecipeT]], Path] | None = None  # returns the run directory; None: learns nothing
     # Makes the cached inputs that all of this method's trainings read (e.g. the training split's features)
     # once, before those trainings run side by side; None: nothing shared to make.
-    prepare: Callable[[TrainContext[Recipe]], object] | None = None
+    prepare: Callable[[TrainContext[RecipeT]], object] | None = None
     # Its evaluations encode the test scenes with the experiment's backbone through the shared store
     # (models/shared_features.py), so one evaluation's features serve the others.
     shares_test_features: bool = False

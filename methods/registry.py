@@ -1,7 +1,8 @@
 """Which methods `ocplace evaluate` and `reproduce` know: every folder of `ocplace.methods` with a `method.py` is a
 row named after its folder, and so is every package another distribution names in the entry-point group
-`ocplace.methods` (`name = package`). A row's package sets its place in Table I (`TABLE_ROW`) in its JAX-free
-`__init__.py` and exposes `SPEC` (a MethodSpec) in `method.py`. No list restates them (docs/architecture.md)."""
+`ocplace.methods` (`name = package`). A row's package sets its place in Table I (`TABLE_ROW`) and, if it learns
+with a recipe, that recipe's type (`RECIPE`, the type of its entry in `Experiment.recipes`) in its JAX-free
+`__init__.py`, and exposes `SPEC` (a MethodSpec) in `method.py`. No list restates them (docs/architecture.md)."""
 
 from __future__ import annotations
 
@@ -15,7 +16,7 @@ from ocplace import methods
 from ocplace.errors import EvaluationError
 from ocplace.eval.api import Method
 from ocplace.eval.harness import EvalSettings, MethodRun
-from ocplace.methods.contract import LoadContext, MethodSpec
+from ocplace.methods.contract import LoadContext, MethodSpec, Recipe
 
 ENTRY_POINTS = "ocplace.methods"
 
@@ -51,6 +52,12 @@ def row_packages() -> dict[str, str]:
 def registered_names() -> tuple[str, ...]:
     """The rows' command-line names in Table I's order, known without importing JAX."""
     return tuple(row_packages())
+
+
+def recipe_types() -> dict[str, type[Recipe]]:
+    """The recipe type of each row that learns with one (its package's `RECIPE`), by name, without importing JAX."""
+    packages = {name: importlib.import_module(package) for name, package in row_packages().items()}
+    return {name: package.RECIPE for name, package in packages.items() if hasattr(package, "RECIPE")}
 
 
 def method_specs() -> dict[str, MethodSpec[Any]]:

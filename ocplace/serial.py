@@ -4,7 +4,8 @@
 as numbers or lists); `to_json` is its canonical text (sorted keys), which caches and run files hash;
 `from_dict` rebuilds the dataclass from the hints of its fields (nested dataclasses, `tuple[X, ...]`,
 `tuple[X, Y]`, `X | None`, `Path`). A class that leaves fields out of its text, so that a key
-changes only with what matters, names them in a `serial_omitted()` method.
+changes only with what matters, names them in a `serial_omitted()` method; a field whose hint cannot say
+what to rebuild (a mapping whose values' types a registry knows) names its reader in its metadata (`READ`).
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from typing import Any, TypeVar
 import numpy as np
 
 T = TypeVar("T")
+READ = "serial_read"  # a field's metadata key: the function rebuilding its value from its JSON types
 
 
 def to_dict(value: object) -> Any:
@@ -54,7 +56,13 @@ def from_dict(cls: type[T], fields: Mapping[str, Any]) -> T:
     unknown = set(fields) - set(hints)
     if unknown:
         raise TypeError(f"{cls.__name__} has no field {', '.join(sorted(unknown))}")
-    return cls(**{name: _from(value, hints[name]) for name, value in fields.items()})
+    readers = _readers(cls)
+    return cls(
+        **{
+            name: readers[name](value) if name in readers else _from(value, hints[name])
+            for name, value in fields.items()
+        }
+    )
 
 
 def from_json(cls: type[T], text: str) -> T:
@@ -64,6 +72,11 @@ def from_json(cls: type[T], text: str) -> T:
 @functools.cache
 def _hints(cls: type) -> dict:
     return typing.get_type_hints(cls)
+
+
+@functools.cache
+def _readers(cls: type) -> dict:
+    return {field.name: field.metadata[READ] for field in dataclasses.fields(cls) if READ in field.metadata}
 
 
 def _from(value, hint):

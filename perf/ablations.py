@@ -27,7 +27,7 @@ def time_no_llm(experiment: str, dim: int, steps: int, num_scenes: int) -> dict:
     from ocplace import configs
     from ocplace.methods.no_llm import train as no_llm
 
-    config = configs.get(experiment).recipes.no_llm
+    config = configs.get(experiment).recipes["no_llm"]
     schedule = config.schedule
     rng = np.random.default_rng(0)
     arrays = {
@@ -69,7 +69,7 @@ def time_no_pretrain(experiment: str, steps: int, num_scenes: int) -> dict:
     from ocplace.methods.no_pretrain import train as train_no_pretrain
     from ocplace.models.offline_backbone import split_trainable
 
-    recipe = configs.get(experiment).recipes.no_pretrain
+    recipe = configs.get(experiment).recipes["no_pretrain"]
     model, schedule = recipe.model, recipe.schedule
     size = model.backbone.image_size
     rng = np.random.default_rng(0)

@@ -114,7 +114,7 @@ def main() -> None:
     config = offline_config.default_config() if args.experiment == "default" else offline_config.smoke_config()
     backbone = ob.OfflineBackbone(config, ob.init_params(config, jax.random.key(0)))
     recipes = configs.get(args.experiment).recipes
-    grid_recipe, cliport_recipe = recipes.grids, recipes.cliport
+    grid_recipe, cliport_recipe = recipes["grids"], recipes["cliport"]
     featurize = grid_featurize_seconds(backbone, grid_recipe.grid, args.scenes)
     grid_step = grid_step_seconds(grid_recipe, backbone.dim, args.grid_steps)
     cliport_step, cliport_infer = cliport_seconds(cliport_recipe, backbone.dim, args.cliport_steps)

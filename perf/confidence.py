@@ -61,7 +61,7 @@ def selection_run(data: Path, backbone_spec: str, experiment: str, work: Path) -
     backbone = load_backbone(backbone_spec)
     features = load_features(featurize_split(data, "train", backbone), backbone.fingerprint)
     held = without_objects(features, data, "train", colour_variants(load_library()))
-    train_ours(held, work, configs.get(experiment).recipes.ours)
+    train_ours(held, work, configs.get(experiment).recipes["ours"])
     return work
 
 

@@ -91,7 +91,7 @@ def trained_run(smoke_dataset, tiny_backbone_spec, tmp_path_factory):
                 smoke_dataset,
                 tiny_backbone_spec,
                 tmp_path_factory.mktemp("ours") / "run",
-                smoke.get_config().recipes.ours,
+                smoke.get_config().recipes["ours"],
                 fraction=0.5,
                 seed=3,
             )
@@ -118,7 +118,7 @@ def smoke_rows(smoke_dataset, tiny_backbone_spec, tmp_path_factory):
 
     def train(name):
         spec = method_specs()[name]
-        context = TrainContext(smoke_dataset, tiny_backbone_spec, tmp_path_factory.mktemp(name), recipes.of(name))
+        context = TrainContext(smoke_dataset, tiny_backbone_spec, tmp_path_factory.mktemp(name), recipes.get(name))
         with pytest.MonkeyPatch.context() as patch:
             patch.setenv("OCPLACE_CACHE", str(cache))
             if spec.prepare is not None:

@@ -158,7 +158,7 @@ def test_no_llm_learns_references_and_relations_when_the_sentence_holds_them(tmp
     from ocplace.train.schedule import rescheduled
 
     arrays = synthetic_scenes(96, 16, seed=0)
-    config = rescheduled(RECIPES.no_llm, steps=400, chunk_steps=200, checkpoint_every=200)
+    config = rescheduled(RECIPES["no_llm"], steps=400, chunk_steps=200, checkpoint_every=200)
     config = dataclasses.replace(config, hidden=64)
     model = train_on_arrays(
         arrays, tmp_path / "run", config, 10.0, {"synthetic": True}, progress=False, backbone_fingerprint="synthetic"
@@ -182,12 +182,14 @@ def test_training_at_smoke_scale_lowers_the_loss(runs, name):
 def test_training_is_deterministic_and_idempotent(runs, specs, smoke_dataset, tiny_backbone_spec, tmp_path):
     from ocplace.methods.no_llm.model import load_model
 
-    again = specs["no_llm"].train(TrainContext(smoke_dataset, tiny_backbone_spec, tmp_path / "again", RECIPES.no_llm))
+    again = specs["no_llm"].train(
+        TrainContext(smoke_dataset, tiny_backbone_spec, tmp_path / "again", RECIPES["no_llm"])
+    )
     assert load_model(again).sha256 == load_model(runs["no_llm"]).sha256
     model_file = runs["no_llm"] / WEIGHTS_FILE
     before = model_file.stat().st_mtime_ns
     assert (
-        specs["no_llm"].train(TrainContext(smoke_dataset, tiny_backbone_spec, runs["no_llm"], RECIPES.no_llm))
+        specs["no_llm"].train(TrainContext(smoke_dataset, tiny_backbone_spec, runs["no_llm"], RECIPES["no_llm"]))
         == runs["no_llm"]
     )
     assert model_file.stat().st_mtime_ns == before
@@ -195,7 +197,7 @@ def test_training_is_deterministic_and_idempotent(runs, specs, smoke_dataset, ti
 
 def test_from_scratch_tower_is_deterministic(runs, specs, smoke_dataset, tiny_backbone_spec, tmp_path):
     again = specs["no_pretrain"].train(
-        TrainContext(smoke_dataset, tiny_backbone_spec, tmp_path / "again", RECIPES.no_pretrain)
+        TrainContext(smoke_dataset, tiny_backbone_spec, tmp_path / "again", RECIPES["no_pretrain"])
     )
     read = lambda run: (run / "backbone" / "fingerprint.txt").read_text()  # noqa: E731
     assert read(again) == read(runs["no_pretrain"])
@@ -205,7 +207,7 @@ def test_from_scratch_tower_is_deterministic(runs, specs, smoke_dataset, tiny_ba
 
 def test_fraction_trains_on_a_nested_subset(specs, isolated_cache, smoke_dataset, tiny_backbone_spec, tmp_path):
     run = specs["no_llm"].train(
-        TrainContext(smoke_dataset, tiny_backbone_spec, tmp_path / "half", RECIPES.no_llm, fraction=0.5)
+        TrainContext(smoke_dataset, tiny_backbone_spec, tmp_path / "half", RECIPES["no_llm"], fraction=0.5)
     )
     assert json.loads((run / RUN_FILE).read_text())["train_scenes"] == 6
 

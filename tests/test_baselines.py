@@ -222,7 +222,7 @@ def test_grids_trains_resumes_and_places_in_the_chosen_cell(specs, smoke_dataset
     spec = specs["grids"]
     assert spec.label == "Raw Image Grids"
     grids_context = functools.partial(
-        TrainContext, smoke_dataset, tiny_backbone_spec, recipe=SMOKE.recipes.grids, experiment="smoke"
+        TrainContext, smoke_dataset, tiny_backbone_spec, recipe=SMOKE.recipes["grids"], experiment="smoke"
     )
     run_dir, reused = train_once(spec, grids_context(tmp_path / "grids"))
     losses = _losses(run_dir)
@@ -284,7 +284,7 @@ def test_cliport_trains_and_places_from_its_pixel_distribution(
     assert spec.label == "CLIPort-Place"
     # The default backbone, `offline`, as docs/evaluation.md evaluates the baselines with.
     run_dir = spec.train(
-        TrainContext(smoke_dataset, "offline", tmp_path / "cliport", SMOKE.recipes.cliport, experiment="smoke")
+        TrainContext(smoke_dataset, "offline", tmp_path / "cliport", SMOKE.recipes["cliport"], experiment="smoke")
     )
     losses = _losses(run_dir)
     assert losses[-1] < losses[0]

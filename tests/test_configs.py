@@ -5,8 +5,8 @@ import dataclasses
 import pytest
 
 from ocplace import configs
-from ocplace.errors import UnknownExperiment
-from ocplace.methods.registry import method_specs
+from ocplace.errors import ConfigError, UnknownExperiment
+from ocplace.methods.registry import method_specs, recipe_types
 from ocplace.models.offline_recipes import output_dir, recipe_dir
 from ocplace.train.schedule import Schedule
 
@@ -16,9 +16,9 @@ def test_each_experiment_is_named_after_its_scale_and_its_recipes_are_valid(name
     experiment = configs.get(name)
     assert experiment.name == name
     recipes = experiment.recipes
-    for config in (recipes.ours, recipes.ours_paper, recipes.no_llm, recipes.no_pretrain):
+    for config in (recipes["ours"], recipes["ours_paper"], recipes["no_llm"], recipes["no_pretrain"]):
         config.validate()
-    for config in (recipes.grids.schedule, recipes.cliport.schedule):
+    for config in (recipes["grids"].schedule, recipes["cliport"].schedule):
         config.validate()
     experiment.backbone.validate()
     experiment.validate()
@@ -28,7 +28,7 @@ def test_each_experiment_is_named_after_its_scale_and_its_recipes_are_valid(name
 
 
 def test_ours_recipes_by_scale():
-    default, demo, smoke = (configs.get(name).recipes.ours for name in ("default", "demo", "smoke"))
+    default, demo, smoke = (configs.get(name).recipes["ours"] for name in ("default", "demo", "smoke"))
     assert default.schedule.steps == 200_000 and default.schedule.batch_size == 1
     assert smoke.schedule.steps < demo.schedule.steps < 200_000
 
@@ -36,11 +36,11 @@ def test_ours_recipes_by_scale():
 @pytest.mark.parametrize("name", list(configs.EXPERIMENTS))
 def test_ours_has_rule_a_adapters_and_the_paper_row_the_papers_at_the_same_budget(name):
     recipes = configs.get(name).recipes
-    chosen, paper = recipes.ours.adapters, recipes.ours_paper.adapters
+    chosen, paper = recipes["ours"].adapters, recipes["ours_paper"].adapters
     assert (chosen.normalise, chosen.residual_ratio, chosen.text_ratio) == (True, 0.1, 0.5)
     assert (paper.normalise, paper.residual_ratio, paper.text_ratio) == (False, 0.2, None)
-    assert (recipes.ours_paper.schedule.weight_decay, recipes.ours_paper.anchor) == (0.0, 0.0)
-    assert recipes.ours.schedule == recipes.ours_paper.schedule
+    assert (recipes["ours_paper"].schedule.weight_decay, recipes["ours_paper"].anchor) == (0.0, 0.0)
+    assert recipes["ours"].schedule == recipes["ours_paper"].schedule
 
 
 @pytest.mark.parametrize("name", list(configs.EXPERIMENTS))
@@ -52,28 +52,40 @@ def test_every_recipe_has_one_shape_and_leaves_seed_and_fraction_to_the_run(name
         fields = dataclasses.fields(node) if dataclasses.is_dataclass(node) else ()
         return {f.name for f in fields} | {n for f in fields for n in field_names(getattr(node, f.name))}
 
-    recipes = configs.get(name).recipes
+    experiment = configs.get(name)
     for row in method_specs():
-        recipe = recipes.of(row)
+        recipe = experiment.recipe(row)
         if recipe is not None:
             assert isinstance(recipe.schedule, Schedule), row
             assert not {"seed", "fraction"} & field_names(recipe), row
 
 
-def test_the_recipes_hold_one_field_per_learning_row_of_the_tree():
-    """`MethodRecipes` is where a learning row is named beside its folder (typed, so the type checker holds each
-    experiment's recipe to the row's `Recipe` and `--set` reaches it): no field without a row that learns, no
-    learning row of `methods/` without a field."""
-    from ocplace.experiments.experiment import MethodRecipes
+@pytest.mark.parametrize("name", list(configs.EXPERIMENTS))
+def test_each_experiment_holds_a_recipe_for_every_learning_row_of_its_registered_type(name):
+    """The recipes are keyed by the rows' registered names and typed by each row's `RECIPE`: no entry without a
+    row that learns with one, no such row without an entry, each of its row's type."""
+    experiment = configs.get(name)
+    types = recipe_types()
+    learning = {row for row, spec in method_specs().items() if spec.train is not None and row in types}
+    assert set(experiment.recipes) == learning == set(types)
+    assert all(type(experiment.recipes[row]) is types[row] for row in learning)
+    assert experiment.missing_recipes(method_specs()) == []
 
-    learning = {name for name, spec in method_specs().items() if spec.train is not None}
-    assert {field.name for field in dataclasses.fields(MethodRecipes)} == learning
 
-
-def test_a_method_finds_its_recipe_by_name():
-    recipes = configs.get("smoke").recipes
-    assert recipes.of("grids") is recipes.grids and recipes.of("no_pretrain") is recipes.no_pretrain
-    assert recipes.of("no_adapter") is None  # learns nothing
+def test_a_row_finds_its_recipe_by_name_and_a_missing_or_foreign_one_is_named():
+    experiment = configs.get("smoke")
+    assert experiment.recipe("grids") is experiment.recipes["grids"]
+    assert experiment.recipe("no_adapter") is None  # learns nothing
+    without = dataclasses.replace(experiment, recipes={k: v for k, v in experiment.recipes.items() if k != "grids"})
+    assert without.missing_recipes(["ours", "grids", "no_adapter"]) == [
+        "recipes has no entry for grids, which learns with a GridsRecipe: add one to the experiment"
+    ]
+    swapped = dataclasses.replace(experiment, recipes={**experiment.recipes, "grids": experiment.recipes["cliport"]})
+    with pytest.raises(ConfigError, match="recipes.grids is a CliportRecipe; grids learns with a GridsRecipe"):
+        swapped.validate()
+    stray = dataclasses.replace(experiment, recipes={**experiment.recipes, "no_adapter": experiment.recipes["ours"]})
+    with pytest.raises(ConfigError, match="recipes.no_adapter names no row that learns with a recipe"):
+        stray.validate()
 
 
 def test_an_unknown_experiment_lists_the_choices():

@@ -7,6 +7,7 @@ import dataclasses
 import math
 import re
 import typing
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Literal
 
@@ -83,18 +84,22 @@ VALUES = {
 
 def _get(config, key: str):
     for name in key.split("."):
-        config = getattr(config, name)
+        config = config[name] if isinstance(config, Mapping) else getattr(config, name)
     return config
 
 
 def _leaf_keys(config, prefix: str = ""):
-    """Every dotted key of a setting (not a group) in a dataclass tree."""
-    for field in dataclasses.fields(config):
-        value = getattr(config, field.name)
-        if dataclasses.is_dataclass(value):
-            yield from _leaf_keys(value, f"{prefix}{field.name}.")
+    """Every dotted key of a setting (not a group) in a tree of dataclasses and mappings of them."""
+    items = (
+        config.items()
+        if isinstance(config, Mapping)
+        else ((f.name, getattr(config, f.name)) for f in dataclasses.fields(config))
+    )
+    for name, value in items:
+        if dataclasses.is_dataclass(value) or isinstance(value, Mapping):
+            yield from _leaf_keys(value, f"{prefix}{name}.")
         else:
-            yield prefix + field.name
+            yield prefix + name
 
 
 def test_the_strategies_cover_every_setting():
@@ -219,13 +224,22 @@ def test_an_experiment_takes_nested_overrides():
     )
     assert changed == dataclasses.replace(
         experiment,
-        recipes=dataclasses.replace(experiment.recipes, ours=rescheduled(experiment.recipes.ours, steps=5000)),
+        recipes={**experiment.recipes, "ours": rescheduled(experiment.recipes["ours"], steps=5000)},
         dataset=dataclasses.replace(experiment.dataset, train_scenes=100),
         evaluation=dataclasses.replace(experiment.evaluation, methods=("ours", "grids")),
     )
     valid = "valid keys under 'recipes' are ours.*, ours_paper.*, no_llm.*, no_pretrain.*"
     with pytest.raises(ConfigError, match=re.escape(valid)):
         apply_overrides(experiment, ["recipes.oursx.steps=1"])
+    with pytest.raises(
+        ConfigError, match=re.escape("'recipes' names a group of settings; set one of its keys: recipes.ours.*")
+    ):
+        apply_overrides(experiment, ["recipes=1"])
+    with pytest.raises(
+        ConfigError,
+        match=re.escape("'recipes.grids' names a group of settings; set one of its keys: recipes.grids.grid"),
+    ):
+        apply_overrides(experiment, ["recipes.grids=1"])
 
 
 # --- generated flags -------------------------------------------------------------------------

@@ -404,7 +404,7 @@ def test_reproduce_set_reaches_the_experiment(tmp_path, monkeypatch):
         dataclasses.replace(
             smoke,
             out=tmp_path / "elsewhere",
-            recipes=dataclasses.replace(smoke.recipes, ours=rescheduled(smoke.recipes.ours, steps=5000)),
+            recipes={**smoke.recipes, "ours": rescheduled(smoke.recipes["ours"], steps=5000)},
             dataset=dataclasses.replace(smoke.dataset, train_scenes=100),
             evaluation=dataclasses.replace(smoke.evaluation, methods=("no_adapter", "grids")),  # after --methods
         ),

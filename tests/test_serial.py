@@ -7,7 +7,9 @@ import json
 import pytest
 
 from ocplace import configs, serial
+from ocplace.errors import ConfigError
 from ocplace.eval.harness import EvalSettings, PhysicalOutcome, SceneOutcome
+from ocplace.experiments.experiment import Experiment
 from ocplace.methods.cliport.model import CliportConfig
 from ocplace.methods.grids.model import GridConfig
 from ocplace.methods.no_llm.model import NoLlmConfig
@@ -24,14 +26,21 @@ def test_every_experiment_round_trips_through_json_text(experiment):
     assert serial.from_json(type(experiment), serial.to_json(experiment)) == experiment
     recipes = experiment.recipes
     for config in (
-        recipes.ours,
-        recipes.no_llm,
-        recipes.no_pretrain,
-        recipes.grids,
-        recipes.cliport,
+        recipes["ours"],
+        recipes["no_llm"],
+        recipes["no_pretrain"],
+        recipes["grids"],
+        recipes["cliport"],
         experiment.backbone,
     ):
         assert serial.from_dict(type(config), json.loads(serial.to_json(config))) == config
+
+
+def test_a_recipe_of_no_registered_row_is_not_read_back():
+    text = json.loads(serial.to_json(configs.get("smoke")))
+    text["recipes"]["toy_row"] = {}
+    with pytest.raises(ConfigError, match="recipes holds toy_row, no registered row that learns with a recipe"):
+        serial.from_dict(Experiment, text)
 
 
 @pytest.mark.parametrize(

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 
+from ocplace.errors import TrainingError
 from ocplace.sim.workspace import DEFAULT_TABLE, Table
 from ocplace.train.schedule import Schedule
 
@@ -32,3 +33,10 @@ class CliportRecipe:
     network: CliportConfig
     schedule: Schedule
     num_targets: int = 16  # feasible pixels cached per scene
+
+    def validate(self) -> None:
+        problems = self.schedule.problems()
+        if self.num_targets < 1:
+            problems.append(f"num_targets must be at least 1, got {self.num_targets}")
+        if problems:
+            raise TrainingError("invalid training configuration: " + "; ".join(problems))

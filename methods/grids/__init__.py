@@ -1,3 +1,6 @@
 """Table I row "Raw Image Grids": the table cut into cells, the best-matching cell chosen."""
 
+from ocplace.methods.grids.recipe import GridsRecipe
+
 TABLE_ROW = 4
+RECIPE = GridsRecipe  # the type of its entry in `Experiment.recipes`

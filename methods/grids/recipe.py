@@ -6,6 +6,7 @@ import dataclasses
 
 import numpy as np
 
+from ocplace.errors import TrainingError
 from ocplace.sim.workspace import DEFAULT_TABLE, Table
 from ocplace.train.schedule import Schedule
 
@@ -41,3 +42,7 @@ def smoke_grid_config() -> GridConfig:
 class GridsRecipe:
     grid: GridConfig
     schedule: Schedule
+
+    def validate(self) -> None:
+        if problems := self.schedule.problems():
+            raise TrainingError("invalid training configuration: " + "; ".join(problems))

@@ -1,3 +1,6 @@
 """Table I row "Ours w/o CLIP pre-train": Ours' backbone from random weights."""
 
+from ocplace.methods.no_pretrain.recipe import NoPretrainRecipe
+
 TABLE_ROW = 7
+RECIPE = NoPretrainRecipe  # the type of its entry in `Experiment.recipes`

@@ -210,9 +210,12 @@ def _help(field: dataclasses.Field, hint) -> str:
 
 
 def _set(node, path: list[str], text: str, key: str):
-    """`node` (a dataclass) with the setting at `path` parsed from `text`; `key` is the whole dotted key."""
+    """`node` (a dataclass, or a mapping of them such as `Experiment.recipes`) with the setting at `path` parsed
+    from `text`; `key` is the whole dotted key."""
     name, rest = path[0], path[1:]
     done = key[: len(key) - len(".".join(path))].rstrip(".")  # the part of the key already walked
+    if isinstance(node, Mapping):
+        return _set_entry(node, name, rest, text, key, done)
     if not dataclasses.is_dataclass(node):
         raise ConfigError(f"unknown key {key!r}: {done} is a value, not a group of settings")
     hints = typing.get_type_hints(type(node))
@@ -220,11 +223,14 @@ def _set(node, path: list[str], text: str, key: str):
     if name not in fields:
         raise ConfigError(
             f"unknown key {key!r}: valid keys {'under ' + repr(done) if done else 'at the top level'} are "
-            + ", ".join(f"{n}.*" if dataclasses.is_dataclass(getattr(node, n)) else n for n in fields)
+            + ", ".join(f"{n}.*" if _is_group_value(getattr(node, n)) else n for n in fields)
         )
     current = getattr(node, name)
     if rest:
         return dataclasses.replace(node, **{name: _set(current, rest, text, key)})
+    if isinstance(current, Mapping):
+        keys = ", ".join(f"{key}.{entry}.*" for entry in current)
+        raise ConfigError(f"key {key!r} names a group of settings; set one of its keys: {keys}")
     if dataclasses.is_dataclass(current):
         keys = ", ".join(f"{key}.{field.name}" for field in dataclasses.fields(current) if field.init)
         raise ConfigError(f"key {key!r} names a group of settings; set one of its keys: {keys}")
@@ -232,6 +238,20 @@ def _set(node, path: list[str], text: str, key: str):
         return dataclasses.replace(node, **{name: parse_value(text, hints[name])})
     except ValueError as error:
         raise ConfigError(f"--set {key}={text}: {error}") from None
+
+
+def _set_entry(node: Mapping, name: str, rest: list[str], text: str, key: str, done: str) -> dict:
+    """The mapping `node` with the setting under its entry `name` changed (an entry is a group, never one value)."""
+    if name not in node:
+        raise ConfigError(f"unknown key {key!r}: valid keys under {done!r} are " + ", ".join(f"{n}.*" for n in node))
+    if not rest:
+        keys = ", ".join(f"{key}.{field.name}" for field in dataclasses.fields(node[name]) if field.init)
+        raise ConfigError(f"key {key!r} names a group of settings; set one of its keys: {keys}")
+    return {**node, name: _set(node[name], rest, text, key)}
+
+
+def _is_group_value(value) -> bool:
+    return dataclasses.is_dataclass(value) or isinstance(value, Mapping)
 
 
 def _unwrap_optional(hint) -> tuple[bool, object]:
@@ -244,7 +264,8 @@ def _unwrap_optional(hint) -> tuple[bool, object]:
 
 
 def _is_group(hint) -> bool:
-    return dataclasses.is_dataclass(_unwrap_optional(hint)[1])
+    inner = _unwrap_optional(hint)[1]
+    return dataclasses.is_dataclass(inner) or typing.get_origin(inner) in (dict, Mapping)
 
 
 class DeprecatedAlias(argparse.Action):

@@ -161,11 +161,13 @@ def train_method(args: argparse.Namespace) -> int:
     check_writable(args.out, as_folder=True)
     experiment = apply_overrides(configs.get(args.experiment), overrides)
     experiment.validate()
+    if missing := experiment.missing_recipes([args.method]):
+        raise ConfigError(f"experiment {experiment.name!r} cannot train {args.method}: {missing[0]}")
     context = TrainContext(
         args.dataset,
         args.backbone,
         args.out,
-        experiment.recipes.of(args.method),
+        experiment.recipe(args.method),
         fraction,
         seed,
         experiment.name,
