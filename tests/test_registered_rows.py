@@ -61,7 +61,18 @@ def test_every_row_trains_loads_and_places(name, smoke_rows, scenes, tiny_backbo
 
 TOY_ROW = {
     "__init__.py": '"""A toy row: it places every object at the training split\'s mean oracle placement."""\n\n'
-    "TABLE_ROW = 99\n",
+    "from toy_row.recipe import ToyRecipe\n\nTABLE_ROW = 99\nRECIPE = ToyRecipe\n",
+    "recipe.py": """
+import dataclasses
+
+
+@dataclasses.dataclass(frozen=True)
+class ToyRecipe:
+    shift: float = 0.0  # added to the mean placement
+
+    def validate(self):
+        pass
+""",
     "method.py": """
 import dataclasses
 import json
@@ -77,7 +88,9 @@ from ocplace.sim.dataset.records import SceneInfo, read_meta
 def train(ctx):
     placements = [SceneInfo(read_meta(folder)).oracle.placement for folder in scene_dirs(ctx.dataset_dir, "train")]
     ctx.out_dir.mkdir(parents=True, exist_ok=True)
-    (ctx.out_dir / "mean.json").write_text(json.dumps(np.mean(placements, axis=0).tolist()))
+    mean = np.mean(placements, axis=0) + ctx.recipe.shift
+    recipe = {"type": type(ctx.recipe).__name__, **dataclasses.asdict(ctx.recipe)}
+    (ctx.out_dir / "mean.json").write_text(json.dumps({"mean": mean.tolist(), "recipe": recipe}))
     return ctx.out_dir
 
 
@@ -94,7 +107,7 @@ class MeanPlacement:
 
 
 def load(ctx):
-    return MeanPlacement(json.loads((ctx.trained_run / "mean.json").read_text()))
+    return MeanPlacement(json.loads((ctx.trained_run / "mean.json").read_text())["mean"])
 
 
 SPEC = MethodSpec("toy_row", "Toy mean placement", load=load, train=train, uses_backbone=False)
@@ -104,7 +117,8 @@ SPEC = MethodSpec("toy_row", "Toy mean placement", load=load, train=train, uses_
 
 def test_a_new_row_is_one_folder_that_reproduce_trains_and_scores(smoke_dataset, tiny_backbone_spec, tmp_path):
     """A row from outside the tree: its folder and one entry point, found by the registry in the `reproduce`
-    process and in the workers it starts, trained, evaluated, and last in Table I by its `TABLE_ROW`."""
+    process and in the workers it starts, trained with its `RECIPE`'s defaults, evaluated, and last in Table I by
+    its `TABLE_ROW`."""
     from ocplace.eval import results
     from ocplace.methods.registry import ENTRY_POINTS
 
@@ -132,7 +146,9 @@ def test_a_new_row_is_one_folder_that_reproduce_trains_and_scores(smoke_dataset,
     assert done.returncode == 0, done.stderr[-2000:]
     saved = results.read_results(out / "results.json")
     (entry,) = saved["evaluations"]
-    assert entry["key"] == "toy_row" and Path(entry["run_dir"], "mean.json").is_file()
+    assert entry["key"] == "toy_row"
+    # No experiment of ours names the row: its training got its own recipe's defaults.
+    assert json.loads(Path(entry["run_dir"], "mean.json").read_text())["recipe"] == {"type": "ToyRecipe", "shift": 0.0}
     assert all(entry["subsets"][subset]["aggregate"]["overall"]["scenes"] == 8 for subset in TEST_SUBSETS)
     assert "| Toy mean placement |" in done.stdout
 
