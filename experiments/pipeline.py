@@ -214,12 +214,14 @@ def placement_figure_task(run_dir: Path, parser: str, seed: int, dataset_dir: Pa
 # ----------------------------------------------------------------------------- tasks of the graph (any worker)
 
 
-def pretrain_task(recipe: PretrainConfig, progress: bool, cpus: int = 1) -> str:
-    """The offline backbone of `recipe`, pretrained unless cached (rendering in `cpus` processes); returns its spec."""
+def pretrain_task(recipe: PretrainConfig, progress: bool, cpus: int = 1, share_renders: bool = False) -> str:
+    """The offline backbone of `recipe`, pretrained unless cached (rendering in `cpus` processes, into the folder
+    its backbone seeds share if `share_renders`); returns its spec."""
     from ocplace.sim.library import load_library
     from ocplace.train.pretrain.loop import pretrain
 
-    return f"offline:{pretrain(recipe, load_library(), progress=progress, render_workers=cpus).directory}"
+    backbone = pretrain(recipe, load_library(), progress=progress, render_workers=cpus, share_renders=share_renders)
+    return f"offline:{backbone.directory}"
 
 
 def train_context(
@@ -276,14 +278,17 @@ def task_graph(
     cpus = config.experiment.cpus
     backbone_of: Callable[[Mapping[str, Any], MethodRun], str]
     if config.backbone is None:
-        for seed in dict.fromkeys(run.backbone_seed for run in [MethodRun("", ""), *runs]):  # the base one first
+        seeds = list(dict.fromkeys(run.backbone_seed for run in [MethodRun("", ""), *runs]))  # the base one first
+        for seed in seeds:
             task = Task(
                 pretrain_task,
-                (config.experiment.backbone_recipe(seed), False, cpus.pretrain),
+                (config.experiment.backbone_recipe(seed), False, cpus.pretrain, len(seeds) > 1),
                 cpus=cpus.pretrain,
                 pinned=True,
             )
-            nodes.append(Node(backbone_key(seed), functools.partial(_given, task)))
+            # A repeat reads the base pretraining's renders rather than drawing the same images beside it.
+            base: tuple[str, ...] = () if seed is None else (backbone_key(None),)
+            nodes.append(Node(backbone_key(seed), functools.partial(_given, task), base))
 
         def backbone_after(run: MethodRun) -> tuple[str, ...]:
             return (backbone_key(run.backbone_seed),)

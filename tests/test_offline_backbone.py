@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import json
+import shutil
 
 import jax
 import jax.numpy as jnp
@@ -158,6 +159,28 @@ def smoke_run(tmp_path_factory, library):
         patch.setattr(MujocoScenes, "build", recording_build)
         result = pretrain(smoke_config(), library, out, progress=False, keep_run=True)
     return result, built, minilm_before
+
+
+def test_a_backbone_seed_reads_the_renders_its_recipe_shares(smoke_run, library, corpus, tmp_path, monkeypatch):
+    """`reproduce --backbone-seeds N`: every optimiser seed of a recipe trains on one set of renders, drawn once."""
+    from ocplace.train.pretrain import loop, render
+
+    config = smoke_config()
+    pool = training_pool(library, corpus, config.render)
+    repeat = dataclasses.replace(config, optim=dataclasses.replace(config.optim, seed=1))
+    monkeypatch.setattr(loop, "output_dir", lambda recipe: tmp_path / "backbones" / f"offline-{recipe.key()}")
+    shared = loop.shared_renders_dir(config, pool)
+    assert shared == loop.shared_renders_dir(repeat, pool) and shared.parent == tmp_path / "backbones"
+    other_images = dataclasses.replace(config, render=dataclasses.replace(config.render, seed=1))
+    assert loop.shared_renders_dir(other_images, pool) != shared
+    shutil.copytree(smoke_run[0].directory / "run" / "renders", shared / "renders")
+
+    def rendering(*args, **kwargs):
+        raise AssertionError("a seed of the recipe rendered its images again")
+
+    monkeypatch.setattr(render, "render_chunks", rendering)
+    result = loop.pretrain(repeat, library, tmp_path / "repeat", progress=False, stop_after=1, share_renders=True)
+    assert np.isfinite(result.probe_loss_before) and not (tmp_path / "repeat" / "run" / "renders").exists()
 
 
 def _minilm_dir() -> str:

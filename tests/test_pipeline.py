@@ -292,6 +292,26 @@ def test_task_graph_of_the_demo(tmp_path):
     assert figure.pinned and figure.cpus == 1 and figure.args[0] == tmp_path / "run"
 
 
+def test_backbone_seeds_share_the_base_pretrainings_renders(tmp_path):
+    demo = pipeline.PipelineConfig(
+        dataclasses.replace(
+            configs.get("demo"),
+            evaluation=dataclasses.replace(configs.get("demo").evaluation, backbone_seeds=3, seed_methods=("ours",)),
+        )
+    )
+    specs = registry.method_specs()
+    runs = pipeline.planned_runs(demo, pipeline.selected_specs(demo, specs))
+    nodes = {node.key: node for node in pipeline.task_graph(demo, specs, runs, tmp_path / "data", tmp_path, "hash")}
+    assert [key for key in nodes if key.startswith("backbone")] == ["backbone", "backbone seed 1", "backbone seed 2"]
+    assert nodes["backbone"].after == () and nodes["backbone seed 2"].after == ("backbone",)
+    tasks = [nodes[key].make({}) for key in ("backbone", "backbone seed 2")]
+    assert [task.args[0].optim.seed for task in tasks] == [0, 2] and all(task.args[-1] is True for task in tasks)
+    one = pipeline.PipelineConfig(configs.get("demo"))
+    runs = pipeline.planned_runs(one, pipeline.selected_specs(one, specs))
+    alone = next(node for node in pipeline.task_graph(one, specs, runs, tmp_path / "data", tmp_path, "hash"))
+    assert alone.key == "backbone" and alone.make({}).args[-1] is False  # one seed: its renders go with its run
+
+
 def test_evaluation_order_puts_one_encoder_of_the_shared_features_first():
     specs = registry.method_specs()
     runs = [registry.method_run(specs[name], None, 1.0, None) for name in ("no_adapter", "ours", "grids", "no_llm")]

@@ -6,6 +6,10 @@ Output directory (default `<cache>/backbones/offline-<recipe hash>/`):
     run/metrics.jsonl                                    loss, temperature, learning rate per logged step
     run/renders/chunk_*.npz, run/checkpoints/            removed once the backbone is saved
 
+With `share_renders` (the backbone seeds of one recipe, `reproduce --backbone-seeds N`) the chunks are
+`<cache>/backbones/renders-<hash>/renders/chunk_*.npz` instead, kept for the recipe's other optimiser seeds:
+a seed varies the projections' initialisation and the batch order, never the images.
+
 Every random draw is a pure function of the recipe's seeds and the step, so a run resumed from
 its newest checkpoint (and its rendered chunks) ends with the weights of an uninterrupted one.
 """
@@ -15,6 +19,7 @@ from __future__ import annotations
 import dataclasses
 import datetime
 import functools
+import hashlib
 import json
 import logging
 import math
@@ -271,11 +276,14 @@ def pretrain(
     keep_run: bool = False,
     stop_after: int | None = None,
     render_workers: int = 1,
+    share_renders: bool = False,
 ) -> PretrainResult:
     """Renders, trains and saves the offline backbone of `config` (resuming whatever was done).
 
     `stop_after`: return after this many training steps without saving (to test resuming);
-    `render_workers`: processes that render (the same images with any number).
+    `render_workers`: processes that render (the same images with any number);
+    `share_renders`: render into (or read) the folder every optimiser seed of the recipe shares
+    (`shared_renders_dir`), kept after the run, instead of the run's own folder.
     """
     config.validate()
     began = time.perf_counter()
@@ -294,7 +302,8 @@ def pretrain(
     timings = {"setup_s": time.perf_counter() - began}
 
     mark, cpu_mark = time.perf_counter(), time.process_time()
-    images = render_all(library, pool, run_dir, config.render, config.model, progress, render_workers)
+    renders_root = shared_renders_dir(config, pool) if share_renders else run_dir
+    images = render_all(library, pool, renders_root, config.render, config.model, progress, render_workers)
     timings["render_s"] = time.perf_counter() - mark
     timings["render_cpu_s"] = time.process_time() - cpu_mark
     by_class = [np.flatnonzero(images.labels == k) for k in range(len(bank.class_names))]
@@ -381,6 +390,18 @@ def pretrain(
         shutil.rmtree(run_dir / "renders", ignore_errors=True)
         shutil.rmtree(run_dir / checkpoints.CHECKPOINT_DIR, ignore_errors=True)
     return outcome.saved
+
+
+def shared_renders_dir(config: PretrainConfig, pool: TrainingPool) -> Path:
+    """The renders of `config`'s backbone seeds: keyed by everything the images depend on (the recipe less its
+    optimiser, the pool's objects and textures), beside the backbones in the cache."""
+    depends_on = {
+        "recipe": serial.to_dict(dataclasses.replace(config, optim=OptimConfig())),
+        "objects": list(pool.objects),
+        "textures": list(pool.textures),
+    }
+    key = hashlib.sha256(json.dumps(depends_on, sort_keys=True).encode()).hexdigest()[:12]
+    return output_dir(config).parent / f"renders-{key}"
 
 
 def corpus_of(config: PretrainConfig):
