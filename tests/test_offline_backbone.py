@@ -181,6 +181,7 @@ def test_a_backbone_seed_reads_the_renders_its_recipe_shares(smoke_run, library,
     monkeypatch.setattr(render, "render_chunks", rendering)
     result = loop.pretrain(repeat, library, tmp_path / "repeat", progress=False, stop_after=1, share_renders=True)
     assert np.isfinite(result.probe_loss_before) and not (tmp_path / "repeat" / "run" / "renders").exists()
+    assert (shared / loop.CAPTIONS_FILE).is_file()  # its encoded captions, for the next seed
 
 
 def _minilm_dir() -> str:

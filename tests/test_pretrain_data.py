@@ -382,6 +382,31 @@ def test_a_run_encodes_only_the_captions_it_draws_with_the_bits_of_the_whole_ban
     assert np.array_equal(caption_sentences(tower, bank.texts, np.sort(odd))[odd], whole[odd])
 
 
+def test_backbone_seeds_encode_each_caption_once_with_the_bits_of_their_own_encoding(setup, tmp_path):
+    from ocplace.models.offline_backbone import FrozenTextTower
+    from ocplace.train.pretrain.loop import caption_sentences, shared_caption_sentences
+
+    texts = caption_bank(setup[1]).texts[:200]
+    tower = FrozenTextTower.load(MODEL.text_max_length)
+    encoded = []
+    counting = dataclasses.replace(tower, encode=lambda batch: encoded.append(len(set(batch))) or tower.encode(batch))
+    first, second = np.arange(0, 120), np.arange(60, 200)
+    assert np.array_equal(
+        shared_caption_sentences(counting, texts, first, tmp_path), caption_sentences(tower, texts, first)
+    )
+    assert sum(encoded) == 120
+    mine = shared_caption_sentences(counting, texts, second, tmp_path)
+    assert sum(encoded) == 120 + 80  # the 60 the first seed encoded are read, not encoded again
+    assert np.array_equal(mine, caption_sentences(tower, texts, second))  # zeros outside its own, the same bits
+    assert np.array_equal(
+        shared_caption_sentences(counting, texts, first, tmp_path), caption_sentences(tower, texts, first)
+    )
+    assert sum(encoded) == 200
+    other_bank = (*texts[:-1], "a photo of something else.")
+    shared_caption_sentences(counting, other_bank, first, tmp_path)
+    assert sum(encoded) == 320  # another bank's captions are not this one's
+
+
 def test_group_balance_weighs_a_category_of_many_models_as_one():
     from ocplace.train.pretrain.captions import OBJECT, TABLE, CaptionBank
     from ocplace.train.pretrain.loop import sample_classes

@@ -7,8 +7,9 @@ Output directory (default `<cache>/backbones/offline-<recipe hash>/`):
     run/renders/chunk_*.npz, run/checkpoints/            removed once the backbone is saved
 
 With `share_renders` (the backbone seeds of one recipe, `reproduce --backbone-seeds N`) the chunks are
-`<cache>/backbones/renders-<hash>/renders/chunk_*.npz` instead, kept for the recipe's other optimiser seeds:
-a seed varies the projections' initialisation and the batch order, never the images.
+`<cache>/backbones/renders-<hash>/renders/chunk_*.npz` instead, beside the captions' sentences encoded so far
+(`captions.npz`), kept for the recipe's other optimiser seeds: a seed varies the projections' initialisation and
+the batch order, never the images or a caption's embedding.
 
 Every random draw is a pure function of the recipe's seeds and the step, so a run resumed from
 its newest checkpoint (and its rendered chunks) ends with the weights of an uninterrupted one.
@@ -50,6 +51,7 @@ from ocplace.models.offline_backbone import (
 )
 from ocplace.models.offline_config import OfflineConfig
 from ocplace.models.offline_recipes import OptimConfig, PretrainConfig, output_dir
+from ocplace.paths import atomic_path
 from ocplace.sim.corpus.build import build_corpus
 from ocplace.train import checkpoints, runner
 from ocplace.train import optim as optimisers  # `optim` names the recipe's OptimConfig here
@@ -62,6 +64,7 @@ from ocplace.train.pretrain.render import RenderedImages, render_all
 log = logging.getLogger(__name__)
 
 RUN_DIR = "run"
+CAPTIONS_FILE = "captions.npz"  # in the shared renders folder: the sentences of the captions encoded so far
 LOG_EVERY = 10
 
 
@@ -265,6 +268,35 @@ def caption_sentences(text_tower: FrozenTextTower, texts: tuple[str, ...], used:
     return sentences
 
 
+def shared_caption_sentences(
+    text_tower: FrozenTextTower, texts: tuple[str, ...], used: np.ndarray, folder: Path
+) -> np.ndarray:
+    """`caption_sentences`, encoding only the captions `folder/captions.npz` does not hold yet for this bank and
+    adding them there: a row's bits do not depend on its batch's other captions, so a recipe's backbone seeds
+    read each other's rows and get what they would have encoded themselves (zeros outside `used`, as there)."""
+    path = folder / CAPTIONS_FILE
+    bank = hashlib.sha256("\n".join(texts).encode()).hexdigest()
+    known_rows, known = np.zeros(0, np.int64), None
+    if path.exists():
+        with np.load(path) as saved:
+            if str(saved["bank"]) == bank:
+                known_rows, known = saved["rows"], saved["sentences"]
+    missing = np.setdiff1d(used, known_rows)
+    encoded = caption_sentences(text_tower, texts, missing) if len(missing) else None
+    width = (encoded if encoded is not None else known).shape[1]
+    every = np.zeros((len(texts), width), np.float32)
+    if known is not None:
+        every[known_rows] = known
+    if encoded is not None:
+        every[missing] = encoded[missing]
+        rows = np.union1d(known_rows, missing)
+        with atomic_path(path) as tmp, open(tmp, "wb") as handle:
+            np.savez(handle, bank=bank, rows=rows, sentences=every[rows])
+    sentences = np.zeros_like(every)
+    sentences[used] = every[used]
+    return sentences
+
+
 # ----------------------------------------------------------------------------- the run
 
 
@@ -283,7 +315,7 @@ def pretrain(
     `stop_after`: return after this many training steps without saving (to test resuming);
     `render_workers`: processes that render (the same images with any number);
     `share_renders`: render into (or read) the folder every optimiser seed of the recipe shares
-    (`shared_renders_dir`), kept after the run, instead of the run's own folder.
+    (`shared_renders_dir`), kept after the run, instead of the run's own folder; its encoded captions too.
     """
     config.validate()
     began = time.perf_counter()
@@ -314,7 +346,12 @@ def pretrain(
     mark = time.perf_counter()
     text_tower = FrozenTextTower.load(config.model.text_max_length)
     draws, probe_draw = run_draws(images, by_class, bank, optim)
-    bank_sentences = jnp.asarray(caption_sentences(text_tower, bank.texts, used_captions([*draws, probe_draw])))
+    used = used_captions([*draws, probe_draw])
+    if share_renders:
+        sentences = shared_caption_sentences(text_tower, bank.texts, used, renders_root)
+    else:
+        sentences = caption_sentences(text_tower, bank.texts, used)
+    bank_sentences = jnp.asarray(sentences)
     timings["captions_s"] = time.perf_counter() - mark
 
     mark, cpu_mark = time.perf_counter(), time.process_time()
