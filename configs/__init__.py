@@ -1,7 +1,7 @@
 """The experiments, one file each: each `get_config()` spells out everything its experiment decides.
 
     smoke     tests and CI: 12 + 4 x 8 scenes, seconds-long recipes
-    demo      `make demo`: 200 + 4 x 40 scenes, Ours and its ablations, ~10 min on 2 cores
+    demo      `make demo`: 200 + 4 x 40 scenes, Ours, w/o Adapter and w/o LLM, 5 to 8 min on 2 cores
     default   the paper's protocol: 2000 + 4 x 400 scenes, every method and training fraction
 
 `get(name)` returns the named `Experiment`; `ocplace reproduce --experiment NAME` runs it. Their names

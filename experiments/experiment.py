@@ -194,22 +194,22 @@ class Experiment:
         return list(range(first + 1, first + self.evaluation.backbone_seeds))
 
     def recipe(self, method: str) -> Any:
-        """The recipe of a registered row: its entry here, else its `RECIPE`'s defaults (a row from outside the
-        tree, which no experiment of ours names); None for a row that learns without one."""
+        """The recipe of a registered row: its entry here, else its `RECIPE`'s defaults (for a row from outside the
+        tree, which no experiment of ours names: `missing_recipes` refuses one of ours); None for a row that learns
+        without one."""
         if method in self.recipes:
             return self.recipes[method]
         recipe_type = registry.recipe_types().get(method)
         return None if recipe_type is None else recipe_type()
 
     def missing_recipes(self, methods: Iterable[str]) -> list[str]:
-        """For each of `methods` that learns with a recipe this experiment does not hold, and whose `RECIPE` has no
-        defaults to fall back on, what to add."""
+        """For each of `methods` that learns with a recipe this experiment does not hold, what to add: every row of
+        the tree needs its entry; a row from outside falls back on its `RECIPE`'s defaults, if it has them."""
         types = registry.recipe_types()
         return [
-            f"recipes has no entry for {name}, which learns with a {types[name].__name__} that has no defaults: "
-            "add one to the experiment"
+            f"recipes has no entry for {name}, which learns with a {types[name].__name__}: add one to the experiment"
             for name in methods
-            if name in types and name not in self.recipes and not _has_defaults(types[name])
+            if name in types and name not in self.recipes and (registry.in_tree(name) or not _has_defaults(types[name]))
         ]
 
     def validate(self) -> None:

@@ -279,16 +279,17 @@ def task_graph(
     backbone_of: Callable[[Mapping[str, Any], MethodRun], str]
     if config.backbone is None:
         seeds = list(dict.fromkeys(run.backbone_seed for run in [MethodRun("", ""), *runs]))  # the base one first
-        for seed in seeds:
+        for previous, seed in zip([None, *seeds], seeds, strict=False):
             task = Task(
                 pretrain_task,
                 (config.experiment.backbone_recipe(seed), False, cpus.pretrain, len(seeds) > 1),
                 cpus=cpus.pretrain,
                 pinned=True,
             )
-            # A repeat reads the base pretraining's renders rather than drawing the same images beside it.
-            base: tuple[str, ...] = () if seed is None else (backbone_key(None),)
-            nodes.append(Node(backbone_key(seed), functools.partial(_given, task), base))
+            # One after another: the first that pretrains renders and encodes for the others (a cached one does not),
+            # and no two write the shared captions at once.
+            waits: tuple[str, ...] = () if seed is None else (backbone_key(previous),)
+            nodes.append(Node(backbone_key(seed), functools.partial(_given, task), waits))
 
         def backbone_after(run: MethodRun) -> tuple[str, ...]:
             return (backbone_key(run.backbone_seed),)

@@ -6,6 +6,7 @@ with a recipe, that recipe's type (`RECIPE`, the type of its entry in `Experimen
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import importlib.metadata
 import pkgutil
@@ -57,7 +58,16 @@ def registered_names() -> tuple[str, ...]:
 def recipe_types() -> dict[str, type[Recipe]]:
     """The recipe type of each row that learns with one (its package's `RECIPE`), by name, without importing JAX."""
     packages = {name: importlib.import_module(package) for name, package in row_packages().items()}
-    return {name: package.RECIPE for name, package in packages.items() if hasattr(package, "RECIPE")}
+    types = {name: package.RECIPE for name, package in packages.items() if hasattr(package, "RECIPE")}
+    for name, recipe_type in types.items():
+        if not (isinstance(recipe_type, type) and dataclasses.is_dataclass(recipe_type)):
+            raise EvaluationError(f"row {name!r}: RECIPE must be a dataclass type (experiments are saved as JSON)")
+    return types
+
+
+def in_tree(name: str) -> bool:
+    """Whether the row `name` is a folder of `ocplace.methods`, not a package another distribution registers."""
+    return row_packages()[name].startswith(f"{methods.__name__}.")
 
 
 def method_specs() -> dict[str, MethodSpec[Any]]:

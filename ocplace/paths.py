@@ -54,7 +54,7 @@ def scratch_cache() -> Path:
 
 
 def backbones_cache() -> Path:
-    return cache_dir() / "backbones"  # pretrained offline backbones, one folder each
+    return cache_dir() / "backbones"  # pretrained offline backbones, one folder each, and their seeds' renders
 
 
 def weights_cache() -> Path:

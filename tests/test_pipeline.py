@@ -303,7 +303,8 @@ def test_backbone_seeds_share_the_base_pretrainings_renders(tmp_path):
     runs = pipeline.planned_runs(demo, pipeline.selected_specs(demo, specs))
     nodes = {node.key: node for node in pipeline.task_graph(demo, specs, runs, tmp_path / "data", tmp_path, "hash")}
     assert [key for key in nodes if key.startswith("backbone")] == ["backbone", "backbone seed 1", "backbone seed 2"]
-    assert nodes["backbone"].after == () and nodes["backbone seed 2"].after == ("backbone",)
+    assert nodes["backbone"].after == () and nodes["backbone seed 1"].after == ("backbone",)
+    assert nodes["backbone seed 2"].after == ("backbone seed 1",)  # one after another: one renders for the rest
     tasks = [nodes[key].make({}) for key in ("backbone", "backbone seed 2")]
     assert [task.args[0].optim.seed for task in tasks] == [0, 2] and all(task.args[-1] is True for task in tasks)
     one = pipeline.PipelineConfig(configs.get("demo"))

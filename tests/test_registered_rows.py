@@ -174,3 +174,23 @@ def test_a_bad_entry_point_is_a_typed_error_naming_it(entry, package, message, t
     monkeypatch.syspath_prepend(str(tmp_path))
     with pytest.raises(EvaluationError, match=message):
         registered_names()
+
+
+def test_a_row_from_outside_names_a_dataclass_recipe(tmp_path, monkeypatch):
+    """Experiments are saved as JSON and read back by each row's `RECIPE`: a row naming something else is refused."""
+    from ocplace.errors import EvaluationError
+    from ocplace.methods.registry import ENTRY_POINTS, in_tree, recipe_types
+
+    (tmp_path / "loose_row").mkdir()
+    (tmp_path / "loose_row" / "__init__.py").write_text(
+        '"""A row whose recipe is no type."""\n\nTABLE_ROW = 98\nRECIPE = 3\n'
+    )
+    (tmp_path / "loose_row-0.1.dist-info").mkdir()
+    (tmp_path / "loose_row-0.1.dist-info" / "METADATA").write_text(
+        "Metadata-Version: 2.1\nName: loose-row\nVersion: 0.1\n"
+    )
+    (tmp_path / "loose_row-0.1.dist-info" / "entry_points.txt").write_text(f"[{ENTRY_POINTS}]\nloose_row = loose_row\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    assert in_tree("ours") and not in_tree("loose_row")
+    with pytest.raises(EvaluationError, match="row 'loose_row': RECIPE must be a dataclass type"):
+        recipe_types()

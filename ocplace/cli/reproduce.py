@@ -31,7 +31,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     reproduce.add_argument(
         "--methods",
         help="comma-separated method names, or `all` (default: the experiment's: "
-        "every method; in the demo experiment Ours and its ablations)",
+        "every method; in the demo experiment Ours, w/o Adapter and w/o LLM)",
     )
     reproduce.add_argument(
         "--seeds",

@@ -275,7 +275,7 @@ def shared_caption_sentences(
     adding them there: a row's bits do not depend on its batch's other captions, so a recipe's backbone seeds
     read each other's rows and get what they would have encoded themselves (zeros outside `used`, as there)."""
     path = folder / CAPTIONS_FILE
-    bank = hashlib.sha256("\n".join(texts).encode()).hexdigest()
+    bank = hashlib.sha256("\n".join([text_tower.digest, *texts]).encode()).hexdigest()  # this tower's sentences
     known_rows, known = np.zeros(0, np.int64), None
     if path.exists():
         with np.load(path) as saved:
@@ -430,8 +430,8 @@ def pretrain(
 
 
 def shared_renders_dir(config: PretrainConfig, pool: TrainingPool) -> Path:
-    """The renders of `config`'s backbone seeds: keyed by everything the images depend on (the recipe less its
-    optimiser, the pool's objects and textures), beside the backbones in the cache."""
+    """The renders of `config`'s backbone seeds, beside the backbones in the cache: keyed by the recipe less its
+    optimiser and by the pool's objects and textures (as the backbone's own folder, not by the library's meshes)."""
     depends_on = {
         "recipe": serial.to_dict(dataclasses.replace(config, optim=OptimConfig())),
         "objects": list(pool.objects),
