@@ -37,12 +37,16 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=1, help="the backbone seed to cost (1: the first repeat)")
     parser.add_argument("--budget", type=float, default=20.0, help="CPU-minutes allowed beyond the steps")
     args = parser.parse_args()
-    results = json.loads(args.results.read_text())
-    steps = seed_steps(results, args.seed)
-    if not any(step["name"] == f"backbone seed {args.seed}" for step in steps):
-        parser.error(f"{args.results} has no pretraining of backbone seed {args.seed}")
-    pretraining = next(step for step in steps if step["name"] == f"backbone seed {args.seed}")
-    timings = pretraining_timings(results, args.seed)
+    try:
+        results = json.loads(args.results.read_text())
+        steps = seed_steps(results, args.seed)
+        pretraining = next(step for step in steps if step["name"] == f"backbone seed {args.seed}")
+        timings = pretraining_timings(results, args.seed)
+    except (OSError, ValueError, KeyError, StopIteration) as error:
+        parser.error(
+            f"{args.results}: no pretraining of backbone seed {args.seed} with its runs and backbone to read "
+            f"({type(error).__name__}: {error}); give the results.json of a `reproduce --backbone-seeds` run"
+        )
     work = sum(step["wall_s"] * step["cpus"] for step in steps) / 60
     training = timings["train_s"] * pretraining["cpus"] / 60
     for step in steps:

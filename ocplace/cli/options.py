@@ -228,12 +228,8 @@ def _set(node, path: list[str], text: str, key: str):
     current = getattr(node, name)
     if rest:
         return dataclasses.replace(node, **{name: _set(current, rest, text, key)})
-    if isinstance(current, Mapping):
-        keys = ", ".join(f"{key}.{entry}.*" for entry in current)
-        raise ConfigError(f"key {key!r} names a group of settings; set one of its keys: {keys}")
-    if dataclasses.is_dataclass(current):
-        keys = ", ".join(f"{key}.{field.name}" for field in dataclasses.fields(current) if field.init)
-        raise ConfigError(f"key {key!r} names a group of settings; set one of its keys: {keys}")
+    if _is_group_value(current):
+        raise _group_named(key, current)
     try:
         return dataclasses.replace(node, **{name: parse_value(text, hints[name])})
     except ValueError as error:
@@ -245,9 +241,18 @@ def _set_entry(node: Mapping, name: str, rest: list[str], text: str, key: str, d
     if name not in node:
         raise ConfigError(f"unknown key {key!r}: valid keys under {done!r} are " + ", ".join(f"{n}.*" for n in node))
     if not rest:
-        keys = ", ".join(f"{key}.{field.name}" for field in dataclasses.fields(node[name]) if field.init)
-        raise ConfigError(f"key {key!r} names a group of settings; set one of its keys: {keys}")
+        raise _group_named(key, node[name])
     return {**node, name: _set(node[name], rest, text, key)}
+
+
+def _group_named(key: str, group) -> ConfigError:
+    """The refusal of a `--set` key that names a group (a dataclass or a mapping), listing the keys inside it."""
+    if isinstance(group, Mapping):
+        inside = [f"{entry}.*" for entry in group]
+    else:
+        inside = [field.name for field in dataclasses.fields(group) if field.init]
+    keys = ", ".join(f"{key}.{name}" for name in inside)
+    return ConfigError(f"key {key!r} names a group of settings; set one of its keys: {keys}")
 
 
 def _is_group_value(value) -> bool:

@@ -433,11 +433,11 @@ def shared_renders_dir(config: PretrainConfig, pool: TrainingPool) -> Path:
     """The renders of `config`'s backbone seeds, beside the backbones in the cache: keyed by the recipe less its
     optimiser and by the pool's objects and textures (as the backbone's own folder, not by the library's meshes)."""
     depends_on = {
-        "recipe": serial.to_dict(dataclasses.replace(config, optim=OptimConfig())),
-        "objects": list(pool.objects),
-        "textures": list(pool.textures),
+        "recipe": dataclasses.replace(config, optim=OptimConfig()),
+        "objects": pool.objects,
+        "textures": pool.textures,
     }
-    key = hashlib.sha256(json.dumps(depends_on, sort_keys=True).encode()).hexdigest()[:12]
+    key = hashlib.sha256(serial.to_json(depends_on).encode()).hexdigest()[:12]
     return output_dir(config).parent / f"renders-{key}"
 
 
