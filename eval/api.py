@@ -34,6 +34,10 @@ class MethodOutput:
     # The least top grounding probability over the references (what the policy's refusal gate compares
     # with its threshold); None: the method does not ground references to tokens.
     confidence: float | None = None
+    # Per parsed tuple, P over the visual tokens (N + 1 in box order, the table last): what the grounding knew
+    # beyond its choice, recorded for the analysis of failures; None: the method does not report it.
+    probabilities: tuple[tuple[float, ...], ...] | None = None
+    decision: str | None = None  # how `grounded` was chosen from them ("argmax", "joint", "joint_fallback")
 
 
 class Method(Protocol):

@@ -31,6 +31,7 @@ import numpy as np
 from ocplace import serial
 from ocplace.errors import POLICY_ERRORS, EvaluationError, PolicyRaised
 from ocplace.eval.api import Method, MethodOutput
+from ocplace.models.inference_settings import InferenceSettings
 from ocplace.sim.boxes import Boxes
 from ocplace.sim.dataset.records import SceneRecord
 from ocplace.vocabulary import LEVELS, MAX_SAMPLES, TEST_SUBSETS, subsets_problem
@@ -100,6 +101,7 @@ class MethodRun:
     seed: int | None = None  # a repeat's own training and evaluation seed; None: the settings' seed
     backbone_seed: int | None = None  # a repeat on the backbone pretrained with this seed; None: the settings'
     backbone: str | None = None  # that backbone's spec, once known; None: the settings' backbone
+    inference: InferenceSettings | None = None  # a policy row's placement-time settings; None: the row's own
 
     @property
     def key(self) -> str:
@@ -142,6 +144,14 @@ class SceneOutcome:
     physical: PhysicalOutcome | None = None
     parse_note: str | None = None  # the LLM parser's fall-back reason or disagreement (MethodOutput.parse_note)
     confidence: float | None = None  # MethodOutput.confidence: the least top grounding probability
+    # What the grounding knew (none of it is shown to a method; `None`: the method does not report it):
+    probabilities: tuple[tuple[float, ...], ...] | None = None  # per parsed tuple, P per token (4 digits)
+    token_names: tuple[str, ...] | None = None  # the library object of each token column, "table" last
+    chosen_tokens: tuple[int, ...] | None = None  # per parsed tuple, the column the method grounded it to
+    true_tokens: tuple[int | None, ...] | None = None  # per parsed tuple, its true reference's column (None: no
+    # tuple of the ground truth matches the parsed one, or its object has no box)
+    true_ranks: tuple[int | None, ...] | None = None  # 1 + the tokens more probable than the true one
+    decision: str | None = None  # MethodOutput.decision: "argmax", "joint" or "joint_fallback"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -159,6 +169,7 @@ class Evaluation:
     seed: int | None = None  # MethodRun.seed
     backbone_seed: int | None = None  # MethodRun.backbone_seed
     backbone: str | None = None  # MethodRun.backbone: the spec of a backbone repeat's own backbone
+    inference: InferenceSettings | None = None  # MethodRun.inference: the settings it placed with, when set
 
 
 # ----------------------------------------------------------------------------- keys and scenes
@@ -275,6 +286,7 @@ class _Interpreted(NamedTuple):
     parsed: tuple[tuple[str, str], ...] | None
     tokens: tuple[int, ...] | None
     failure: str | None
+    probabilities: np.ndarray | None = None  # (L, N + 1)
 
 
 def _points(points: object, rows: bool) -> np.ndarray[Any, Any]:
@@ -295,9 +307,72 @@ def interpret(output: MethodOutput) -> _Interpreted:
             failure=output.failure
             if output.failure is not None or output.mode is not None
             else "no placement and no failure message",
+            probabilities=_probability_rows(output.probabilities),
         )
     except Exception as error:  # OverflowError (10**400), whatever an object's __array__ raises, ...
         return _Interpreted(None, None, None, None, output.failure or f"malformed output: {_describe_error(error)}")
+
+
+def _probability_rows(rows: object) -> np.ndarray | None:
+    """`(L, T)` float64 probabilities, or None when there are none; ValueError (a malformed output) otherwise."""
+    if rows is None:
+        return None
+    array = np.asarray(rows, dtype=np.float64)
+    if array.ndim != 2 or not np.all((array >= 0) & (array <= 1)):  # NaN fails too
+        raise ValueError(f"probabilities must be (tuples, tokens) numbers in [0, 1], got shape {array.shape}")
+    return array
+
+
+def _compact(probability: float) -> float:
+    """4 significant digits: about float16's, and a small outcomes file."""
+    return float(f"{probability:.4g}")
+
+
+def true_columns(
+    parsed: Sequence[tuple[str, str]], truth: Sequence[Any], columns: Sequence[int]
+) -> tuple[int | None, ...]:
+    """Per parsed tuple, the token column of the ground truth's reference it stands for: the truth tuple of the same
+    reference and relation, else of the same reference, else (as many tuples on both sides) the one at its place;
+    None when none is left, or its object has no box. `columns`: the object id of each column."""
+    keys = [(reference_key(t.reference_name), t.relation) for t in truth]
+    unused = list(range(len(truth)))
+    matched: list[int | None] = []
+    for position, (reference, relation) in enumerate(parsed):
+        key = (reference_key(reference), relation)
+        found = next((i for i in unused if keys[i] == key), None)
+        found = next((i for i in unused if keys[i][0] == key[0]), None) if found is None else found
+        if found is None and len(parsed) == len(truth) and position in unused:
+            found = position
+        if found is not None:
+            unused.remove(found)
+        matched.append(found)
+    column_of = {object_id: column for column, object_id in enumerate(columns)}
+    return tuple(None if i is None else column_of.get(truth[i].reference_object_id) for i in matched)
+
+
+def _grounding_record(
+    record: SceneRecord,
+    parsed: Sequence[tuple[str, str]] | None,
+    tokens: Sequence[int] | None,
+    probabilities: np.ndarray | None,
+) -> dict[str, Any]:
+    """The outcome's record of what the grounding knew: each parsed tuple's probabilities, each column's object,
+    the chosen and the true column and its rank; empty when the method reports no probabilities for its tuples."""
+    columns = (*(int(object_id) for object_id in record.boxes.object_ids), 0)
+    if probabilities is None or parsed is None or probabilities.shape != (len(parsed), len(columns)):
+        return {}
+    names = {obj.object_id: obj.name for obj in record.objects} | {0: "table"}
+    true = true_columns(parsed, record.tuples or (), columns)
+    ranks = tuple(
+        None if column is None else 1 + int(np.sum(row > row[column])) for row, column in zip(probabilities, true)
+    )
+    return {
+        "probabilities": tuple(tuple(_compact(p) for p in row) for row in probabilities),
+        "token_names": tuple(names.get(object_id, "?") for object_id in columns),
+        "chosen_tokens": None if tokens is None or len(tokens) != len(parsed) else tuple(tokens),
+        "true_tokens": true,
+        "true_ranks": ranks,
+    }
 
 
 def score_scene(record: SceneRecord, output: MethodOutput) -> SceneOutcome:
@@ -307,7 +382,7 @@ def score_scene(record: SceneRecord, output: MethodOutput) -> SceneOutcome:
     truth = record.tuples or ()
     if not isinstance(output, MethodOutput):  # anyone's Method may return anything
         output = MethodOutput(None, None, failure=f"malformed output: {type(output).__name__}, not a MethodOutput")
-    mode, samples, parsed, tokens, failure = interpret(output)
+    mode, samples, parsed, tokens, failure, probabilities = interpret(output)
     problem = record.problem()
     success = failure is None and mode is not None and bool(placement_success(mode[None], problem)[0])
     if failure is not None:
@@ -343,6 +418,8 @@ def score_scene(record: SceneRecord, output: MethodOutput) -> SceneOutcome:
         stage=None if success else _stage(failure, parse_ok, grounding_ok, program_ok),
         parse_note=output.parse_note if isinstance(output.parse_note, str) else None,
         confidence=_probability(output.confidence),
+        decision=output.decision if isinstance(output.decision, str) else None,
+        **_grounding_record(record, parsed, tokens, probabilities),
     )
 
 
@@ -430,6 +507,7 @@ def evaluate_run(
         seed=run.seed,
         backbone_seed=run.backbone_seed,
         backbone=run.backbone,
+        inference=run.inference,
     )
 
 

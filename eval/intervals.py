@@ -44,20 +44,39 @@ def success_interval(
     """The interval of the mean of `successes`, `(runs, scenes)` bool or 0/1: each run scored on the same
     scenes, in the same order. Raises ValueError for an empty array."""
     successes = np.asarray(successes, np.float64)
-    if successes.ndim != 2 or 0 in successes.shape:
-        raise ValueError(f"successes must be (runs, scenes) with at least one of each, got shape {successes.shape}")
+    low, high = _bootstrap(successes, level, resamples, seed)
     runs, scenes = successes.shape
+    mean = float(successes.mean())
+    wilson_low, wilson_high = wilson(mean, scenes, level)
+    return Interval(mean, float(min(low, wilson_low)), float(max(high, wilson_high)), runs, scenes)
+
+
+def paired_interval(
+    differences: np.ndarray, level: float = LEVEL, resamples: int = RESAMPLES, seed: int = BOOTSTRAP_SEED
+) -> Interval:
+    """The interval of the mean of `differences`, `(units, scenes)` in [-1, 1]: one row's success minus another's on
+    the same scenes, per unit of runs. The two-level bootstrap alone (no Wilson floor: a difference of paired
+    outcomes is no rate)."""
+    differences = np.asarray(differences, np.float64)
+    low, high = _bootstrap(differences, level, resamples, seed)
+    units, scenes = differences.shape
+    return Interval(float(differences.mean()), float(low), float(high), units, scenes)
+
+
+def _bootstrap(values: np.ndarray, level: float, resamples: int, seed: int) -> tuple[float, float]:
+    """The two-level bootstrap's quantiles of the mean of `values` `(runs, scenes)`; ValueError when it is empty."""
+    if values.ndim != 2 or 0 in values.shape:
+        raise ValueError(f"values must be (runs, scenes) with at least one of each, got shape {values.shape}")
+    runs, scenes = values.shape
     rng = np.random.default_rng(seed)
     run_counts = _counts(rng.integers(runs, size=(resamples, runs)), runs)  # (resamples, runs)
     scene_counts = _counts(rng.integers(scenes, size=(resamples, scenes)), scenes)  # (resamples, scenes)
     # The mean over drawn runs and drawn scenes: per scene the drawn runs' mean, then over drawn scenes.
-    per_scene = run_counts @ successes / runs  # (resamples, scenes)
+    per_scene = run_counts @ values / runs  # (resamples, scenes)
     replicates = np.einsum("rs,rs->r", per_scene, scene_counts) / scenes
     tail = (1 - level) / 2
     low, high = np.quantile(replicates, [tail, 1 - tail])
-    mean = float(successes.mean())
-    wilson_low, wilson_high = wilson(mean, scenes, level)
-    return Interval(mean, float(min(low, wilson_low)), float(max(high, wilson_high)), runs, scenes)
+    return float(low), float(high)
 
 
 def _counts(drawn: np.ndarray, size: int) -> np.ndarray:

@@ -37,6 +37,7 @@ from ocplace import serial
 from ocplace.errors import ResultsError
 from ocplace.eval.harness import EvalSettings, Evaluation, SceneOutcome, aggregate_subset
 from ocplace.eval.statistics import derived
+from ocplace.models.inference_settings import InferenceSettings
 from ocplace.paths import atomic_path, write_text_atomic
 from ocplace.vocabulary import GATE_THRESHOLD
 
@@ -62,6 +63,12 @@ COMPARED_FIELDS = (
     "physical",
     "parse_note",
     "confidence",
+    "probabilities",
+    "token_names",
+    "chosen_tokens",
+    "true_tokens",
+    "true_ranks",
+    "decision",
 )
 
 
@@ -156,6 +163,7 @@ def evaluation_to_json(evaluation: Evaluation) -> dict[str, Any]:
             ("seed", evaluation.seed),
             ("backbone_seed", evaluation.backbone_seed),
             ("backbone", evaluation.backbone),
+            ("inference", None if evaluation.inference is None else serial.to_dict(evaluation.inference)),
         )
         if value is not None
     }
@@ -177,6 +185,7 @@ def evaluation_from_json(entry: dict[str, Any]) -> Evaluation:
         seed=entry.get("seed"),
         backbone_seed=entry.get("backbone_seed"),
         backbone=entry.get("backbone"),
+        inference=None if entry.get("inference") is None else serial.from_dict(InferenceSettings, entry["inference"]),
     )
 
 
@@ -239,6 +248,12 @@ OUTCOME_FIELDS = (
     "grounding_ok",
     "grounded",
     "mode",
+    "decision",
+    "probabilities",
+    "token_names",
+    "chosen_tokens",
+    "true_tokens",
+    "true_ranks",
 )
 
 

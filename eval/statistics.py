@@ -17,9 +17,10 @@ from typing import Any
 
 import numpy as np
 
+from ocplace import serial
 from ocplace.errors import ResultsError
 from ocplace.eval.harness import LEVEL_GROUPS
-from ocplace.eval.intervals import success_interval
+from ocplace.eval.intervals import paired_interval, success_interval
 from ocplace.vocabulary import GATE_THRESHOLD
 
 COLUMNS = (*LEVEL_GROUPS, "overall")  # Table I's columns per subset: each level, the object levels, all
@@ -36,8 +37,30 @@ def full_runs(results: Mapping[str, Any]) -> list[dict[str, Any]]:
 
 
 def repeats(results: Mapping[str, Any], entry: Mapping[str, Any]) -> list[dict[str, Any]]:
-    """`entry` and its repeats with other seeds: the same method and fraction."""
-    return [e for e in results["evaluations"] if e["method"] == entry["method"] and e["fraction"] == entry["fraction"]]
+    """`entry` and its repeats with other seeds: the same method and fraction, one per distinct model.
+
+    A row that learns nothing (w/o Adapter) is repeated with every adapter seed of the rows beside it, but its
+    model is the same on one backbone and its mode does not depend on the evaluation's seed: runs of one row on the
+    same backbone with the same description and the same outcomes count once (the first), so such a row is one run
+    per backbone, not nine."""
+    kept, seen = [], set()
+    for e in results["evaluations"]:
+        if e["method"] != entry["method"] or e["fraction"] != entry["fraction"]:
+            continue
+        model = (e.get("backbone_seed"), serial.to_json(e.get("description")), serial.to_json(_outcomes(e)))
+        if model not in seen:
+            seen.add(model)
+            kept.append(e)
+    return kept
+
+
+def _outcomes(entry: Mapping[str, Any]) -> dict[str, Any]:
+    """What an evaluation's outcomes are, compared between its repeats: per subset each scene's success (none in a
+    summary) and the overall rate."""
+    return {
+        subset: ([scene["success"] for scene in body["scenes"]], body["aggregate"]["overall"].get("success"))
+        for subset, body in entry["subsets"].items()
+    }
 
 
 def subset_scenes(entry: Mapping[str, Any], subset: str) -> list[dict[str, Any]]:
@@ -104,15 +127,74 @@ def row_selective(runs: Sequence[Mapping[str, Any]], subsets: Sequence[str], thr
     return selective
 
 
+def pairs(runs: Sequence[Mapping[str, Any]], reference: Sequence[Mapping[str, Any]]) -> list[tuple[Any, Any]]:
+    """(run, reference run) on the same scenes and backbone: each reference run with the run of the same seeds, else
+    with the row's one run on its backbone (a row counted once per backbone, `repeats`); unmatched runs are left out."""
+    by_seeds = {(r.get("seed"), r.get("backbone_seed")): r for r in runs}
+    by_backbone: dict[Any, list[Mapping[str, Any]]] = {}
+    for r in runs:
+        by_backbone.setdefault(r.get("backbone_seed"), []).append(r)
+    matched = []
+    for ref in reference:
+        run = by_seeds.get((ref.get("seed"), ref.get("backbone_seed")))
+        alone = by_backbone.get(ref.get("backbone_seed"), [])
+        run = run if run is not None else alone[0] if len(alone) == 1 else None
+        if run is not None:
+            matched.append((run, ref))
+    return matched
+
+
+def paired_differences(
+    runs: Sequence[Mapping[str, Any]], reference: Sequence[Mapping[str, Any]], subsets: Sequence[str]
+) -> dict[str, Any]:
+    """`{subset: {column: [mean, low, high, units, scenes]}}` of a row's success minus the reference row's, paired on
+    the same scenes and runs (`pairs`). The bootstrap's units are the backbones when there are several (a backbone's
+    pairs averaged per scene: runs on one backbone are not independent), else the pairs."""
+    matched = pairs(runs, reference)
+    if not matched:
+        return {}
+    backbones = [ref.get("backbone_seed") for _, ref in matched]
+    table = {}
+    for subset in subsets:
+        cells = {}
+        for column in COLUMNS:
+            differences = np.stack(
+                [
+                    successes([run], subset, column)[0].astype(float) - successes([ref], subset, column)[0]
+                    for run, ref in matched
+                ]
+            )
+            if not differences.size:
+                continue
+            if len(set(backbones)) > 1:
+                differences = np.stack(
+                    [differences[[b == unit for b in backbones]].mean(axis=0) for unit in dict.fromkeys(backbones)]
+                )
+            cells[column] = list(paired_interval(differences))
+        if cells:
+            table[subset] = cells
+    return table
+
+
+REFERENCE_ROW = "ours"  # the row the paired table compares every other row with
+
+
 def derive(results: Mapping[str, Any]) -> dict[str, Any]:
-    """Intervals and the selective table of every Table I row (`full_runs`), keyed by the row's key."""
+    """Intervals, the selective table and the paired differences against Ours of every Table I row (`full_runs`),
+    keyed by the row's key."""
     threshold = results.get("gate_threshold", GATE_THRESHOLD)
     subsets = results["settings"]["subsets"]
     rows = {entry["key"]: repeats(results, entry) for entry in full_runs(results)}
+    reference = rows.get(REFERENCE_ROW)
     return {
         "gate_threshold": threshold,
         "intervals": {key: row_intervals(runs, subsets) for key, runs in rows.items()},
         "selective": {key: row_selective(runs, subsets, threshold) for key, runs in rows.items()},
+        "paired": {
+            key: paired_differences(runs, reference, subsets)
+            for key, runs in rows.items()
+            if reference is not None and key != REFERENCE_ROW
+        },
     }
 
 

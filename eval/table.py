@@ -178,6 +178,37 @@ def selective_table(results: Mapping[str, Any], found: dict[str, Any] | ResultsE
     return "\n".join(lines)
 
 
+def _difference(cell: Sequence[float] | None) -> str:
+    """`+4.67 [+0.9, +9.2]` in points; bold when the interval excludes 0 (the rows differ)."""
+    if cell is None:
+        return MISSING
+    mean, low, high = (100 * value for value in cell[:3])
+    text = f"{mean:+.2f} [{low:+.1f}, {high:+.1f}]"
+    return f"**{text}**" if low > 0 or high < 0 else text
+
+
+def paired_table(results: Mapping[str, Any], found: dict[str, Any] | ResultsError | None = None) -> str:
+    """Each row's success minus Ours' on the same scenes and runs (Overall, points), with its paired 95% interval."""
+    found = _derived(results) if found is None else found
+    if isinstance(found, ResultsError):
+        return f"**Paired differences**: not available ({found})"
+    paired = found.get("paired") or {}
+    rows = [(entry, paired[entry["key"]]) for entry in full_runs(results) if paired.get(entry["key"])]
+    if not rows:
+        return ""
+    subsets = _subsets(results)
+    lines = [
+        "**Differences from Ours on the same scenes and runs** (Overall, points; paired 95% interval, a bootstrap "
+        "over scenes and runs, or backbones when there are several; bold: the interval excludes 0, the rows differ)",
+        "",
+        _row(["Method", *[SUBSET_TITLES[s] for s in subsets]]),
+        _row(["---", *["---:"] * len(subsets)]),
+    ]
+    for entry, row in rows:
+        lines.append(_row([entry["label"], *[_difference(row.get(s, {}).get("overall")) for s in subsets]]))
+    return "\n".join(lines)
+
+
 def subset_table(results: Mapping[str, Any], title: str, columns: Mapping[str, Callable[[dict[str, Any]], str]]) -> str:
     """Rows = methods; per subset the named columns, each computed from the subset's overall aggregate."""
     subsets = _subsets(results)
@@ -319,6 +350,7 @@ def render(results: Mapping[str, Any]) -> str:
         header,
         table_one(results),
         interval_table(results, found),
+        paired_table(results, found),
         selective_table(results, found),
         level_table(results, "sample_success", "Mean success over samples (%)"),
         physical_table(results),

@@ -24,6 +24,7 @@ from ocplace.eval.results import build_results, dataset_identity, settings_of
 from ocplace.methods import registry
 from ocplace.methods.contract import MethodSpec
 from ocplace.methods.registry import load_method, method_run
+from ocplace.models.inference_settings import InferenceSettings
 
 if TYPE_CHECKING:
     from ocplace.runtime.executor import Executor
@@ -145,7 +146,9 @@ def runs_of(results: Mapping[str, Any], specs: Mapping[str, MethodSpec[Any]] | N
         run = method_run(
             specs[entry["method"]], run_dir, entry["fraction"], entry.get("seed"), entry.get("backbone_seed")
         )
-        runs.append(dataclasses.replace(run, backbone=entry.get("backbone")))
+        inference = entry.get("inference")
+        inference = None if inference is None else serial.from_dict(InferenceSettings, inference)
+        runs.append(dataclasses.replace(run, backbone=entry.get("backbone"), inference=inference))
     return runs
 
 

@@ -20,6 +20,7 @@ from ocplace import serial
 from ocplace.errors import ConfigError, OcplaceError
 from ocplace.methods import registry
 from ocplace.methods.contract import Recipe
+from ocplace.models.inference_settings import InferenceSettings
 from ocplace.models.offline_recipes import PretrainConfig
 from ocplace.models.parsing.config import PARSER_NAMES
 from ocplace.runtime.width import TRAIN_CPUS
@@ -96,6 +97,25 @@ def recipe_problems(recipes: Mapping[str, Any]) -> list[str]:
             problems.append(f"recipes.{name} is a {type(recipe).__name__}; {name} learns with a {types[name].__name__}")
         elif problem := _refusal(f"recipes.{name}", recipe.validate):
             problems.append(problem)
+    return problems
+
+
+def read_inference(inference: Mapping[str, Any]) -> dict[str, InferenceSettings]:
+    """`Experiment.inference` from its JSON text."""
+    return {name: serial.from_dict(InferenceSettings, fields) for name, fields in inference.items()}
+
+
+def inference_problems(inference: Mapping[str, Any]) -> list[str]:
+    """Each entry that names no policy row (a registered row declaring `INFERENCE`) or cannot place, by key."""
+    rows = registry.inference_defaults()
+    problems = []
+    for name, settings in inference.items():
+        if name not in rows:
+            problems.append(f"inference.{name} names no policy row (those: {', '.join(rows)})")
+        elif not isinstance(settings, InferenceSettings):
+            problems.append(f"inference.{name} is a {type(settings).__name__}, not an InferenceSettings")
+        else:
+            problems += [f"inference.{name}.{problem}" for problem in settings.problems()]
     return problems
 
 
@@ -181,6 +201,11 @@ class Experiment:
     recipes: Mapping[str, Recipe] = dataclasses.field(metadata={serial.READ: read_recipes})
     evaluation: EvalPlan
     cpus: TaskCpus = TaskCpus()
+    # Each policy row's placement-time settings by its registered name (`INFERENCE` of its package, unless an
+    # experiment sets them): how it places with its trained runs; `--set inference.ROW.FIELD=VALUE`.
+    inference: Mapping[str, InferenceSettings] = dataclasses.field(
+        default_factory=registry.inference_defaults, metadata={serial.READ: read_inference}
+    )
 
     def backbone_recipe(self, seed: int | None = None) -> PretrainConfig:
         """The backbone's pretraining recipe, with another optimiser seed for a backbone repeat (None: its own)."""
@@ -220,6 +245,7 @@ class Experiment:
         if self.seed < 0:
             problems.append(f"seed must be at least 0, got {self.seed}")
         problems += self.dataset.problems() + self.evaluation.problems() + recipe_problems(self.recipes)
+        problems += inference_problems(self.inference)
         problems += [problem for problem in [_refusal("backbone", self.backbone.validate)] if problem]
         problems += number_problems(self, "")
         if problems:

@@ -160,7 +160,10 @@ def planned_runs(config: PipelineConfig, specs: Sequence[MethodSpec[Any]]) -> li
             again = repeated and (plan.seed_fractions is None or fraction in plan.seed_fractions)
             seeds = [None, *range(base + 1, base + plan.seeds)] if again else [None]
             backbones = [None, *experiment.backbone_seeds()] if again and spec.uses_backbone else [None]
-            runs += [method_run(spec, None, fraction, seed, backbone) for backbone in backbones for seed in seeds]
+            inference = experiment.inference.get(spec.name)
+            runs += [
+                method_run(spec, None, fraction, seed, backbone, inference) for backbone in backbones for seed in seeds
+            ]
     return runs
 
 
@@ -321,12 +324,13 @@ def task_graph(
 
         return Node(key, make, after)
 
+    trainings = list({trained.key: trained for run in runs if (trained := trained_run(run, specs))}.values())
     sharing: dict[
         tuple[object, int | None], list[MethodRun]
     ] = {}  # (prepare function, backbone seed) -> the runs whose trainings need those inputs
-    for run in runs:
+    for run in trainings:
         spec = specs[run.method]
-        if spec.prepare is not None and spec.train is not None:
+        if spec.prepare is not None:
             sharing.setdefault((spec.prepare, run.backbone_seed), []).append(run)
     prepare_key: dict[
         tuple[str, int | None], str
@@ -336,20 +340,30 @@ def task_graph(
         key = f"prepare {'+'.join(names)}" + ("" if backbone_seed is None else f" ~backbone{backbone_seed}")
         prepare_key |= {(name, backbone_seed): key for name in names}
         nodes.append(method_node(key, prepare_task, shared[0], backbone_after(shared[0])))
-    for run in runs:
-        if specs[run.method].train is not None:
-            prepared = prepare_key.get((run.method, run.backbone_seed))
-            after = backbone_after(run) + ((prepared,) if prepared else ())
-            nodes.append(method_node(f"train {run.key}", train_once, run, after))
+    for run in trainings:
+        prepared = prepare_key.get((run.method, run.backbone_seed))
+        after = backbone_after(run) + ((prepared,) if prepared else ())
+        nodes.append(method_node(f"train {run.key}", train_once, run, after))
     for run in evaluation_order(runs, specs):
-        after = backbone_after(run) + ((f"train {run.key}",) if specs[run.method].train is not None else ())
-        evaluate = _evaluate_maker(config, specs[run.method], run, dataset_dir, out, dataset_hash, backbone_of)
+        trained = trained_run(run, specs)
+        after = backbone_after(run) + ((f"train {trained.key}",) if trained else ())
+        evaluate = _evaluate_maker(config, specs[run.method], run, dataset_dir, out, dataset_hash, backbone_of, trained)
         nodes.append(Node(f"evaluate {run.key}", evaluate, after))
     drawn = next((run for run in runs if run.method == "ours" and run.key == "ours"), None)
     if drawn is not None and specs["ours"].train is not None and "seen" in config.experiment.evaluation.subsets:
         draw = _figure_maker(config, dataset_dir, out, backbone_of, drawn)
         nodes.append(Node(FIGURE_NODE, draw, backbone_after(drawn) + (f"train {drawn.key}",)))
     return nodes
+
+
+def trained_run(run: MethodRun, specs: Mapping[str, MethodSpec[Any]]) -> MethodRun | None:
+    """The run whose training makes `run`'s run directory: `run` itself for a row that trains, the same run of the row
+    it places with for an inference-only row (`MethodSpec.places_with`), None for a row that learns nothing."""
+    spec = specs[run.method]
+    if spec.places_with is not None:
+        owner = specs[spec.places_with]
+        return dataclasses.replace(run, method=owner.name, label=owner.label, inference=None)
+    return run if spec.train is not None else None
 
 
 def _given(task: Task, done: Mapping[str, Any]) -> Task:
@@ -381,11 +395,11 @@ def _evaluate_maker(
     out: Path,
     dataset_hash: str,
     backbone_of: Callable[[Mapping[str, Any], MethodRun], str],
+    trained: MethodRun | None,
 ) -> Callable[[Mapping[str, Any]], Task]:
     def make(done: Mapping[str, Any]) -> Task:
         backbone = backbone_of(done, run)
-        trained = done.get(f"train {run.key}")
-        ready = run if trained is None else dataclasses.replace(run, run_dir=trained[0])
+        ready = run if trained is None else dataclasses.replace(run, run_dir=done[f"train {trained.key}"][0])
         if run.backbone_seed is not None:  # recorded with the evaluation, so a rerun loads this backbone
             ready = dataclasses.replace(ready, backbone=backbone)
         settings = evaluation_settings(config, backbone)
@@ -445,8 +459,13 @@ def run_pipeline(
             f"evaluation.backbone_seeds is {config.experiment.evaluation.backbone_seeds}, but a given backbone "
             f"({config.backbone}) has no pretraining to repeat: drop --backbone or set evaluation.backbone_seeds=1"
         )
+    unknown += [
+        f"{spec.name} places with {spec.places_with}'s runs, a row not registered (registered: {', '.join(specs)})"
+        for spec in specs.values()
+        if spec.places_with is not None and spec.places_with not in specs
+    ]
     if not unknown:
-        unknown = config.experiment.missing_recipes(spec.name for spec in selected_specs(config, specs))
+        unknown = config.experiment.missing_recipes(spec.trained_as for spec in selected_specs(config, specs))
     if unknown:
         raise ConfigError(f"experiment {config.experiment.name!r} cannot run: {'; '.join(unknown)}")
     check_writable(out, as_folder=True)

@@ -16,6 +16,7 @@ from typing import Any, Generic, Protocol, TypeVar
 from ocplace import serial
 from ocplace.errors import EvaluationError
 from ocplace.eval.api import Method
+from ocplace.models.inference_settings import InferenceSettings
 
 
 class Recipe(Protocol):
@@ -49,6 +50,7 @@ class LoadContext:
     parser: str = "offline"  # parser name for methods that parse (models.parsing.make_parser)
     num_samples: int = 1024
     threshold: float = 0.0  # EvalSettings.threshold: least grounding probability to place against (0: always)
+    inference: InferenceSettings | None = None  # a policy row's placement-time settings; None: the policy's defaults
 
     @property
     def trained_run(self) -> Path:
@@ -76,6 +78,19 @@ class MethodSpec(Generic[RecipeT]):
     # It trains or places on the experiment's pretrained backbone, so `reproduce` repeats it over backbone seeds
     # (`EvalPlan.backbone_seeds`); False for a method that starts from random weights.
     uses_backbone: bool = True
+    # An inference-only row: it places with this row's trained runs (loading them its own way, e.g. with other
+    # inference settings) and trains nothing; `reproduce` trains the owner's runs when only this row is selected.
+    places_with: str | None = None
+
+    @property
+    def trained_as(self) -> str:
+        """The row whose training makes this row's runs (its own name, unless it places with another's)."""
+        return self.places_with or self.name
+
+    @property
+    def needs_run(self) -> bool:
+        """It loads a trained run: its own training's, or the row's it places with."""
+        return self.train is not None or self.places_with is not None
 
 
 def done_record(run_dir: Path) -> Path:

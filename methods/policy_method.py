@@ -53,6 +53,8 @@ def output_of(placement: Placement) -> MethodOutput:
         parse_note=parse_note(placement.parsed),
         # NaN-propagating: a NaN probability makes the scene's confidence no probability (harness: None).
         confidence=float(np.min([ref.probability for ref in placement.references])) if placement.references else None,
+        probabilities=tuple(tuple(float(p) for p in ref.probabilities) for ref in placement.references) or None,
+        decision=placement.decision if placement.references else None,
     )
 
 
@@ -116,6 +118,7 @@ def describe_policy(
                 "min_boxes": policy.min_boxes,
                 "max_tuples": policy.max_tuples,
                 "detector": dataclasses.asdict(policy.detector),
+                "decision": dataclasses.asdict(policy.decision),
                 "boxes": "dataset (from segmentation)",
                 "aabbs": "dataset (simulator AABBs of boxed objects)",
             },
@@ -124,21 +127,28 @@ def describe_policy(
     return described
 
 
-def policy_of(ctx: LoadContext, adapters_file: Path | None) -> PlacementPolicy:
-    """The placement policy on `ctx`'s backbone, parser and sample count, with these adapters (None: zero-shot).
-    Its backbone reads the test features that another evaluation on it encoded (models/shared_features.py)."""
+def policy_of(ctx: LoadContext, adapters_file: Path | None, row: str) -> PlacementPolicy:
+    """The placement policy of the row `row` on `ctx`'s backbone, parser, sample count and inference settings, with
+    these adapters (None: zero-shot). Its backbone reads the test features that another evaluation on it encoded
+    (models/shared_features.py)."""
     from ocplace.models.backbone import load_backbone
-    from ocplace.models.placement.sampler import SamplerConfig
     from ocplace.models.policy import PlacementPolicy
     from ocplace.models.shared_features import SharedFeatures
 
     return PlacementPolicy.from_run(
-        SharedFeatures(load_backbone(ctx.backbone)),
-        adapters_file,
-        parser=ctx.parser,
-        sampler=SamplerConfig(num_samples=ctx.num_samples),
-        threshold=ctx.threshold,
+        SharedFeatures(load_backbone(ctx.backbone)), adapters_file, parser=ctx.parser, **policy_settings(ctx, row)
     )
+
+
+def policy_settings(ctx: LoadContext, row: str) -> dict[str, Any]:
+    """The `PlacementPolicy` fields an evaluation sets: its sample count and threshold, and the inference settings of
+    `ctx` (those of the row `row`, its package's `INFERENCE`, when `ctx` has none)."""
+    from ocplace.methods.registry import inference_defaults
+    from ocplace.models.placement.sampler import SamplerConfig
+
+    inference = ctx.inference if ctx.inference is not None else inference_defaults().get(row)
+    fields = {} if inference is None else inference.policy_fields()
+    return {"sampler": SamplerConfig(num_samples=ctx.num_samples), "threshold": ctx.threshold, **fields}
 
 
 def trained_run_weights(run_dir: Path | None, what: str, method: str) -> Path:

@@ -18,6 +18,7 @@ from ocplace.errors import EvaluationError
 from ocplace.eval.api import Method
 from ocplace.eval.harness import EvalSettings, MethodRun
 from ocplace.methods.contract import LoadContext, MethodSpec, Recipe
+from ocplace.models.inference_settings import InferenceSettings
 
 ENTRY_POINTS = "ocplace.methods"
 
@@ -65,6 +66,17 @@ def recipe_types() -> dict[str, type[Recipe]]:
     return types
 
 
+def inference_defaults() -> dict[str, InferenceSettings]:
+    """The placement-time settings of each policy row (its package's `INFERENCE`), by name, without importing JAX:
+    what an experiment's `inference` starts from."""
+    packages = {name: importlib.import_module(package) for name, package in row_packages().items()}
+    defaults = {name: package.INFERENCE for name, package in packages.items() if hasattr(package, "INFERENCE")}
+    for name, settings in defaults.items():
+        if not isinstance(settings, InferenceSettings):
+            raise EvaluationError(f"row {name!r}: INFERENCE must be an InferenceSettings")
+    return defaults
+
+
 def in_tree(name: str) -> bool:
     """Whether the row `name` is a folder of `ocplace.methods`, not a package another distribution registers."""
     return row_packages()[name].startswith(f"{methods.__name__}.")
@@ -100,14 +112,15 @@ def method_run(
     fraction: float = 1.0,
     seed: int | None = None,
     backbone_seed: int | None = None,
+    inference: InferenceSettings | None = None,
 ) -> MethodRun:
-    """The harness's row for a run of `spec`."""
-    return MethodRun(spec.name, spec.label, run_dir, fraction, seed, backbone_seed)
+    """The harness's row for a run of `spec` (`inference`: None for the row's own, `INFERENCE`)."""
+    return MethodRun(spec.name, spec.label, run_dir, fraction, seed, backbone_seed, inference=inference)
 
 
 def load_method(spec: MethodSpec[Any], run: MethodRun, settings: EvalSettings) -> Method:
-    """The `Method` of `run`, loaded by its spec with the settings' backbone, parser and sample count."""
+    """The `Method` of `run`, loaded by its spec with the settings' backbone, parser and sample count, and the run's
+    inference settings (None: the row's own)."""
     settings = run.settings(settings)
-    return spec.load(
-        LoadContext(run.run_dir, settings.backbone, settings.parser, settings.num_samples, settings.threshold)
-    )
+    context = LoadContext(run.run_dir, settings.backbone, settings.parser, settings.num_samples, settings.threshold)
+    return spec.load(dataclasses.replace(context, inference=run.inference))

@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from ocplace.errors import (
+    ConfigError,
     GroundingUncertain,
     NoFeasiblePlacement,
     NoObjectBoxes,
@@ -34,6 +35,7 @@ from ocplace.errors import (
 from ocplace.models.backbone import Backbone, PromptConfig, check_trained_on
 from ocplace.models.detection import DetectorConfig, detect_boxes, estimate_aabbs
 from ocplace.models.grounding import GroundingModel
+from ocplace.models.inference_settings import Decision
 from ocplace.models.parsing import ParsedTuple, Parser
 from ocplace.models.placement.sampler import SamplerConfig
 from ocplace.models.trained_adapters import TrainedAdapters, load_adapters
@@ -116,6 +118,7 @@ class SceneProgress:
     prepared: PreparedScene | None = None
     parsed: tuple[ParsedTuple, ...] | None = None
     references: tuple[GroundedReference, ...] | None = None
+    decision: str = "argmax"  # how `references` were chosen: "argmax", "joint" or "joint_fallback"
     sampled: Sampled | None = None
     error: OcplaceError | None = None
 
@@ -150,10 +153,18 @@ class Placement:
     grid: metric.Grid
     flags: tuple[str, ...]
     error: OcplaceError | None = None
+    # How the references' tokens were chosen (`Decision`): "argmax", "joint", or "joint_fallback" (no
+    # consistent feasible assignment among the candidates: the argmax one, flagged `no_feasible_assignment`).
+    decision: str = "argmax"
 
     @property
     def ok(self) -> bool:
         return self.error is None
+
+    @property
+    def assignment_probability(self) -> float | None:
+        """The joint probability of the chosen tokens (the product over the references); None without any."""
+        return float(np.prod([ref.probability for ref in self.references])) if self.references else None
 
     @property
     def failure(self) -> str | None:
@@ -180,6 +191,8 @@ class Placement:
                 f"  mode: ({self.mode[0]:+.4f}, {self.mode[1]:+.4f}) m = pixel "
                 f"({self.mode_px[0]:.1f}, {self.mode_px[1]:.1f}); {len(self.samples)} samples"
             )
+        if self.decision != "argmax" and self.references:
+            lines.append(f"  decision: {self.decision} (joint P={self.assignment_probability:.3f})")
         if self.flags:
             lines.append(f"  flags: {', '.join(self.flags)}")
         if self.error is not None:
@@ -202,6 +215,12 @@ class PlacementPolicy:
     min_boxes: int = MAX_BOXES  # tokens and collision boxes are padded to at least this: one compiled shape
     max_tuples: int = MAX_PARSED_TUPLES
     encode_scenes: int = 32  # scenes whose crops are encoded together in `place_many`
+    decision: Decision = Decision()  # argmax per reference (the paper's), or the joint, feasibility-aware choice
+
+    def __post_init__(self) -> None:
+        problems = self.decision.problems(self.max_tuples)
+        if problems:
+            raise ConfigError("invalid policy settings: " + "; ".join(problems))
 
     @classmethod
     def from_run(cls, backbone: Backbone, adapters=None, parser: Parser | str = "offline", **kwargs) -> PlacementPolicy:
@@ -285,9 +304,8 @@ class PlacementPolicy:
         chunks = [ready[start : start + self.encode_scenes] for start in range(0, len(ready), self.encode_scenes)]
         for chunk in _progress(chunks, progress, "encode"):
             tokens = self.encode([run.prepared for run in chunk], [run.parsed for run in chunk])
-            probabilities = self.ground(tokens)
-            for row, run in enumerate(chunk):
-                run.references = self.decide(run.prepared, run.parsed, probabilities[row])
+            self.decide_many(chunk, self.ground(tokens))
+            for run in chunk:
                 run.attempt(self.check_confidence, run.prepared, run.references)
         self.sample([run for run in ready if run.ok], key)
         return [self._assemble(run) for run in runs]
@@ -377,15 +395,70 @@ class PlacementPolicy:
         """`(B, L, T)` P over the visual tokens per tuple (rows past a scene's tuples are padding)."""
         return self.grounding.probabilities(tokens.text, tokens.visual, tokens.visual_mask)
 
+    def decide_many(self, runs: Sequence[SceneProgress], probabilities: np.ndarray) -> None:
+        """Sets each run's `references` (and `decision`) from its row of `(B, L, T)` probabilities, as
+        `self.decision` says: every reference at its argmax, or the joint choice of all of a batch's scenes in one
+        jitted call (`models/joint_grounding.py`)."""
+        choice = None
+        if self.decision.mode == "joint" and runs:
+            import jax
+
+            from ocplace.models.joint_grounding import choose_assignments
+
+            problem = self._joint_problem(runs, probabilities)
+            choice = jax.device_get(choose_assignments(problem, self.decision.top_k, self.sampler.grid))
+        for row, run in enumerate(runs):
+            tokens = None
+            if choice is not None:
+                tokens = [int(token) for token in choice.tokens[row, : len(run.parsed)]]
+                run.decision = "joint" if choice.found[row] else "joint_fallback"
+            run.references = self.decide(run.prepared, run.parsed, probabilities[row], tokens)
+
+    def _joint_problem(self, runs: Sequence[SceneProgress], probabilities: np.ndarray):
+        """The `JointProblem` of `runs` (prepared and parsed), padded to whole steps of scenes."""
+        from ocplace.models.joint_grounding import SCENES_PER_STEP, JointProblem
+        from ocplace.sim import relations
+
+        num_tuples = max(len(run.parsed) for run in runs)
+        num_tokens = probabilities.shape[-1]
+        num_boxes = max([self.min_boxes] + [len(run.prepared.boxes) for run in runs])
+        scenes = []
+        for row, run in enumerate(runs):
+            count, parsed = len(run.prepared.boxes), run.parsed
+            token_boxes = np.zeros((num_tokens, 2, 2), np.float32)
+            token_boxes[:count] = run.prepared.aabbs
+            names = [item.reference for item in parsed] + [None] * (num_tuples - len(parsed))
+            relation = [relations.relation_index(item.relation) for item in parsed] + [0] * (num_tuples - len(parsed))
+            scenes.append(
+                JointProblem(
+                    probabilities=np.asarray(probabilities[row, :num_tuples], np.float32),
+                    tuple_mask=np.arange(num_tuples) < len(parsed),
+                    relation=np.asarray(relation, np.int32),
+                    same_name=np.array([[a == b for b in names] for a in names], bool),
+                    num_boxes=np.int32(count),
+                    token_boxes=token_boxes,
+                    boxes=np.concatenate([token_boxes[:count], np.zeros((num_boxes - count, 2, 2), np.float32)]),
+                    box_mask=np.arange(num_boxes) < count,
+                    half_extents=np.asarray(run.prepared.half_extents, np.float32),
+                )
+            )
+        scenes += scenes[:1] * (-len(scenes) % SCENES_PER_STEP)  # whole steps: few compiled shapes
+        return JointProblem(*(np.stack(field) for field in zip(*scenes)))
+
     def decide(
-        self, scene: PreparedScene, parsed: Sequence[ParsedTuple], probabilities: np.ndarray
+        self,
+        scene: PreparedScene,
+        parsed: Sequence[ParsedTuple],
+        probabilities: np.ndarray,
+        tokens: Sequence[int] | None = None,
     ) -> tuple[GroundedReference, ...]:
-        """The grounded reference (argmax token) per tuple, from `(L, T)` probabilities."""
+        """The grounded reference per tuple, from `(L, T)` probabilities: at `tokens` when given, else at each
+        tuple's argmax."""
         num_tokens = len(scene.boxes) + 1
         references = []
         for k, item in enumerate(parsed):
             row = np.asarray(probabilities[k, :num_tokens], np.float64)
-            token = int(np.argmax(row))
+            token = int(np.argmax(row)) if tokens is None else int(tokens[k])
             is_table = token == len(scene.boxes)
             references.append(
                 GroundedReference(
@@ -448,6 +521,8 @@ class PlacementPolicy:
         flags = list(prepared.flags) if prepared is not None else []
         if prepared is not None and not len(boxes):
             flags.append("no_boxes")
+        if run.decision == "joint_fallback":
+            flags.append("no_feasible_assignment")
         if error is not None:
             flags.append(error.flag)
         samples = mode = heatmap = samples_px = mode_px = None
@@ -469,6 +544,7 @@ class PlacementPolicy:
             grid=self.sampler.grid,
             flags=tuple(flags),
             error=error,
+            decision=run.decision,
         )
 
 

@@ -23,6 +23,7 @@ from ocplace.models.adapters import AdapterConfig, init_adapters
 from ocplace.models.backbone import PromptConfig
 from ocplace.models.detection import DetectorConfig
 from ocplace.models.grounding import GroundingModel
+from ocplace.models.inference_settings import Decision
 from ocplace.models.offline_backbone import OfflineBackbone, flatten_params, unflatten_params
 from ocplace.models.offline_config import OfflineConfig
 from ocplace.models.placement.sampler import SamplerConfig
@@ -82,6 +83,7 @@ def export_policy(policy, directory: str | Path, *, parser: str, card: str = "",
             "crop_size": policy.crop_size,
             "min_boxes": policy.min_boxes,
             "max_tuples": policy.max_tuples,
+            "decision": serial.to_dict(policy.decision),
         },
         "conventions": CONVENTIONS,
         "source": source or {},
@@ -124,6 +126,10 @@ def load_policy_folder(directory: str | Path, parser=None, **overrides):
     try:
         expected = document["files"][MODEL_FILE]
         backbone_doc, adapters_doc, settings = document["backbone"], document["adapters"], document["policy"]
+        # A folder written before the joint decision was made with the argmax one, and keeps it.
+        decision = serial.from_dict(Decision, settings.get("decision", {"mode": "argmax"}))
+        if problems := decision.problems(int(settings["max_tuples"])):
+            raise PolicyFolderError(f"{directory / CONFIG_FILE}: {'; '.join(problems)}; {redo}")
         if (directory / MODEL_FILE).is_file() and file_sha256(directory / MODEL_FILE) != expected:
             raise PolicyFolderError(f"{directory / MODEL_FILE} is not the file {CONFIG_FILE} names (sha256); {redo}")
         tensors, _ = load_weights(directory / MODEL_FILE, redo)
@@ -136,6 +142,7 @@ def load_policy_folder(directory: str | Path, parser=None, **overrides):
             "crop_size": int(settings["crop_size"]),
             "min_boxes": int(settings["min_boxes"]),
             "max_tuples": int(settings["max_tuples"]),
+            "decision": decision,
         }
         prompt = serial.from_dict(PromptConfig, adapters_doc["prompt"])
         if parser is None or isinstance(parser, str):

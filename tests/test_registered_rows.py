@@ -37,7 +37,7 @@ def scenes(smoke_dataset):
 @pytest.mark.parametrize("name", registered_names())
 def test_every_row_trains_loads_and_places(name, smoke_rows, scenes, tiny_backbone_spec):
     spec = method_specs()[name]
-    run_dir = None if spec.train is None else smoke_rows[name]
+    run_dir = smoke_rows[spec.trained_as] if spec.needs_run else None
     assert run_dir is None or (run_dir / WEIGHTS_FILE).is_file()
     method = spec.load(LoadContext(run_dir, tiny_backbone_spec, num_samples=SAMPLES))
     assert len(scenes) == 4

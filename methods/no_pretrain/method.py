@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any
 
 from ocplace.methods.contract import LoadContext, MethodSpec, TrainContext
 from ocplace.methods.no_pretrain.recipe import NoPretrainRecipe as Recipe
-from ocplace.methods.policy_method import PolicyMethod, describe_policy, trained_run_weights
+from ocplace.methods.policy_method import PolicyMethod, describe_policy, policy_settings, trained_run_weights
 from ocplace.paths import read_run_file
 
 if TYPE_CHECKING:
@@ -47,19 +47,12 @@ class NoPretrainMethod(PolicyMethod):
 def load(ctx: LoadContext) -> NoPretrainMethod:
     from ocplace.methods.no_pretrain.model import BACKBONE_DIR
     from ocplace.models.offline_backbone import load_saved_backbone
-    from ocplace.models.placement.sampler import SamplerConfig
     from ocplace.models.policy import PlacementPolicy
 
     adapters_file = trained_run_weights(ctx.run_dir, "tower and adapters", "no_pretrain")
     run_dir = ctx.trained_run
     backbone = load_saved_backbone(run_dir / BACKBONE_DIR)
-    policy = PlacementPolicy.from_run(
-        backbone,
-        adapters_file,
-        parser=ctx.parser,
-        sampler=SamplerConfig(num_samples=ctx.num_samples),
-        threshold=ctx.threshold,
-    )
+    policy = PlacementPolicy.from_run(backbone, adapters_file, parser=ctx.parser, **policy_settings(ctx, "no_pretrain"))
     return NoPretrainMethod(
         "no_pretrain", policy, f"offline:{run_dir / BACKBONE_DIR}", adapters_file, run_dir, backbone
     )

@@ -35,7 +35,7 @@ def train(ctx: TrainContext[Recipe]) -> Path:
 def load_as(name: str, ctx: LoadContext) -> PolicyMethod:
     """Loads a run of a method that trains as Ours does, under its own name (`ours`, `ours_paper`)."""
     adapters_file = trained_run_weights(ctx.run_dir, "adapters", name)
-    return PolicyMethod(name, policy_of(ctx, adapters_file), ctx.backbone, adapters_file)
+    return PolicyMethod(name, policy_of(ctx, adapters_file, name), ctx.backbone, adapters_file)
 
 
 def placement_policy(

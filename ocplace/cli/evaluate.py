@@ -161,12 +161,12 @@ def method_runs(specs: list, runs: dict[str, Path], runs_from: Path | None = Non
     selected = []
     for spec in specs:
         run_dir = runs.get(spec.name)
-        if run_dir is None and runs_from is not None and spec.train is not None:
-            run_dir = run_directory(runs_from, spec.name, 1.0)
-        if spec.train is not None and run_dir is None:
+        if run_dir is None and runs_from is not None and spec.needs_run:
+            run_dir = run_directory(runs_from, spec.trained_as, 1.0)
+        if spec.needs_run and run_dir is None:
             raise EvaluationError(
-                f"method {spec.name!r} learns: pass --run {spec.name}=RUN_DIR (a run directory "
-                "from its training, e.g. `ocplace reproduce` writes them under OUT/runs)"
+                f"method {spec.name!r} places with a trained run: pass --run {spec.name}=RUN_DIR (a run directory "
+                f"from {spec.trained_as}'s training, e.g. `ocplace reproduce` writes them under OUT/runs)"
             )
         if run_dir is not None and not run_dir.exists():
             raise EvaluationError(f"run directory {run_dir} of {spec.name!r} does not exist")

@@ -152,6 +152,11 @@ def train_method(args: argparse.Namespace) -> int:
     if args.method not in specs:
         raise ConfigError(f"unknown method {args.method!r}; registered: {', '.join(specs)}")
     spec = specs[args.method]
+    if spec.places_with is not None:
+        raise ConfigError(
+            f"{args.method} trains nothing: it places with {spec.places_with}'s runs; train those "
+            f"(`ocplace train --method {spec.places_with}`) and evaluate {args.method} on them"
+        )
     if spec.train is None:
         raise ConfigError(f"{args.method} learns nothing: there is no run to train (evaluate it directly)")
     if args.dataset is None:
