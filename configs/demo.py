@@ -1,4 +1,5 @@
-"""`make demo`: 200 + 4 x 40 scenes, Ours, w/o Adapter and w/o LLM with a few minutes of training each.
+"""`make demo`: 200 + 4 x 40 scenes, Ours, w/o Adapter and w/o LLM with a few minutes of training each, and Ours
+with the joint decision (beyond the paper) on Ours' own run.
 
 Its rows share one backbone and one set of features. The rows with an image tower of their own
 (w/o CLIP pre-train, Raw Image Grids, CLIPort-Place) would double its time: `make reproduce` runs
@@ -66,7 +67,7 @@ def get_config() -> Experiment:
             ),
         },
         evaluation=EvalPlan(
-            methods=("ours", "no_adapter", "no_llm"),
+            methods=("ours", "ours_joint", "no_adapter", "no_llm"),  # the joint row places with Ours' run
             fractions=(1.0,),
             fraction_methods=("ours", "grids", "no_pretrain", "no_llm"),
             num_samples=1024,

@@ -286,13 +286,19 @@ def _kept(scene: Mapping[str, Any], name: str) -> Any:
     return value.partition(":")[0] if name == "failure" and value is not None else value
 
 
-def with_outcomes(summary: Mapping[str, Any], path: str | Path) -> dict[str, Any]:
-    """A summary (`summarise`) with each scene's outcome read back from its outcomes file (`write_outcomes`)."""
+def outcome_lines(path: str | Path) -> list[dict[str, Any]]:
+    """The lines of an outcomes file (`write_outcomes`): each the evaluation's key fields, its subset and a scene's
+    outcome."""
     try:
         text = gzip.decompress(Path(path).read_bytes()).decode()
-        lines = [json.loads(line) for line in text.splitlines() if line.strip()]
+        return [json.loads(line) for line in text.splitlines() if line.strip()]
     except (OSError, ValueError, EOFError) as error:
         raise ResultsError(f"{path} is missing or not an outcomes file ({error})") from None
+
+
+def with_outcomes(summary: Mapping[str, Any], path: str | Path) -> dict[str, Any]:
+    """A summary (`summarise`) with each scene's outcome read back from its outcomes file (`write_outcomes`)."""
+    lines = outcome_lines(path)
     scenes: dict[tuple[str, str], list[dict[str, Any]]] = {}
     for line in lines:
         scenes.setdefault((line["key"], line["subset"]), []).append({name: line.get(name) for name in OUTCOME_FIELDS})

@@ -56,10 +56,8 @@ class TrueTokenPolicy(PlacementPolicy):
 
     true_tokens: tuple[int, ...] = ()
 
-    def decide(self, scene, parsed, probabilities):
-        forced = np.zeros_like(np.asarray(probabilities))
-        forced[np.arange(len(self.true_tokens)), self.true_tokens] = 1.0
-        return super().decide(scene, parsed, forced)
+    def decide(self, scene, parsed, probabilities, tokens=None):
+        return super().decide(scene, parsed, probabilities, self.true_tokens)
 
 
 def median_ms(fn, repeats: int) -> float:

@@ -34,9 +34,43 @@ def test_grounding_notebook_executes(tmp_path, smoke_dataset, monkeypatch):
         "OCPLACE_SPLIT": "seen",
         "OCPLACE_FEATURES": features_path,
         "OCPLACE_RUN": run,
+        "OCPLACE_OUTCOMES": recorded_outcomes(dataset, tmp_path / "outcomes.jsonl.gz"),
     }.items():
         monkeypatch.setenv(name, str(value))
     outputs = executed_outputs(NOTEBOOK, tmp_path)
     text = printed(outputs)
     assert "with adapters: GroundingAccuracy" in text and "scenes of 'seen'" in text
-    assert sum(o.output_type == "display_data" for o in outputs) >= 4  # P matrices, confusion, bars, sweeps
+    assert sum(o.output_type == "display_data" for o in outputs) >= 6  # P, confusion, bars, sweeps, ranks, calibration
+    assert "references of 'ours' with a true token, from outcomes.jsonl.gz" in text
+
+
+def recorded_outcomes(dataset: Path, path: Path) -> Path:
+    """An outcomes file as an evaluation writes it, of Ours grounding every reference of the smoke test subsets
+    (the true token most probable on every other scene)."""
+    import numpy as np
+
+    from ocplace import serial
+    from ocplace.eval.api import MethodOutput
+    from ocplace.eval.harness import score_scene
+    from ocplace.eval.results import write_outcomes
+    from ocplace.sim.dataset.job import scene_dirs
+    from ocplace.sim.dataset.records import read_scene
+    from ocplace.vocabulary import TEST_SUBSETS
+
+    subsets = {}
+    for subset in TEST_SUBSETS:
+        scenes = []
+        for index, folder in enumerate(scene_dirs(dataset, subset)):
+            record = read_scene(folder)
+            rows = np.full((len(record.tuples), len(record.boxes) + 1), 0.1)
+            for row, item in zip(rows, record.tuples):
+                row[(item.token_index + index % 2) % row.size] = 0.8
+            parsed = tuple((item.reference_name, item.relation) for item in record.tuples)
+            output = MethodOutput(
+                np.zeros(2), None, parsed, tuple(rows.argmax(1).tolist()), probabilities=rows.tolist()
+            )
+            scenes.append(serial.to_dict(score_scene(record, output)))
+        subsets[subset] = {"scenes": scenes}
+    return write_outcomes(
+        path, {"evaluations": [{"key": "ours", "method": "ours", "fraction": 1.0, "subsets": subsets}]}
+    )

@@ -195,3 +195,33 @@ def test_a_policy_folder_carries_its_decision_and_an_older_one_keeps_argmax(
     (folder / CONFIG_FILE).write_text(json.dumps(document))
     with pytest.raises(PolicyFolderError, match="top_k must be an integer from 1 to 16"):
         load_policy_folder(folder)
+
+
+def test_the_grounding_report_reads_every_recorded_reference_back(object_scenes, tmp_path):
+    from ocplace import serial
+    from ocplace.eval import grounding_report
+    from ocplace.eval.results import outcome_lines, write_outcomes
+
+    scenes, wanted_right = [], 0
+    for index, record in enumerate(object_scenes):
+        tokens = len(record.boxes) + 1
+        rows = np.full((len(record.tuples), tokens), 0.05)
+        for row, item in zip(rows, record.tuples):  # right on even scenes, the next token on odd ones
+            row[(item.token_index + index % 2) % tokens] = 0.9
+        parsed = tuple((item.reference_name, item.relation) for item in record.tuples)
+        chosen = tuple(int(np.argmax(row)) for row in rows)
+        outcome = score_scene(record, MethodOutput(np.zeros(2), None, parsed, chosen, probabilities=rows.tolist()))
+        scenes.append(serial.to_dict(outcome))
+        wanted_right += len(record.tuples) if index % 2 == 0 else 0
+    entry = {"key": "ours", "method": "ours", "fraction": 1.0, "subsets": {"seen": {"scenes": scenes}}}
+    path = write_outcomes(tmp_path / "outcomes.jsonl.gz", {"evaluations": [entry]})
+    rows = grounding_report.references(outcome_lines(path), "ours")
+    assert len(rows) == sum(len(record.tuples) for record in object_scenes)
+    assert sum(row.right for row in rows) == wanted_right and all(row.rank in (1, 2) for row in rows)
+    by_object = grounding_report.accuracy_by_object(rows)
+    assert sum(cell["references"] for cell in by_object.values()) == len(rows)
+    assert all(cell["rank2"] == 1.0 and cell["rank1"] == cell["chosen"] for cell in by_object.values())
+    assert sum(grounding_report.confusions(rows).values()) == len(rows) - wanted_right
+    *bins, error = grounding_report.calibration(rows)
+    assert [cell["references"] for cell in bins] == [len(rows)] and bins[0]["low"] == 0.9
+    assert error["expected_calibration_error"] == pytest.approx(abs(0.9 - wanted_right / len(rows)))

@@ -229,7 +229,7 @@ def test_scale_configs():
     assert str(default.out) == "out/reproduce"
     demo, default = pipeline.PipelineConfig(demo), pipeline.PipelineConfig(default)
     specs = registry.method_specs()
-    assert [s.name for s in pipeline.selected_specs(demo, specs)] == ["ours", "no_adapter", "no_llm"]
+    assert [s.name for s in pipeline.selected_specs(demo, specs)] == ["ours", "ours_joint", "no_adapter", "no_llm"]
     assert [s.name for s in pipeline.selected_specs(default, specs)] == list(specs)
     runs = pipeline.planned_runs(default, list(eval_methods.SPECS.values()))
     assert [run.key for run in runs] == ["oracle", "centre", "failing", "flaky", "random"]
