@@ -15,12 +15,10 @@ from typing import Any, Literal
 
 from ocplace.errors import ConfigError
 from ocplace.models.detection import DetectorConfig
-from ocplace.vocabulary import MAX_PARSED_TUPLES
+from ocplace.vocabulary import DECISION_MODES, MAX_PARSED_TUPLES, MAX_TOP_K
 
-DECISION_MODES = ("argmax", "joint")
 # The joint search enumerates top_k ** tuples assignments per scene; past this it refuses the settings.
 MAX_ASSIGNMENTS = 4096
-MAX_TOP_K = 16
 
 
 @dataclasses.dataclass(frozen=True)

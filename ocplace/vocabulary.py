@@ -30,6 +30,10 @@ LEVELS = ("table", "1obj", "2obj")  # instruction levels by number of object ref
 
 # The parser accepts instructions with more tuples than the benchmark writes, so models pad to this many.
 MAX_PARSED_TUPLES = 4
+# How the policy chooses each reference's token (models/inference_settings.py): the paper's argmax, or jointly
+# among each reference's top_k tokens (at most MAX_TOP_K).
+DECISION_MODES = ("argmax", "joint")
+MAX_TOP_K = 16
 # The benchmark's instructions have at most two tuples (the 2obj level), so models trained only on it pad to this.
 MAX_INSTRUCTION_TUPLES = 2
 

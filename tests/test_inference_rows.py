@@ -225,3 +225,25 @@ def test_the_grounding_report_reads_every_recorded_reference_back(object_scenes,
     *bins, error = grounding_report.calibration(rows)
     assert [cell["references"] for cell in bins] == [len(rows)] and bins[0]["low"] == 0.9
     assert error["expected_calibration_error"] == pytest.approx(abs(0.9 - wanted_right / len(rows)))
+
+
+def test_place_and_reproduce_take_the_decision_and_refuse_what_cannot_run(
+    trained_run, tiny_backbone_spec, smoke_dataset, tmp_path, monkeypatch, capsys
+):
+    from ocplace.cli import main
+
+    run, _ = trained_run
+    common = ["place", "--dataset", str(smoke_dataset), "--id", "seen-00001", "--adapters", str(run)]
+    common += ["--backbone", tiny_backbone_spec, "--samples", "16"]
+    assert main([*common, "--decision", "joint", "--top-k", "2", "--out", str(tmp_path / "p.png")]) in (0, 2)
+    assert "decision: joint" in capsys.readouterr().out  # placed, or refused with a reason: decided jointly
+    assert main([*common, "--top-k", "9", "--out", str(tmp_path / "q.png")]) == 2
+    assert "6,561 assignments" in capsys.readouterr().err and not (tmp_path / "q.png").exists()
+
+    monkeypatch.setattr(pipeline, "run_pipeline", lambda *args, **kwargs: pytest.fail("ran with a refused key"))
+    for key, message in (
+        ("inference.nope.decision.mode=joint", "valid keys under 'inference' are ours.*"),
+        ("inference.ours.decision.top_k=0", "inference.ours.decision.top_k must be an integer from 1 to 16"),
+    ):
+        assert main(["reproduce", "--experiment", "smoke", "--out", str(tmp_path / "r"), "--set", key]) == 2
+        assert message in capsys.readouterr().err

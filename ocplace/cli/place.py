@@ -7,7 +7,7 @@ import dataclasses
 from pathlib import Path
 
 from ocplace.cli.options import count, finite
-from ocplace.vocabulary import MAX_SAMPLES
+from ocplace.vocabulary import DECISION_MODES, MAX_SAMPLES, MAX_TOP_K
 
 HELD_FOOTPRINT = (0.05, 0.05)  # half-extents (m) of your own images' held object unless --held-footprint says
 OWN_IMAGE_FLAGS = {
@@ -78,6 +78,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     model.add_argument(
         "--threshold", type=float, help="least grounding probability to place against (default: the policy's)"
     )
+    model.add_argument(
+        "--decision",
+        choices=DECISION_MODES,
+        help="how each reference's token is chosen: argmax (the paper's) or joint (the most probable assignment "
+        "that admits a placement, docs/policy.md); default: a --policy folder's, else the policy's",
+    )
+    model.add_argument(
+        "--top-k",
+        type=count(1, MAX_TOP_K),
+        help="the joint decision's candidate tokens per reference (default: a --policy folder's, else the policy's)",
+    )
     model.add_argument("--samples", type=count(1, MAX_SAMPLES), default=1024, help="placements to sample")
     model.add_argument("--seed", type=count(0), default=0)
     parser.add_argument("--out", type=Path, default=Path("place.png"), help="figure to write (PNG)")
@@ -88,12 +99,15 @@ def run_place(args: argparse.Namespace) -> int:
     import jax
 
     from ocplace.errors import PolicyInputError
+    from ocplace.models.inference_settings import Decision
     from ocplace.models.parsing import make_parser
     from ocplace.models.placement.sampler import SamplerConfig
     from ocplace.models.policy import PlacementPolicy, check_scene
     from ocplace.models.policy_figure import save_placement_figure
 
     # Everything given is read and checked before the backbone loads, which takes seconds to minutes.
+    if args.top_k is not None and (problems := Decision("joint", args.top_k).problems()):
+        raise PolicyInputError("; ".join(problems))
     scene, record = _scene(args)
     check_scene(scene)  # sizes that disagree, the camera, the footprint
     if args.policy is not None:
@@ -120,6 +134,9 @@ def run_place(args: argparse.Namespace) -> int:
         if args.adapters is None:
             print("no --adapters given: zero-shot grounding (plain backbone similarity, 'Ours w/o Adapter')")
         policy = placement_policy(args.adapters, args.backbone, parser, **kwargs)
+    if args.decision is not None or args.top_k is not None:
+        chosen = Decision(args.decision or policy.decision.mode, args.top_k or policy.decision.top_k)
+        policy = dataclasses.replace(policy, decision=chosen)  # refused (ConfigError) past the joint search's size
     [placement] = policy.place_many([scene], jax.random.key(args.seed))
     print(placement.summary())
     if record is not None:
