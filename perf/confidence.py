@@ -93,15 +93,20 @@ def groundings(policy, dev: Path, key) -> dict[str, list[float]]:
     return found
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def selection_arguments(description: str, out: str) -> argparse.ArgumentParser:
+    """The arguments of a choice made with a selection run on the dev splits (this script's, `joint_selection.py`)."""
+    parser = argparse.ArgumentParser(description=description)
     parser.add_argument("--dataset", type=Path, required=True, help="dataset folder holding the training split")
     parser.add_argument("--dev", type=Path, required=True, help="dataset folder holding dev_seen and dev_colour")
     parser.add_argument("--backbone", default="offline")
     parser.add_argument("--experiment", default="default", help="whose adapter recipe the selection run trains")
-    parser.add_argument("--work", type=Path, default=Path("out/gate_selection"))
-    parser.add_argument("--out", type=Path, default=Path("gate.json"))
-    args = parser.parse_args()
+    parser.add_argument("--work", type=Path, default=Path("out/gate_selection"), help="the selection run (shared)")
+    parser.add_argument("--out", type=Path, default=Path(out))
+    return parser
+
+
+def main() -> None:
+    args = selection_arguments(__doc__.splitlines()[0], "gate.json").parse_args()
 
     from ocplace.models.backbone import load_backbone
     from ocplace.models.placement.sampler import SamplerConfig

@@ -18,14 +18,12 @@ joint.json` (DATA holds the training split, DEV the dev splits: `ocplace generat
 
 from __future__ import annotations
 
-import argparse
 import json
 import time
-from pathlib import Path
 
 import jax
 import numpy as np
-from confidence import DEV_SPLITS, selection_run
+from confidence import DEV_SPLITS, selection_arguments, selection_run
 
 import ocplace  # noqa: F401  (sets the headless OpenGL default before MuJoCo loads)
 
@@ -67,14 +65,7 @@ def becomes_default(joint: np.ndarray, argmax: np.ndarray, splits: np.ndarray) -
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--dataset", type=Path, required=True, help="dataset folder holding the training split")
-    parser.add_argument("--dev", type=Path, required=True, help="dataset folder holding dev_seen and dev_colour")
-    parser.add_argument("--backbone", default="offline")
-    parser.add_argument("--experiment", default="default", help="whose adapter recipe the selection run trains")
-    parser.add_argument("--work", type=Path, default=Path("out/gate_selection"), help="the selection run (shared)")
-    parser.add_argument("--out", type=Path, default=Path("joint.json"))
-    args = parser.parse_args()
+    args = selection_arguments(__doc__.splitlines()[0], "joint.json").parse_args()
 
     from ocplace.models.backbone import load_backbone
     from ocplace.models.inference_settings import Decision
