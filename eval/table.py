@@ -104,11 +104,23 @@ def _rate(aggregate: Mapping[str, Any], column: str, metric: str) -> float | Non
     return float(sum(part[metric] * part["scenes"] for part in parts if part["scenes"]) / scenes)
 
 
+def decision_mode(entry: Mapping[str, Any]) -> str | None:
+    """How a row's policy chose its tokens (`describe()`'s `policy.decision.mode`); None for a row without one."""
+    policy = (entry.get("description") or {}).get("policy")
+    decision = policy.get("decision") if isinstance(policy, Mapping) else None
+    mode = decision.get("mode") if isinstance(decision, Mapping) else None
+    return mode if isinstance(mode, str) else None
+
+
 def table_one(results: Mapping[str, Any]) -> str:
     settings = results["settings"]
     threshold = settings.get("threshold", LEGACY_THRESHOLD)
+    joint = [entry["label"] for entry in full_runs(results) if decision_mode(entry) == "joint"]
+    grounded = "every reference grounded at its argmax" + (
+        f" ({', '.join(joint)}: jointly, docs/policy.md)" if joint else ""
+    )
     protocol = (
-        "the paper's protocol (every reference grounded at its argmax, always placed)"
+        f"the paper's protocol ({grounded}, always placed)"
         if threshold == 0
         else f"a scene refused (a failure) when a reference's best token has P < {threshold:g}"
     )

@@ -112,7 +112,9 @@ def _entry(key, method, successes, backbone=None, seed=None, description=None):
         "label": method,
         "fraction": 1.0,
         "description": description or {"run": key},
-        "subsets": {"seen": {"aggregate": {"overall": {"scenes": len(scenes)}}, "scenes": scenes}},
+        "subsets": {
+            "seen": {"aggregate": {"overall": {"scenes": len(scenes), "success": np.mean(successes)}}, "scenes": scenes}
+        },
     }
     return entry | {name: value for name, value in (("seed", seed), ("backbone_seed", backbone)) if value is not None}
 
@@ -143,6 +145,10 @@ def test_a_row_that_learns_nothing_counts_once_per_backbone_and_rows_are_paired_
     assert "ours" not in found["paired"]
     text = table.paired_table(results | {"dataset": {}}, found)
     assert f"**{100 * (plain - ours):+.2f} [" in text  # bold: the interval excludes 0
+
+    joint = _entry("ours_joint", "ours_joint", base, description={"policy": {"decision": {"mode": "joint"}}})
+    title = table.table_one({"settings": {"subsets": ["seen"], "threshold": 0.0}, "evaluations": [joint]})
+    assert "every reference grounded at its argmax (ours_joint: jointly, docs/policy.md)" in title  # its label
 
     same = {"settings": {"subsets": ["seen"]}, "evaluations": [_entry("ours", "ours", base), _entry("x", "x", base)]}
     cell = statistics.derive(same)["paired"]["x"]["seen"]["overall"]
