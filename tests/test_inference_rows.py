@@ -53,6 +53,16 @@ def test_an_inference_only_row_trains_nothing_and_its_owners_runs_train_once(tmp
         if seeds == 2:
             assert nodes["evaluate ours_joint~seed1"].after == ("backbone", "train ours~seed1")
 
+    from ocplace.cli.evaluate import method_runs
+    from ocplace.errors import EvaluationError
+
+    owners = tmp_path / "out" / "runs" / "ours" / "fraction-1.00"
+    owners.mkdir(parents=True)
+    [found] = method_runs([specs["ours_joint"]], {}, tmp_path / "out")  # `evaluate --runs-from OUT`
+    assert found.run_dir == owners and found.method == "ours_joint"
+    with pytest.raises(EvaluationError, match="from the training of ours"):
+        method_runs([specs["ours_joint"]], {})
+
 
 def test_set_reaches_a_rows_inference_settings_and_refuses_what_is_not_one():
     smoke = configs.get("smoke")

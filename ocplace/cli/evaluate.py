@@ -166,7 +166,7 @@ def method_runs(specs: list, runs: dict[str, Path], runs_from: Path | None = Non
         if spec.needs_run and run_dir is None:
             raise EvaluationError(
                 f"method {spec.name!r} places with a trained run: pass --run {spec.name}=RUN_DIR (a run directory "
-                f"from {spec.trained_as}'s training, e.g. `ocplace reproduce` writes them under OUT/runs)"
+                f"from the training of {spec.trained_as}, e.g. `ocplace reproduce` writes them under OUT/runs)"
             )
         if run_dir is not None and not run_dir.exists():
             raise EvaluationError(f"run directory {run_dir} of {spec.name!r} does not exist")
