@@ -35,7 +35,7 @@ from ocplace.errors import (
 from ocplace.models.backbone import Backbone, PromptConfig, check_trained_on
 from ocplace.models.detection import DetectorConfig, detect_boxes, estimate_aabbs
 from ocplace.models.grounding import GroundingModel
-from ocplace.models.inference_settings import Decision
+from ocplace.models.inference_settings import ROBOT_DECISION, Decision
 from ocplace.models.parsing import ParsedTuple, Parser
 from ocplace.models.placement.sampler import SamplerConfig
 from ocplace.models.trained_adapters import TrainedAdapters, load_adapters
@@ -215,7 +215,8 @@ class PlacementPolicy:
     min_boxes: int = MAX_BOXES  # tokens and collision boxes are padded to at least this: one compiled shape
     max_tuples: int = MAX_PARSED_TUPLES
     encode_scenes: int = 32  # scenes whose crops are encoded together in `place_many`
-    decision: Decision = Decision()  # argmax per reference (the paper's), or the joint, feasibility-aware choice
+    # The joint, feasibility-aware choice (rule J's default), or the paper's argmax per reference (`Decision()`).
+    decision: Decision = ROBOT_DECISION
 
     def __post_init__(self) -> None:
         problems = self.decision.problems(self.max_tuples)

@@ -174,7 +174,7 @@ def test_ours_joint_places_with_ours_run_and_never_lacks_a_placement_it_found(
     argmax = specs["ours"].load(LoadContext(run, tiny_backbone_spec, num_samples=32))
     joint = specs["ours_joint"].load(LoadContext(run, tiny_backbone_spec, num_samples=32))
     assert joint.policy.decision == Decision("joint") and argmax.policy.decision == Decision("argmax")
-    assert joint.describe()["policy"]["decision"] == {"mode": "joint", "top_k": 3}
+    assert joint.describe()["policy"]["decision"] == {"mode": "joint", "top_k": 5}
     key = jax.random.key(0)
     pairs = list(zip(argmax.run(scenes, key), joint.run(scenes, key)))
     for plain, chosen in pairs:

@@ -3,4 +3,4 @@
 from ocplace.models.inference_settings import Decision, InferenceSettings
 
 TABLE_ROW = 8
-INFERENCE = InferenceSettings(Decision("joint"))  # top_k: docs/settings.md
+INFERENCE = InferenceSettings(Decision("joint"))  # top_k 5: rule J's, docs/settings.md
