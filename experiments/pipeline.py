@@ -196,7 +196,6 @@ def placement_figure_task(run_dir: Path, parser: str, seed: int, dataset_dir: Pa
     from ocplace.methods.export import export_trained
     from ocplace.methods.policy_method import scene_input
     from ocplace.models.backbone import load_backbone
-    from ocplace.models.offline_backbone import OfflineBackbone
     from ocplace.models.policy import PlacementPolicy
     from ocplace.models.policy_figure import save_placement
     from ocplace.sim.dataset.job import listed_scenes
@@ -206,8 +205,6 @@ def placement_figure_task(run_dir: Path, parser: str, seed: int, dataset_dir: Pa
     placement = save_placement(policy, scene_input(scene.read()), jax.random.key(seed), path)
     print(placement.summary(), flush=True)
     outcome = "placed" if placement.error is None else placement.failure
-    if not isinstance(policy.backbone, OfflineBackbone):  # a CLIP backbone is its checkpoint's folder plus the run
-        return f"{path} ({scene.name}, {outcome}); no policy folder for a {type(policy.backbone).__name__}"
     folder = export_trained(
         policy, path.parent / POLICY_FOLDER, parser=parser, run_dir=run_dir, backbone=backbone, dataset=dataset_dir
     )
@@ -521,8 +518,9 @@ def _card_row(folder: Path, results: dict[str, Any] | None) -> None:
     """The exported Ours policy's Table I row, from this run's results, into its model card."""
     from ocplace.eval.table import table_one
     from ocplace.methods.export import write_table_row
+    from ocplace.models.policy_folder import CONFIG_FILE
 
-    if results is None:
+    if results is None or not (folder / CONFIG_FILE).is_file():  # the results are never lost over a model card
         return
     table = [line for line in table_one(results).splitlines() if line.startswith("|")]
     rows = [line for line in table if line.startswith("| Ours |")]

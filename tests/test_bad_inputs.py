@@ -540,8 +540,8 @@ def test_place_says_how_to_get_a_missing_or_mismatched_backbone(
     monkeypatch.setenv("OCPLACE_CACHE", str(cache))
     code, _, err = _cli(capsys, *_place(images, tmp_path, backbone=None, adapters=runs["orphan"]))
     assert code == 2 and err.startswith(
-        f"ocplace place: error: the adapters in {runs['orphan']} were trained on "
-        "the backbone with fingerprint 000000000000; no saved offline backbone in"
+        f"ocplace place: error: {runs['orphan']} was trained on "
+        "the backbone with fingerprint 000000000000 (no spec recorded); no saved offline backbone in"
     )
     assert "--backbone SPEC" in err
     code, _, err = _cli(capsys, *_place(images, tmp_path, backbone=tiny_backbone_spec, adapters=runs["matching"]))

@@ -89,7 +89,9 @@ def test_cli_exports_a_run_and_places_with_the_folder(trained_run, tiny_backbone
     assert main([*command, "--samples", "64", "--out", str(tmp_path / "p.png")]) in (0, 2)  # 2: a typed refusal
     assert repr(scene.instruction) in capsys.readouterr().out
     assert main([*command, "--adapters", str(trained_run[0])]) == 2
-    assert "drop --backbone and --adapters" in capsys.readouterr().err
+    assert "drop --adapters" in capsys.readouterr().err
+    assert main([*command, "--backbone", tiny_backbone_spec]) == 2  # only a CLIP folder's checkpoint is given
+    assert "holds its own backbone" in capsys.readouterr().err
     (tmp_path / "a_file").write_text("keep me")
     assert main(["export", "--run", str(trained_run[0]), "--out", str(tmp_path / "a_file")]) == 2
     assert "it is a file, not a folder" in capsys.readouterr().err

@@ -48,8 +48,11 @@ def placement_policy(
     from ocplace.models.policy import PlacementPolicy
     from ocplace.models.trained_adapters import load_adapters
 
-    adapters = None if adapters_file is None else load_adapters(adapters_file)  # a bad file fails before the backbone
-    spec = backbone_of(adapters, backbone) if adapters is not None else backbone or "offline"
+    if adapters_file is None:
+        return PlacementPolicy.from_run(load_backbone(backbone or "offline"), None, parser=parser, **policy_fields)
+    adapters = load_adapters(adapters_file)  # a bad file fails before the backbone
+    run_dir = adapters_file if adapters_file.is_dir() else adapters_file.parent  # its training's record is beside it
+    spec = backbone_of(adapters, backbone, run_dir)
     return PlacementPolicy.from_run(load_backbone(spec), adapters, parser=parser, **policy_fields)
 
 

@@ -71,7 +71,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="OUT",
         help="take missing run directories from a pipeline output: OUT/runs/METHOD/fraction-1.00",
     )
-    evaluate.add_argument("--backbone", help="backbone spec (default: offline)")
+    evaluate.add_argument(
+        "--backbone",
+        help="backbone spec (default: the one the --run / --runs-from runs were trained on, found by the spec their "
+        "training recorded or by fingerprint; without runs: offline)",
+    )
     evaluate.add_argument("--out", type=Path, help="results JSON (the markdown goes beside it, .md)")
     evaluate.add_argument(
         "--subsets",
@@ -210,6 +214,8 @@ def _evaluate(args: argparse.Namespace) -> int:
     methods = args.methods or ("" if args.policy else "all")
     runs = method_runs(select_specs(methods, specs) if methods else [], parse_runs(args.run), args.runs_from)
     policies = _policy_specs(args.policy, args.label, args.scene_timeout)
+    if args.backbone is None:
+        settings = _runs_backbone(settings, [run.run_dir for run in runs if specs[run.method].uses_backbone])
     runs += [method_run(spec) for spec in policies]
     specs |= {spec.name: spec for spec in policies}
     store = finished_store(args.out)
@@ -223,6 +229,20 @@ def _evaluate(args: argparse.Namespace) -> int:
     for message in broken:
         print(f"ocplace evaluate: {message}", file=sys.stderr)
     return 1 if broken else 0
+
+
+def _runs_backbone(settings, run_dirs: list):
+    """`settings` on the backbone the runs were trained on (no --backbone given), found as `place` and `export`
+    find it; unchanged without runs."""
+    import dataclasses
+
+    from ocplace.methods.run_backbone import runs_backbone
+
+    spec = runs_backbone([run_dir for run_dir in run_dirs if run_dir is not None])
+    if spec is None:
+        return settings
+    print(f"backbone: {spec} (the one the runs were trained on)", flush=True)
+    return dataclasses.replace(settings, backbone=spec)
 
 
 def _all_failed(name: str, evaluations) -> str | None:

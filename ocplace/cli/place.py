@@ -62,8 +62,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     model = parser.add_argument_group("model")
     model.add_argument(
         "--backbone",
-        help="backbone spec (default: the saved offline backbone the --adapters were "
-        "trained with, found by its fingerprint; without --adapters: offline)",
+        help="backbone spec (default: the saved offline backbone the --adapters were trained with, found by its "
+        "fingerprint, else the spec their training recorded; without --adapters: offline); with --policy, where a "
+        "CLIP policy folder's checkpoint is now (clip:DIR), checked by its fingerprint",
     )
     model.add_argument(
         "--adapters", type=Path, help="training run directory or adapters file (default: none, zero-shot grounding)"
@@ -123,9 +124,10 @@ def run_place(args: argparse.Namespace) -> int:
     if args.threshold is not None:
         kwargs["threshold"] = args.threshold
     if args.policy is not None:
-        if args.adapters is not None or args.backbone is not None:
-            raise PolicyInputError("--policy holds its backbone and adapters: drop --backbone and --adapters")
-        policy = PlacementPolicy.from_pretrained(args.policy, parser=parser)
+        if args.adapters is not None:
+            raise PolicyInputError("--policy holds its adapters: drop --adapters")
+        # --backbone says where a CLIP folder's checkpoint is now; a folder with its own backbone refuses it.
+        policy = PlacementPolicy.from_pretrained(args.policy, parser=parser, checkpoint=args.backbone)
         sampler = dataclasses.replace(policy.sampler, num_samples=args.samples)  # the folder's, but the count
         policy = dataclasses.replace(policy, sampler=sampler, threshold=kwargs.get("threshold", policy.threshold))
     else:
