@@ -12,7 +12,7 @@ if TYPE_CHECKING:
 
 @dataclasses.dataclass(frozen=True)
 class AdapterSettings:
-    reduction: int = 4  # hidden width = D / reduction
+    reduction: int = dataclasses.field(default=4, metadata={"help": "the adapter's hidden width is D / reduction"})
     residual_ratio: float = dataclasses.field(
         default=0.2,
         metadata={"help": "the adapter's weight in the blend: the visual tower's, and the text's unless set"},

@@ -330,3 +330,35 @@ def test_old_flags_work_for_one_release_and_say_what_to_use(capsys, tmp_path):
     assert capsys.readouterr().err == ""
     with pytest.raises(ConfigError, match="--dataset DIR"):
         dataset_of(parser.parse_args(["dataset", "verify"]))
+
+
+def _every_action(parser: argparse.ArgumentParser, path: str):
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                yield from _every_action(sub, f"{path} {name}")
+        elif not isinstance(action, argparse._HelpAction):
+            yield path, action
+
+
+def test_every_flag_of_every_command_has_help():
+    from ocplace.cli import build_parser
+
+    actions = list(_every_action(build_parser(), "ocplace"))
+    assert len(actions) > 200  # every subcommand was walked
+    assert [f"{path} {'/'.join(a.option_strings) or a.dest}" for path, a in actions if not a.help] == []
+
+
+def test_train_shows_the_defaults_a_run_records():
+    from ocplace.cli import build_parser
+    from ocplace.methods.ours.recipe import default_config
+
+    ours = default_config()
+    recorded = dataclasses.asdict(ours.adapters) | dataclasses.asdict(ours.schedule) | dataclasses.asdict(ours)
+    shown = {
+        a.dest: re.search(r"\(default: ([^)]*)\)$", a.help)[1]
+        for path, a in _every_action(build_parser(), "ocplace")
+        if path == "ocplace train" and a.dest in recorded and "(default: " in (a.help or "")
+    }
+    assert shown["residual_ratio"] == "0.1" and shown["text_ratio"] == "0.5" and shown["normalise"] == "true"
+    assert len(shown) >= 14 and all(text == format_value(recorded[name]) for name, text in shown.items()), shown

@@ -18,14 +18,14 @@ class Schedule:
     when `weight_decay` is set), or `adamw_clipped` (an image tower's: gradient norm clipped to 1, decay on
     matrices only); both warm up linearly, then decay by a cosine (to 0, a tower's to a share of the peak)."""
 
-    steps: int
-    batch_size: int
-    learning_rate: float
-    warmup_steps: int
-    chunk_steps: int  # steps fused into one jitted lax.scan call
-    checkpoint_every: int  # a multiple of chunk_steps
-    keep_checkpoints: int = 2
-    weight_decay: float = 0.0
+    steps: int = dataclasses.field(metadata={"help": "optimisation steps"})
+    batch_size: int = dataclasses.field(metadata={"help": "scenes per step"})
+    learning_rate: float = dataclasses.field(metadata={"help": "peak learning rate, after the warm-up"})
+    warmup_steps: int = dataclasses.field(metadata={"help": "steps of the linear warm-up to the peak"})
+    chunk_steps: int = dataclasses.field(metadata={"help": "steps fused into one jitted lax.scan call"})
+    checkpoint_every: int = dataclasses.field(metadata={"help": "steps between checkpoints; a multiple of chunk_steps"})
+    keep_checkpoints: int = dataclasses.field(default=2, metadata={"help": "newest checkpoints kept to resume from"})
+    weight_decay: float = dataclasses.field(default=0.0, metadata={"help": "decoupled weight decay (0: none)"})
     optimiser: Literal["adam", "adamw_clipped"] = "adam"
 
     def problems(self) -> list[str]:

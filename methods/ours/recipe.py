@@ -23,12 +23,18 @@ class OursRecipe:
     schedule: Schedule = PAPER_SCHEDULE
     # A pull of the adapted features toward the backbone's own (KgCoOp's idea for prompts; 0: the paper's):
     # anchor x the mean squared distance of x* from x.
-    anchor: float = 0.0
+    anchor: float = dataclasses.field(
+        default=0.0, metadata={"help": "weight of a pull of the adapted features toward the backbone's (0: none)"}
+    )
     logit_scale: float | None = dataclasses.field(
         default=None, metadata={"help": "grounding logit scale; none means the backbone's own, from the feature file"}
     )
-    eval_every: int = 10_000  # grounding accuracy on the training subset (and validation set); a multiple of chunks
-    subset_seed: int = 0  # fixed apart from the run's seed, so a 25% subset is part of the 50% one
+    eval_every: int = dataclasses.field(
+        default=10_000,
+        metadata={"help": "steps between grounding accuracies on the training subset (and --val-features)"},
+    )
+    # Fixed apart from the run's seed, so a 25% subset is part of the 50% one.
+    subset_seed: int = dataclasses.field(default=0, metadata={"help": "draws the --fraction subsets, nested"})
 
     def validate(self) -> None:
         problems = self.schedule.problems() + self.adapters.problems()

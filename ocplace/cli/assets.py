@@ -31,7 +31,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     add_executor_arguments(build, "each object is a task")
     build.set_defaults(func=_build)
     listing = actions.add_parser("list", help="show the objects of the built library")
-    listing.add_argument("--split", choices=LIBRARY_SPLITS)
+    listing.add_argument("--split", choices=LIBRARY_SPLITS, help="list only this split's objects (default: all)")
     listing.set_defaults(func=_list)
 
 

@@ -40,7 +40,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     pretrain.add_argument(
         "--workers", type=int, default=0, help="processes that render (default: every CPU this process may use)"
     )
-    pretrain.add_argument("--no-progress", action="store_true")
+    pretrain.add_argument("--no-progress", action="store_true", help="no progress bars")
     pretrain.set_defaults(func=_pretrain)
 
     evaluate = actions.add_parser(
@@ -51,7 +51,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     add_dataset_argument(evaluate, "dataset folder (`ocplace generate`)", required=True)
     evaluate.add_argument("--backbone", default="offline", help="backbone spec (default: offline)")
-    evaluate.add_argument("--splits", nargs="+", choices=SCORED_SPLITS, default=["seen", "unseen_obj"])
+    evaluate.add_argument(
+        "--splits", nargs="+", choices=SCORED_SPLITS, default=["seen", "unseen_obj"], help="default: seen unseen_obj"
+    )
     evaluate.add_argument(
         "--no-random-init", action="store_true", help="skip the random-initialisation control (offline backbones only)"
     )
@@ -70,11 +72,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     validate.add_argument(
         "--recipe", choices=RECIPE_NAMES, default="default", help="whose held-out categories and protocol"
     )
-    validate.add_argument("--scenes", type=int, default=100)
+    validate.add_argument("--scenes", type=int, default=100, help="validation scenes rendered (default 100)")
     validate.set_defaults(func=_validate)
 
     path = actions.add_parser("path", help="print where a recipe's backbone is (or will be) saved")
-    path.add_argument("--recipe", choices=RECIPE_NAMES, default="default")
+    path.add_argument("--recipe", choices=RECIPE_NAMES, default="default", help="default: default")
     path.set_defaults(func=_path)
 
 

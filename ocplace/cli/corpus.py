@@ -35,7 +35,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     build.set_defaults(func=_build)
     listing = actions.add_parser("list", help="show the corpus under a protocol")
-    listing.add_argument("--protocol", choices=PROTOCOLS, default="open")
+    listing.add_argument(
+        "--protocol", choices=PROTOCOLS, default="open", help="which pretraining protocol's pool (default: open)"
+    )
     listing.add_argument(
         "--show",
         choices=VIEWS,

@@ -25,13 +25,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     add_dataset_argument(show, "dataset folder (`ocplace generate`)", required=True)
     show.add_argument("--id", required=True, help="scene id (e.g. seen-00003) or index into --split")
     show.add_argument("--split", default="seen", help="split used with a numeric --id")
-    show.add_argument("--out", type=Path, default=Path("scene.png"))
+    show.add_argument("--out", type=Path, default=Path("scene.png"), help="PNG to write (default: scene.png)")
     show.set_defaults(func=_show)
     check = actions.add_parser(
         "check", help="score the oracle placements with the success metric (and the physical drop check)"
     )
     add_dataset_argument(check, "dataset folder (`ocplace generate`)", required=True)
-    check.add_argument("--split", choices=SPLIT_CHOICES, default="all")
+    check.add_argument("--split", choices=SPLIT_CHOICES, default="all", help="check only this split (default: all)")
     check.add_argument("--physical", action="store_true", help="also drop the held object in MuJoCo")
     add_executor_arguments(check, "with --physical, each chunk of scenes is a task")
     check.set_defaults(func=_check)

@@ -131,7 +131,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         action="store_true",
         help="with --rerun: import every policy the results file names (default: only those --policy names again)",
     )
-    evaluate.add_argument("--no-progress", action="store_true")
+    evaluate.add_argument("--no-progress", action="store_true", help="no progress bars")
     add_executor_arguments(evaluate, "each method's evaluation is a task")
     evaluate.set_defaults(func=_evaluate)
 

@@ -23,7 +23,7 @@ def register(subparsers) -> None:
         default="offline",
         help="backbone spec: offline (the default recipe's, the default), offline:RECIPE_OR_DIR, clip:HUB_ID_OR_DIR",
     )
-    parser.add_argument("--split", default="train")
+    parser.add_argument("--split", default="train", help="the dataset split to featurise (default: train)")
     parser.add_argument("--out", type=Path, help="feature file (default: in the cache, printed at the end)")
     parser.add_argument("--chunk-scenes", type=count(1), help="scenes per resumable chunk (default: 64)")
     add_executor_arguments(parser, "the split is encoded by one task, in this process unless --ray")

@@ -25,8 +25,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "dev_colour that settings are chosen on. Rerun to resume.",
     )
     generate.add_argument("--out", type=Path, required=True, help="dataset folder")
-    generate.add_argument("--split", choices=SPLIT_CHOICES, default="all")
-    generate.add_argument("--seed", type=count(0), default=0)
+    generate.add_argument(
+        "--split", choices=SPLIT_CHOICES, default="all", help="generate only this split (default: all)"
+    )
+    generate.add_argument(
+        "--seed", type=count(0), default=0, help="the dataset's seed: same seed, same scenes (default 0)"
+    )
     generate.add_argument("--train", type=int, default=2000, help="training scenes")
     generate.add_argument("--test", type=int, default=400, help="scenes per test subset")
     generate.add_argument(

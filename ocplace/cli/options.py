@@ -32,19 +32,22 @@ def add_config_arguments(
     config_cls: type,
     fields: Sequence[str] | None = None,
     aliases: Mapping[str, Sequence[str]] | None = None,
+    defaults: object | None = None,
 ) -> None:
     """Adds `--field-name` for each of `fields` (default: every field a flag can hold) of `config_cls`.
 
     Every flag defaults to None, meaning "keep the base configuration's value" (so an optional field's
     flag cannot set None: `--set` can); a bool field gets `--name/--no-name`, a tuple one takes
     comma-separated items. `aliases` maps a field to extra flag names. Help comes from
-    `dataclasses.field(metadata={"help": ...})` or the type, followed by the class default.
+    `dataclasses.field(metadata={"help": ...})` or the type, followed by the default: the value in `defaults` (the
+    base configuration a run starts from and records), else the class's.
     """
     hints = typing.get_type_hints(config_cls)
     for field in _selected_fields(config_cls, hints, fields):
         flags = ["--" + field.name.replace("_", "-"), *(aliases or {}).get(field.name, ())]
         hint = _unwrap_optional(hints[field.name])[1]  # a flag left out already means "keep", so no `none`
-        help_text = _help(field, hint)
+        default = getattr(defaults, field.name) if defaults is not None else field.default
+        help_text = _help(field, hint, default)
         if hint is bool:
             parser.add_argument(
                 *flags, dest=field.name, action=argparse.BooleanOptionalAction, default=None, help=help_text
@@ -202,10 +205,10 @@ def _flag_parser(hint):
     return parse
 
 
-def _help(field: dataclasses.Field, hint) -> str:
+def _help(field: dataclasses.Field, hint, default: object) -> str:
     text = field.metadata.get("help", describe(hint))
-    if field.default is not dataclasses.MISSING:
-        text += f" (default: {format_value(field.default)})"
+    if default is not dataclasses.MISSING:
+        text += f" (default: {format_value(default)})"
     return text.replace("%", "%%")  # argparse %-formats help
 
 

@@ -23,7 +23,7 @@ def register(subparsers) -> None:
     evaluate.add_argument(
         "--num", type=int, default=2000, help="generated instructions per template style (default 2000)"
     )
-    evaluate.add_argument("--seed", type=int, default=0)
+    evaluate.add_argument("--seed", type=int, default=0, help="seed of the generated instructions (default 0)")
     evaluate.add_argument(
         "--names", help="text file with one object name per line (default: the built-in list of ~50 tabletop objects)"
     )
@@ -33,7 +33,7 @@ def register(subparsers) -> None:
 
 
 def _add_parser_options(command: argparse.ArgumentParser) -> None:
-    command.add_argument("--parser", choices=PARSER_NAMES, default="offline")
+    command.add_argument("--parser", choices=PARSER_NAMES, default="offline", help="which parser (default: offline)")
     command.add_argument("--base-url", help="LLM endpoint, an http(s) URL such as http://127.0.0.1:8080/v1")
     command.add_argument("--model", help="LLM model name")
     command.add_argument(

@@ -31,7 +31,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     source = parser.add_argument_group("a dataset scene")
     source.add_argument("--dataset", type=Path, help="dataset directory (written by `ocplace generate`)")
     source.add_argument("--id", help="scene id (e.g. seen-00003) or its index within --split")
-    source.add_argument("--split", default="seen")
+    source.add_argument("--split", default="seen", help="the split a numeric --id counts in (default: seen)")
     source.add_argument(
         "--detect",
         action="store_true",
@@ -91,7 +91,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="the joint decision's candidate tokens per reference (default: a --policy folder's, else the policy's)",
     )
     model.add_argument("--samples", type=count(1, MAX_SAMPLES), default=1024, help="placements to sample")
-    model.add_argument("--seed", type=count(0), default=0)
+    model.add_argument("--seed", type=count(0), default=0, help="seed of the placement samples (default 0)")
     parser.add_argument("--out", type=Path, default=Path("place.png"), help="figure to write (PNG)")
     parser.set_defaults(func=run_place)
 

@@ -61,7 +61,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="physical check on the first K scenes per subset (default: the experiment's; -1: all)",
     )
     add_set_argument(reproduce, "recipes.ours.schedule.steps or dataset.train_scenes (applied after the other options)")
-    reproduce.add_argument("--no-progress", action="store_true")
+    reproduce.add_argument("--no-progress", action="store_true", help="no progress bars")
     add_executor_arguments(
         reproduce, "objects, scenes, the pretraining, each training and each evaluation are tasks of one graph"
     )

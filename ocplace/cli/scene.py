@@ -29,7 +29,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "table pixels; (c) both engines settle every dropped object on the table.",
     )
     parity.add_argument("--scenes", type=int, default=50, help="number of scenes to compare")
-    parity.add_argument("--seed", type=int, default=0)
+    parity.add_argument("--seed", type=int, default=0, help="seed of the first scene (default 0)")
     parity.add_argument("--renderer", choices=("tiny", "egl"), default="tiny", help="PyBullet renderer")
     parity.add_argument("--out", type=Path, help="also write the full report as JSON here")
     parity.set_defaults(func=_parity)

@@ -74,13 +74,15 @@ def register(subparsers) -> None:
     )
     overrides = parser.add_argument_group(
         "configuration overrides",
-        "One flag per field of Ours' recipe (OursRecipe: its adapters, its schedule, its own fields). Defaults: "
-        "Ours' recipe, the paper's schedule with rule A's adapters (normalise, residual_ratio 0.1, text_ratio 0.5; "
-        "the values shown are the classes', the paper's), or the start --smoke or --paper-adapters names.",
+        "One flag per field of Ours' recipe (OursRecipe: its adapters, its schedule, its own fields). The defaults "
+        "shown are Ours' recipe's, the values a run records: the paper's schedule with rule A's adapters; --smoke "
+        "and --paper-adapters start from another recipe.",
     )
-    add_config_arguments(overrides, AdapterSettings)
-    add_config_arguments(overrides, Schedule, SCHEDULE_FLAGS, aliases={"learning_rate": ("--lr",)})
-    add_config_arguments(overrides, OursRecipe)
+    ours = default_config()
+    add_config_arguments(overrides, AdapterSettings, defaults=ours.adapters)
+    aliases = {"learning_rate": ("--lr",)}
+    add_config_arguments(overrides, Schedule, SCHEDULE_FLAGS, aliases=aliases, defaults=ours.schedule)
+    add_config_arguments(overrides, OursRecipe, defaults=ours)
     parser.set_defaults(func=run_train)
 
 
