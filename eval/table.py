@@ -349,6 +349,12 @@ def efficiency_table(results: Mapping[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def _code_version(environment: Mapping[str, Any]) -> str:
+    """The commit that wrote the results, else (an installed wheel, no git) the package version."""
+    commit = (environment.get("git") or {}).get("commit")
+    return commit[:12] if commit else str(environment.get("ocplace") or "version unknown")
+
+
 def render(results: Mapping[str, Any]) -> str:
     """Every table of a results JSON as one markdown document."""
     settings = results["settings"]
@@ -356,7 +362,7 @@ def render(results: Mapping[str, Any]) -> str:
     header = (
         f"Dataset {results['dataset']['dataset_hash']} ({results['dataset']['dir']}), backbone "
         f"`{settings['backbone']}`, parser `{settings['parser']}`, {settings['num_samples']} samples, "
-        f"seed {settings['seed']}; ocplace {(results['environment']['git'].get('commit') or '?')[:12]}."
+        f"seed {settings['seed']}; ocplace {_code_version(results['environment'])}."
     )
     parts = [
         header,

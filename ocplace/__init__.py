@@ -7,4 +7,15 @@ import os
 os.environ.setdefault("MUJOCO_GL", "egl")
 os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
 
-__version__ = "0.1.0"
+
+def _version() -> str:
+    """The installed package's version (a wheel's, or an editable install's), else the source tree's."""
+    from importlib import metadata
+
+    try:
+        return metadata.version("ocplace")
+    except metadata.PackageNotFoundError:  # imported from a source tree that was never installed
+        return "0.1.0"
+
+
+__version__ = _version()

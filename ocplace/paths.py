@@ -23,8 +23,11 @@ _DISK_FULL = (errno.ENOSPC, errno.EDQUOT)
 
 
 def cache_dir() -> Path:
-    """The cache root: `$OCPLACE_CACHE`, else `~/.cache/ocplace`."""
-    root = os.environ.get("OCPLACE_CACHE") or Path.home() / ".cache" / "ocplace"
+    """The cache root: `$OCPLACE_CACHE`, else the platform's user cache (`$XDG_CACHE_HOME/ocplace`, by default
+    `~/.cache/ocplace` on Linux)."""
+    import platformdirs
+
+    root = os.environ.get("OCPLACE_CACHE") or platformdirs.user_cache_dir("ocplace", appauthor=False)
     return Path(root).expanduser()
 
 

