@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -32,7 +33,7 @@ from ocplace.errors import (
     OcplaceError,
     PolicyInputError,
 )
-from ocplace.models.backbone import Backbone, PromptConfig, check_trained_on
+from ocplace.models.backbone import Backbone, ClipBackbone, PromptConfig, check_trained_on
 from ocplace.models.detection import DetectorConfig, detect_boxes, estimate_aabbs
 from ocplace.models.grounding import GroundingModel
 from ocplace.models.inference_settings import ROBOT_DECISION, Decision
@@ -251,6 +252,17 @@ class PlacementPolicy:
         from ocplace.models.policy_folder import load_policy_folder
 
         return load_policy_folder(directory, parser, **kwargs)
+
+    def save_pretrained(self, directory, parser: str | None = None):
+        """This policy as a policy folder `directory` (what `from_pretrained` loads), with its model card; `parser`:
+        the parser spec to record (default: this policy's parser's name). Returns the folder."""
+        from ocplace.models.policy_card import card_text
+        from ocplace.models.policy_folder import export_policy
+
+        kind = "clip" if isinstance(self.backbone, ClipBackbone) else "offline"
+        source = {"backbone": f"{kind}:{getattr(self.backbone, 'source', '')}"}
+        parser = parser or getattr(self.parser, "name", "offline")
+        return export_policy(self, directory, parser=parser, card=card_text(Path(directory), source))
 
     # ------------------------------------------------------------------ public calls
 

@@ -161,3 +161,10 @@ def test_runs_on_different_backbones_are_not_scored_together(tmp_path):
     shutil.rmtree(tmp_path / "backbone_a")  # recorded, but not here, and no fingerprint to find another by
     with pytest.raises(BackboneUnavailable, match="no backbone fingerprint to find its backbone by .`offline:"):
         trained_backbone(runs[0])
+
+
+def test_a_clip_folders_card_names_no_hub_model_for_a_local_checkpoint(clip_reproduce):
+    from huggingface_hub import ModelCard
+
+    card = ModelCard((clip_reproduce.out / pipeline.POLICY_FOLDER / "README.md").read_text())
+    assert card.data.library_name == "ocplace" and card.data.base_model is None

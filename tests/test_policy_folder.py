@@ -160,3 +160,21 @@ def test_a_policy_folder_is_a_table_one_row_and_reruns_without_trust(demo_root, 
     assert len(entry["subsets"]["seen"]["scenes"]) == 1
     assert main(["evaluate", "--rerun", str(out), "--no-progress"]) == 0  # a folder is no code: nothing to trust
     assert "reproduced exactly" in capsys.readouterr().out
+
+
+def test_the_card_carries_hub_metadata_and_save_pretrained_round_trips(demo_root, smoke_dataset, tmp_path):
+    from huggingface_hub import ModelCard
+
+    folder = demo_root / "out/demo/policy"
+    card = ModelCard((folder / "README.md").read_text())  # parses the YAML header; a malformed one raises
+    assert card.data.library_name == "ocplace" and card.data.license == "other"
+    assert card.data.base_model == "sentence-transformers/all-MiniLM-L6-v2" and "robotics" in card.data.tags
+    assert "## Licences" in card.text and "run `" in card.text
+    policy = PlacementPolicy.from_pretrained(folder, sampler=SAMPLER)
+    saved = policy.save_pretrained(tmp_path / "saved")
+    again = PlacementPolicy.from_pretrained(saved, sampler=SAMPLER)
+    scenes = [scene_input(scene.read()) for scene in listed_scenes(smoke_dataset, "unseen_obj")]
+    for a, b in zip(policy.place_many(scenes, jax.random.key(2)), again.place_many(scenes, jax.random.key(2))):
+        assert a.failure == b.failure and a.tokens == b.tokens
+    assert again.decision == policy.decision and again.threshold == policy.threshold
+    assert "saved by `PlacementPolicy.save_pretrained`" in ModelCard((saved / "README.md").read_text()).text

