@@ -355,17 +355,46 @@ def _code_version(environment: Mapping[str, Any]) -> str:
     return commit[:12] if commit else str(environment.get("ocplace") or "version unknown")
 
 
-def render(results: Mapping[str, Any]) -> str:
-    """Every table of a results JSON as one markdown document."""
+def failure_counts(results: Mapping[str, Any]) -> str:
+    """One line: the scenes without a placement, by reason (the exception's name) over every row; the scenes
+    themselves are in `failure_list` (results.md)."""
+    import collections
+
+    reasons = collections.Counter(
+        scene["failure"].partition(":")[0][:60]  # the exception's name
+        for entry in results["evaluations"]
+        for body in entry["subsets"].values()
+        for scene in body["scenes"]
+        if scene["failure"] is not None
+    )
+    if not reasons:
+        return "Every scene of every row was placed."
+    counted = ", ".join(f"{reason} {count}" for reason, count in reasons.most_common())
+    return f"Scenes without a placement, by reason, over every row: {counted} (each scene in the .md)."
+
+
+def terminal_summary(results: Mapping[str, Any]) -> str:
+    """What a command prints when it has scored: the header, Table I, the paired differences and one line of
+    failures; every other table is in the markdown file beside the results."""
+    found = _derived(results)
+    parts = [_header(results), table_one(results), paired_table(results, found), failure_counts(results)]
+    return "\n\n".join(part for part in parts if part)
+
+
+def _header(results: Mapping[str, Any]) -> str:
     settings = results["settings"]
-    found = _derived(results)  # the bootstrap once for both tables
-    header = (
+    return (
         f"Dataset {results['dataset']['dataset_hash']} ({results['dataset']['dir']}), backbone "
         f"`{settings['backbone']}`, parser `{settings['parser']}`, {settings['num_samples']} samples, "
         f"seed {settings['seed']}; ocplace {_code_version(results['environment'])}."
     )
+
+
+def render(results: Mapping[str, Any]) -> str:
+    """Every table of a results JSON as one markdown document."""
+    found = _derived(results)  # the bootstrap once for every table that needs it
     parts = [
-        header,
+        _header(results),
         table_one(results),
         interval_table(results, found),
         paired_table(results, found),

@@ -81,15 +81,18 @@ class PipelineSummary:
     steps: list[Step] = dataclasses.field(default_factory=list)
     errors: list[dict[str, Any]] = dataclasses.field(default_factory=list)  # {"key", "stage", "message"}
     results_path: Path | None = None
-    markdown: str = ""
+    markdown: str = ""  # every table (results.md)
+    terminal: str = ""  # what the command prints at the end: Table I, the paired table, failures by reason
     figures: list[Path] = dataclasses.field(default_factory=list)
     placement_figure: Path | None = None
     wall_s: float = 0.0  # the whole run; steps of the task graph overlap, so their sum is more
 
     def report(self) -> str:
-        lines = [step.line() for step in self.steps]
-        lines += [f"ERROR {e['stage']} {e['key']}: {e['message']}" for e in self.errors]
-        lines.append(f"total {self.wall_s:.1f} s wall; results in {self.results_path}")
+        """The run's closing lines, after the tables: its errors and its wall (each step's line was printed as the
+        step ended, and is in results.json)."""
+        lines = [f"ERROR {e['stage']} {e['key']}: {e['message']}" for e in self.errors]
+        tables = self.results_path.with_suffix(".md") if self.results_path else None
+        lines.append(f"total {self.wall_s:.1f} s wall; results in {self.results_path}, every table in {tables}")
         return "\n".join(lines)
 
 
@@ -606,6 +609,7 @@ def _write_results(summary: PipelineSummary, config: PipelineConfig, results: di
     and CPUs, its errors and its total wall (known only at the end: the figures come after the results
     they draw)."""
     from ocplace.eval.results import summarise, write_outcomes, write_outputs, write_results
+    from ocplace.eval.table import terminal_summary
 
     results["pipeline"] = {
         "config": _config_json(config),
@@ -615,6 +619,7 @@ def _write_results(summary: PipelineSummary, config: PipelineConfig, results: di
     }
     assert summary.results_path is not None, "set by _results_and_figures"
     summary.markdown = write_outputs(results, summary.results_path)
+    summary.terminal = terminal_summary(results)
     write_results(summary.out / SUMMARY_FILE, summarise(results))
     write_outcomes(summary.out / OUTCOMES_FILE, results)
 

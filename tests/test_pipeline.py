@@ -76,6 +76,18 @@ def test_smoke_pipeline_trains_and_evaluates_every_method(first_run, specs):
     assert "already complete" in first_run.steps[1].detail
 
 
+def test_the_run_ends_with_table_one_and_one_line_of_failures_by_reason(first_run):
+    assert "| Oracle | 100.00 |" in first_run.terminal and "| Always fails |" in first_run.terminal
+    assert "Method failures" in first_run.markdown and "Method failures" not in first_run.terminal
+    scenes = 8 * len(TEST_SUBSETS)  # the failing row fails every scene; the others place every one
+    last = first_run.terminal.splitlines()[-1]
+    assert (
+        last == f"Scenes without a placement, by reason, over every row: no reference found (test method) {scenes} "
+        "(each scene in the .md)."
+    )
+    assert "total" in first_run.report() and "[dataset]" not in first_run.report()
+
+
 def test_results_record_each_steps_cpus_and_the_total_wall(first_run, config):
     recorded = results.read_results(first_run.results_path)["pipeline"]
     assert [step["name"] for step in recorded["steps"]] == [step.name for step in first_run.steps]  # figures too

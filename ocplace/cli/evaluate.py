@@ -196,6 +196,7 @@ def _evaluate(args: argparse.Namespace) -> int:
     from ocplace.errors import EvaluationError
     from ocplace.eval.harness import DEFAULT_PHYSICAL_SCENES, EvalSettings
     from ocplace.eval.results import build_results, write_outputs
+    from ocplace.eval.table import terminal_summary
     from ocplace.experiments.evaluation import evaluate_runs
     from ocplace.methods.registry import method_run, method_specs, select_specs
     from ocplace.runtime import open_executor
@@ -221,10 +222,11 @@ def _evaluate(args: argparse.Namespace) -> int:
     store = finished_store(args.out)
     with open_executor(executor_config(args)) as executor:
         evaluations = evaluate_runs(specs, runs, args.dataset, settings, executor, not args.no_progress, store)
-    markdown = write_outputs(build_results(evaluations, args.dataset, settings, command_record(args)), args.out)
+    results = build_results(evaluations, args.dataset, settings, command_record(args))
+    write_outputs(results, args.out)
     shutil.rmtree(store, ignore_errors=True)
-    print(markdown)
-    print(f"wrote {args.out} and {args.out.with_suffix('.md')}")
+    print(terminal_summary(results))
+    print(f"wrote {args.out} and {args.out.with_suffix('.md')} (every table)")
     broken = [message for spec in policies if (message := _all_failed(spec.name, evaluations))]
     for message in broken:
         print(f"ocplace evaluate: {message}", file=sys.stderr)

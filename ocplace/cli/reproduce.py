@@ -132,7 +132,7 @@ def _reproduce(args: argparse.Namespace) -> int:
         progress=not args.no_progress,
     )
     summary = run_pipeline(config, args.out or experiment.out, command=command_record(args))
-    print(summary.markdown)
+    print(summary.terminal)
     print(summary.report())
     return 1 if summary.errors else 0
 
