@@ -456,13 +456,14 @@ def evaluate_subset(
 ) -> tuple[SceneOutcome, ...]:
     """Every scene of `subset` (up to `settings.limit`), scored; the first K also physically."""
     import jax
-    from tqdm import tqdm
+
+    from ocplace.runtime.progress import progress_bar
 
     scenes = subset_scenes(dataset_dir, subset, settings.limit)
     physical_limit = len(scenes) if settings.physical_scenes is None else settings.physical_scenes
     base_key = subset_key(settings.seed, name, subset)
     outcomes: list[SceneOutcome] = []
-    bar = tqdm(total=len(scenes), desc=f"{name} {subset}", unit="scene", disable=not progress, leave=False)
+    bar = progress_bar(total=len(scenes), desc=f"{name} {subset}", unit="scene", enabled=progress, leave=False)
     for chunk_index, records in chunks(scenes, settings.chunk_size):
         outputs = run_scenes(method, [redacted(r) for r in records], jax.random.fold_in(base_key, chunk_index))
         for record, output in zip(records, outputs):
@@ -519,7 +520,7 @@ def evaluate_in_own_arena(
     if run.fraction != 1.0:
         checked = dataclasses.replace(checked, physical_scenes=0)
     with physical_arena(checked) as arena:
-        return evaluate_run(run, method, dataset_dir, settings, arena, progress=False)
+        return evaluate_run(run, method, dataset_dir, settings, arena, progress=True)
 
 
 # ----------------------------------------------------------------------------- aggregates

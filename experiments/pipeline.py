@@ -285,7 +285,7 @@ def task_graph(
         for previous, seed in zip([None, *seeds], seeds, strict=False):
             task = Task(
                 pretrain_task,
-                (config.experiment.backbone_recipe(seed), False, cpus.pretrain, len(seeds) > 1),
+                (config.experiment.backbone_recipe(seed), config.progress, cpus.pretrain, len(seeds) > 1),
                 cpus=cpus.pretrain,
                 pinned=True,
             )

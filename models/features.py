@@ -209,7 +209,7 @@ def featurize(
     reading `examples`. Work is done in chunks of `config.chunk_scenes` scenes, each written
     atomically next to the output, so an interrupted run resumes where it stopped.
     """
-    from tqdm import tqdm
+    from ocplace.runtime.progress import progress_bar
 
     out_path = Path(out_path)
     info = FeatureInfo(
@@ -228,7 +228,7 @@ def featurize(
         _remove_stale_parts(out_path, keep=parts)
         parts.mkdir(parents=True, exist_ok=True)
         iterator = iter(examples)
-        with tqdm(total=total, unit="scene", desc="featurize", disable=not progress) as bar:
+        with progress_bar(total=total, unit="scene", desc="featurize", enabled=progress) as bar:
             for index in itertools.count():
                 chunk = list(itertools.islice(iterator, config.chunk_scenes))
                 if not chunk:
@@ -266,7 +266,7 @@ def featurize_split_task(dataset_dir, split: str, backbone_spec: str, out, confi
     """`featurize_split` as an executor task: loads the backbone in the worker."""
     from ocplace.models.backbone import load_backbone
 
-    return featurize_split(dataset_dir, split, load_backbone(backbone_spec), out, config, progress=False)
+    return featurize_split(dataset_dir, split, load_backbone(backbone_spec), out, config, progress=True)
 
 
 def encode_chunk(chunk: list[SceneToFeaturize], backbone: Backbone, config: FeaturizeConfig) -> dict[str, np.ndarray]:

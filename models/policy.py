@@ -570,9 +570,9 @@ def _padded_count(count: int, step: int) -> int:
 def _progress(items, enabled: bool, desc: str):
     if not enabled:
         return items
-    from tqdm import tqdm
+    from ocplace.runtime.progress import progress_bar
 
-    return tqdm(items, desc=desc, unit="chunk")
+    return progress_bar(items, desc=desc, unit="chunk")
 
 
 def _check_boxes_for(scene: PreparedScene, parsed: Sequence[ParsedTuple]) -> None:

@@ -12,8 +12,8 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
-from tqdm import tqdm
 
+from ocplace.runtime.progress import progress_bar
 from ocplace.sim.boxes import boxes_from_segmentation
 from ocplace.sim.mujoco_backend import MujocoScenes, object_hull_points
 from ocplace.sim.pybullet_backend import PybulletScenes
@@ -141,7 +141,7 @@ def run_parity(library, config: ParityConfig | None = None, progress: bool = Tru
             [library.get(n) for n in used], {n: t.path for n, t in library.textures.items()}, mj.config, config.renderer
         ) as pb,
     ):
-        for spec in tqdm(specs, desc="parity", disable=not progress):
+        for spec in progress_bar(specs, desc="parity", enabled=progress):
             static_rows.append(compare_static(mj, pb, spec, config))
             drop_rows.append(compare_drop(mj, pb, spec, hulls, config))
     return {

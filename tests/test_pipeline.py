@@ -392,7 +392,7 @@ def test_reproduce_options_reach_the_config(tmp_path, monkeypatch):
             ),
         ),
         backbone="offline:spec",
-        executor=ExecutorConfig(kind="ray", workers=3),
+        executor=ExecutorConfig(kind="ray", workers=3, progress=False),
         dataset=tmp_path / "dataset",
         progress=False,
     )

@@ -98,7 +98,7 @@ def run(
     `callback(record)` runs after each metrics record (and its checkpoint), e.g. to stop by raising;
     `stop_after` returns after that many more steps without saving the artefact (to test resuming).
     """
-    from tqdm import tqdm
+    from ocplace.runtime.progress import progress_bar
 
     spec.validate()
     run_dir = Path(spec.run_dir)
@@ -110,7 +110,7 @@ def run(
     metrics.truncate_after(start)
     last = spec.steps if stop_after is None else min(spec.steps, start + stop_after)
     pending, step, began = [], start, time.perf_counter()
-    with tqdm(total=spec.steps, initial=start, unit="step", desc=spec.desc, disable=not progress) as bar:
+    with progress_bar(total=spec.steps, initial=start, unit="step", desc=spec.desc, enabled=progress) as bar:
         while step < last:
             count = min(spec.chunk_steps, last - step)
             state, losses = spec.chunk(state, step, count)

@@ -47,11 +47,11 @@ def target_pixels(record, num_targets: int, seed: int, config: CliportConfig) ->
 def scene_arrays(
     dataset_dir: Path, split: str, recipe: CliportRecipe, backbone: Backbone, progress: bool
 ) -> tuple[dict[str, np.ndarray], list[str]]:
-    from tqdm import tqdm
+    from ocplace.runtime.progress import progress_bar
 
     config = recipe.network
     rgbs, heights, targets, instructions, ids = [], [], [], [], []
-    for scene in tqdm(listed_scenes(dataset_dir, split), desc="cliport data", unit="scene", disable=not progress):
+    for scene in progress_bar(listed_scenes(dataset_dir, split), desc="cliport data", unit="scene", enabled=progress):
         record = scene.read()
         rgb, height = cliport.prepare_image(record.rgb, record.depth, top_down_camera(record), config)
         rgbs.append(rgb)

@@ -42,7 +42,7 @@ def train(ctx: TrainContext[Recipe]) -> Path:
         ctx.recipe,
         ctx.seed,
         ctx.fraction,
-        progress=False,
+        progress=True,
     )
 
 

@@ -25,7 +25,7 @@ def train(ctx: TrainContext[Recipe]) -> Path:
     from ocplace.methods.no_pretrain import train as no_pretrain
 
     return no_pretrain.train_no_pretrain(
-        Path(ctx.dataset_dir), Path(ctx.out_dir), ctx.recipe, ctx.seed, ctx.fraction, progress=False
+        Path(ctx.dataset_dir), Path(ctx.out_dir), ctx.recipe, ctx.seed, ctx.fraction, progress=True
     )
 
 

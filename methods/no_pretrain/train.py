@@ -74,8 +74,8 @@ def no_pretrain_inputs(
     """The split's preprocessed images and phrase embeddings, built once into the cache."""
     from safetensors import safe_open
     from safetensors.numpy import load_file, save_file
-    from tqdm import tqdm
 
+    from ocplace.runtime.progress import progress_bar
     from ocplace.sim.dataset.identity import dataset_hash
     from ocplace.sim.dataset.loader import iter_examples
 
@@ -99,7 +99,7 @@ def no_pretrain_inputs(
             scene_ids = tuple(json.loads(handle.metadata()["scene_ids"]))
         return NoPretrainInputs(load_file(str(path)), scene_ids, key)
     rows = []
-    for example in tqdm(iter_examples(dataset_dir, split), desc="crops", unit="scene", disable=not progress):
+    for example in progress_bar(iter_examples(dataset_dir, split), desc="crops", unit="scene", enabled=progress):
         rows.append(
             (
                 example.scene_id,

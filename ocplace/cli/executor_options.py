@@ -21,4 +21,5 @@ def add_executor_arguments(parser: argparse.ArgumentParser, tasks: str) -> None:
 
 def executor_config(args: argparse.Namespace) -> ExecutorConfig:
     kind = "ray" if args.ray or args.ray_address else "local"
-    return ExecutorConfig(kind=kind, workers=args.workers, address=args.ray_address)
+    progress = not getattr(args, "no_progress", False)  # a command without --no-progress shows its workers'
+    return ExecutorConfig(kind=kind, workers=args.workers, address=args.ray_address, progress=progress)

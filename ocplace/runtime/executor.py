@@ -45,6 +45,7 @@ class ExecutorConfig:
     address: str | None = None  # join this Ray cluster ("auto", "HOST:PORT", "ray://HOST:PORT") instead
     connect_timeout_s: float = 30.0  # an unreachable cluster fails with ClusterError after this long
     task_retries: int = 3  # Ray: times a task whose worker died is run again
+    progress: bool = True  # workers print their long steps' progress as lines (`runtime/progress.py`)
 
     def __post_init__(self):
         if self.kind not in ("local", "ray"):
@@ -160,8 +161,8 @@ class LocalExecutor(Executor):
     tasks in one pool per width, whose workers pin JAX to that width as they start and then run task
     after task, so a task finds the imports, backbones and compiled functions of the ones before it."""
 
-    def __init__(self, workers: int):
-        self.capacity = workers
+    def __init__(self, workers: int, progress: bool = True):
+        self.capacity, self._progress = workers, progress
         self._pools: dict[int | None, concurrent.futures.ProcessPoolExecutor] = {}  # JAX width (None: unpinned)
 
     def _pool(self, width: int | None) -> concurrent.futures.ProcessPoolExecutor:
@@ -171,7 +172,7 @@ class LocalExecutor(Executor):
                 self.capacity if width is None else max(1, self.capacity // width),
                 mp_context=multiprocessing.get_context("spawn"),  # forking after JAX or EGL start-up is unsafe
                 initializer=init_worker,
-                initargs=(width,),
+                initargs=(width, self._progress),
             )
         return self._pools[width]
 
@@ -220,10 +221,14 @@ class LocalExecutor(Executor):
         self._pools.clear()
 
 
-def init_worker(width: int | None) -> None:
+def init_worker(width: int | None, progress: bool = True) -> None:
     """Starts a worker (a local pool's process, a Ray actor); one for pinned tasks starts JAX `width` CPUs
-    wide before any task can import it. The worker ends itself when the process that started it is gone."""
+    wide before any task can import it. Its long steps print progress lines unless `progress` is off. The worker
+    ends itself when the process that started it is gone."""
+    from ocplace.runtime.progress import WORKER_PROGRESS_ENV, worker_progress_mode
+
     os.environ["OMP_NUM_THREADS"] = "1"  # one task per CPU; OpenMP (coacd) would oversubscribe
+    os.environ[WORKER_PROGRESS_ENV] = worker_progress_mode(progress)
     exit_with_parent()
     if width is not None:
         from ocplace.runtime.width import pin_jax_width
@@ -260,7 +265,7 @@ def open_executor(config: ExecutorConfig | None = None) -> Iterator[Executor]:
 
         executor = RayExecutor(config)  # shuts down what it started if it fails half-way
     else:
-        executor = LocalExecutor(config.cpus())
+        executor = LocalExecutor(config.cpus(), config.progress)
     try:
         yield executor
     finally:

@@ -129,10 +129,10 @@ def _processes_using(folder: Path) -> list[int]:
 class PinnedWorker:
     """A Ray actor that starts JAX `width` CPUs wide and then runs pinned task after task."""
 
-    def __init__(self, width: int):
+    def __init__(self, width: int, progress: bool = True):
         from ocplace.runtime.executor import init_worker
 
-        init_worker(width)
+        init_worker(width, progress)
 
     def run(self, task: Task):
         return task.fn(*task.args)
@@ -163,11 +163,11 @@ class RayExecutor(Executor):
         self._idle: dict[tuple, list] = {}  # (width, worker environment) -> idle actors, oldest first
         self._actor_cpus: dict[object, int] = {}  # every live actor -> the CPUs it holds
         self._held = 0  # CPUs held by live actors and running unpinned tasks
-        self._temp_dir, self._env = None, worker_env()
+        self._temp_dir, self._env = None, self._worker_env()
         options = dict(
             include_dashboard=False,
             configure_logging=False,
-            log_to_driver=False,
+            log_to_driver=config.progress,  # the workers' progress lines, printed here
             runtime_env={"env_vars": self._env},
         )
         if config.address is None:
@@ -191,6 +191,12 @@ class RayExecutor(Executor):
             self.close()
             raise
 
+    def _worker_env(self) -> dict[str, str]:
+        """`worker_env()` and the progress mode of this command's workers (an unpinned task's too)."""
+        from ocplace.runtime.progress import WORKER_PROGRESS_ENV, worker_progress_mode
+
+        return worker_env() | {WORKER_PROGRESS_ENV: worker_progress_mode(self._config.progress)}
+
     def _init(self, options: dict) -> None:
         where = self._config.address or "this machine"
         if self._config.address is not None:
@@ -209,7 +215,7 @@ class RayExecutor(Executor):
 
     def _start_queued(self) -> None:
         """Starts every queued call that has CPUs now, in the order they were submitted."""
-        env = worker_env()
+        env = self._worker_env()
         runtime = {} if env == self._env else {"runtime_env": {"env_vars": env}}  # e.g. a test hook set late
         for call in list(self._queued):
             call.key = (call.task.cpus, tuple(sorted(env.items())))
@@ -223,7 +229,7 @@ class RayExecutor(Executor):
                         max_restarts=self._config.task_retries,
                         max_task_retries=self._config.task_retries,
                         **runtime,
-                    ).remote(call.task.cpus)
+                    ).remote(call.task.cpus, self._config.progress)
                     self._actor_cpus[call.actor] = call.cpus
             else:
                 continue

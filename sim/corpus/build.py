@@ -24,8 +24,6 @@ import types
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
-from tqdm import tqdm
-
 from ocplace.errors import CorpusError, MissingAssetPackage
 from ocplace.paths import (
     corpus_cache,
@@ -36,6 +34,7 @@ from ocplace.paths import (
     remove_tree,
     write_text_atomic,
 )
+from ocplace.runtime.progress import progress_bar
 from ocplace.sim.corpus.catalogue import CatalogueEntry, read_entries
 from ocplace.sim.corpus.convert import ConversionConfig, ConversionResult, convert_model, read_converted
 from ocplace.sim.corpus.cutout_sources import CUTOUT_SOURCES, CutoutSource
@@ -204,7 +203,7 @@ def build_corpus(
             cutout_records[name] = record
     die_after = int(os.environ.get(DIE_AFTER_MODELS_ENV, "0"))
     for count, (index, entry, path, licence, folder) in enumerate(
-        tqdm(todo, desc="corpus", unit="model", disable=not progress), start=1
+        progress_bar(todo, desc="corpus", unit="model", enabled=progress), start=1
     ):
         result = convert_model(entry, path, licence, config, root / folder, root / TMP_DIRNAME)
         models[index] = _outcome(result, models[index])

@@ -8,9 +8,8 @@ from __future__ import annotations
 
 import contextlib
 
-from tqdm import tqdm
-
 from ocplace.runtime import Executor, ExecutorConfig, Task, map_tasks, open_executor
+from ocplace.runtime.progress import progress_bar
 from ocplace.sim.dataset.job import ListedScene, listed_scenes
 from ocplace.sim.metric import placement_success
 
@@ -52,7 +51,7 @@ def _physical_report(
     size = max(1, -(-len(scenes) // (executor.capacity * CHUNKS_PER_WORKER)))
     chunks = [scenes[start : start + size] for start in range(0, len(scenes), size)]
     failures = []
-    bar = tqdm(total=len(scenes), desc=desc, disable=not progress)
+    bar = progress_bar(total=len(scenes), desc=desc, enabled=progress)
     for index, failed in map_tasks(executor, [Task(physical_failures, (chunk, cache)) for chunk in chunks]):
         failures += failed
         bar.update(len(chunks[index]))
@@ -77,7 +76,7 @@ def check_oracle(
         for split in splits:
             scenes = listed_scenes(dataset_dir, split)
             metric_failures = []
-            for listed in tqdm(scenes, desc=f"oracle {split}", disable=not progress):
+            for listed in progress_bar(scenes, desc=f"oracle {split}", enabled=progress):
                 scene = listed.info()
                 if not placement_success(scene.oracle.placement[None], scene.problem())[0]:
                     metric_failures.append(scene.id)

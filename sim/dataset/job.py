@@ -24,12 +24,11 @@ import subprocess
 from collections.abc import Mapping
 from pathlib import Path
 
-from tqdm import tqdm
-
 import ocplace
 from ocplace.errors import DatasetError
 from ocplace.paths import disk_full_is_typed, file_sha256, inside, write_text_atomic
 from ocplace.runtime import Executor, ExecutorConfig, Task, map_tasks, open_executor
+from ocplace.runtime.progress import progress_bar
 from ocplace.sim.dataset.config import DatasetConfig, generate_advice
 from ocplace.sim.dataset.generate import SceneGenerator, describe, level_schedule, scene_id
 from ocplace.sim.dataset.records import IMAGE_FILES, SCENE_FILE, SceneInfo, SceneRecord, read_meta, read_scene
@@ -315,7 +314,7 @@ def generate_dataset(
             Task(_make_scenes, (str(out), config, cache, tuple(wanted[i : i + size])))
             for i in range(0, len(wanted), size)
         ]
-        with tqdm(total=len(wanted), desc="scenes", unit="scene", disable=not progress) as bar:
+        with progress_bar(total=len(wanted), desc="scenes", unit="scene", enabled=progress) as bar:
             for _, made in map_tasks(executor, tasks):
                 bar.update(made)
     manifest = write_manifest(out, config, regenerated)

@@ -12,7 +12,6 @@ from collections import Counter
 from pathlib import Path
 
 from PIL import Image
-from tqdm import tqdm
 
 from ocplace.errors import AssetBuildError, UnknownObject
 from ocplace.paths import (
@@ -25,6 +24,7 @@ from ocplace.paths import (
     write_text_atomic,
 )
 from ocplace.runtime import Executor, ExecutorConfig, Task, open_executor
+from ocplace.runtime.progress import progress_bar
 from ocplace.sim.library.checksums import CHECKSUMS_FILE, read_checked
 from ocplace.sim.library.config import LibraryConfig, default_config
 from ocplace.sim.library.library import Library, load_library
@@ -132,7 +132,7 @@ def _cached(root: Path, job: _Job) -> ObjectResult | None:
 def _run_jobs(jobs: list[_Job], config: LibraryConfig, root: Path, executor: Executor, progress: bool):
     """The result of every job; a job whose worker died (a native crash in coacd, say) is marked failed."""
     tmp_root = root / TMP_DIRNAME
-    bar = tqdm(total=len(jobs), desc="building objects", unit="obj", disable=not progress)
+    bar = progress_bar(total=len(jobs), desc="building objects", unit="obj", enabled=progress)
     handles = {
         executor.submit(Task(build_object, (job.spec, job.files, config, root / job.folder, tmp_root))): job
         for job in jobs

@@ -42,7 +42,7 @@ def evaluate_split(
     progress: bool = False,
 ) -> dict:
     """Grounding accuracy (overall, per level, table vs object tuples) and crop-to-name retrieval."""
-    from tqdm import tqdm
+    from ocplace.runtime.progress import progress_bar
 
     encode_texts = _TextCache(backbone)
     pools = {"library": library.names(), "split": None}
@@ -50,7 +50,7 @@ def evaluate_split(
     chance = []
     crop_features, crop_names = [], []
     scenes = listed_scenes(dataset_dir, split)[:limit]
-    for scene in tqdm(scenes, desc=f"eval {split}", unit="scene", disable=not progress):
+    for scene in progress_bar(scenes, desc=f"eval {split}", unit="scene", enabled=progress):
         record = scene.read()
         example = example_from_record(record, CROP_SIZE)
         visual = backbone.encode_images(np.concatenate([example.crops, example.workspace[None]]))

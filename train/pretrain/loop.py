@@ -247,7 +247,9 @@ def used_captions(draws: list[BatchDraw]) -> np.ndarray:
     return np.unique(np.concatenate([draw.captions for draw in draws]))
 
 
-def caption_sentences(text_tower: FrozenTextTower, texts: tuple[str, ...], used: np.ndarray) -> np.ndarray:
+def caption_sentences(
+    text_tower: FrozenTextTower, texts: tuple[str, ...], used: np.ndarray, progress: bool = False
+) -> np.ndarray:
     """float32 `(C, D)`: the text tower's embedding of each caption in `used`, zeros in the other rows.
 
     The bank has many more captions than a short run draws (the demo's 75 steps draw under a third
@@ -255,8 +257,11 @@ def caption_sentences(text_tower: FrozenTextTower, texts: tuple[str, ...], used:
     caption is encoded in a batch of 64 as before; its row does not depend on its neighbours, but
     does on the batch's shape (tested bit for bit: `test_pretrain_data.py`).
     """
+    from ocplace.runtime.progress import progress_bar
+
     sentences = None
-    for start in range(0, len(used), CAPTION_BATCH):
+    starts = range(0, len(used), CAPTION_BATCH)
+    for start in progress_bar(starts, enabled=progress, desc="captions", unit="batch"):
         rows = used[start : start + CAPTION_BATCH]
         batch = [texts[i] for i in rows]
         # Always a full batch: the tower pads a short one to a power of two, and another batch shape
@@ -269,7 +274,7 @@ def caption_sentences(text_tower: FrozenTextTower, texts: tuple[str, ...], used:
 
 
 def shared_caption_sentences(
-    text_tower: FrozenTextTower, texts: tuple[str, ...], used: np.ndarray, folder: Path
+    text_tower: FrozenTextTower, texts: tuple[str, ...], used: np.ndarray, folder: Path, progress: bool = False
 ) -> np.ndarray:
     """`caption_sentences`, encoding only the captions `folder/captions.npz` does not hold yet for this bank and
     adding them there: a row's bits do not depend on its batch's other captions, so a recipe's backbone seeds
@@ -282,7 +287,7 @@ def shared_caption_sentences(
             if str(saved["bank"]) == bank:
                 known_rows, known = saved["rows"], saved["sentences"]
     missing = np.setdiff1d(used, known_rows)
-    encoded = caption_sentences(text_tower, texts, missing) if len(missing) else None
+    encoded = caption_sentences(text_tower, texts, missing, progress) if len(missing) else None
     width = (encoded if encoded is not None else known).shape[1]
     every = np.zeros((len(texts), width), np.float32)
     if known is not None:
@@ -348,9 +353,9 @@ def pretrain(
     draws, probe_draw = run_draws(images, by_class, bank, optim)
     used = used_captions([*draws, probe_draw])
     if share_renders:
-        sentences = shared_caption_sentences(text_tower, bank.texts, used, renders_root)
+        sentences = shared_caption_sentences(text_tower, bank.texts, used, renders_root, progress)
     else:
-        sentences = caption_sentences(text_tower, bank.texts, used)
+        sentences = caption_sentences(text_tower, bank.texts, used, progress)
     bank_sentences = jnp.asarray(sentences)
     timings["captions_s"] = time.perf_counter() - mark
 

@@ -298,7 +298,7 @@ def render_all(
     """Renders the missing chunks into `run_dir`, in up to `workers` processes (each renders whole chunks: a
     scene is a pure function of its index, so the images are the same with any number), then returns every
     image of every chunk."""
-    from tqdm import tqdm
+    from ocplace.runtime.progress import progress_bar
 
     num_chunks = -(-config.scenes // config.chunk_scenes)
     missing = [c for c in range(num_chunks) if not chunk_path(run_dir, c).exists()]
@@ -307,7 +307,7 @@ def render_all(
     # A render process starts in seconds (imports, arenas): worth it for the demo's 100 scenes, not for smoke's 2.
     workers = workers if to_render >= PARALLEL_MIN_SCENES else 1
     shares = [missing[k :: max(1, workers)] for k in range(min(max(1, workers), len(missing)))]
-    with tqdm(total=config.scenes, initial=done_scenes, unit="scene", desc="render", disable=not progress) as bar:
+    with progress_bar(total=config.scenes, initial=done_scenes, unit="scene", desc="render", enabled=progress) as bar:
         if len(shares) == 1:
             render_chunks(library, pool, run_dir, config, model, shares[0], bar.update)
         elif shares:

@@ -1,0 +1,48 @@
+"""Progress of a long step, wherever it runs: a tqdm bar drawn in place in the command's own process; whole lines
+from a worker process (a local pool's, a Ray actor's), whose output it shares with the other workers and the
+command's own step lines, so that nothing is drawn over and nothing is silent for long.
+
+A worker learns which from its environment (`WORKER_PROGRESS_ENV`, set by `init_worker` from the executor's
+configuration, `--no-progress` switching it off): the functions that report progress are the same in a worker and
+in the foreground, and keep their `progress` argument for the foreground.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+from typing import Any
+
+from tqdm import tqdm
+
+WORKER_PROGRESS_ENV = "OCPLACE_WORKER_PROGRESS"  # "lines" or "off"; unset in the command's own process
+# A worker's bar prints a line at most this often; under the 10 s that a step may stay silent (README's promise).
+LINE_INTERVAL_S = 8.0
+
+
+class LineBar(tqdm):
+    """A tqdm bar that prints whole lines (`desc: 40%| 160/400 [01:02<01:33, 2.6scene/s]`), at most one per
+    `LINE_INTERVAL_S`, and the last one when it ends."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        kwargs |= {"mininterval": LINE_INTERVAL_S, "file": io.StringIO(), "ascii": True, "ncols": 100, "leave": True}
+        super().__init__(*args, **kwargs)
+
+    def display(self, msg: str | None = None, pos: int | None = None) -> bool:
+        if msg != "":  # "" clears a bar drawn in place: a line printed stays
+            print(self.format_meter(**self.format_dict).strip(), flush=True)
+        return True
+
+
+def worker_progress_mode(progress: bool) -> str:
+    """The value of `WORKER_PROGRESS_ENV` in a worker of a command run with (or without) progress."""
+    return "lines" if progress else "off"
+
+
+def progress_bar(iterable: Any = None, *, enabled: bool = True, **kwargs: Any) -> tqdm:
+    """`tqdm(iterable, **kwargs)`, shown when `enabled`: in place here, as lines in a worker (or nothing, when
+    the command was asked for no progress)."""
+    mode = os.environ.get(WORKER_PROGRESS_ENV)
+    if mode == "lines" and enabled:
+        return LineBar(iterable, **kwargs)
+    return tqdm(iterable, disable=not enabled or mode == "off", **kwargs)
