@@ -117,10 +117,10 @@ def table_one(results: Mapping[str, Any]) -> str:
     threshold = settings.get("threshold", LEGACY_THRESHOLD)
     joint = [entry["label"] for entry in full_runs(results) if decision_mode(entry) == "joint"]
     grounded = "every reference grounded at its argmax" + (
-        f" ({', '.join(joint)}: jointly, docs/policy.md)" if joint else ""
+        f", the {'rows' if len(joint) > 1 else 'row'} of joint inference jointly (docs/policy.md)" if joint else ""
     )
     protocol = (
-        f"the paper's protocol ({grounded}, always placed)"
+        f"the paper's protocol (always placed; {grounded})"
         if threshold == 0
         else f"a scene refused (a failure) when a reference's best token has P < {threshold:g}"
     )

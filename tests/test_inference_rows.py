@@ -158,7 +158,7 @@ def test_a_row_that_learns_nothing_counts_once_per_backbone_and_rows_are_paired_
 
     joint = _entry("ours_joint", "ours_joint", base, description={"policy": {"decision": {"mode": "joint"}}})
     title = table.table_one({"settings": {"subsets": ["seen"], "threshold": 0.0}, "evaluations": [joint]})
-    assert "every reference grounded at its argmax (ours_joint: jointly, docs/policy.md)" in title  # its label
+    assert "(always placed; every reference grounded at its argmax, the row of joint inference jointly" in title
 
     same = {"settings": {"subsets": ["seen"]}, "evaluations": [_entry("ours", "ours", base), _entry("x", "x", base)]}
     cell = statistics.derive(same)["paired"]["x"]["seen"]["overall"]
