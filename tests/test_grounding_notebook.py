@@ -42,6 +42,14 @@ def test_grounding_notebook_executes(tmp_path, smoke_dataset, monkeypatch):
     assert "with adapters: GroundingAccuracy" in text and "scenes of 'seen'" in text
     assert sum(o.output_type == "display_data" for o in outputs) >= 6  # P, confusion, bars, sweeps, ranks, calibration
     assert "references of 'ours' with a true token, from outcomes.jsonl.gz" in text
+    # The sweep's zero-shot point is the backbone alone, as w/o Adapter grounds, on the same features.
+    from ocplace.models.grounding import GroundingModel
+    from ocplace.models.trained_adapters import load_adapters
+    from ocplace.train.metrics import evaluate_features
+
+    features, logit_scale = load_features(features_path), load_adapters(run).model.logit_scale
+    zero_shot = evaluate_features(GroundingModel.zero_shot(features.dim, logit_scale), features).tuple_accuracy
+    assert f"zero-shot point (both ratios 0): {zero_shot:.4f}" in text
 
 
 def recorded_outcomes(dataset: Path, path: Path) -> Path:
