@@ -18,6 +18,7 @@ from ocplace.errors import EvaluationError
 from ocplace.eval.statistics import full_runs
 
 if TYPE_CHECKING:
+    from ocplace.models.placement.figures import FigureStyle
     from ocplace.sim.dataset.job import ListedScene
     from ocplace.sim.dataset.records import SceneRecord
 
@@ -118,15 +119,17 @@ def plot_cases(
     dataset_dir: str | Path | None = None,
     methods: Sequence[str] = CASE_METHODS,
     cases: Sequence[tuple[str, str]] | None = None,
+    style: FigureStyle | None = None,
 ) -> Path:
     """Fig. 6: one panel per case, each method's mode (o success, X failure) over the scene with its
-    feasible region (green) and ground-truth references (white boxes). A PNG at `path`."""
+    feasible region (green) and ground-truth references (white boxes), with a legend. Written at `path` in `style`
+    (default: PNG)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ocplace.models.placement.figures import save_figure
+    from ocplace.models.placement.figures import FigureStyle, save_figure
 
     dataset_dir = Path(dataset_dir or results["dataset"]["dir"])
     cases = list(cases or choose_cases(results, methods))
@@ -142,15 +145,43 @@ def plot_cases(
         record = _listed_scene(dataset_dir, subset, scene_id).read()
         outcomes = [(entries[m]["label"], _outcomes_by_scene(entries[m], subset)[scene_id]) for m in methods]
         _draw_case(axis, record, outcomes)
-    figure.tight_layout()
-    return save_figure(figure, path, dpi=120)
+    labels = [entries[m]["label"] for m in methods]
+    figure.legend(handles=_case_legend(labels), loc="lower center", ncols=3, fontsize=7)
+    figure.tight_layout(rect=(0, 0.08, 1, 1))
+    return save_figure(figure, path, style or FigureStyle())
 
 
-def plot_fig5(dataset_dir: str | Path, path: str | Path, seed: int = 0, subset: str = "seen") -> Path:
+def _case_legend(labels: Sequence[str]) -> list[Any]:
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    handles: list[Any] = [
+        Line2D(
+            [],
+            [],
+            ls="",
+            marker="o",
+            color=METHOD_COLOURS[k % len(METHOD_COLOURS)],
+            markeredgecolor="black",
+            label=f"{label}: placed, success",
+        )
+        for k, label in enumerate(labels)
+    ]
+    handles += [
+        Line2D([], [], ls="", marker="X", color="gray", markeredgecolor="black", label="placed, failure"),
+        Patch(facecolor="limegreen", alpha=0.5, label="where every tuple holds (feasible region)"),
+        Patch(facecolor="none", edgecolor="black", label="reference objects (white boxes)"),
+    ]
+    return handles
+
+
+def plot_fig5(
+    dataset_dir: str | Path, path: str | Path, seed: int = 0, subset: str = "seen", style: FigureStyle | None = None
+) -> Path:
     """Fig. 5 on the first scene of a test subset: a table region, one object relation, a composition."""
     import jax
 
-    from ocplace.models.placement.figures import fig5, save_figure
+    from ocplace.models.placement.figures import FigureStyle, fig5, save_figure
     from ocplace.sim.dataset.job import listed_scenes
 
     record = listed_scenes(Path(dataset_dir), subset)[0].read()
@@ -167,16 +198,24 @@ def plot_fig5(dataset_dir: str | Path, path: str | Path, seed: int = 0, subset: 
         suptitle=f"{record.id} | held: {held.human_name}",
         scene=record.id,
     )
-    return save_figure(figure, path)
+    return save_figure(figure, path, style or FigureStyle())
 
 
 def write_figures(
-    results: Mapping[str, Any], out_dir: str | Path, dataset_dir: str | Path | None = None, seed: int = 0
+    results: Mapping[str, Any],
+    out_dir: str | Path,
+    dataset_dir: str | Path | None = None,
+    seed: int = 0,
+    style: FigureStyle | None = None,
 ) -> list[Path]:
     """Every paper figure the results allow: Fig. 5 always, Fig. 6 with Ours and CLIPort-Place
-    evaluated (and per-scene outcomes, which a summary lacks), Fig. 7 with several training fractions."""
+    evaluated (and per-scene outcomes, which a summary lacks), Fig. 7 with several training fractions; in `style`
+    (default: PNG at 150 dpi)."""
     from ocplace.eval.efficiency import efficiency_curves, plot_sample_efficiency
+    from ocplace.models.placement.figures import FigureStyle
 
+    style = style or FigureStyle()
+    style.validate()
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     dataset_dir = Path(dataset_dir or results["dataset"]["dir"])
@@ -185,9 +224,9 @@ def write_figures(
             f"the dataset {dataset_dir} the results name is not there, nor at the same place relative to the results "
             "file (moved or deleted): pass --dataset DIR to `ocplace figures` (dataset_dir= in Python)"
         )
-    written = [plot_fig5(dataset_dir, out_dir / FIG5, seed)]
+    written = [plot_fig5(dataset_dir, out_dir / FIG5, seed, style=style)]
     if set(CASE_METHODS) <= _full_runs_by_method(results).keys() and not results.get("summary"):
-        written.append(plot_cases(results, out_dir / FIG6, dataset_dir))
+        written.append(plot_cases(results, out_dir / FIG6, dataset_dir, style=style))
     if efficiency_curves(results):
-        written.append(plot_sample_efficiency(results, out_dir / FIG7))
+        written.append(plot_sample_efficiency(results, out_dir / FIG7, style))
     return written

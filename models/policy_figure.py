@@ -25,7 +25,7 @@ def placement_figure(placement, rgb: np.ndarray, camera, max_points: int = 300):
     references = [ref.aabb for ref in placement.references if ref.aabb is not None]
     parse = "; ".join(f"<{ref}, {rel}>" for ref, rel in placement.pairs) or "no parse"
     status = (
-        f"NOT PLACED: {placement.failure}"
+        f"NOT PLACED: {short_reason(placement.failure)}"  # the whole message is printed beside the figure
         if placement.error is not None
         else f"mode ({mode[0]:+.3f}, {mode[1]:+.3f}) m"
     )
@@ -39,6 +39,7 @@ def placement_figure(placement, rgb: np.ndarray, camera, max_points: int = 300):
         scene_boxes=placement.aabbs,
         max_points=max_points,
         suptitle="\n".join(textwrap.wrap(placement.instruction, 56)),
+        legend_extra=_box_legend(),
     )
     axis = figure.axes[0]
     for index, (u0, v0, u1, v1) in enumerate(np.asarray(placement.boxes).reshape(-1, 4)):
@@ -71,6 +72,22 @@ def placement_figure(placement, rgb: np.ndarray, camera, max_points: int = 300):
     return figure
 
 
+def short_reason(failure: str | None, limit: int = 60) -> str:
+    """The failure's kind and the start of its message, for a title (`NoFeasiblePlacement: no cell of the grid...`)."""
+    text = " ".join((failure or "unknown").split())
+    return text if len(text) <= limit else text[: limit - 3].rstrip() + "..."
+
+
+def _box_legend() -> list:
+    """The legend of the boxes this module draws over `draw_panels`' figure."""
+    from matplotlib.lines import Line2D
+
+    return [
+        Line2D([], [], color="white", lw=0.8, ls="--", label="object boxes: the visual tokens (#index)"),
+        Line2D([], [], color=REFERENCE_COLOURS[0], lw=1.8, label="grounded reference (p: its probability)"),
+    ]
+
+
 def _rectangle(axis, box, colour: str, width: float, style: str) -> None:
     from matplotlib.patches import Rectangle
 
@@ -87,9 +104,11 @@ def save_placement(policy, scene, key, path) -> Placement:
     return placement
 
 
-def save_placement_figure(placement, scene, path) -> None:
-    """Draws what the policy did in `scene` (a `models.policy.SceneInput`) into the PNG `path`."""
-    from ocplace.models.placement.figures import save_figure
+def save_placement_figure(placement, scene, path, style=None) -> None:
+    """Draws what the policy did in `scene` (a `models.policy.SceneInput`) into `path` (`style`: a `FigureStyle`,
+    by default a PNG)."""
+    from ocplace.models.placement.figures import FigureStyle, save_figure
     from ocplace.sim.pinhole import PinholeCamera
 
-    save_figure(placement_figure(placement, scene.rgb, PinholeCamera.from_any(scene.camera)), path)
+    figure = placement_figure(placement, scene.rgb, PinholeCamera.from_any(scene.camera))
+    save_figure(figure, path, style or FigureStyle())

@@ -81,3 +81,6 @@ MAX_SAMPLES = 65_536
 
 # Seconds anyone's policy (`evaluate --policy`) may take per scene before that scene fails as a timeout.
 SCENE_TIMEOUT_S = 60.0
+
+# The file formats figures are written in (`ocplace figures --format`; models/placement/figures.py `FigureStyle`).
+FIGURE_FORMATS = ("png", "pdf", "svg")

@@ -216,6 +216,49 @@ def test_figures_command_writes_what_the_results_allow(first_run, tmp_path, caps
     assert "missing or not JSON" in capsys.readouterr().err
 
 
+def test_figures_take_a_format_and_a_dpi_and_go_beside_their_results(first_run, tmp_path, capsys):
+    import shutil
+
+    from ocplace.cli import main
+
+    moved = tmp_path / "run"
+    shutil.copytree(first_run.out, moved, ignore=shutil.ignore_patterns("figures"))
+    assert main(["figures", str(moved / "results.json"), "--format", "svg", "--dpi", "72"]) == 0
+    written = sorted(p.name for p in (moved / "figures").iterdir())
+    assert written == ["fig5_placement_distributions.svg", "fig7_sample_efficiency.svg"]
+    assert (moved / "figures" / written[0]).read_text().lstrip().startswith("<?xml")
+    bad = ["figures", str(moved / "results.json"), "--out", str(tmp_path / "bad")]
+    assert main([*bad, "--dpi", "0"]) == 2
+    assert "--dpi must be a whole number from 10 to 1200" in capsys.readouterr().err
+    with pytest.raises(SystemExit):  # argparse's usage error, naming the choices
+        main([*bad, "--format", "bmp"])
+    assert "invalid choice: 'bmp' (choose from 'png', 'pdf', 'svg')" in capsys.readouterr().err
+    assert not (tmp_path / "bad").exists()
+
+
+def test_fig7_points_are_the_mean_and_spread_over_seeds(first_run):
+    from ocplace.eval.efficiency import efficiency_curves
+
+    saved = results.read_results(first_run.results_path)
+    oracle = [e for e in saved["evaluations"] if e["method"] == "oracle"]
+    halved = [
+        dict(e, seed=1, subsets={s: dict(b, aggregate=_halved(b["aggregate"])) for s, b in e["subsets"].items()})
+        for e in oracle
+    ]
+    curves = efficiency_curves(dict(saved, evaluations=saved["evaluations"] + halved))
+    (fraction, mean, spread, runs), _ = curves["Oracle"]["seen"]
+    assert (fraction, runs) == (0.5, 2) and mean == pytest.approx(75.0) and spread == pytest.approx(25.0)
+
+
+def _halved(aggregate):
+    return {
+        level: dict(cell, success=cell["success"] / 2)
+        if isinstance(cell, dict) and cell.get("success") is not None
+        else cell
+        for level, cell in aggregate.items()
+    }
+
+
 @pytest.mark.parametrize("file_name, images_expected", [("results.json", 4), (pipeline.SUMMARY_FILE, 3)])
 def test_results_notebook_executes_on_the_smoke_results(first_run, tmp_path, monkeypatch, file_name, images_expected):
     from notebook_run import executed_outputs, printed

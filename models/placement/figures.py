@@ -16,11 +16,28 @@ from typing import Any
 
 import numpy as np
 
-from ocplace.errors import NoFeasiblePlacement
+from ocplace.errors import ConfigError, NoFeasiblePlacement
 from ocplace.sim import metric, relations
 from ocplace.sim.metric import Grid, GroundedTuple
+from ocplace.vocabulary import FIGURE_FORMATS
 
 PANEL_KINDS = ("table region", "one object relation", "two-relation composition")
+MAX_DPI = 1200
+
+
+@dataclasses.dataclass(frozen=True)
+class FigureStyle:
+    """How a figure is written: its file format (the path's suffix follows it) and, for PNG, its resolution."""
+
+    format: str = "png"
+    dpi: int = 150
+
+    def validate(self) -> None:
+        """ConfigError, before anything is drawn, for a format not in FIGURE_FORMATS or a dpi out of range."""
+        if self.format not in FIGURE_FORMATS:
+            raise ConfigError(f"figure format {self.format!r} is not one of {', '.join(FIGURE_FORMATS)}")
+        if isinstance(self.dpi, bool) or not isinstance(self.dpi, int) or not 10 <= self.dpi <= MAX_DPI:
+            raise ConfigError(f"--dpi must be a whole number from 10 to {MAX_DPI}, got {self.dpi!r}")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -57,8 +74,10 @@ def draw_panels(
     scene_boxes: np.ndarray | None = None,
     max_points: int = 300,
     suptitle: str | None = None,
+    legend_extra: Sequence[Any] = (),
 ):
-    """A matplotlib Figure with one panel per `Panel`: image, density, samples, mode, references.
+    """A matplotlib Figure with one panel per `Panel`: image, density (with its colour bar), samples, mode,
+    references, and a legend below (`legend_extra`: more handles, for what a caller draws on top).
 
     `scene_boxes (B, 2, 2)`, if given, are outlined faintly (the obstacles).
     """
@@ -75,7 +94,9 @@ def draw_panels(
     for axis, panel in zip(axes[0], panels):
         axis.imshow(image, extent=(-0.5, width - 0.5, height - 0.5, -0.5))
         density = np.ma.masked_less_equal(np.asarray(panel.heatmap, dtype=float), 0.0)
-        axis.pcolormesh(corners[..., 0], corners[..., 1], density, cmap="inferno", alpha=0.55, shading="flat")
+        mesh = axis.pcolormesh(corners[..., 0], corners[..., 1], density, cmap="inferno", alpha=0.55, shading="flat")
+        if density.count():
+            figure.colorbar(mesh, ax=axis, fraction=0.035, pad=0.02).set_label("placement density", fontsize=7)
         for box in np.asarray(scene_boxes if scene_boxes is not None else [], dtype=float).reshape(-1, 2, 2):
             _outline(axis, mapping, box, color="white", linewidth=0.8, alpha=0.7)
         for box in np.asarray(panel.references, dtype=float).reshape(-1, 2, 2):
@@ -87,14 +108,30 @@ def draw_panels(
         if np.all(np.isfinite(panel.mode)):
             mode = _to_pixels(mapping, panel.mode)
             axis.scatter(mode[:, 0], mode[:, 1], s=120, marker="*", color="lime", edgecolors="black")
-        axis.set_title("\n".join(textwrap.wrap(panel.title, 48)), fontsize=9)
+        lines = [wrapped for line in panel.title.splitlines() for wrapped in textwrap.wrap(line, 48)]
+        axis.set_title("\n".join(lines), fontsize=9)
         axis.set_xlim(-0.5, width - 0.5)
         axis.set_ylim(height - 0.5, -0.5)
         axis.set_axis_off()
     if suptitle:
         figure.suptitle(suptitle, fontsize=10)
-    figure.tight_layout()
+    handles = [*_legend_handles(), *legend_extra]
+    columns = 2 if len(panels) == 1 else 4
+    rows = -(-len(handles) // columns)
+    figure.legend(handles=handles, loc="lower center", ncols=columns, fontsize=7, facecolor="0.3", labelcolor="white")
+    figure.tight_layout(rect=(0, 0.02 + 0.055 * rows, 1, 1))
     return figure
+
+
+def _legend_handles() -> list:
+    from matplotlib.lines import Line2D
+
+    return [
+        Line2D([], [], color="cyan", lw=1.5, label="reference objects"),
+        Line2D([], [], color="white", lw=0.8, markeredgecolor="gray", label="other objects (obstacles)"),
+        Line2D([], [], ls="", marker="o", ms=3, color="white", markeredgecolor="gray", label="sampled placements"),
+        Line2D([], [], ls="", marker="*", ms=10, color="lime", markeredgecolor="black", label="mode (the placement)"),
+    ]
 
 
 def choose_fig5_tuples(
@@ -175,14 +212,14 @@ def fig5(
     return draw_panels(image, world_to_pixel, panels, config.grid, scene_boxes=boxes, suptitle=suptitle)
 
 
-def save_figure(figure, path: str | Path, dpi: int = 150) -> Path:
-    """Writes `figure` as a PNG atomically and closes it."""
+def save_figure(figure, path: str | Path, style: FigureStyle = FigureStyle()) -> Path:
+    """Writes `figure` atomically in `style`'s format (`path` with that suffix), closes it and returns the path."""
     import matplotlib.pyplot as plt
 
     from ocplace.paths import atomic_path
 
-    path = Path(path)
+    path = Path(path).with_suffix(f".{style.format}")
     with atomic_path(path) as tmp:
-        figure.savefig(tmp, format="png", dpi=dpi)
+        figure.savefig(tmp, format=style.format, dpi=style.dpi)
     plt.close(figure)
     return path

@@ -8,7 +8,7 @@ from pathlib import Path
 from ocplace.cli.evaluate import command_record, physical_setting
 from ocplace.cli.executor_options import add_executor_arguments, executor_config
 from ocplace.cli.options import DeprecatedAlias, add_dataset_argument, add_set_argument, count
-from ocplace.vocabulary import EXPERIMENT_NAMES
+from ocplace.vocabulary import EXPERIMENT_NAMES, FIGURE_FORMATS
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -72,12 +72,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="the paper's Fig. 5, 6 and 7 from a results JSON",
         description="Draws Fig. 5 (placement densities on the first `seen` scene), Fig. 6 (each method's "
         "placement in chosen test scenes; needs Ours and CLIPort-Place evaluated) and Fig. 7 "
-        "(sample efficiency; needs several training fractions) as PNGs.",
+        "(sample efficiency, mean and spread over the seeds; needs several training fractions), each with its legend.",
     )
     figures.add_argument("results", type=Path, help="results JSON of `ocplace evaluate` or `ocplace reproduce`")
     add_dataset_argument(figures, "the evaluated dataset (default: the one the results name)")
-    figures.add_argument("--out", type=Path, default=Path("figures"), help="output folder (default: ./figures)")
+    figures.add_argument(
+        "--out", type=Path, help="output folder (default: figures/ beside the results file, where `reproduce` writes)"
+    )
     figures.add_argument("--seed", type=int, default=0, help="seed of Fig. 5's relations and samples")
+    figures.add_argument("--format", choices=FIGURE_FORMATS, default="png", help="file format (default: png)")
+    figures.add_argument("--dpi", type=int, default=150, help="resolution of a PNG (default: 150; 10 to 1200)")
     figures.set_defaults(func=_figures)
 
 
@@ -140,7 +144,11 @@ def _reproduce(args: argparse.Namespace) -> int:
 def _figures(args: argparse.Namespace) -> int:
     from ocplace.eval.figures import write_figures
     from ocplace.eval.results import read_results
+    from ocplace.models.placement.figures import FigureStyle
 
-    for path in write_figures(read_results(args.results), args.out, args.dataset, args.seed):
+    style = FigureStyle(args.format, args.dpi)
+    style.validate()  # before the results are read: a bad --dpi writes nothing
+    out = args.out or args.results.parent / "figures"
+    for path in write_figures(read_results(args.results), out, args.dataset, args.seed, style):
         print(f"wrote {path}")
     return 0
