@@ -7,14 +7,15 @@ from ocplace.runtime import ExecutorConfig, Task, map_tasks, open_executor
 from ocplace.runtime import progress as progress_module
 from ocplace.runtime.progress import WORKER_PROGRESS_ENV, progress_bar
 
-LINE = re.compile(r"^counting: +(\d+)%\|.*\| (\d+)/(\d+) \[.*<.*\]$")  # desc, share, count, elapsed<ETA
+LINE = re.compile(r"^counting: +(\d+)%\|.*\| (\d+)/(\d+) \[.*<.*\]")  # desc, share, count, elapsed<ETA
 
 
 def count_to(total: int) -> int:
     """A task that reports its progress as any long step does."""
     bar = progress_bar(total=total, desc="counting", unit="item")
-    for _ in range(total):
+    for step in range(total):
         bar.update(1)
+        bar.set_postfix(step=step)  # redraws a bar at once: a line still waits for its interval
     bar.close()
     return total
 

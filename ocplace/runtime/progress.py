@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import io
 import os
+import time
 from typing import Any
 
 from tqdm import tqdm
@@ -21,17 +22,28 @@ LINE_INTERVAL_S = 8.0
 
 
 class LineBar(tqdm):
-    """A tqdm bar that prints whole lines (`desc: 40%| 160/400 [01:02<01:33, 2.6scene/s]`), at most one per
-    `LINE_INTERVAL_S`, and the last one when it ends."""
+    """A tqdm bar that prints whole lines (`desc: 40%| 160/400 [01:02<01:33, 2.6scene/s]`): its first, then at most
+    one per `LINE_INTERVAL_S` (tqdm redraws on every `set_postfix` too), and its last when it ends."""
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
+        self._printed: tuple[float, float] | None = None  # (when, n) of the last line; tqdm's __init__ draws
+        self._closing = False
         kwargs |= {"mininterval": LINE_INTERVAL_S, "file": io.StringIO(), "ascii": True, "ncols": 100, "leave": True}
         super().__init__(*args, **kwargs)
 
     def display(self, msg: str | None = None, pos: int | None = None) -> bool:
-        if msg != "":  # "" clears a bar drawn in place: a line printed stays
+        if msg == "":  # clears a bar drawn in place: a line printed stays
+            return True
+        now = time.monotonic()
+        due = self._printed is None or now - self._printed[0] >= LINE_INTERVAL_S
+        if (due or self._closing) and (self._printed is None or self._printed[1] != self.n):
             print(self.format_meter(**self.format_dict).strip(), flush=True)
+            self._printed = (now, self.n)
         return True
+
+    def close(self) -> None:
+        self._closing = True
+        super().close()
 
 
 def worker_progress_mode(progress: bool) -> str:
