@@ -592,3 +592,11 @@ def test_the_readmes_demo_figures_are_written_from_a_results_file(first_run, tmp
     assert f"| Oracle | {seen:.1f} |" in written
     assert "| Oracle@" not in written and written.count("<!-- demo-table -->") == 1  # whole-training-set runs only
     assert written.split("<!-- demo-table -->")[0] == (root / "README.md").read_text().split("<!-- demo-table -->")[0]
+    command = [*command[:3], "--paper", "--readme", str(readme), "--source", "docs/results/x.summary.json"]
+    done = subprocess.run(command, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    paper = readme.read_text().split("<!-- paper-table -->")[1]
+    assert (
+        f"| Oracle | {seen:.2f} |" in paper and "| the paper's Ours (real CLIP) | 97.75 | 87.25 | 77.1 | - |" in paper
+    )
+    assert "from `docs/results/x.summary.json`" in paper and readme.read_text().count(f"| Oracle | {seen:.1f} |") == 1
