@@ -50,3 +50,15 @@ def test_the_commands_own_process_draws_a_bar(monkeypatch, capsys):
     count_to(3)
     captured = capsys.readouterr()
     assert captured.out == "" and "counting" in captured.err  # tqdm's bar, in place on stderr
+
+
+def test_a_step_that_does_not_move_still_prints_its_clock(monkeypatch, capsys):
+    import time
+
+    monkeypatch.setenv(WORKER_PROGRESS_ENV, "lines")
+    monkeypatch.setattr(progress_module, "LINE_INTERVAL_S", 0.05)
+    bar = progress_bar(total=2, desc="counting", unit="item")
+    time.sleep(0.5)  # a long compile: no update at all
+    bar.close()
+    counts = [LINE.match(line).group(2) for line in capsys.readouterr().out.splitlines()]
+    assert counts[0] == "0" and len(counts) >= 3 and set(counts) == {"0"}  # the heartbeat's lines, and no final dup

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import io
 import os
+import threading
 import time
 from typing import Any
 
@@ -22,27 +23,40 @@ LINE_INTERVAL_S = 8.0
 
 
 class LineBar(tqdm):
-    """A tqdm bar that prints whole lines (`desc: 40%| 160/400 [01:02<01:33, 2.6scene/s]`): its first, then at most
-    one per `LINE_INTERVAL_S` (tqdm redraws on every `set_postfix` too), and its last when it ends."""
+    """A tqdm bar that prints whole lines (`desc: 40%| 160/400 [01:02<01:33, 2.6scene/s]`): its first, then one per
+    `LINE_INTERVAL_S` whether or not it moved (a heartbeat thread: a step that compiles for 30 s still shows its
+    clock), never more often (tqdm redraws on every `set_postfix` too), and its last when it ends."""
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         self._printed: tuple[float, float] | None = None  # (when, n) of the last line; tqdm's __init__ draws
-        self._closing = False
+        self._closing, self._ended, self._line_lock = False, threading.Event(), threading.Lock()
         kwargs |= {"mininterval": LINE_INTERVAL_S, "file": io.StringIO(), "ascii": True, "ncols": 100, "leave": True}
         super().__init__(*args, **kwargs)
+        threading.Thread(target=self._heartbeat, args=(max(LINE_INTERVAL_S, 0.05),), daemon=True).start()
+
+    def _heartbeat(self, interval: float) -> None:
+        while not self._ended.wait(interval):
+            with self._line_lock:  # one line at a time with the thread that updates the bar
+                if not self._ended.is_set():
+                    self.display()
 
     def display(self, msg: str | None = None, pos: int | None = None) -> bool:
         if msg == "":  # clears a bar drawn in place: a line printed stays
             return True
         now = time.monotonic()
-        due = self._printed is None or now - self._printed[0] >= LINE_INTERVAL_S
-        if (due or self._closing) and (self._printed is None or self._printed[1] != self.n):
+        if self._closing:
+            due = self._printed is None or self._printed[1] != self.n  # the last state, once
+        else:
+            due = self._printed is None or now - self._printed[0] >= LINE_INTERVAL_S
+        if due:
             print(self.format_meter(**self.format_dict).strip(), flush=True)
             self._printed = (now, self.n)
         return True
 
     def close(self) -> None:
-        self._closing = True
+        with self._line_lock:
+            self._ended.set()
+            self._closing = True
         super().close()
 
 
