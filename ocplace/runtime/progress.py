@@ -36,7 +36,7 @@ class LineBar(tqdm):
 
     def _heartbeat(self, interval: float) -> None:
         while not self._ended.wait(interval):
-            with self._line_lock:  # one line at a time with the thread that updates the bar
+            with self._line_lock:  # never a line after close() has begun
                 if not self._ended.is_set():
                     self.display()
 
