@@ -362,3 +362,18 @@ def test_train_shows_the_defaults_a_run_records():
     }
     assert shown["residual_ratio"] == "0.1" and shown["text_ratio"] == "0.5" and shown["normalise"] == "true"
     assert len(shown) >= 14 and all(text == format_value(recorded[name]) for name, text in shown.items()), shown
+
+
+@pytest.mark.parametrize("text", ["1e9", "1e300", "86401", "inf", "nan", "-1"])
+def test_a_duration_beyond_a_day_or_not_a_number_is_refused_before_work(text, capsys):
+    from ocplace.cli import main
+
+    with pytest.raises(SystemExit):  # argparse's usage error: nothing ran
+        main(["evaluate", "--dataset", "nowhere", "--out", "r.json", "--policy", "m:f", "--scene-timeout", text])
+    assert "--scene-timeout" in capsys.readouterr().err
+
+
+def test_a_day_is_the_longest_duration():
+    from ocplace.cli.options import MAX_DURATION_S, seconds
+
+    assert seconds("86400") == MAX_DURATION_S and seconds("0") == 0.0 and seconds("2.5") == 2.5

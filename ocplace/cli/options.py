@@ -340,9 +340,16 @@ def finite(text: str) -> float:
     return value
 
 
+# The longest any duration flag may ask for: past it a platform's timers overflow (1e9 s is 32 years), and no
+# step of ocplace is meant to wait that long.
+MAX_DURATION_S = 86_400.0
+
+
 def seconds(text: str) -> float:
-    """An argparse type: a finite, non-negative number of seconds."""
+    """An argparse type: a finite, non-negative number of seconds, at most `MAX_DURATION_S` (one day)."""
     value = finite(text)
     if value < 0:
         raise argparse.ArgumentTypeError(f"{text} is negative: give seconds, 0 or more")
+    if value > MAX_DURATION_S:
+        raise argparse.ArgumentTypeError(f"{text} s is more than a day ({MAX_DURATION_S:g} s): give at most that")
     return value
