@@ -10,6 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from ocplace.errors import PolicyFolderError
 from ocplace.models.policy_card import NOT_EVALUATED, card_text
 from ocplace.models.policy_folder import CARD_FILE, export_policy, read_policy_config
 
@@ -34,6 +35,12 @@ def export_run(run_dir: str | Path, out: str | Path, *, backbone: str | None = N
     from ocplace.models.policy import PlacementPolicy
     from ocplace.models.trained_adapters import load_adapters
 
+    run, folder = Path(run_dir).resolve(), Path(out).resolve()
+    if folder == run or run in folder.parents or folder in run.parents:
+        raise PolicyFolderError(
+            f"the policy folder {out} would be written into (or over) the run {run_dir} it is made from: "
+            "choose an --out outside the run"
+        )
     adapters = load_adapters(run_dir)
     spec = backbone_of(adapters, backbone, run_dir)
     policy = PlacementPolicy.from_run(load_backbone(spec), adapters, parser=parser)

@@ -59,6 +59,10 @@ def save_adapters(
     save_weights(path, flatten_state(params), metadata)
 
 
+# What `save_adapters` records, and `load_adapters` needs.
+ADAPTER_METADATA = ("adapter_config", "logit_scale", "backbone_fingerprint", "prompt", "features_key", "steps")
+
+
 def load_adapters(source) -> TrainedAdapters:
     """Trained adapters from a run directory or its weights file, verified."""
     source = Path(source)
@@ -71,6 +75,12 @@ def load_adapters(source) -> TrainedAdapters:
         f"delete {path.parent} and train it again (`ocplace train ... --out "
         f"{path.parent}`, or `ocplace reproduce`, which retrains missing runs)",
     )
+    missing = [key for key in ADAPTER_METADATA if key not in metadata]
+    if missing:  # e.g. the weights of another row (w/o LLM, a baseline) where Ours' adapters are expected
+        raise TrainingError(
+            f"{path} holds no CLIP-Adapters (its metadata lacks {', '.join(missing)}): it is not a run of Ours or of "
+            "a row that trains as Ours does; pass one (`OUT/runs/ours/fraction-1.00`)"
+        )
     config = AdapterConfig(**json.loads(metadata["adapter_config"]))
     template = jax.eval_shape(lambda: init_adapters(config, jax.random.key(0)))
     params = unflatten_state(arrays, template)

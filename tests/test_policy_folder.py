@@ -92,6 +92,17 @@ def test_cli_exports_a_run_and_places_with_the_folder(trained_run, tiny_backbone
     assert "drop --adapters" in capsys.readouterr().err
     assert main([*command, "--backbone", tiny_backbone_spec]) == 2  # only a CLIP folder's checkpoint is given
     assert "holds its own backbone" in capsys.readouterr().err
+    before = sorted(path.name for path in trained_run[0].iterdir())
+    assert main(["export", "--run", str(trained_run[0]), "--out", str(trained_run[0] / "policy")]) == 2
+    assert "would be written into (or over) the run" in capsys.readouterr().err
+    assert sorted(path.name for path in trained_run[0].iterdir()) == before  # nothing written into the run
+    from ocplace.models.weights_file import save_weights
+
+    other_row = tmp_path / "no_llm_run" / "weights.safetensors"
+    other_row.parent.mkdir()
+    save_weights(other_row, {"w": np.zeros(2, np.float32)}, {"backbone_fingerprint": "0" * 64})
+    assert main(["export", "--run", str(other_row.parent), "--out", str(tmp_path / "x")]) == 2
+    assert "holds no CLIP-Adapters (its metadata lacks adapter_config" in capsys.readouterr().err
     (tmp_path / "a_file").write_text("keep me")
     assert main(["export", "--run", str(trained_run[0]), "--out", str(tmp_path / "a_file")]) == 2
     assert "it is a file, not a folder" in capsys.readouterr().err
