@@ -236,7 +236,10 @@ def _check_bad_batches(vector, truth) -> None:
     next `step(NaN)` returned those rows' rewards; now a bad batch sends nothing."""
     _, infos = vector.reset(seed=0)
     good = np.stack([truth[scene] for scene in infos["scene"]])
-    for bad in (np.concatenate([good, good[:1]]), [[10**400, 0.0], [0.0, 0.0]], good[:, :1]):
+    # The single environment's bad actions, one row each (issue 60: the vector path converted strings, booleans
+    # and objects and scored them).
+    same_as_single = ([["0.1", "0.2"], ["0", "0"]], [[True, False], [False, True]], np.array([[None, 0.0]] * 2))
+    for bad in (np.concatenate([good, good[:1]]), [[10**400, 0.0], [0.0, 0.0]], good[:, :1], *same_as_single):
         with pytest.raises(InvalidAction, match="shape \\(2, 2\\)"):
             vector.step(bad)
     _, rewards, terminated, _, infos = vector.step(np.full((2, 2), np.nan))

@@ -52,23 +52,28 @@ def _made_by_gymnasiums_vectorizer() -> bool:
     return False
 
 
+def action_rows(action, shape: tuple[int, ...], what: str) -> np.ndarray:
+    """float64 `action` of `shape`; InvalidAction (saying `what` an action is) unless it is numbers of that shape.
+    The one check of the single and the vector environment: strings, booleans and objects are refused, although
+    "0.1" and True would convert."""
+    try:
+        if np.asarray(action).dtype.kind not in "iuf":
+            raise TypeError(f"not numbers but {np.asarray(action).dtype}")
+        rows = np.asarray(action, dtype=np.float64)
+    except Exception as error:  # TypeError, ValueError, OverflowError (10**400), or whatever an __array__ raises
+        raise InvalidAction(f"{what}, numbers of shape {shape}; got {type(action).__name__} ({error})") from None
+    if rows.shape != shape:
+        raise InvalidAction(f"{what}, shape {shape}; got shape {rows.shape}")
+    return rows
+
+
 def placement_of(action) -> np.ndarray:
     """`(2,)` float64 table-frame `(x, y)` of an action; InvalidAction when it is not two numbers."""
-    try:
-        if np.asarray(action).dtype.kind not in "iuf":  # "0.1" would convert: strings, bools, objects are refused
-            raise TypeError(f"not numbers but {np.asarray(action).dtype}")
-        placement = np.asarray(action, dtype=np.float64)
-    except Exception as error:  # TypeError, ValueError, OverflowError (10**400), or whatever an __array__ raises
-        raise InvalidAction(
-            f"an action is a placement (x, y) in metres in the table frame, two numbers; got "
-            f"{type(action).__name__} ({error})"
-        ) from None
-    if placement.shape != (2,):
-        raise InvalidAction(
-            f"an action is a placement (x, y) in metres in the table frame, shape (2,); got shape {placement.shape}. "
-            "A vector environment takes one row per sub-environment: shape (num_envs, 2)"
-        )
-    return placement
+    what = (
+        "an action is a placement (x, y) in metres in the table frame (a vector environment takes one row per "
+        "sub-environment, shape (num_envs, 2))"
+    )
+    return action_rows(action, (2,), what)
 
 
 def metric_details(record: SceneRecord, placement: np.ndarray) -> dict:

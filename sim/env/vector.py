@@ -12,10 +12,9 @@ from __future__ import annotations
 
 import functools
 
-import numpy as np
 from gymnasium.vector import AsyncVectorEnv, AutoresetMode
 
-from ocplace.errors import InvalidAction, PlaceEnvError
+from ocplace.errors import PlaceEnvError
 
 
 class PlaceVectorEnv(AsyncVectorEnv):
@@ -23,18 +22,10 @@ class PlaceVectorEnv(AsyncVectorEnv):
     an `InvalidAction` with nothing sent, so no worker is left holding a result the next step would return."""
 
     def step_async(self, actions) -> None:
-        try:
-            rows = np.asarray(actions, dtype=np.float64)
-        except Exception as error:  # as `placement_of`: whatever the conversion raises
-            raise InvalidAction(
-                f"actions of a vector environment are numbers, shape ({self.num_envs}, 2): {error}"
-            ) from None
-        if rows.shape != (self.num_envs, 2):
-            raise InvalidAction(
-                f"a vector environment of {self.num_envs} takes one placement (x, y) per sub-environment, shape "
-                f"({self.num_envs}, 2); got shape {rows.shape}"
-            )
-        super().step_async(rows)
+        from ocplace.sim.env.place_env import action_rows
+
+        what = f"a vector environment of {self.num_envs} takes one placement (x, y) per sub-environment"
+        super().step_async(action_rows(actions, (self.num_envs, 2), what))
 
 
 def make_vector_env(num_envs: int = 2, max_episode_steps: int | None = None, **kwargs) -> AsyncVectorEnv:
