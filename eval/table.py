@@ -41,7 +41,12 @@ def percent(value: float | None, digits: int = 2) -> str:
 
 
 def _row(cells: Sequence[str]) -> str:
-    return "| " + " | ".join(cells) + " |"
+    return "| " + " | ".join(markdown_text(cell) for cell in cells) + " |"
+
+
+def markdown_text(text: object) -> str:
+    """`text` on one line with its pipes escaped: a `--label` holding `|` or a newline must not break a table."""
+    return " ".join(str(text).split()).replace("|", "\\|")
 
 
 def spread(values: Sequence[float | None], digits: int = 2) -> str:
@@ -312,10 +317,11 @@ def failure_list(results: Mapping[str, Any], limit: int = MAX_LISTED_FAILURES) -
         ]
         counted = sum(body.get("failed_scenes", 0) for body in entry["subsets"].values())  # a summary's
         if counted:
-            lines.append(f"- {entry['label']} ({entry['key']}): {counted} scenes (listed in the full results JSON)")
+            label = markdown_text(entry["label"])
+            lines.append(f"- {label} ({entry['key']}): {counted} scenes (listed in the full results JSON)")
         if not failed:
             continue
-        lines.append(f"- {entry['label']} ({entry['key']}): {len(failed)} scenes")
+        lines.append(f"- {markdown_text(entry['label'])} ({entry['key']}): {len(failed)} scenes")
         lines += [f"  - `{scene['id']}`: {scene['failure']}" for _, scene in failed[:limit]]
         if len(failed) > limit:
             lines.append(f"  - ... and {len(failed) - limit} more (see the JSON)")

@@ -600,3 +600,17 @@ def test_the_readmes_demo_figures_are_written_from_a_results_file(first_run, tmp
         f"| Oracle | {seen:.2f} |" in paper and "| the paper's Ours (real CLIP) | 97.75 | 87.25 | 77.1 | - |" in paper
     )
     assert "from `docs/results/x.summary.json`" in paper and readme.read_text().count(f"| Oracle | {seen:.1f} |") == 1
+
+
+def test_a_label_with_a_pipe_or_a_newline_stays_in_its_cell(first_run):
+    from ocplace.eval import table
+
+    saved = results.read_results(first_run.results_path)
+    for entry in saved["evaluations"]:
+        if entry["method"] == "failing":
+            entry["label"] = "Mine | new\nline"
+    text = table.table_one(saved)
+    [mine] = [line for line in text.splitlines() if line.startswith("| Mine")]
+    [oracle] = [line for line in text.splitlines() if line.startswith("| Oracle |")]
+    assert mine.startswith("| Mine \\| new line |") and mine.count(" | ") == oracle.count(" | ")  # as many cells
+    assert "- Mine \\| new line (failing): 32 scenes" in table.failure_list(saved).splitlines()
