@@ -3,10 +3,10 @@
 For each pair of rows (the argmax row and its joint variant, `ours` / `ours_joint` and `no_adapter` /
 `no_adapter_joint`), on the same scenes and runs: the argmax row's failures by what ended them (no feasible
 placement, two references to different objects grounded to one among those, other), how many the joint row turned
-into successes and how many successes it lost, how often it fell back to the argmax assignment, and the share of references whose true token was
-among the two most probable. Then issue 57's targets from the results' paired table: `ours_joint` `unseen_obj` >=
-87.25 and `unseen_cat` >= 60 (means over the runs), and its paired difference from Ours on `seen` and `unseen_inst`
-with a lower 95% end >= -1 point.
+into successes and how many successes it lost, how often it fell back to the argmax assignment, and the share of
+references whose true token was among the two most probable. Then issue 57's targets from the results' paired
+table: `ours_joint` `unseen_obj` >= 87.25 and `unseen_cat` >= 60 (means over the runs), and its paired difference
+from Ours on `seen` and `unseen_inst` with a lower 95% end >= -1 point.
 
 Usage: `python perf/joint_record.py RESULTS.json` (a full results file, or a summary with `--outcomes FILE`).
 """
