@@ -72,8 +72,9 @@ def runs_backbone(run_dirs: Sequence[str | Path]) -> str | None:
 
 
 def _loadable_here(spec: str) -> bool:
+    from ocplace.models.backbone import looks_like_path
+
     kind, _, argument = spec.partition(":")
     if kind == "offline":  # a recipe name is the default cache's folder, which may hold another pretraining
         return Path(argument).is_dir()
-    local = Path(argument).expanduser()
-    return not (argument.startswith((".", "~", "/")) and not local.is_dir())  # a hub id loads, or says why
+    return Path(argument).expanduser().is_dir() or not looks_like_path(argument)  # a hub id loads, or says why

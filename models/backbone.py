@@ -300,7 +300,7 @@ def update_with_params(digest, params) -> None:
         digest.update(array.tobytes())
 
 
-def load_clip_backbone(name_or_dir: str = DEFAULT_CLIP, max_batch: int = 32) -> ClipBackbone:
+def load_clip_backbone(name_or_dir: str = DEFAULT_CLIP, max_batch: int = 32, cached_only: bool = False) -> ClipBackbone:
     """A CLIP checkpoint from a local directory or the Hugging Face hub (cache first).
 
     Local directories may hold Flax weights (`flax_model.msgpack`, or `model.safetensors` saved by
@@ -318,12 +318,17 @@ def load_clip_backbone(name_or_dir: str = DEFAULT_CLIP, max_batch: int = 32) -> 
             raise BackboneError(
                 f"{local} holds a CLIP checkpoint that does not load ({error}); {_WRITE_CLIP}"
             ) from None
-    if _looks_like_path(name_or_dir):
+    if looks_like_path(name_or_dir):
         raise BackboneUnavailable(f"no CLIP directory at {local}. {_how_to_fix()}")
     try:
         return _load_clip(name_or_dir, local_only=True, max_batch=max_batch)
     except OSError:
         pass  # not in the Hugging Face cache
+    if cached_only:  # a hub id read from a file the user did not write: never a download
+        raise BackboneUnavailable(
+            f"CLIP checkpoint {name_or_dir!r} is not in the Hugging Face cache, and a hub id a policy folder names is "
+            "never downloaded on its own: download it yourself, or pass the checkpoint (`checkpoint=` / `--backbone`)"
+        )
     if os.environ.get("HF_HUB_OFFLINE", "0").lower() in ("1", "true", "yes"):
         raise BackboneUnavailable(
             f"CLIP checkpoint {name_or_dir!r} is not in the Hugging Face cache and HF_HUB_OFFLINE is set. "
@@ -410,7 +415,8 @@ def _is_pytorch_safetensors(path: Path) -> bool:
         return (handle.metadata() or {}).get("format") == "pt"
 
 
-def _looks_like_path(name: str) -> bool:
+def looks_like_path(name: str) -> bool:
+    """Whether a CLIP spec's argument names a local folder rather than a hub id (`org/name`)."""
     return name.startswith((".", "~", os.sep)) or name.count("/") > 1
 
 

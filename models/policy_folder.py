@@ -208,8 +208,8 @@ def _clip_backbone(document: dict, directory: Path, checkpoint: str | None):
 
     where = (checkpoint or str(document["checkpoint"])).removeprefix("clip:")
     move = "pass where it is now (`--backbone clip:DIR`, or `from_pretrained(FOLDER, checkpoint=DIR)`)"
-    try:
-        backbone = load_clip_backbone(where)
+    try:  # what the folder names is loaded from disk or the hub's cache only; what the user passes, as asked
+        backbone = load_clip_backbone(where, cached_only=checkpoint is None)
     except BackboneError as error:
         raise PolicyFolderError(
             f"{directory} places with the CLIP checkpoint {where}, which does not load ({error}); {move}"

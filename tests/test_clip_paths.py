@@ -168,3 +168,19 @@ def test_a_clip_folders_card_names_no_hub_model_for_a_local_checkpoint(clip_repr
 
     card = ModelCard((clip_reproduce.out / pipeline.POLICY_FOLDER / "README.md").read_text())
     assert card.data.library_name == "ocplace" and card.data.base_model is None
+
+
+def test_a_folder_that_names_a_hub_id_never_downloads_it(clip_reproduce, tmp_path, monkeypatch):
+    """A policy folder is data: the hub id it names is taken from the Hugging Face cache or refused, never fetched."""
+    import socket
+
+    def no_network(*args, **kwargs):
+        raise AssertionError("a policy folder reached for the network")
+
+    monkeypatch.setattr(socket, "create_connection", no_network)
+    folder = shutil.copytree(clip_reproduce.out / pipeline.POLICY_FOLDER, tmp_path / "policy")
+    document = json.loads((folder / CONFIG_FILE).read_text())
+    document["backbone"]["checkpoint"] = "someone/a-clip-nobody-cached"
+    (folder / CONFIG_FILE).write_text(json.dumps(document))
+    with pytest.raises(PolicyFolderError, match="never downloaded on its own"):
+        PlacementPolicy.from_pretrained(folder)
