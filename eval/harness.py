@@ -39,7 +39,6 @@ from ocplace.vocabulary import LEVELS, MAX_SAMPLES, TEST_SUBSETS, subsets_proble
 if TYPE_CHECKING:
     import jax
 
-    from ocplace.sim.library.library import Library
     from ocplace.sim.mujoco_backend import MujocoScenes
 
 STAGES = ("failure", "parse", "grounding", "sampling", "placement")
@@ -519,7 +518,7 @@ def evaluate_in_own_arena(
     checked = run.settings(settings)
     if run.fraction != 1.0:
         checked = dataclasses.replace(checked, physical_scenes=0)
-    with physical_arena(checked) as arena:
+    with physical_arena(checked, dataset_dir) as arena:
         return evaluate_run(run, method, dataset_dir, settings, arena, progress=True)
 
 
@@ -558,13 +557,14 @@ def aggregate_subset(outcomes: Sequence[SceneOutcome]) -> dict[str, Any]:
 
 
 @contextlib.contextmanager
-def physical_arena(settings: EvalSettings, library: Library | None = None) -> Iterator[MujocoScenes | None]:
-    """The MuJoCo arena for the physical check, or None when `settings` asks for no physical check."""
+def physical_arena(settings: EvalSettings, dataset_dir: str | Path) -> Iterator[MujocoScenes | None]:
+    """The MuJoCo arena for the physical check of `dataset_dir`'s scenes (with the library they were made with: a
+    user catalogue's objects for its subsets), or None when `settings` asks for no physical check."""
     if settings.physical_scenes == 0:
         yield None
         return
-    from ocplace.sim.library import load_library
+    from ocplace.sim.dataset.job import library_of_dataset
     from ocplace.sim.mujoco_backend import MujocoScenes
 
-    with MujocoScenes.from_library(library or load_library()) as arena:
+    with MujocoScenes.from_library(library_of_dataset(dataset_dir)) as arena:
         yield arena

@@ -59,9 +59,15 @@ def spread(values: Sequence[float | None], digits: int = 2) -> str:
     return f"{100 * mean:.{digits}f} ± {100 * std:.{digits}f}"
 
 
+def subset_title(subset: str) -> str:
+    """A subset's column title: the benchmark's name for its own, the subset's name for a user catalogue's."""
+    return SUBSET_TITLES.get(subset, f"{subset} (your objects)")
+
+
 def _subsets(results: Mapping[str, Any]) -> list[str]:
+    """The evaluated subsets, the benchmark's in their order first, then a user catalogue's as evaluated."""
     evaluated = results["settings"]["subsets"]
-    return [s for s in SCORED_SPLITS if s in evaluated]
+    return [s for s in SCORED_SPLITS if s in evaluated] + [s for s in evaluated if s not in SCORED_SPLITS]
 
 
 def level_table(results: Mapping[str, Any], metric: str, title: str) -> str:
@@ -76,7 +82,7 @@ def level_table(results: Mapping[str, Any], metric: str, title: str) -> str:
     lines = [
         f"**{title}**" + (note if max(counts) > 1 else ""),
         "",
-        _row(["", *[SUBSET_TITLES[s] if i == 0 else "" for s in subsets for i in range(len(columns))]]),
+        _row(["", *[subset_title(s) if i == 0 else "" for s in subsets for i in range(len(columns))]]),
         _row(["---", *["---:"] * (len(subsets) * len(columns))]),
         _row(["**Method**", *[f"**{LEVEL_TITLES[c]}**" for _ in subsets for c in columns]]),
     ]
@@ -158,7 +164,7 @@ def interval_table(results: Mapping[str, Any], found: dict[str, Any] | ResultsEr
         "**95% intervals of Table I** (two-level bootstrap over scenes and runs, never narrower than the "
         "Wilson interval of the scenes)",
         "",
-        _row(["", *[SUBSET_TITLES[s] if i == 0 else "" for s in subsets for i in range(len(COLUMNS))]]),
+        _row(["", *[subset_title(s) if i == 0 else "" for s in subsets for i in range(len(COLUMNS))]]),
         _row(["---", *["---:"] * (len(subsets) * len(COLUMNS))]),
         _row(["**Method**", *[f"**{LEVEL_TITLES[c]}**" for _ in subsets for c in COLUMNS]]),
     ]
@@ -186,7 +192,7 @@ def selective_table(results: Mapping[str, Any], found: dict[str, Any] | ResultsE
         f"**Selective placement with the robot's gate** (a scene is refused when a reference's best token has "
         f"P < {found['gate_threshold']:g}): coverage / success when placed (%)",
         "",
-        _row(["Method", *[SUBSET_TITLES[s] for s in subsets]]),
+        _row(["Method", *[subset_title(s) for s in subsets]]),
         _row(["---", *["---:"] * len(subsets)]),
     ]
     for entry, row in rows:
@@ -218,7 +224,7 @@ def paired_table(results: Mapping[str, Any], found: dict[str, Any] | ResultsErro
         "**Differences from Ours on the same scenes and runs** (Overall, points; paired 95% interval, a bootstrap "
         "over scenes and runs, or backbones when there are several; bold: the interval excludes 0, the rows differ)",
         "",
-        _row(["Method", *[SUBSET_TITLES[s] for s in subsets]]),
+        _row(["Method", *[subset_title(s) for s in subsets]]),
         _row(["---", *["---:"] * len(subsets)]),
     ]
     for entry, row in rows:
@@ -232,7 +238,7 @@ def subset_table(results: Mapping[str, Any], title: str, columns: Mapping[str, C
     lines = [
         f"**{title}**",
         "",
-        _row(["", *[SUBSET_TITLES[s] if i == 0 else "" for s in subsets for i in range(len(columns))]]),
+        _row(["", *[subset_title(s) if i == 0 else "" for s in subsets for i in range(len(columns))]]),
         _row(["---", *["---:"] * (len(subsets) * len(columns))]),
         _row(["**Method**", *[f"**{name}**" for _ in subsets for name in columns]]),
     ]
@@ -295,7 +301,7 @@ def stage_table(results: Mapping[str, Any]) -> str:
                 _row(
                     [
                         entry["label"],
-                        SUBSET_TITLES[subset],
+                        subset_title(subset),
                         str(overall["scenes"]),
                         str(sum(overall["stages"].values())),
                         *[str(overall["stages"][stage]) for stage in STAGES],
@@ -390,9 +396,23 @@ def terminal_summary(results: Mapping[str, Any]) -> str:
 def _header(results: Mapping[str, Any]) -> str:
     settings = results["settings"]
     return (
-        f"Dataset {results['dataset']['dataset_hash']} ({results['dataset']['dir']}), backbone "
-        f"`{settings['backbone']}`, parser `{settings['parser']}`, {settings['num_samples']} samples, "
+        f"Dataset {results['dataset']['dataset_hash']} ({results['dataset']['dir']}){_catalogue_note(results)}, "
+        f"backbone `{settings['backbone']}`, parser `{settings['parser']}`, {settings['num_samples']} samples, "
         f"seed {settings['seed']}; ocplace {_code_version(results['environment'])}."
+    )
+
+
+def _catalogue_note(results: Mapping[str, Any]) -> str:
+    """Which user catalogue (by content hash) a dataset of your own objects was made from; '' for the benchmark's."""
+    config = results["dataset"].get("config") or {}
+    catalogue = config.get("catalogue") if isinstance(config, Mapping) else None
+    if not isinstance(catalogue, Mapping):
+        return ""
+    distractors = config.get("distractors")
+    mixed = f", with the benchmark's {distractors} objects as distractors" if distractors else ""
+    return (
+        f", of your catalogue `{markdown_text(catalogue.get('name'))}` (content "
+        f"{str(catalogue.get('content_hash'))[:16]}){mixed}"
     )
 
 

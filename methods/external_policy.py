@@ -289,7 +289,7 @@ def evaluate_policy(
     else:
         name = reference_of(policy)
         spec, method = _spec(policy, name, label, scene_timeout_s), as_method(policy, name, scene_timeout_s)
-    with physical_arena(settings) as arena:
+    with physical_arena(settings, dataset_dir) as arena:
         evaluation = evaluate_run(method_run(spec), method, dataset_dir, settings, arena, progress=progress)
     command = {"python": "ocplace.methods.external_policy.evaluate_policy", "policy": spec.name}
     return build_results([evaluation], dataset_dir, settings, command)

@@ -28,6 +28,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from ocplace.errors import BackboneError, BackboneUnavailable, TrainingError
+from ocplace.vocabulary import PLURAL_NOUNS
 
 DEFAULT_CLIP = "openai/clip-vit-base-patch32"
 # kind -> "module:function(argument: str) -> Backbone"; the offline backbone adds its own kind.
@@ -74,10 +75,23 @@ class PromptConfig:
     table_text: str = "a photo of a table."
 
     def text_for(self, phrase: str) -> str:
+        """The caption of `phrase`; a plural object ("scissors", "black sneakers") loses the template's "a "."""
         phrase = " ".join(phrase.split())
         if phrase.lower() in self.table_phrases:
             return self.table_text
+        if is_plural(phrase) and "a {}" in self.template:
+            return self.template.replace("a {}", "{}", 1).format(phrase)
         return self.template.format(phrase)
+
+
+def is_plural(phrase: str) -> bool:
+    """Whether the phrase's head noun (its last word before "with", "of", ...) is one of `PLURAL_NOUNS`."""
+    words = phrase.lower().split()
+    for index, word in enumerate(words):
+        if word in ("with", "of", "for", "on", "in") and index > 0:
+            words = words[:index]
+            break
+    return bool(words) and words[-1] in PLURAL_NOUNS
 
 
 def backbone_hint(fingerprint: str) -> str:

@@ -254,7 +254,12 @@ def recipe_config(name: str) -> PretrainConfig:
 
 
 def output_dir(config: PretrainConfig) -> Path:
-    return backbones_cache() / f"offline-{config.key()}"
+    """The recipe's key, and, when the library's pools are not the benchmark's (objects added with `assets build
+    --gso`), a digest of what differs: a backbone pretrained on another pool is another model (docs/library.md)."""
+    from ocplace.sim.library.library import added_objects_digest
+
+    added = added_objects_digest()
+    return backbones_cache() / (f"offline-{config.key()}" + (f"-pool{added}" if added else ""))
 
 
 def recipe_dir(name: str) -> Path:

@@ -22,6 +22,10 @@ class AssetBuildError(OcplaceError):
     """An object could not be processed into the library."""
 
 
+class CatalogueError(AssetBuildError):
+    """A user's object catalogue is invalid, or not built as it now reads."""
+
+
 class LibraryNotBuilt(OcplaceError):
     """The object library cache is missing or incomplete."""
 

@@ -40,6 +40,12 @@ def library_cache(cache: str | os.PathLike | None = None) -> Path:
     return Path(cache if cache is not None else cache_dir()).expanduser() / "library"
 
 
+def catalogues_cache(cache: str | os.PathLike | None = None) -> Path:
+    """Objects of users' own catalogues (`ocplace assets build --catalogue`), one folder per catalogue, apart from
+    the library so that no benchmark pool ever sees them."""
+    return Path(cache if cache is not None else cache_dir()).expanduser() / "catalogues"
+
+
 def sources_cache() -> Path:
     return cache_dir() / "sources"  # asset packages fetched for the library (the robosuite wheel, unpacked)
 

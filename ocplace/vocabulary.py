@@ -65,11 +65,26 @@ SHAPE_WORDS = {
 }
 
 
+# A subset of a user's own catalogue (docs/library.md, "Test on your own objects") is named like this, and never
+# like a split, pool or level of the benchmark's.
+OWN_SUBSET_PATTERN = r"[a-z][a-z0-9_]{0,47}"
+RESERVED_NAMES = frozenset((*SCORED_SPLITS, *OBJECT_POOLS, "train", "all", *LEVELS))
+
+
+def is_own_subset(name: object) -> bool:
+    """Whether `name` can be a subset of a user's catalogue (which a dataset then may or may not hold)."""
+    import re
+
+    return isinstance(name, str) and re.fullmatch(OWN_SUBSET_PATTERN, name) is not None and name not in RESERVED_NAMES
+
+
 def subsets_problem(subsets, key: str, allowed: tuple[str, ...] = SCORED_SPLITS) -> str | None:
-    """What is wrong with `subsets` as the splits to score (none, unknown or repeated), named by `key`."""
-    unknown = [subset for subset in subsets if subset not in allowed]
+    """What is wrong with `subsets` as the splits to score (none, unknown or repeated), named by `key`; a subset of
+    a user's catalogue is allowed where dev splits are."""
+    own = allowed == SCORED_SPLITS
+    unknown = [subset for subset in subsets if subset not in allowed and not (own and is_own_subset(subset))]
     if unknown or not subsets or len(set(subsets)) < len(subsets):
-        kinds = "test subset or dev split" if allowed == SCORED_SPLITS else "test subset"
+        kinds = "test subset, dev split or subset of your catalogue" if own else "test subset"
         named = ", ".join(subsets) or "none"
         return f"{key} must name each {kinds} at most once, some of {', '.join(allowed)}; got {named}"
     return None
@@ -84,3 +99,36 @@ SCENE_TIMEOUT_S = 60.0
 
 # The file formats figures are written in (`ocplace figures --format`; models/placement/figures.py `FigureStyle`).
 FIGURE_FORMATS = ("png", "pdf", "svg")
+
+# Object nouns that are plural (a pair, a set): captions say "a photo of scissors", never "of a scissors".
+PLURAL_NOUNS = frozenset(
+    (
+        "scissors",
+        "pliers",
+        "tongs",
+        "tweezers",
+        "glasses",
+        "sunglasses",
+        "goggles",
+        "headphones",
+        "earphones",
+        "earbuds",
+        "binoculars",
+        "shears",
+        "clippers",
+        "chopsticks",
+        "sneakers",
+        "shoes",
+        "boots",
+        "socks",
+        "gloves",
+        "mittens",
+        "jeans",
+        "trousers",
+        "pants",
+        "shorts",
+        "dice",
+        "keys",
+        "grapes",
+    )
+)

@@ -75,6 +75,25 @@ def sample_scene_spec(
     return SceneSpec(objects, texture, held, int(rng.integers(2**31 - 1)))
 
 
+def sample_mixed_spec(
+    rng: np.random.Generator, own: list[str], distractors: list[str], textures: list[str]
+) -> SceneSpec:
+    """A scene of a user's subset mixed with benchmark distractors: the held object and as many scene objects as
+    there are left (up to NUM_SCENE_OBJECTS) from `own`, the rest from `distractors`."""
+    if len(own) < 3 or not textures:
+        raise SceneError(f"a subset mixed with distractors needs at least 3 objects of its own, got {len(own)}")
+    held = own[rng.integers(len(own))]
+    rest = [name for name in own if name != held]
+    mine = [rest[i] for i in rng.choice(len(rest), size=min(len(rest), NUM_SCENE_OBJECTS), replace=False)]
+    others = [name for name in distractors if name not in own]
+    count = NUM_SCENE_OBJECTS - len(mine)
+    if len(others) < count:
+        raise SceneError(f"need {count} distractors, got {len(others)}")
+    chosen = [others[i] for i in rng.choice(len(others), size=count, replace=False)] if count else []
+    texture = textures[rng.integers(len(textures))]
+    return SceneSpec(tuple(mine + chosen), texture, held, int(rng.integers(2**31 - 1)))
+
+
 def _tilted_yaw_quaternion(rng: np.random.Generator, max_tilt: float) -> np.ndarray:
     """A random yaw, then a tilt of at most `max_tilt` radians about a random horizontal axis."""
     yaw = rng.uniform(-np.pi, np.pi)
@@ -149,8 +168,8 @@ def split_pools(library, split: str) -> tuple[list[str], list[str]]:
     Textures are only seen or unseen: the unseen_cat objects lie on the unseen textures, the seen colour
     variants on the seen ones.
     """
-    if split not in OBJECT_POOLS:
-        raise SceneError(f"unknown split {split!r}; choose one of {OBJECT_POOLS}")
+    if split not in OBJECT_POOLS and split not in {asset.split for asset in library.objects.values()}:
+        raise SceneError(f"unknown split {split!r}; choose one of {OBJECT_POOLS} or a subset of a built catalogue")
     texture_split = "seen" if split in ("seen", COLOUR_VARIANTS) else "unseen"
     textures = sorted(name for name, texture in library.textures.items() if texture.split == texture_split)
     objects = colour_variants(library) if split == COLOUR_VARIANTS else library.names(split)

@@ -449,8 +449,14 @@ def test_evaluation_settings_are_checked_where_evaluations_start():
     EvalSettings().validate()
     EvalSettings(limit=1, physical_scenes=None, subsets=("unseen_cat",)).validate()
     for bad, message in (
-        (EvalSettings(subsets=("seen", "seen")), "subsets must name each test subset or dev split at most once"),
-        (EvalSettings(subsets=()), "subsets must name each test subset or dev split at most once"),
+        (
+            EvalSettings(subsets=("seen", "seen")),
+            "subsets must name each test subset, dev split or subset of your catalogue at most once",
+        ),
+        (
+            EvalSettings(subsets=()),
+            "subsets must name each test subset, dev split or subset of your catalogue at most once",
+        ),
         (EvalSettings(subsets=("train",)), "; got train"),
         (EvalSettings(physical_scenes=-1), "physical_scenes must be at least 0 (none: every scene), got -1"),
     ):

@@ -307,7 +307,7 @@ def test_a_split_that_does_not_exist_is_named_as_such_not_as_a_command_that_fail
     from ocplace.errors import DatasetError
     from ocplace.sim.dataset.job import listed_scenes
 
-    with pytest.raises(DatasetError, match="'test' is no split of the benchmark; the splits are train, seen") as error:
+    with pytest.raises(DatasetError, match=r"'test' is no split of the benchmark \(they are train, seen") as error:
         listed_scenes(smoke_dataset, "test")
     assert "--split test" not in str(error.value)
     with pytest.raises(DatasetError, match="generate them with `ocplace generate --out .* --split dev_seen`"):

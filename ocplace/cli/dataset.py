@@ -78,7 +78,8 @@ def _check(args: argparse.Namespace) -> int:
     from ocplace.sim.dataset.job import read_manifest
 
     listed = {relative.split("/")[0] for relative in read_manifest(dataset_of(args))["files"]}
-    splits = [s for s in SPLIT_NAMES if s in listed] if args.split == "all" else [args.split]
+    ordered = [s for s in SPLIT_NAMES if s in listed] + sorted(listed - set(SPLIT_NAMES))  # a catalogue's subsets last
+    splits = ordered if args.split == "all" else [args.split]
     with open_executor(executor_config(args)) as executor:
         report = check_oracle(dataset_of(args), splits, args.physical, executor)
     total = {"scenes": 0, "metric_success": 0, "physical_success": 0}

@@ -80,9 +80,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     evaluate.add_argument(
         "--subsets",
         nargs="+",
-        choices=SCORED_SPLITS,
+        type=scored_split,
         default=list(TEST_SUBSETS),
-        help="test subsets to score (default: all four), or dev splits to choose settings on",
+        metavar="SUBSET",
+        help=f"test subsets to score (default: all four), dev splits to choose settings on "
+        f"({', '.join(SCORED_SPLITS)}), or the subsets of your own catalogue a dataset of `generate --catalogue` holds",
     )
     evaluate.add_argument("--limit", type=int, help="first N scenes of each subset")
     evaluate.add_argument(
@@ -134,6 +136,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     evaluate.add_argument("--no-progress", action="store_true", help="no progress bars")
     add_executor_arguments(evaluate, "each method's evaluation is a task")
     evaluate.set_defaults(func=_evaluate)
+
+
+def scored_split(text: str) -> str:
+    """A split `evaluate` can score: the benchmark's (SCORED_SPLITS) or a user catalogue's subset name."""
+    from ocplace.vocabulary import is_own_subset
+
+    if text in SCORED_SPLITS or is_own_subset(text):
+        return text
+    raise argparse.ArgumentTypeError(
+        f"{text!r} is none of {', '.join(SCORED_SPLITS)}, nor a name a subset of your catalogue can have (lowercase "
+        "letters, digits and _)"
+    )
 
 
 def parse_runs(items: list[str]) -> dict[str, Path]:

@@ -13,17 +13,18 @@ from ocplace.runtime.progress import progress_bar
 from ocplace.sim.dataset.job import ListedScene, listed_scenes
 from ocplace.sim.metric import placement_success
 
-_ARENA: dict = {}  # per worker process: the compiled MuJoCo arena of one library cache
+_ARENA: dict = {}  # per worker process: the compiled MuJoCo arena of one dataset's library
 CHUNKS_PER_WORKER = 4  # small enough to balance the workers, large enough to amortise each task
 
 
-def _arena(cache: str | None):
-    if _ARENA.get("cache", object()) != cache:
-        from ocplace.sim.library import load_library
+def _arena(dataset_dir, cache: str | None):
+    key = (str(dataset_dir), cache)
+    if _ARENA.get("key") != key:
+        from ocplace.sim.dataset.job import library_of_dataset
         from ocplace.sim.mujoco_backend import MujocoScenes
 
         _close_arena()
-        _ARENA.update(cache=cache, arena=MujocoScenes.from_library(load_library(cache)))
+        _ARENA.update(key=key, arena=MujocoScenes.from_library(library_of_dataset(dataset_dir, cache)))
     return _ARENA["arena"]
 
 
@@ -33,26 +34,28 @@ def _close_arena() -> None:
         _ARENA.clear()
 
 
-def physical_failures(scenes: list[ListedScene], cache: str | None) -> list[str]:
+def physical_failures(scenes: list[ListedScene], dataset_dir, cache: str | None) -> list[str]:
     """The ids of the scenes whose oracle placement fails the physical drop check."""
     from ocplace.sim.physical import physical_check
 
     failures = []
     for listed in scenes:
         scene = listed.info()
-        if not physical_check(_arena(cache), scene, scene.oracle.placement).success:
+        if not physical_check(_arena(dataset_dir, cache), scene, scene.oracle.placement).success:
             failures.append(scene.id)
     return failures
 
 
 def _physical_report(
-    scenes: list[ListedScene], executor: Executor, cache: str | None, progress: bool, desc: str
+    scenes: list[ListedScene], dataset_dir, executor: Executor, cache: str | None, progress: bool, desc: str
 ) -> list:
     size = max(1, -(-len(scenes) // (executor.capacity * CHUNKS_PER_WORKER)))
     chunks = [scenes[start : start + size] for start in range(0, len(scenes), size)]
     failures = []
     bar = progress_bar(total=len(scenes), desc=desc, enabled=progress)
-    for index, failed in map_tasks(executor, [Task(physical_failures, (chunk, cache)) for chunk in chunks]):
+    for index, failed in map_tasks(
+        executor, [Task(physical_failures, (chunk, str(dataset_dir), cache)) for chunk in chunks]
+    ):
         failures += failed
         bar.update(len(chunks[index]))
     bar.close()
@@ -86,6 +89,6 @@ def check_oracle(
                 "metric_failures": metric_failures,
             }
             if physical:
-                failed = _physical_report(scenes, executor, cache, progress, f"physical {split}")
+                failed = _physical_report(scenes, dataset_dir, executor, cache, progress, f"physical {split}")
                 report[split] |= {"physical_success": len(scenes) - len(failed), "physical_failures": failed}
     return report

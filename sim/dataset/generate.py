@@ -15,12 +15,12 @@ from ocplace import serial
 from ocplace.errors import SceneError, UnsolvableScene
 from ocplace.sim import relations
 from ocplace.sim.boxes import boxes_from_segmentation
-from ocplace.sim.dataset.config import LEVEL_REFERENCES, SPLIT_NAMES, DatasetConfig, SplitConfig
+from ocplace.sim.dataset.config import LEVEL_REFERENCES, DatasetConfig, SplitConfig, split_stream
 from ocplace.sim.dataset.records import SCHEMA_VERSION, encode_images, scene_files
 from ocplace.sim.language import TABLE_NAME, ReferenceTuple, render_instruction
 from ocplace.sim.metric import DEFAULT_GRID, GroundedTuple, encode_problem, feasible_grid, oracle_placement
 from ocplace.sim.mujoco_backend import MujocoScenes
-from ocplace.sim.scene import RenderedScene, sample_scene_spec, split_pools
+from ocplace.sim.scene import RenderedScene, sample_mixed_spec, sample_scene_spec, split_pools
 
 
 def scene_id(split: str, index: int) -> str:
@@ -30,7 +30,7 @@ def scene_id(split: str, index: int) -> str:
 def level_schedule(split: SplitConfig, seed: int) -> list[str]:
     """The level of every index of `split`, in a seeded order so any prefix mixes the levels."""
     levels = [level for level, count in split.levels for _ in range(count)]
-    order = np.random.default_rng([seed, SPLIT_NAMES.index(split.name), 7]).permutation(len(levels))
+    order = np.random.default_rng([seed, split_stream(split.name), 7]).permutation(len(levels))
     return [levels[i] for i in order]
 
 
@@ -68,18 +68,22 @@ class SceneGenerator:
     def make_scene(self, split_name: str, index: int, level: str) -> tuple[dict, RenderedScene]:
         """The scene.json content and the rendered scene of scene `index` of `split_name`, before encoding."""
         split = self.config.split(split_name)
-        rng = np.random.default_rng([self.config.seed, SPLIT_NAMES.index(split_name), index])
+        rng = np.random.default_rng([self.config.seed, split_stream(split_name), index])
         objects, textures = split_pools(self.library, split.objects)
         _, texture_pool = split_pools(self.library, split.textures)
+        distractors = self.library.names(self.config.distractors) if self.config.distractors else []
         resamples = {"scenes": 0, "relations": 0}
         for _ in range(self.config.max_scene_attempts):
-            spec = sample_scene_spec(rng, objects, texture_pool or textures)
+            if distractors:
+                spec = sample_mixed_spec(rng, objects, distractors, texture_pool or textures)
+            else:
+                spec = sample_scene_spec(rng, objects, texture_pool or textures)
             try:
                 scene = self.arena.build(spec)
             except SceneError:  # objects kept rolling off the table: draw another set of objects
                 resamples["scenes"] += 1
                 continue
-            chosen = self._choose_tuples(rng, scene, level, resamples)
+            chosen = self._choose_tuples(rng, scene, level, resamples, set(objects))
             if chosen is not None:
                 tuples, feasible = chosen
                 return self._meta(split, index, level, rng, scene, tuples, feasible, resamples), scene
@@ -88,9 +92,11 @@ class SceneGenerator:
             f"{scene_id(split_name, index)}: no solvable {level} instruction in {self.config.max_scene_attempts} scenes"
         )
 
-    def _choose_tuples(self, rng, scene: RenderedScene, level: str, resamples: dict):
+    def _choose_tuples(self, rng, scene: RenderedScene, level: str, resamples: dict, referable: set[str]):
+        """`(tuples, feasible grid)` referring only to `referable` objects (the split's own, never a distractor)."""
         boxes = boxes_from_segmentation(scene.segmentation)
-        visible = boxes.object_ids.tolist()
+        names = {obj.object_id: obj.name for obj in scene.objects}
+        visible = [i for i in boxes.object_ids.tolist() if names[i] in referable]
         if len(visible) < LEVEL_REFERENCES[level]:
             return None
         aabbs = np.array([obj.aabb[:, :2] for obj in scene.objects])
@@ -177,5 +183,10 @@ class SceneGenerator:
 
 
 def describe(config: DatasetConfig) -> dict:
-    """The generator configuration as stored in (and read back from) the dataset's `dataset.json`."""
-    return json.loads(json.dumps(dataclasses.asdict(config)))
+    """The generator configuration as stored in (and read back from) the dataset's `dataset.json`; the benchmark's
+    datasets leave out the catalogue fields, so datasets made before them keep their identity."""
+    described = json.loads(json.dumps(dataclasses.asdict(config)))
+    return {key: value for key, value in described.items() if key not in _OWN_FIELDS or value is not None}
+
+
+_OWN_FIELDS = ("catalogue", "distractors")

@@ -25,7 +25,7 @@ from collections.abc import Mapping
 from pathlib import Path
 
 import ocplace
-from ocplace.errors import DatasetError
+from ocplace.errors import DatasetConfigError, DatasetError
 from ocplace.paths import disk_full_is_typed, file_sha256, inside, write_text_atomic
 from ocplace.runtime import Executor, ExecutorConfig, Task, map_tasks, open_executor
 from ocplace.runtime.progress import progress_bar
@@ -231,11 +231,52 @@ def _generator(config: DatasetConfig, cache: str | None) -> SceneGenerator:
     key = (json.dumps(describe(config), sort_keys=True), cache)
     if _WORKER.get("key") != key:
         import ocplace  # noqa: F401  (sets the OpenGL default in a fresh process)
-        from ocplace.sim.library import load_library
 
         _close_generator()
-        _WORKER.update(key=key, generator=SceneGenerator(load_library(cache), config), written=0)
+        _WORKER.update(key=key, generator=SceneGenerator(dataset_library(config, cache), config), written=0)
     return _WORKER["generator"]
+
+
+def dataset_library(config: DatasetConfig, cache: str | None = None):
+    """The library a dataset's scenes are made (and physically checked) with: the benchmark's, or for a dataset of
+    a user's catalogue, that catalogue's objects (checked to be the content it recorded) and its distractors."""
+    from ocplace.sim.library import load_library
+    from ocplace.sim.library.catalogue_library import subset_library
+
+    if config.catalogue is None:
+        return load_library(cache)
+    return subset_library(config.catalogue, config.distractors, cache)
+
+
+def library_of_dataset(out: str | Path, cache: str | None = None):
+    """`dataset_library` of the dataset in `out`, from the configuration its dataset.json records."""
+    path = Path(out) / CONFIG_FILE
+    try:
+        described = json.loads(path.read_text())["config"]
+    except (OSError, ValueError, KeyError, TypeError) as error:
+        raise DatasetError(
+            f"cannot read {path} ({error}); the dataset is incomplete: rerun `ocplace generate`"
+        ) from None
+    catalogue = described.get("catalogue") if isinstance(described, dict) else None
+    config = DatasetConfig(splits=(), catalogue=catalogue, distractors=described.get("distractors"))
+    return dataset_library(config, cache)
+
+
+def _check_own_pools(config: DatasetConfig, library) -> None:
+    """Each subset of a catalogue's dataset has the objects a scene needs: DatasetConfigError before any work."""
+    from ocplace.sim.scene import NUM_SCENE_OBJECTS
+
+    problems = []
+    for split in config.splits:
+        own = library.names(split.name)
+        needed = 3 if config.distractors else NUM_SCENE_OBJECTS + 1
+        if len(own) < needed:
+            problems.append(f"subset {split.name!r} has {len(own)} objects; its scenes need {needed}")
+    if problems:
+        raise DatasetConfigError(
+            "; ".join(problems) + f": {NUM_SCENE_OBJECTS} on the table and one held, or with `--distractors "
+            "unseen` (benchmark objects never referred to) one held and two on the table. Add objects to the catalogue"
+        )
 
 
 def _close_generator() -> None:
@@ -290,6 +331,8 @@ def generate_dataset(
     scene that is a test scene of `out` (or of `test_dataset`, a dataset folder) is a DatasetError."""
     out = Path(out)
     config.validate()
+    if config.catalogue is not None:
+        _check_own_pools(config, dataset_library(config, cache))
     splits = [s.name for s in config.splits] if splits is None else splits
     for name in splits:
         config.split(name)

@@ -25,9 +25,10 @@ from ocplace.paths import (
 )
 from ocplace.runtime import Executor, ExecutorConfig, Task, open_executor
 from ocplace.runtime.progress import progress_bar
+from ocplace.sim.library.catalogue_library import catalogue_record, catalogue_root
 from ocplace.sim.library.checksums import CHECKSUMS_FILE, read_checked
 from ocplace.sim.library.config import LibraryConfig, default_config
-from ocplace.sim.library.library import Library, load_library
+from ocplace.sim.library.library import Library, load_library, load_library_at
 from ocplace.sim.library.metadata import ObjectSpec, packaged_objects, table_textures
 from ocplace.sim.library.process_object import ObjectResult, build_object
 from ocplace.sim.library.records import (
@@ -40,6 +41,7 @@ from ocplace.sim.library.records import (
     manifest_problem,
 )
 from ocplace.sim.library.sources import SourceFiles, gso_specs, libero_root, pybullet_root, source_files
+from ocplace.sim.library.user_catalogue import Catalogue
 
 PROCESSING_VERSION = 2  # bump when processing changes what is written: every object rebuilds (2: checksums)
 _KEY_CHARS = 16
@@ -245,7 +247,25 @@ def build_library(
     """
     config = config or default_config()
     root = library_cache(cache)
-    jobs = [_job(spec, config) for spec in resolve_specs(config)]
+    entries = _build_objects(root, [_job(spec, config) for spec in resolve_specs(config)], config, executor, progress)
+    if config.objects is not None:  # a partial build updates the library, keeps the rest
+        built = {e["name"] for e in entries}
+        entries = [e for e in _previous_entries(root) if e["name"] not in built] + entries
+    manifest = {
+        "version": MANIFEST_VERSION,
+        "objects": sorted(entries, key=lambda e: e["name"]),
+        "textures": _build_textures(root, config.texture_px),
+    }
+    _write_manifest(root, manifest)
+    if config.objects is None:
+        _remove_unreferenced(root, manifest)
+    return load_library(cache)
+
+
+def _build_objects(
+    root: Path, jobs: list[_Job], config: LibraryConfig, executor: Executor | None, progress: bool
+) -> list[dict]:
+    """Builds the jobs not cached under `root`; the manifest entry of each job, failed ones included."""
     refuse_links(root / OBJECTS_DIRNAME, root / TEXTURES_DIRNAME)  # before anything is written into them
     remove_abandoned_tmp(root / TMP_DIRNAME)
     results = {}
@@ -262,19 +282,54 @@ def build_library(
     for result in results.values():
         if result.status != "ok":
             log.warning("skipped %s: %s", result.name, result.reason)
-    entries = [_manifest_entry(job, results[job.spec.name]) for job in jobs]
-    if config.objects is not None:  # a partial build updates the library, keeps the rest
-        built = {e["name"] for e in entries}
-        entries = [e for e in _previous_entries(root) if e["name"] not in built] + entries
-    manifest = {
-        "version": MANIFEST_VERSION,
-        "objects": sorted(entries, key=lambda e: e["name"]),
-        "textures": _build_textures(root, config.texture_px),
-    }
+    return [_manifest_entry(job, results[job.spec.name]) for job in jobs]
+
+
+def _write_manifest(root: Path, manifest: dict) -> None:
     text = json.dumps(manifest, indent=1) + "\n"
     manifest_path = root / MANIFEST_FILE
     if not manifest_path.is_file() or manifest_path.read_text() != text:
         write_text_atomic(manifest_path, text)
-    if config.objects is None:
-        _remove_unreferenced(root, manifest)
-    return load_library(cache)
+
+
+def build_catalogue(
+    catalogue: Catalogue,
+    config: LibraryConfig | None = None,
+    cache: str | Path | None = None,
+    progress: bool = True,
+    executor: Executor | None = None,
+) -> Library:
+    """Builds a user's catalogue into `<cache>/catalogues/<name>` (never the library): its objects, a manifest that
+    records the catalogue's content hash, and nothing it no longer lists (pruned)."""
+    config = config or default_config()
+    root = catalogue_root(catalogue.name, cache)
+    entries = _build_objects(root, [_job(spec, config) for spec in catalogue.specs], config, executor, progress)
+    manifest = {
+        "version": MANIFEST_VERSION,
+        "objects": sorted(entries, key=lambda e: e["name"]),
+        "textures": [],
+        "catalogue": catalogue_record(catalogue),
+    }
+    _write_manifest(root, manifest)
+    _remove_unreferenced(root, manifest)
+    return load_library_at(root)
+
+
+def remove_objects(names: list[str], cache: str | Path | None = None) -> list[str]:
+    """Removes objects added with `--gso` from the library (manifest entry and folder); the packaged objects are
+    the benchmark and stay. Returns the names removed."""
+    root = library_cache(cache)
+    manifest = _previous_manifest(root)
+    listed = {e["name"]: e for e in manifest.get("objects", [])}
+    packaged = {spec.name for spec in packaged_objects()}
+    problems = [f"{n!r} is a benchmark object (objects.json): it stays" for n in names if n in packaged]
+    problems += [f"no object {n!r} in {root}" for n in names if n not in packaged and n not in listed]
+    if problems:
+        raise UnknownObject("; ".join(problems) + "; `ocplace assets list` shows the library")
+    manifest["objects"] = [e for e in manifest["objects"] if e["name"] not in names]
+    _write_manifest(root, manifest)
+    for name in names:
+        folder = listed[name].get("folder")
+        if folder:
+            remove_tree(root / folder)
+    return list(names)

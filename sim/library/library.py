@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import hashlib
 import json
 import types
 from collections.abc import Mapping
@@ -127,7 +128,11 @@ def load_library(cache: str | Path | None = None) -> Library:
 
     Raises `LibraryNotBuilt` when the manifest or any object it lists as built is missing.
     """
-    root = library_cache(cache)
+    return load_library_at(library_cache(cache))
+
+
+def load_library_at(root: Path) -> Library:
+    """The library whose manifest is in `root`: the benchmark's, or a user catalogue's (`catalogue_library.py`)."""
     manifest = _read_manifest(root)
     objects = {entry["name"]: _read_asset(root, entry) for entry in manifest["objects"] if entry["status"] == "ok"}
     textures = {}
@@ -151,3 +156,24 @@ def _read_only(objects: dict, textures: dict, root: Path, manifest: dict) -> Lib
         root=root,
         manifest=types.MappingProxyType(manifest),
     )
+
+
+def added_objects_digest(cache: str | Path | None = None) -> str:
+    """'' when the built library holds the packaged objects in their splits (the benchmark's pools); else 12 hex
+    digits over what differs (objects added with `--gso`, by content key; packaged ones missing), so that a backbone
+    pretrained on another pool is cached under another key. Reads the manifest only; no library: ''."""
+    try:
+        manifest = json.loads((library_cache(cache) / MANIFEST_FILE).read_text())
+        entries = [e for e in manifest["objects"] if e["status"] == "ok"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return ""
+    packaged = {spec.name: spec.split for spec in packaged_objects()}
+    added = sorted(
+        (str(e["name"]), str(e.get("split")), str(e.get("category")), str(e.get("folder")))
+        for e in entries
+        if packaged.get(e["name"]) != e.get("split")
+    )
+    missing = sorted(set(packaged) - {e["name"] for e in entries})
+    if not added and not missing:
+        return ""
+    return hashlib.sha256(json.dumps([added, missing]).encode()).hexdigest()[:12]

@@ -37,8 +37,8 @@ class ObjectSpec:
     synonyms: tuple[str, ...]
     category: str
     split: str  # one of LIBRARY_SPLITS
-    source: str  # "libero", "pybullet", "robosuite" or "gso"
-    path: str  # libero/pybullet/robosuite: relative to the source's root; gso: absolute directory
+    source: str  # "libero", "pybullet", "robosuite", "gso" or "catalogue"
+    path: str  # relative to the source's root; gso and catalogue: to `base`
     licence: str
     scale: tuple[float, float, float] | None = None
     rotate: tuple[tuple[str, float], ...] = ()
@@ -47,10 +47,15 @@ class ObjectSpec:
     rgba: tuple[float, float, float, float] | None = None  # colour override, untextured
     coacd_threshold: float | None = None  # per-object override of CoacdSettings.threshold
     single_hull: bool = False  # collide with one convex hull (small objects with fussy detail)
+    # gso and catalogue: the folder `path` (and `texture`) are relative to. Never part of the key: the same files
+    # from another folder are the same object.
+    base: str = ""
 
     def key_fields(self) -> dict:
-        """The fields that define the built object (part of its cache key)."""
-        return dataclasses.asdict(self)
+        """The fields that define the built object (part of its cache key): content, never where it lies."""
+        fields = dataclasses.asdict(self)
+        del fields["base"]
+        return fields
 
 
 @dataclasses.dataclass(frozen=True)

@@ -188,11 +188,25 @@ def _robosuite_files(xml_path: Path) -> SourceFiles:
 
 
 def gso_files(directory: Path) -> SourceFiles:
+    """A Google-Scanned-Objects-layout folder: `meshes/model.obj`, `materials/textures/texture.png` if any."""
     texture = directory / "materials" / "textures" / "texture.png"
     return SourceFiles(
         mesh=directory / "meshes" / "model.obj",
         texture=texture if texture.is_file() else None,
         rgba=(1.0, 1.0, 1.0, 1.0),
+        scale=(1.0, 1.0, 1.0),
+        rotation=np.eye(3),
+        uv_origin="bottom",
+    )
+
+
+def catalogue_files(spec: ObjectSpec) -> SourceFiles:
+    """A mesh named by a user's catalogue (`user_catalogue.py`): its own texture, scale and colour."""
+    base = Path(spec.base)
+    return SourceFiles(
+        mesh=base / spec.path,
+        texture=base / spec.texture if spec.texture else None,
+        rgba=spec.rgba or (1.0, 1.0, 1.0, 1.0),
         scale=(1.0, 1.0, 1.0),
         rotation=np.eye(3),
         uv_origin="bottom",
@@ -208,7 +222,9 @@ def source_files(spec: ObjectSpec) -> SourceFiles:
     elif spec.source == "robosuite":
         files = _robosuite_files(robosuite_root() / spec.path)
     elif spec.source == "gso":
-        files = gso_files(Path(spec.path))
+        files = gso_files(Path(spec.base) / spec.path)
+    elif spec.source == "catalogue":
+        files = catalogue_files(spec)
     else:
         raise AssetBuildError(f"{spec.name}: unknown source {spec.source!r}")
     if spec.rgba is not None:
@@ -236,8 +252,9 @@ def gso_specs(root: str | Path) -> list[ObjectSpec]:
             ObjectSpec(
                 synonyms=(),
                 source="gso",
-                path=str(directory),
+                path=directory.name,
                 licence=GSO_LICENCE,
+                base=str(root),
                 **identity,
             )
         )
