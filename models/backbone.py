@@ -35,7 +35,9 @@ DEFAULT_CLIP = "openai/clip-vit-base-patch32"
 BACKBONE_LOADERS = {
     "clip": "ocplace.models.backbone:load_clip_backbone",
     "offline": "ocplace.models.offline_backbone:load_offline_backbone",
+    "policy": "ocplace.models.policy_folder:load_folder_backbone",  # `offline:DIR` of a policy folder, too
 }
+POLICY_WEIGHTS_FILE = "model.safetensors"  # what marks a policy folder (`ocplace export`), not a saved backbone
 _HUB_PROBE_TIMEOUT_S = 3.0
 
 
@@ -123,6 +125,8 @@ def check_trained_on(backbone: Backbone, fingerprint: str, what: str) -> None:
 def load_backbone(spec: str, **kwargs) -> Backbone:
     """A backbone from a spec string (see the module docstring); a bare kind such as "offline" is "offline:"."""
     kind, _, argument = spec.partition(":")
+    if kind == "offline" and argument and (Path(argument).expanduser() / POLICY_WEIGHTS_FILE).is_file():
+        kind = "policy"  # an exported policy folder holds its backbone (out/demo/policy)
     if kind in BACKBONE_LOADERS:
         module_name, _, function_name = BACKBONE_LOADERS[kind].partition(":")
         return getattr(importlib.import_module(module_name), function_name)(argument, **kwargs)

@@ -441,7 +441,8 @@ def load_offline_backbone(argument: str = "", max_batch: int = 64) -> OfflineBac
         if not (directory / FINGERPRINT_FILE).is_file():
             raise BackboneUnavailable(
                 f"the offline backbone ({name} recipe) is not built yet: no {directory}. Build it with "
-                f"`ocplace backbone pretrain{'' if name == 'default' else ' --recipe ' + name}`"
+                f"`ocplace backbone pretrain{'' if name == 'default' else ' --recipe ' + name}`, or pass one you "
+                "have: a saved backbone or a policy folder that holds one (`--backbone offline:out/demo/policy`)"
             )
         return load_saved_backbone(directory, max_batch)
     if Path(name).expanduser().is_dir():

@@ -24,7 +24,7 @@ import jax
 from ocplace import serial
 from ocplace.errors import OcplaceError, PolicyFolderError
 from ocplace.models.adapters import AdapterConfig, init_adapters
-from ocplace.models.backbone import PromptConfig
+from ocplace.models.backbone import POLICY_WEIGHTS_FILE, PromptConfig
 from ocplace.models.detection import DetectorConfig
 from ocplace.models.grounding import GroundingModel
 from ocplace.models.inference_settings import Decision
@@ -36,7 +36,7 @@ from ocplace.paths import file_sha256, write_text_atomic
 
 POLICY_FORMAT = "ocplace.policy/1"
 CONFIG_FILE = "config.json"
-MODEL_FILE = "model.safetensors"
+MODEL_FILE = POLICY_WEIGHTS_FILE
 CARD_FILE = "README.md"
 CONVENTIONS = {
     "table_frame": "metres; origin at the table top's centre, z = 0 on the top, +x right in the image, "
@@ -149,15 +149,7 @@ def load_policy_folder(directory: str | Path, parser=None, *, checkpoint: str | 
         if (directory / MODEL_FILE).is_file() and file_sha256(directory / MODEL_FILE) != expected:
             raise PolicyFolderError(f"{directory / MODEL_FILE} is not the file {CONFIG_FILE} names (sha256); {redo}")
         tensors, _ = load_weights(directory / MODEL_FILE, redo)
-        if backbone_doc.get("kind") == "clip":
-            backbone = _clip_backbone(backbone_doc, directory, checkpoint)
-        elif checkpoint is not None:
-            raise PolicyFolderError(
-                f"{directory} holds its own backbone; a checkpoint is given only for a policy folder on a CLIP "
-                "backbone: drop it"
-            )
-        else:
-            backbone = _backbone(backbone_doc, tensors, directory, redo)
+        backbone = _folder_backbone(backbone_doc, tensors, directory, checkpoint, redo)
         grounding = _grounding(adapters_doc, tensors)
         policy_fields = {
             "threshold": float(settings["threshold"]),
@@ -180,6 +172,36 @@ def load_policy_folder(directory: str | Path, parser=None, *, checkpoint: str | 
             f"{directory / CONFIG_FILE} does not describe these weights ({type(error).__name__}: {error}); {redo}"
         ) from None
     return PlacementPolicy(backbone, grounding, prompt, parser, **(policy_fields | overrides))
+
+
+def _folder_backbone(document: dict, tensors: dict, directory: Path, checkpoint: str | None, redo: str):
+    if document.get("kind") == "clip":
+        return _clip_backbone(document, directory, checkpoint)
+    if checkpoint is not None:
+        raise PolicyFolderError(
+            f"{directory} holds its own backbone; a checkpoint is given only for a policy folder on a CLIP "
+            "backbone: drop it"
+        )
+    return _backbone(document, tensors, directory, redo)
+
+
+def load_folder_backbone(argument: str, **_):
+    """The backbone a policy folder holds (offline) or names (CLIP), checked by its fingerprint: the backbone spec
+    `offline:DIR` of a policy folder, so the zero-shot row of a demo's output needs nothing else."""
+    directory = Path(argument).expanduser()
+    document = read_policy_config(directory)
+    redo = f"export the policy again (`ocplace export --run RUN --out {directory}`) or copy the folder anew"
+    try:
+        tensors, _ = load_weights(directory / MODEL_FILE, redo)
+        if file_sha256(directory / MODEL_FILE) != document["files"][MODEL_FILE]:
+            raise PolicyFolderError(f"{directory / MODEL_FILE} is not the file {CONFIG_FILE} names (sha256); {redo}")
+        return _folder_backbone(document["backbone"], tensors, directory, None, redo)
+    except PolicyFolderError:
+        raise
+    except OcplaceError as error:
+        raise PolicyFolderError(f"cannot load the backbone of the policy folder {directory}: {error}") from None
+    except (KeyError, TypeError, ValueError) as error:
+        raise PolicyFolderError(f"{directory / CONFIG_FILE} does not describe its backbone ({error}); {redo}") from None
 
 
 def _backbone(document: dict, tensors: dict, directory: Path, redo: str) -> OfflineBackbone:

@@ -197,3 +197,68 @@ def test_a_plural_object_is_captioned_without_an_article():
     assert prompt.text_for("black and blue sneakers") == "a photo of black and blue sneakers."
     assert prompt.text_for("black shoe with orange stripes") == "a photo of a black shoe with orange stripes."
     assert prompt.text_for("red bowl") == "a photo of a red bowl." and prompt.text_for("table") == "a photo of a table."
+
+
+@pytest.mark.slow
+def test_the_own_objects_tutorial_runs_as_written(tmp_path, trained_run, tiny_backbone_spec, borrowed_cache):
+    """docs/library.md's "Test on your own objects" block, line by line, in a folder holding an exported policy where
+    the tutorial expects `make demo`'s (the smoke run of Ours on the tiny backbone)."""
+    import os
+    import re
+    import subprocess
+
+    from ocplace.cli import main
+
+    run_dir, _ = trained_run
+    policy = tmp_path / "out" / "demo" / "policy"
+    assert main(["export", "--run", str(run_dir), "--backbone", tiny_backbone_spec, "--out", str(policy)]) == 0
+    (tmp_path / "scripts").symlink_to(Path(__file__).resolve().parents[1] / "scripts")
+    text = (Path(__file__).resolve().parents[1] / "docs" / "library.md").read_text()
+    section = text[text.index("## Test on your own objects") :]
+    block = re.search(r"```bash\n(.*?)```", section, re.S).group(1)
+    env = os.environ | {"PATH": f"{Path(sys.executable).parent}:{os.environ['PATH']}"}
+    lines = [line for line in block.splitlines() if line.strip()]
+    assert len(lines) == 4, "the tutorial's commands changed: check this test runs each"
+    for line in lines:
+        done = subprocess.run(["bash", "-euo", "pipefail", "-c", line], cwd=tmp_path, env=env, capture_output=True)
+        assert done.returncode == 0, (line, done.stderr.decode()[-3000:])
+    results = json.loads((tmp_path / "out" / "lab" / "results.json").read_text())
+    assert len(results["evaluations"][0]["subsets"]["lab"]["scenes"]) == 40
+    assert "lab (your objects)" in (tmp_path / "out" / "lab" / "results.md").read_text()
+
+
+def test_a_failed_object_fails_the_build_and_a_catalogue_can_be_listed_and_removed(tmp_path, borrowed_cache, capsys):
+    """`assets build` exits 1 naming each object that failed (a flat sheet has no volume to collide with); `assets
+    list` shows category, subset, source and licence; `assets remove` takes a catalogue away, never a benchmark
+    object."""
+    import numpy as np
+    import trimesh
+
+    from ocplace.cli import main
+
+    path = _catalogue(tmp_path / "objects", "lab_fails")
+    sheet = trimesh.Trimesh(
+        np.array([[0, 0, 0], [90, 0, 0], [90, 60, 0], [0, 60, 0]]), np.array([[0, 1, 2], [0, 2, 3]])
+    )
+    sheet.export(path.parent / "meshes" / "sheet.obj")
+    data = json.loads(path.read_text())
+    data["objects"].append(
+        data["objects"][0] | {"name": "sheet", "human_name": "paper sheet", "mesh": "meshes/sheet.obj"}
+    )
+    path.write_text(json.dumps(data))
+    capsys.readouterr()
+    assert main(["assets", "build", "--catalogue", str(path), "--workers", "1"]) == 1
+    err = capsys.readouterr().err
+    assert "1 object(s) failed to build" in err and "sheet: " in err
+    assert main(["assets", "list", "--catalogue", "lab_fails"]) == 0
+    listing = capsys.readouterr().out
+    assert "category" in listing and "licence" in listing and "sheet" in listing and "FAILED" in listing
+    assert (
+        "green canister           canister       lab_fails" in listing
+        and "catalogue:meshes/lab_canister.obj" in listing
+    )
+    assert main(["generate", "--out", str(tmp_path / "ds"), "--catalogue", str(path), "--test", "4"]) == 2
+    assert "sheet failed to build" in capsys.readouterr().err and not (tmp_path / "ds" / "lab_fails").exists()
+    assert main(["assets", "remove", "alphabet_soup"]) == 2  # the benchmark's own
+    assert main(["assets", "remove", "--catalogue", "lab_fails"]) == 0
+    assert not (borrowed_cache / "catalogues" / "lab_fails").exists()

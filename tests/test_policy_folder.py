@@ -189,3 +189,29 @@ def test_the_card_carries_hub_metadata_and_save_pretrained_round_trips(demo_root
         assert a.failure == b.failure and a.tokens == b.tokens
     assert again.decision == policy.decision and again.threshold == policy.threshold
     assert "saved by `PlacementPolicy.save_pretrained`" in ModelCard((saved / "README.md").read_text()).text
+
+
+def test_a_demo_output_scores_the_zero_shot_row_with_its_own_policy_folder(demo_root, smoke_dataset, tmp_path):
+    """Issue 59: `--backbone offline:OUT/policy` is the backbone the folder holds (by fingerprint), so w/o Adapter
+    needs nothing beyond `make demo`'s output; a recipe never pretrained says what else works."""
+    from ocplace.errors import BackboneUnavailable
+    from ocplace.models.backbone import load_backbone
+    from ocplace.models.offline_backbone import load_offline_backbone
+
+    folder = demo_root / "out/demo/policy"
+    backbone = load_backbone(f"offline:{folder}")
+    assert backbone.fingerprint == json.loads((folder / "config.json").read_text())["backbone"]["fingerprint"]
+    out = tmp_path / "results.json"
+    command = ["evaluate", "--dataset", str(smoke_dataset), "--subsets", "seen", "--limit", "2", "--physical", "0"]
+    assert (
+        main(
+            [*command, "--no-progress", "--methods", "no_adapter", "--backbone", f"offline:{folder}", "--out", str(out)]
+        )
+        == 0
+    )
+    (entry,) = json.loads(out.read_text())["evaluations"]
+    assert entry["description"]["backbone"]["fingerprint"] == backbone.fingerprint
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("OCPLACE_CACHE", str(tmp_path / "empty"))
+        with pytest.raises(BackboneUnavailable, match="or a policy folder that holds one"):
+            load_offline_backbone("demo")
