@@ -376,10 +376,12 @@ def write_outputs(results: dict[str, Any], out: Path) -> str:
 
 
 def read_results(path: str | Path) -> dict[str, Any]:
+    from ocplace.paths import MAX_JSON_BYTES, read_json_bounded
+
     path = Path(path)
     try:
-        results = json.loads(path.read_text())
-    except (OSError, ValueError) as error:
+        results = read_json_bounded(path, MAX_JSON_BYTES)
+    except (OSError, ValueError) as error:  # FileRefused (a FIFO, too large or deep) is a ValueError
         raise ResultsError(f"{path} is missing or not JSON ({error}); write it with `ocplace evaluate`") from None
     if not isinstance(results, dict) or results.get("schema") != SCHEMA:
         raise ResultsError(

@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import logging
 import os
 import re
 import signal
@@ -25,6 +26,8 @@ from ocplace.methods import registry
 from ocplace.methods.contract import MethodSpec
 from ocplace.methods.registry import load_method, method_run
 from ocplace.models.inference_settings import InferenceSettings
+
+log = logging.getLogger(__name__)
 
 if TYPE_CHECKING:
     from ocplace.runtime.executor import Executor
@@ -65,7 +68,7 @@ def stored_evaluation(
     """(its file in `store`, reused, the evaluation): read from `store` when an evaluation with the same
     `evaluation_key` (run, the loaded method's description, settings, dataset) is there, else scored and stored
     (atomically: a kill leaves it whole or absent)."""
-    from ocplace.eval.results import evaluation_from_json, evaluation_to_json
+    from ocplace.eval.results import evaluation_to_json
     from ocplace.paths import write_text_atomic
 
     settings = run.settings(settings)
@@ -73,11 +76,36 @@ def stored_evaluation(
     key = evaluation_key(run, serial.to_dict(method.describe()), settings, dataset_hash)
     name = re.sub(r"[^\w.@~+-]", "_", run.key)  # a policy's key holds ':' and '/'
     path = store / f"{name}-{key}.json"
-    if path.exists():  # the label is the command's (`--label`), not part of what is scored
-        return path, True, dataclasses.replace(evaluation_from_json(json.loads(path.read_text())), label=run.label)
+    stored = read_stored_evaluation(path, key) if path.exists() else None
+    if stored is not None:  # the label is the command's (`--label`), not part of what is scored
+        return path, True, dataclasses.replace(stored, label=run.label)
     evaluation = evaluate_in_worker(spec, run, dataset_dir, settings, method)
-    write_text_atomic(path, json.dumps(evaluation_to_json(evaluation), indent=1))
+    document = evaluation_to_json(evaluation)
+    stamped = {"key": key, "sha256": _content_sha256(document), "evaluation": document}
+    write_text_atomic(path, json.dumps(stamped, indent=1))
     return path, False, evaluation
+
+
+def _content_sha256(document: Mapping[str, Any]) -> str:
+    return hashlib.sha256(json.dumps(document, sort_keys=True).encode()).hexdigest()
+
+
+def read_stored_evaluation(path: Path, key: str | None = None) -> Evaluation | None:
+    """The evaluation a store keeps in `path`, when its content hashes to the sha256 stored with it and it was
+    stored under `key` (when given); else None, said in one line: a damaged, edited or older entry is evaluated
+    again, never trusted and never fatal."""
+    from ocplace.eval.results import evaluation_from_json
+    from ocplace.paths import MAX_JSON_BYTES, read_json_bounded
+
+    try:
+        stamped = read_json_bounded(path, MAX_JSON_BYTES)
+        document = stamped["evaluation"]
+        if stamped["sha256"] != _content_sha256(document) or (key is not None and stamped["key"] != key):
+            raise ValueError("its content does not match the checksum stored with it")
+        return evaluation_from_json(document)
+    except (OSError, ValueError, KeyError, TypeError, AttributeError) as error:
+        log.warning("the stored evaluation %s cannot be trusted (%s): it is evaluated again", path, error)
+        return None
 
 
 def evaluate_runs(

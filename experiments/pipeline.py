@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import json
 import time
 import traceback
 from collections.abc import Callable, Mapping, Sequence
@@ -30,7 +29,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ocplace import serial
-from ocplace.errors import ConfigError
+from ocplace.errors import ConfigError, ResultsError
 from ocplace.eval.harness import EvalSettings, Evaluation, MethodRun
 from ocplace.experiments.experiment import Experiment
 from ocplace.methods.contract import MethodSpec, TrainContext, train_once
@@ -565,10 +564,13 @@ def _run_graph(summary: PipelineSummary, executor: Executor, nodes: list[Node]) 
 
 
 def _evaluations(runs: list[MethodRun], outcomes: dict[str, Any]) -> list[Evaluation]:
-    from ocplace.eval.results import evaluation_from_json
+    from ocplace.experiments.evaluation import read_stored_evaluation
 
     evaluated = [outcomes[f"evaluate {run.key}"] for run in runs]
-    return [evaluation_from_json(json.loads(o.value[0].read_text())) for o in evaluated if o.ok]
+    stored = [read_stored_evaluation(o.value[0]) for o in evaluated if o.ok]
+    if any(evaluation is None for evaluation in stored):
+        raise ResultsError("a stored evaluation changed after it was written (said above); run the command again")
+    return [evaluation for evaluation in stored if evaluation is not None]
 
 
 def _results_and_figures(

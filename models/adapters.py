@@ -20,14 +20,20 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
+from ocplace.serial import bounded
+
 
 @dataclasses.dataclass(frozen=True)
 class AdapterConfig:
-    dim: int = 512  # D, the backbone's embedding width
-    reduction: int = 4  # hidden width is dim // reduction
-    residual_ratio: float = 0.2  # weight of the adapter's output in the blend (the text tower's too, unless set)
-    text_ratio: float | None = None  # the text tower's own weight; None: residual_ratio
+    dim: int = bounded(512, 1, 8192)  # D, the backbone's embedding width
+    reduction: int = bounded(4, 1, 8192)  # hidden width is dim // reduction
+    # The weight of the adapter's output in the blend (the text tower's too, unless set).
+    residual_ratio: float = bounded(0.2, 0.0, 1.0)
+    text_ratio: float | None = bounded(None, 0.0, 1.0)  # the text tower's own weight; None: residual_ratio
     normalise: bool = False  # scale A(x) to the norm of x before the blend (the paper's adapters do not)
+
+    def problems(self) -> list[str]:
+        return [] if self.reduction <= self.dim else [f"reduction {self.reduction} is more than dim {self.dim}"]
 
     @property
     def ratios(self) -> tuple[float, float]:

@@ -76,6 +76,12 @@ class PromptConfig:
     table_phrases: tuple[str, ...] = ("table", "the table")
     table_text: str = "a photo of a table."
 
+    def problems(self) -> list[str]:
+        braces = self.template.count("{") + self.template.count("}")
+        if self.template.count("{}") != 1 or braces != 2:
+            return [f"template {self.template!r} must hold one {{}} (where the phrase goes) and no other brace"]
+        return []
+
     def text_for(self, phrase: str) -> str:
         """The caption of `phrase`; a plural object ("scissors", "black sneakers") loses the template's "a "."""
         phrase = " ".join(phrase.split())

@@ -17,18 +17,19 @@ import cv2
 import numpy as np
 
 from ocplace.errors import PolicyInputError
+from ocplace.serial import bounded
 from ocplace.sim.pinhole import PinholeCamera
 from ocplace.vocabulary import TEST_SUBSETS
 
 
 @dataclasses.dataclass(frozen=True)
 class DetectorConfig:
-    min_height: float = 0.005  # metres above the table plane
-    plane_band: float = 0.02  # metres: pixels this close to z = 0 refine the plane fit
-    edge_jump: float = 0.003  # metres of depth between neighbours that cut two components apart
-    min_area: int = 200  # pixels; the dataset gives boxes only to objects with >= 200 visible pixels
-    max_range: float = 10.0  # metres; larger or non-positive depth is invalid (no return)
-    aabb_margin: float = 0.005  # metres added on every side of a footprint estimated from depth
+    min_height: float = bounded(0.005, 0.0, 1.0)  # metres above the table plane
+    plane_band: float = bounded(0.02, 0.0, 1.0)  # metres: pixels this close to z = 0 refine the plane fit
+    edge_jump: float = bounded(0.003, 1e-5, 1.0)  # metres of depth between neighbours that cut two components apart
+    min_area: int = bounded(200, 1, 1_000_000)  # pixels; the dataset boxes objects with >= 200 visible pixels
+    max_range: float = bounded(10.0, 0.1, 1000.0)  # metres; larger or non-positive depth is invalid (no return)
+    aabb_margin: float = bounded(0.005, 0.0, 0.5)  # metres added on every side of a footprint estimated from depth
 
 
 def default_config() -> DetectorConfig:

@@ -15,6 +15,7 @@ from typing import Any, Literal
 
 from ocplace.errors import ConfigError
 from ocplace.models.detection import DetectorConfig
+from ocplace.serial import bounded
 from ocplace.vocabulary import DECISION_MODES, MAX_PARSED_TUPLES, MAX_TOP_K
 
 # The joint search enumerates top_k ** tuples assignments per scene; past this it refuses the settings.
@@ -33,7 +34,7 @@ class Decision:
 
     mode: Literal["argmax", "joint"] = "argmax"
     # Rule J chose 5 on the dev splits for Ours and for w/o Adapter (docs/settings.md).
-    top_k: int = dataclasses.field(default=5, metadata={"help": "joint: candidate tokens per reference"})
+    top_k: int = bounded(5, 1, MAX_TOP_K, help="joint: candidate tokens per reference")
 
     def problems(self, max_tuples: int = MAX_PARSED_TUPLES) -> list[str]:
         problems = []

@@ -10,6 +10,7 @@ import dataclasses
 
 from ocplace.errors import BackboneError
 from ocplace.models import efficientnet_config
+from ocplace.serial import bounded
 from ocplace.vocabulary import CLIP_IMAGE_MEAN, CLIP_IMAGE_STD
 
 VIT = "vit"
@@ -31,17 +32,17 @@ class OfflineConfig:
     trunk_init: str = "imagenet"  # "imagenet" (EfficientNet-Lite only) or "random"
     # The stem and first 12 blocks frozen, 160 px input: rule T of docs/settings.md on the dev splits and the
     # corpus' held-out categories (docs/offline_backbone.md, "Choosing the trunk").
-    frozen_blocks: int = 13
-    image_size: int = 160
-    patch_size: int = 16
-    width: int = 256  # the ViT's width; an EfficientNet-Lite trunk gives 1280 features
-    layers: int = 6
-    heads: int = 4
-    mlp_dim: int = 1024
-    embed_dim: int = 256  # D, the shared embedding width
-    text_dim: int = MINILM_DIM  # width of the frozen text tower's sentence embedding
-    text_max_length: int = 32  # MiniLM tokens per text; longer texts are truncated
-    init_temperature: float = 0.07  # CLIP's initial softmax temperature (logit scale 1 / 0.07)
+    frozen_blocks: int = bounded(13, 0, 64)
+    image_size: int = bounded(160, 16, 1024)
+    patch_size: int = bounded(16, 1, 256)
+    width: int = bounded(256, 1, 4096)  # the ViT's width; an EfficientNet-Lite trunk gives 1280 features
+    layers: int = bounded(6, 1, 64)
+    heads: int = bounded(4, 1, 64)
+    mlp_dim: int = bounded(1024, 1, 16384)
+    embed_dim: int = bounded(256, 1, 4096)  # D, the shared embedding width
+    text_dim: int = bounded(MINILM_DIM, 1, 4096)  # width of the frozen text tower's sentence embedding
+    text_max_length: int = bounded(32, 1, 512)  # MiniLM tokens per text; longer texts are truncated
+    init_temperature: float = bounded(0.07, 1e-4, 10.0)  # CLIP's initial softmax temperature (logit scale 1 / 0.07)
 
     @property
     def is_vit(self) -> bool:
@@ -65,6 +66,13 @@ class OfflineConfig:
         return ImagePreprocessing(
             resize=self.image_size, crop=(self.image_size, self.image_size), mean=mean, std=std, resample=BICUBIC
         )
+
+    def problems(self) -> list[str]:
+        try:
+            self.validate()
+        except BackboneError as error:
+            return [str(error)]
+        return []
 
     def validate(self) -> None:
         if not self.is_vit:

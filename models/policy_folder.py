@@ -31,8 +31,9 @@ from ocplace.models.inference_settings import Decision
 from ocplace.models.offline_backbone import OfflineBackbone, flatten_params, unflatten_params
 from ocplace.models.offline_config import OfflineConfig
 from ocplace.models.placement.sampler import SamplerConfig
+from ocplace.models.policy_schema import folder_problems
 from ocplace.models.weights_file import flatten_state, load_weights, save_weights, unflatten_state
-from ocplace.paths import file_sha256, write_text_atomic
+from ocplace.paths import MAX_WEIGHTS_BYTES, file_sha256, inside, read_json_bounded, regular_file, write_text_atomic
 
 POLICY_FORMAT = "ocplace.policy/1"
 CONFIG_FILE = "config.json"
@@ -114,8 +115,8 @@ def read_policy_config(directory: str | Path) -> dict:
     """config.json of a policy folder, checked for its format; PolicyFolderError saying what to do."""
     path = Path(directory) / CONFIG_FILE
     try:
-        document = json.loads(path.read_text())
-    except (OSError, ValueError) as error:
+        document = read_json_bounded(inside(directory, CONFIG_FILE))
+    except (OSError, ValueError) as error:  # FileRefused (a FIFO, /dev/zero, too large or deep) is a ValueError
         raise PolicyFolderError(
             f"{directory} is not a policy folder: cannot read {path.name} ({error}); "
             "write one with `ocplace export --run RUN --out DIR`"
@@ -139,6 +140,7 @@ def load_policy_folder(directory: str | Path, parser=None, *, checkpoint: str | 
     directory = Path(directory)
     document = read_policy_config(directory)
     redo = f"export the policy again (`ocplace export --run RUN --out {directory}`) or copy the folder anew"
+    check_folder(directory, document, parser_given=parser is not None)
     try:
         expected = document["files"][MODEL_FILE]
         backbone_doc, adapters_doc, settings = document["backbone"], document["adapters"], document["policy"]
@@ -185,12 +187,31 @@ def _folder_backbone(document: dict, tensors: dict, directory: Path, checkpoint:
     return _backbone(document, tensors, directory, redo)
 
 
+def check_folder(directory: Path, document: dict, parser_given: bool) -> None:
+    """PolicyFolderError listing every problem of the folder's config.json and weights file, before either is used:
+    a weights file that is not a regular file inside the folder, or larger than any policy's, is one."""
+    problems = folder_problems(document, parser_given)
+    try:
+        regular_file(inside(directory, MODEL_FILE), MAX_WEIGHTS_BYTES)
+    except FileNotFoundError:
+        problems.append(f"{MODEL_FILE}: missing")
+    except ValueError as error:  # FileRefused, or a symlink out of the folder
+        problems.append(f"{MODEL_FILE}: {error}")
+    if problems:
+        listed = "\n  - ".join(problems)
+        raise PolicyFolderError(
+            f"{directory} is not a policy folder ocplace can load ({len(problems)} problem(s)); nothing was loaded:"
+            f"\n  - {listed}\nExport it again (`ocplace export --run RUN --out DIR`) or copy the folder anew"
+        )
+
+
 def load_folder_backbone(argument: str, **_):
     """The backbone a policy folder holds (offline) or names (CLIP), checked by its fingerprint: the backbone spec
     `offline:DIR` of a policy folder, so the zero-shot row of a demo's output needs nothing else."""
     directory = Path(argument).expanduser()
     document = read_policy_config(directory)
     redo = f"export the policy again (`ocplace export --run RUN --out {directory}`) or copy the folder anew"
+    check_folder(directory, document, parser_given=True)  # only its backbone is used
     try:
         tensors, _ = load_weights(directory / MODEL_FILE, redo)
         if file_sha256(directory / MODEL_FILE) != document["files"][MODEL_FILE]:

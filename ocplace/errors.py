@@ -181,6 +181,10 @@ class InvalidAction(PlaceEnvError, ValueError):
 
 # Internal conditions, not user errors (no `OcplaceError`): each is caught near where it is raised, or reported as
 # one scene's failure.
+class FileRefused(OcplaceError, ValueError):
+    """A file that cannot be read safely: not a regular file, larger than its kind allows, or JSON nested too deep."""
+
+
 class MshFormatError(ValueError):
     """The bytes are not a well-formed legacy `.msh` file."""
 

@@ -9,10 +9,11 @@ import hashlib
 import json
 import os
 import shutil
+import stat
 import tempfile
 from pathlib import Path
 
-from ocplace.errors import CacheError, OutputError, TrainingError
+from ocplace.errors import CacheError, FileRefused, OutputError, TrainingError
 
 RUN_FILE = "run.json"  # a run's identity: a rerun with other contents is refused, a rerun with the same resumes
 WEIGHTS_FILE = "weights.safetensors"  # what a run ends with; its presence marks the run finished
@@ -115,14 +116,74 @@ def refuse_old_run(run_dir: str | os.PathLike, how_to_train: str) -> None:
         )
 
 
+# Caps on the files a folder, dataset or cache holds, checked before a byte is read (docs/reliability.md): no such
+# file that ocplace writes comes near them.
+MAX_JSON_BYTES = 64 << 20  # a results file of paper scale is about 40 MB
+MAX_CONFIG_BYTES = 1 << 20  # a config.json, run.json, catalogue: a few kilobytes
+MAX_JSON_DEPTH = 32  # ocplace's own JSON nests at most 8 deep
+MAX_WEIGHTS_BYTES = 8 << 30
+
+
+def regular_file(path: str | os.PathLike, max_bytes: int) -> int:
+    """The size of `path` when it is a regular file (after symlinks) of at most `max_bytes`; else FileRefused. A
+    FIFO, device or socket is refused before it is opened: reading one would block or never end."""
+    try:
+        info = os.stat(path)
+    except FileNotFoundError:
+        raise
+    except OSError as error:  # a symlink loop, a name too long
+        raise FileRefused(f"{path} cannot be read: {error}") from None
+    if not stat.S_ISREG(info.st_mode):
+        raise FileRefused(f"{path} is not a regular file (a FIFO, device or socket), so it is not read")
+    if info.st_size > max_bytes:
+        raise FileRefused(f"{path} is {info.st_size:,} bytes, more than such a file may be ({max_bytes:,})")
+    return info.st_size
+
+
+def read_bytes_bounded(path: str | os.PathLike, max_bytes: int) -> bytes:
+    """The bytes of a regular file of at most `max_bytes` (checked on the open file too: it may be swapped)."""
+    regular_file(path, max_bytes)
+    descriptor = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
+    with os.fdopen(descriptor, "rb") as handle:
+        if not stat.S_ISREG(os.fstat(handle.fileno()).st_mode):
+            raise FileRefused(f"{path} is not a regular file (a FIFO, device or socket), so it is not read")
+        data = handle.read(max_bytes + 1)
+    if len(data) > max_bytes:
+        raise FileRefused(f"{path} grew past {max_bytes:,} bytes while it was read")
+    return data
+
+
+def read_json_bounded(path: str | os.PathLike, max_bytes: int = MAX_CONFIG_BYTES, max_depth: int = MAX_JSON_DEPTH):
+    """The JSON value in `path`, read with `read_bytes_bounded`; ValueError when it is not JSON, FileRefused when it
+    nests deeper than `max_depth`."""
+    text = read_bytes_bounded(path, max_bytes).decode("utf-8")
+    try:
+        value = json.loads(text)
+    except RecursionError:
+        raise FileRefused(f"{path} nests its JSON deeper than {max_depth} levels") from None
+    if json_depth(value) > max_depth:
+        raise FileRefused(f"{path} nests its JSON deeper than {max_depth} levels")
+    return value
+
+
+def json_depth(value) -> int:
+    """How deep `value` (decoded JSON) nests: 0 for a scalar; iterative, so no depth can overflow the stack."""
+    deepest, stack = 0, [(value, 0)]
+    while stack:
+        item, depth = stack.pop()
+        deepest = max(deepest, depth)
+        children = item.values() if isinstance(item, dict) else item if isinstance(item, list) else ()
+        stack.extend((child, depth + 1) for child in children)
+    return deepest
+
+
 def read_run_file(run_dir: str | os.PathLike) -> dict:
     """The metadata in `run_dir/RUN_FILE`; TrainingError when it is not a JSON object (cut short by a crash of
     an older ocplace, edited, damaged). FileNotFoundError when there is none."""
     path = Path(run_dir) / RUN_FILE
-    text = path.read_text()
     try:
-        meta = json.loads(text)
-    except ValueError:
+        meta = read_json_bounded(path)
+    except ValueError:  # not JSON, or refused (FileRefused is one)
         meta = None
     if not isinstance(meta, dict):
         raise TrainingError(

@@ -22,6 +22,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from ocplace.errors import InvalidPlacementProblem, NoFeasiblePlacement
+from ocplace.serial import bounded
 from ocplace.sim import relations
 from ocplace.sim.workspace import DEFAULT_TABLE, Table
 from ocplace.vocabulary import MAX_PARSED_TUPLES
@@ -339,6 +340,9 @@ def placement_success_jax(placements, problem: PlacementProblem, table: Table = 
     return check_placements_jax(placements, problem, table).success
 
 
+MAX_GRID_CELLS = 1_000_000  # the sampler's (scenes, cells) arrays stay small; the default grid has 19,200
+
+
 @dataclasses.dataclass(frozen=True)
 class Grid:
     """A regular grid of square cells over the table top, centred on it.
@@ -348,7 +352,17 @@ class Grid:
     """
 
     table: Table = DEFAULT_TABLE
-    resolution: float = 0.005  # metres
+    resolution: float = bounded(0.005, 0.001, 0.1)  # metres
+
+    def problems(self) -> list[str]:
+        """A grid the sampler can hold: at least 3x3 cells and at most MAX_GRID_CELLS."""
+        cells = int(np.prod(self.shape))
+        if min(self.shape) < 3 or cells > MAX_GRID_CELLS:
+            return [
+                f"resolution {self.resolution} on half extents {self.table.half_extents} gives {self.shape} cells; "
+                f"at least 3 and at most {MAX_GRID_CELLS:,} in all are allowed"
+            ]
+        return []
 
     @property
     def shape(self) -> tuple[int, int]:

@@ -9,14 +9,21 @@ import dataclasses
 
 import numpy as np
 
+from ocplace.serial import bounded
+
 
 @dataclasses.dataclass(frozen=True)
 class Table:
     """The placement area: the table top rectangle, centred on the world origin."""
 
-    half_extents: tuple[float, float] = (0.40, 0.30)  # metres, (x, y)
-    thickness: float = 0.04
-    drop_half_extents: tuple[float, float] = (0.24, 0.16)  # central area objects are dropped over
+    half_extents: tuple[float, float] = bounded((0.40, 0.30), 0.05, 5.0)  # metres, (x, y)
+    thickness: float = bounded(0.04, 0.001, 1.0)
+    drop_half_extents: tuple[float, float] = bounded((0.24, 0.16), 0.01, 5.0)  # central area objects are dropped over
+
+    def problems(self) -> list[str]:
+        if any(drop > half for drop, half in zip(self.drop_half_extents, self.half_extents, strict=True)):
+            return [f"drop_half_extents {self.drop_half_extents} must lie within half_extents {self.half_extents}"]
+        return []
 
     @property
     def bounds(self) -> np.ndarray:

@@ -133,7 +133,7 @@ def _tamper(folder: Path, how: str) -> None:
     "how, message",
     [
         ("flipped byte", "is not the file config.json names"),
-        ("missing weights", "cannot load the policy folder"),
+        ("missing weights", "model.safetensors: missing"),
         ("another format", "this ocplace reads 'ocplace.policy/1'"),
         ("another architecture", "weights do not match the model config"),
         ("another backbone's fingerprint", "do not give the fingerprint"),
@@ -215,3 +215,111 @@ def test_a_demo_output_scores_the_zero_shot_row_with_its_own_policy_folder(demo_
         patch.setenv("OCPLACE_CACHE", str(tmp_path / "empty"))
         with pytest.raises(BackboneUnavailable, match="or a policy folder that holds one"):
             load_offline_backbone("demo")
+
+
+def _leaves(cls, prefix: str):
+    """`(path, hint, bounds)` of every field under the dataclass `cls`, nested dataclasses walked: generated, so a
+    field added later is covered by construction."""
+    import dataclasses
+    import typing
+
+    from ocplace import serial
+
+    for field in dataclasses.fields(cls):
+        hint = typing.get_type_hints(cls)[field.name]
+        inner = [a for a in typing.get_args(hint) if a is not type(None)] or [hint]
+        if dataclasses.is_dataclass(inner[0]):
+            yield from _leaves(inner[0], f"{prefix}.{field.name}")
+        else:
+            yield f"{prefix}.{field.name}", inner[0], field.metadata.get(serial.BOUNDS)
+
+
+def _set(document: dict, path: str, value) -> dict:
+    document = json.loads(json.dumps(document))
+    *parents, last = path.split(".")
+    node = document
+    for name in parents:
+        node = node.setdefault(name, {})
+    if value is _MISSING:
+        node.pop(last, None)
+    else:
+        node[last] = value
+    return document
+
+
+_MISSING = object()
+
+
+def test_every_field_of_a_policy_folder_is_checked_before_it_is_used(demo_root):
+    """Issue 60, item 1: each field of every section, too small, too large, of the wrong type, not finite or missing:
+    a problem naming the field (or, where a default stands, none), all listed at once; the folder as exported
+    has none."""
+    from ocplace.models.policy_schema import REQUIRED, SECTIONS, folder_problems
+
+    document = json.loads((demo_root / "out/demo/policy" / CONFIG_FILE).read_text())
+    assert folder_problems(document, parser_given=False) == []
+    checked = 0
+    for section, cls in SECTIONS.items():
+        for path, hint, bounds in _leaves(cls, section):
+            if path == "backbone.model.trunk" or (section == "backbone" and path.startswith("backbone.checkpoint")):
+                continue  # a trunk's name is checked by OfflineConfig.problems; a CLIP folder is tested elsewhere
+            bad = [("wrong type", {"some": "object"})]
+            if hint in (int, float) and bounds is not None:
+                bad += [("too small", bounds[0] - 1), ("too large", bounds[1] * 10 + 1), ("not finite", float("inf"))]
+            for what, value in bad:
+                problems = folder_problems(_set(document, path, value), parser_given=False)
+                assert any(problem.startswith(path) or path in problem for problem in problems), (path, what, problems)
+                checked += 1
+            missing = folder_problems(_set(document, path, _MISSING), parser_given=False)
+            required = path.count(".") == 1 and path.split(".")[1] in REQUIRED[section]
+            assert (f"{path}: missing" in missing) == required, (path, missing)
+    assert checked > 60
+    several = _set(_set(document, "policy.crop_size", 0), "adapters.config.reduction", "many")
+    assert len(folder_problems(several, parser_given=False)) == 2  # all at once
+
+
+@pytest.mark.parametrize(
+    "how, message",
+    [
+        ("a FIFO for config.json", "is not a regular file"),
+        ("/dev/zero for config.json", "a symlink that leads out of it"),
+        ("a FIFO for the weights", "model.safetensors: "),
+        ("a config.json nested 100,000 deep", "nests its JSON deeper than 32 levels"),
+        ("an oversized config.json", "more than such a file may be"),
+        ("num_samples 10**9", "policy.sampler.num_samples: from 1 to 65,536, got 1,000,000,000"),
+        ("reduction 0", "adapters.config.reduction: from 1 to 8,192, got 0"),
+        ("grid resolution 1e-6", "policy.sampler.grid.resolution: from 0.001 to 0.1, got 1e-06"),
+        ("the LLM parser", "a folder never chooses one: pass the parser yourself"),
+    ],
+)
+def test_a_policy_folder_that_could_hang_or_exhaust_a_load_is_refused_at_once(demo_root, tmp_path, how, message):
+    """Issue 60's hostile folders, through `from_pretrained`: a typed error naming the file or field, in well under a
+    second, with nothing read that could block or grow without bound."""
+    import os
+    import time
+
+    folder = shutil.copytree(demo_root / "out/demo/policy", tmp_path / "policy")
+    config = json.loads((folder / CONFIG_FILE).read_text())
+    if how.startswith("a FIFO"):
+        target = folder / (CONFIG_FILE if "config" in how else MODEL_FILE)
+        target.unlink()
+        os.mkfifo(target)
+    elif how.startswith("/dev/zero"):
+        (folder / CONFIG_FILE).unlink()
+        (folder / CONFIG_FILE).symlink_to("/dev/zero")
+    elif "nested" in how:
+        (folder / CONFIG_FILE).write_text("[" * 100_000 + "]" * 100_000)
+    elif "oversized" in how:
+        (folder / CONFIG_FILE).write_text(json.dumps(config | {"padding": "x" * (2 << 20)}))
+    else:
+        field, value = {
+            "num_samples 10**9": ("policy.sampler.num_samples", 10**9),
+            "reduction 0": ("adapters.config.reduction", 0),
+            "grid resolution 1e-6": ("policy.sampler.grid.resolution", 1e-6),
+            "the LLM parser": ("policy.parser", "llm"),
+        }[how]
+        (folder / CONFIG_FILE).write_text(json.dumps(_set(config, field, value)))
+    began = time.perf_counter()
+    with pytest.raises(PolicyFolderError, match=re.escape(message)):
+        PlacementPolicy.from_pretrained(folder)
+    assert time.perf_counter() - began < 5.0

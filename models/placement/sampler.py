@@ -21,8 +21,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ocplace.serial import bounded
 from ocplace.sim import metric, relations
 from ocplace.sim.metric import FLOAT, Grid, PlacementProblem, TupleGeometry
+from ocplace.vocabulary import MAX_SAMPLES
 
 _TINY = FLOAT(np.finfo(FLOAT).tiny)
 _WEIGHT_SCALE = 2**30  # integer weights sum to about 2^30 < 2^31: exact int32 prefix sums
@@ -33,12 +35,14 @@ _SUPER = 16  # blocks per super-block
 @dataclasses.dataclass(frozen=True)
 class SamplerConfig:
     grid: Grid = Grid()
-    num_samples: int = 1024
-    table_sigma_cells: float = 0.25  # table tuples: sigma = this x the 3x3 cell size, per axis
-    object_offset: float = 0.20  # metres from the reference centre along the direction
-    object_sigma: float = 0.05  # metres
-    jitter_margin: float = 1e-5  # metres; a jittered cell must be feasible this far beyond its edges
-    scenes_per_step: int = 16  # scenes vmapped together; a step's grids stay in cache
+    num_samples: int = bounded(1024, 1, MAX_SAMPLES)
+    table_sigma_cells: float = bounded(0.25, 1e-3, 100.0)  # table tuples: sigma = this x the 3x3 cell size, per axis
+    object_offset: float = bounded(0.20, 0.0, 1.0)  # metres from the reference centre along the direction
+    object_sigma: float = bounded(0.05, 1e-4, 1.0)  # metres
+    jitter_margin: float = bounded(
+        1e-5, 0.0, 0.01
+    )  # metres; a jittered cell must be feasible this far beyond its edges
+    scenes_per_step: int = bounded(16, 1, 1024)  # scenes vmapped together; a step's grids stay in cache
 
 
 def default_config() -> SamplerConfig:

@@ -18,7 +18,8 @@ import re
 import stat
 from pathlib import Path
 
-from ocplace.errors import AssetBuildError, CatalogueError
+from ocplace.errors import AssetBuildError, CatalogueError, FileRefused
+from ocplace.paths import read_json_bounded
 from ocplace.sim.library.meshes import load_mesh
 from ocplace.sim.library.metadata import ObjectSpec, packaged_objects
 from ocplace.sim.library.process_object import SIZE_RANGE
@@ -125,15 +126,14 @@ def read_catalogue(path: str | Path) -> Catalogue:
 
 def _read_json(path: Path) -> dict:
     try:
-        info = os.stat(path)
-        if not stat.S_ISREG(info.st_mode):
-            raise CatalogueError(f"{path} is not a regular file; give the catalogue's JSON file")
-        if info.st_size > MAX_CATALOGUE_BYTES:
-            raise CatalogueError(f"{path} is {info.st_size:,} bytes: not a catalogue (at most {MAX_CATALOGUE_BYTES:,})")
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError) as error:
+        data = read_json_bounded(path, MAX_CATALOGUE_BYTES)
+    except FileNotFoundError:
+        raise CatalogueError(f"no catalogue {path}; docs/library.md shows one") from None
+    except FileRefused as error:
+        raise CatalogueError(f"{error}; give the catalogue's JSON file") from None
+    except OSError as error:
         raise CatalogueError(f"cannot read the catalogue {path}: {error}") from error
-    except (ValueError, RecursionError) as error:
+    except ValueError as error:
         raise CatalogueError(f"{path} is not JSON ({error}); docs/library.md shows a catalogue") from None
     if not isinstance(data, dict) or data.get("format") != FORMAT or data.get("version") != VERSION:
         raise CatalogueError(
