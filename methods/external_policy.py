@@ -196,7 +196,8 @@ class HostedPolicy:
         answer = self.host.request(request, self.scene_timeout_s * len(scenes))
         if "error" in answer:
             raise PolicyRaised(answer["error"])
-        return [MethodOutput(**output) for output in answer["outputs"]]
+        # An output the policy's process could not describe holds only its failure ("malformed output: ...").
+        return [MethodOutput(**({"mode": None, "samples": None} | output)) for output in answer["outputs"]]
 
 
 def as_method(policy: object, name: str, scene_timeout_s: float = SCENE_TIMEOUT_S) -> Method:

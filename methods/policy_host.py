@@ -16,12 +16,16 @@ import importlib
 import inspect
 import json
 import multiprocessing
+import os
+import signal
+import threading
 import weakref
 from typing import TYPE_CHECKING, Any, TypeGuard
 
 import numpy as np
 
 from ocplace.errors import POLICY_ERRORS, EvaluationError, PolicyProcessEnded, SceneTimeout
+from ocplace.paths import MAX_JSON_DEPTH, json_depth
 
 if TYPE_CHECKING:
     from multiprocessing.connection import Connection
@@ -32,6 +36,11 @@ if TYPE_CHECKING:
     Pipe = Connection[Any, Any]
 
 LOAD_TIMEOUT_S = 600.0  # importing and constructing the policy; a scene's deadline starts after it
+SEND_TIMEOUT_S = 120.0  # handing a request to a policy's process when its scenes have no deadline (a frozen one)
+# The largest answer read: a placement is a few bytes; a Method's output per scene at most MAX_SAMPLES samples.
+ANSWER_BYTES_PER_SCENE = 4 << 20
+ANSWER_KEYS = {"place": ("mode", "error"), "run": ("outputs", "error"), "ready": ("kind", "describe", "error")}
+OUTPUT_KEYS = frozenset(("mode", "samples", "parsed", "grounded", "failure", "parse_note", "confidence"))
 
 REFERENCE_HELP = (
     "a policy is named MODULE:CALLABLE, e.g. my_policies:place or my_pkg.policies:MyPolicy; the module must be "
@@ -120,7 +129,8 @@ def serve(reference: str, connection: Pipe, jax_width: int | None = None) -> Non
     from ocplace.runtime.executor import exit_with_parent
     from ocplace.runtime.width import pinned_cpus
 
-    exit_with_parent()
+    os.setpgid(0, 0)  # a group of its own: what the policy starts is killed with it (`_stop`)
+    exit_with_parent(lambda: os.killpg(0, signal.SIGKILL))
     with pinned_cpus(jax_width) if jax_width else contextlib.nullcontext():
         policy = _loaded(reference, connection)
         if policy is None or not _answered(policy, connection):
@@ -204,15 +214,65 @@ def _output_json(output: object) -> dict[str, Any]:
 # ----------------------------------------------------------------------------- the evaluation's side
 
 
+def _descendants(pid: int) -> list[int]:
+    """Every live process below `pid` by parent links (those that left its process group with `setsid` too)."""
+    children: dict[int, list[int]] = {}
+    for entry in os.scandir("/proc"):
+        if entry.name.isdigit():
+            try:
+                with open(f"/proc/{entry.name}/stat", "rb") as handle:
+                    parent = int(handle.read().rsplit(b")", 1)[1].split()[1])
+            except (OSError, ValueError, IndexError):
+                continue  # it ended while we looked
+            children.setdefault(parent, []).append(int(entry.name))
+    found, stack = [], [pid]
+    while stack:
+        below = children.get(stack.pop(), [])
+        found += below
+        stack += below
+    return found
+
+
+def _kill_tree(pid: int) -> None:
+    """SIGKILL to `pid`'s process group and to every process below it: a policy's processes end with it."""
+    for target in _descendants(pid):
+        with contextlib.suppress(OSError):
+            os.kill(target, signal.SIGKILL)
+    with contextlib.suppress(OSError):
+        os.killpg(pid, signal.SIGKILL)
+
+
 def _stop(process: BaseProcess, connection: Pipe) -> int | None:
-    """Kills `process` (if running) and frees its pipe and handles; its exit code."""
-    connection.close()
+    """Kills `process` (if running) and all it started, and frees its pipe and handles; its exit code."""
+    if process.pid is not None:
+        _kill_tree(process.pid)
     if process.is_alive():
         process.kill()
     process.join()
+    connection.close()
     code = process.exitcode
     process.close()
     return code
+
+
+def _answer_problem(answer: object, kind: str) -> str | None:
+    """What keeps a decoded answer from being one of `kind` ("place", "run", "ready"); None when it is one."""
+    if not isinstance(answer, dict) or not answer or set(answer) - set(ANSWER_KEYS[kind]):
+        return f"an object with {' or '.join(ANSWER_KEYS[kind])} is needed"
+    if "error" in answer and not isinstance(answer["error"], str):
+        return "its error is not a text"
+    if kind == "run" and "outputs" in answer:
+        outputs = answer["outputs"]
+        if not isinstance(outputs, list) or not all(isinstance(o, dict) and set(o) <= OUTPUT_KEYS for o in outputs):
+            return f"its outputs are not a list of objects with some of {', '.join(sorted(OUTPUT_KEYS))}"
+    if kind == "ready" and answer.get("kind") not in ("placer", "method", None):
+        return "its kind is neither placer nor method"
+    return None
+
+
+def _short(data: bytes) -> str:
+    text = data[:60].decode("utf-8", "replace")
+    return repr(text + ("..." if len(data) > 60 else ""))
 
 
 class PolicyHost:
@@ -245,31 +305,65 @@ class PolicyHost:
         return ready
 
     def request(self, request: tuple[Any, ...], timeout_s: float) -> dict[str, Any]:
-        """The policy's JSON answer to `request` within `timeout_s` (0: no deadline); SceneTimeout or
-        PolicyProcessEnded (its process then stopped, the next request starts another)."""
+        """The policy's JSON answer to `request` within `timeout_s` (0: no deadline but SEND_TIMEOUT_S to take it);
+        SceneTimeout, or PolicyProcessEnded when its process ended or answered something that is not an answer of
+        at most its size: its process (and what it started) is then killed, and the next request starts another."""
         if self._process is None:
             self._start()
-        assert self._connection is not None, "started above"
-        try:
-            self._connection.send(request)
-        except OSError:  # it ended between two requests (killed from outside, out of memory)
-            code = self.stop()
-            raise PolicyProcessEnded(f"the policy's process had ended (exit code {code})") from None
-        return self._receive(timeout_s if timeout_s > 0 else None)
+        size = ANSWER_BYTES_PER_SCENE * (len(request[1]) if request[0] == "run" else 1)
+        return self._exchange(request, timeout_s if timeout_s > 0 else None, request[0], size)
 
     def _receive(self, timeout_s: float | None, loading: bool = False) -> dict[str, Any]:
+        return self._exchange(None, timeout_s, "ready", ANSWER_BYTES_PER_SCENE, loading)
+
+    def _exchange(
+        self, request: tuple[Any, ...] | None, timeout_s: float | None, kind: str, size: int, loading: bool = False
+    ) -> dict[str, Any]:
+        """Sends `request` (None: nothing) and reads the answer in a thread of its own, so that a policy that stops
+        reading, or announces an answer and never sends it, costs the deadline and no more."""
         assert self._connection is not None, "called on a started process"
-        if not self._connection.poll(timeout_s):
+        connection, got = self._connection, {}
+
+        def talk() -> None:
+            try:
+                if request is not None:
+                    connection.send(request)
+                got["sent"] = True
+                if connection.poll(timeout_s):
+                    got["data"] = connection.recv_bytes(size)
+            except (EOFError, OSError) as error:  # it ended, or announced more than `size` bytes
+                got["error"] = error
+
+        thread = threading.Thread(target=talk, name="ocplace-policy-exchange", daemon=True)
+        thread.start()
+        thread.join(None if timeout_s is None and request is None else (timeout_s or SEND_TIMEOUT_S))
+        if thread.is_alive() and timeout_s is None and got.get("sent"):
+            thread.join()  # sent; the scenes have no deadline
+        if thread.is_alive() or ("data" not in got and "error" not in got):
             self.stop()
-            what = "to load" if loading else "(--scene-timeout)"
-            raise SceneTimeout(f"timeout: the policy took more than {timeout_s:g} s {what}")
-        try:
-            answer: dict[str, Any] = json.loads(self._connection.recv_bytes())
-            return answer
-        except (EOFError, OSError):
+            thread.join()
+            what = "to load" if loading else "(--scene-timeout)" if got.get("sent") else "to take the request"
+            raise SceneTimeout(f"timeout: the policy took more than {timeout_s or SEND_TIMEOUT_S:g} s {what}")
+        if "error" in got:
             code = self.stop()
+            if str(got["error"]) == "bad message length":  # multiprocessing read the frame's header only
+                raise PolicyProcessEnded(f"the policy's process announced an answer past {size:,} bytes: it was stopped")
             when = " while it was loaded" if loading else ""
             raise PolicyProcessEnded(f"the policy's process ended{when} (exit code {code})") from None
+        return self._decoded(got["data"], kind)
+
+    def _decoded(self, data: bytes, kind: str) -> dict[str, Any]:
+        try:
+            answer = json.loads(data)
+            problem = _answer_problem(answer, kind) if json_depth(answer) <= MAX_JSON_DEPTH else "it nests too deep"
+        except (ValueError, RecursionError):
+            answer, problem = None, "it is not JSON"
+        if problem is None:
+            return answer
+        self.stop()
+        raise PolicyProcessEnded(
+            f"the policy's process sent {_short(data)}, which is no answer ({problem}): it was stopped"
+        )
 
     def stop(self) -> int | None:
         """Kills the policy's process (if running); its exit code."""

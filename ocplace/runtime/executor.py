@@ -239,15 +239,18 @@ def init_worker(width: int | None, progress: bool = True) -> None:
 PARENT_CHECK_S = 1.0
 
 
-def exit_with_parent() -> None:
+def exit_with_parent(before_exit: Callable[[], None] | None = None) -> None:
     """A daemon thread that ends this process within `PARENT_CHECK_S` of its parent's end (SIGTERM or SIGKILL of
-    the command: nothing else would, as a pool's idle worker waits on its queue for good). Polling, not Linux's
-    parent-death signal, which fires when the *thread* that started the process ends."""
+    the command: nothing else would, as a pool's idle worker waits on its queue for good), after `before_exit` (a
+    policy's process kills its group). Polling, not Linux's parent-death signal, which fires when the *thread* that
+    started the process ends."""
     parent = os.getppid()
 
     def watch() -> None:
         while os.getppid() == parent:
             time.sleep(PARENT_CHECK_S)
+        if before_exit is not None:
+            before_exit()
         os._exit(1)
 
     threading.Thread(target=watch, name="ocplace-exit-with-parent", daemon=True).start()
