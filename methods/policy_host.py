@@ -322,7 +322,7 @@ class PolicyHost:
         """Sends `request` (None: nothing) and reads the answer in a thread of its own, so that a policy that stops
         reading, or announces an answer and never sends it, costs the deadline and no more."""
         assert self._connection is not None, "called on a started process"
-        connection, got = self._connection, {}
+        connection, got = self._connection, dict[str, Any]()
 
         def talk() -> None:
             try:
@@ -347,7 +347,9 @@ class PolicyHost:
         if "error" in got:
             code = self.stop()
             if str(got["error"]) == "bad message length":  # multiprocessing read the frame's header only
-                raise PolicyProcessEnded(f"the policy's process announced an answer past {size:,} bytes: it was stopped")
+                raise PolicyProcessEnded(
+                    f"the policy's process announced an answer past {size:,} bytes: it was stopped"
+                )
             when = " while it was loaded" if loading else ""
             raise PolicyProcessEnded(f"the policy's process ended{when} (exit code {code})") from None
         return self._decoded(got["data"], kind)
@@ -359,7 +361,8 @@ class PolicyHost:
         except (ValueError, RecursionError):
             answer, problem = None, "it is not JSON"
         if problem is None:
-            return answer
+            checked: dict[str, Any] = answer
+            return checked
         self.stop()
         raise PolicyProcessEnded(
             f"the policy's process sent {_short(data)}, which is no answer ({problem}): it was stopped"
