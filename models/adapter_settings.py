@@ -6,19 +6,20 @@ from __future__ import annotations
 import dataclasses
 from typing import TYPE_CHECKING
 
+from ocplace.serial import bounded
+
 if TYPE_CHECKING:
     from ocplace.models.adapters import AdapterConfig
 
 
 @dataclasses.dataclass(frozen=True)
 class AdapterSettings:
-    reduction: int = dataclasses.field(default=4, metadata={"help": "the adapter's hidden width is D / reduction"})
-    residual_ratio: float = dataclasses.field(
-        default=0.2,
-        metadata={"help": "the adapter's weight in the blend: the visual tower's, and the text's unless set"},
+    reduction: int = bounded(4, 1, 8192, help="the adapter's hidden width is D / reduction")
+    residual_ratio: float = bounded(
+        0.2, 0.0, 1.0, help="the adapter's weight in the blend: the visual tower's, and the text's unless set"
     )
-    text_ratio: float | None = dataclasses.field(
-        default=None, metadata={"help": "the text adapter's own weight in the blend; none: residual_ratio"}
+    text_ratio: float | None = bounded(
+        None, 0.0, 1.0, help="the text adapter's own weight in the blend; none: residual_ratio"
     )
     normalise: bool = dataclasses.field(
         default=False, metadata={"help": "scale A(x) to the norm of x before the blend (models/adapters.py)"}

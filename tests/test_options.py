@@ -377,3 +377,32 @@ def test_a_day_is_the_longest_duration():
     from ocplace.cli.options import MAX_DURATION_S, seconds
 
     assert seconds("86400") == MAX_DURATION_S and seconds("0") == 0.0 and seconds("2.5") == 2.5
+
+
+def _numeric(action: argparse.Action) -> bool:
+    """Whether the flag reads a number (its type turns "1", "50" or "0.5" into one)."""
+    for text in ("1", "50", "0.5"):
+        try:
+            if callable(action.type) and isinstance(action.type(text), int | float):
+                return True
+        except (argparse.ArgumentTypeError, ValueError, TypeError):
+            continue
+    return False
+
+
+def test_every_numeric_flag_of_every_command_is_bounded_as_it_is_read():
+    """Issue 60, item 6: no numeric flag takes a huge, infinite, NaN or (but for its one "all" value, -1) negative
+    number to fail later, per scene or in the middle of the work: each is refused as the flag is read."""
+    from ocplace.cli import build_parser
+
+    numeric = [(path, action) for path, action in _every_action(build_parser(), "ocplace") if _numeric(action)]
+    assert len(numeric) > 40
+    accepted = []
+    for path, action in numeric:
+        for text in ("1e300", "99999999999999999999", "inf", "nan", "-5"):
+            try:
+                action.type(text)
+            except (argparse.ArgumentTypeError, ValueError):
+                continue
+            accepted.append(f"{path} {'/'.join(action.option_strings)} {text}")
+    assert accepted == []

@@ -4,9 +4,11 @@ check before JAX is imported and a bad `--set` fails at once."""
 from __future__ import annotations
 
 import dataclasses
+from dataclasses import MISSING
 from typing import Any, Literal, TypeVar
 
 from ocplace.errors import TrainingError
+from ocplace.serial import bounded
 
 OPTIMISERS = ("adam", "adamw_clipped")
 R = TypeVar("R")
@@ -18,14 +20,14 @@ class Schedule:
     when `weight_decay` is set), or `adamw_clipped` (an image tower's: gradient norm clipped to 1, decay on
     matrices only); both warm up linearly, then decay by a cosine (to 0, a tower's to a share of the peak)."""
 
-    steps: int = dataclasses.field(metadata={"help": "optimisation steps"})
-    batch_size: int = dataclasses.field(metadata={"help": "scenes per step"})
-    learning_rate: float = dataclasses.field(metadata={"help": "peak learning rate, after the warm-up"})
-    warmup_steps: int = dataclasses.field(metadata={"help": "steps of the linear warm-up to the peak"})
-    chunk_steps: int = dataclasses.field(metadata={"help": "steps fused into one jitted lax.scan call"})
-    checkpoint_every: int = dataclasses.field(metadata={"help": "steps between checkpoints; a multiple of chunk_steps"})
-    keep_checkpoints: int = dataclasses.field(default=2, metadata={"help": "newest checkpoints kept to resume from"})
-    weight_decay: float = dataclasses.field(default=0.0, metadata={"help": "decoupled weight decay (0: none)"})
+    steps: int = bounded(MISSING, 1, 10_000_000, help="optimisation steps")
+    batch_size: int = bounded(MISSING, 1, 65_536, help="scenes per step")
+    learning_rate: float = bounded(MISSING, 0.0, 10.0, help="peak learning rate, after the warm-up")
+    warmup_steps: int = bounded(MISSING, 0, 10_000_000, help="steps of the linear warm-up to the peak")
+    chunk_steps: int = bounded(MISSING, 1, 100_000, help="steps fused into one jitted lax.scan call")
+    checkpoint_every: int = bounded(MISSING, 1, 10_000_000, help="steps between checkpoints; a multiple of chunk_steps")
+    keep_checkpoints: int = bounded(2, 1, 1000, help="newest checkpoints kept to resume from")
+    weight_decay: float = bounded(0.0, 0.0, 10.0, help="decoupled weight decay (0: none)")
     optimiser: Literal["adam", "adamw_clipped"] = "adam"
 
     def problems(self) -> list[str]:

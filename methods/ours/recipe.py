@@ -6,6 +6,7 @@ import dataclasses
 
 from ocplace.errors import TrainingError
 from ocplace.models.adapter_settings import AdapterSettings
+from ocplace.serial import bounded
 from ocplace.train.schedule import Schedule
 
 # The paper's budget: 200K steps at batch 1 on the 2000 training scenes (100 epochs), Adam with a linear warm-up
@@ -23,18 +24,17 @@ class OursRecipe:
     schedule: Schedule = PAPER_SCHEDULE
     # A pull of the adapted features toward the backbone's own (KgCoOp's idea for prompts; 0: the paper's):
     # anchor x the mean squared distance of x* from x.
-    anchor: float = dataclasses.field(
-        default=0.0, metadata={"help": "weight of a pull of the adapted features toward the backbone's (0: none)"}
+    anchor: float = bounded(
+        0.0, 0.0, 1000.0, help="weight of a pull of the adapted features toward the backbone's (0: none)"
     )
-    logit_scale: float | None = dataclasses.field(
-        default=None, metadata={"help": "grounding logit scale; none means the backbone's own, from the feature file"}
+    logit_scale: float | None = bounded(
+        None, 1e-3, 1000.0, help="grounding logit scale; none means the backbone's own, from the feature file"
     )
-    eval_every: int = dataclasses.field(
-        default=10_000,
-        metadata={"help": "steps between grounding accuracies on the training subset (and --val-features)"},
+    eval_every: int = bounded(
+        10_000, 1, 10_000_000, help="steps between grounding accuracies on the training subset (and --val-features)"
     )
     # Fixed apart from the run's seed, so a 25% subset is part of the 50% one.
-    subset_seed: int = dataclasses.field(default=0, metadata={"help": "draws the --fraction subsets, nested"})
+    subset_seed: int = bounded(0, 0, 2**32 - 1, help="draws the --fraction subsets, nested")
 
     def validate(self) -> None:
         problems = self.schedule.problems() + self.adapters.problems()

@@ -7,7 +7,7 @@ import json
 import os
 from pathlib import Path
 
-from ocplace.cli.options import add_dataset_argument, dataset_of
+from ocplace.cli.options import MAX_SCENES, MAX_WORKERS, add_dataset_argument, count, dataset_of
 from ocplace.vocabulary import SCORED_SPLITS
 
 # `models.offline_recipes.RECIPES`, spelled out so that building the parser imports no JAX (a test
@@ -38,7 +38,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     pretrain.add_argument("--out", type=Path, help="output directory (default: the recipe's cache folder)")
     pretrain.add_argument("--keep-run", action="store_true", help="keep rendered images and checkpoints")
     pretrain.add_argument(
-        "--workers", type=int, default=0, help="processes that render (default: every CPU this process may use)"
+        "--workers",
+        type=count(0, MAX_WORKERS),
+        default=0,
+        help="processes that render (default: every CPU this process may use)",
     )
     pretrain.add_argument("--no-progress", action="store_true", help="no progress bars")
     pretrain.set_defaults(func=_pretrain)
@@ -57,7 +60,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     evaluate.add_argument(
         "--no-random-init", action="store_true", help="skip the random-initialisation control (offline backbones only)"
     )
-    evaluate.add_argument("--limit", type=int, help="first N scenes per split")
+    evaluate.add_argument("--limit", type=count(1, MAX_SCENES), help="first N scenes per split")
     evaluate.add_argument("--out", type=Path, help="write the results as JSON here")
     evaluate.set_defaults(func=_eval)
 
@@ -72,7 +75,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     validate.add_argument(
         "--recipe", choices=RECIPE_NAMES, default="default", help="whose held-out categories and protocol"
     )
-    validate.add_argument("--scenes", type=int, default=100, help="validation scenes rendered (default 100)")
+    validate.add_argument(
+        "--scenes", type=count(1, MAX_SCENES), default=100, help="validation scenes rendered (default 100)"
+    )
     validate.set_defaults(func=_validate)
 
     path = actions.add_parser("path", help="print where a recipe's backbone is (or will be) saved")

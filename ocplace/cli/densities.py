@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from ocplace.cli.options import MAX_SEED, count
 from ocplace.vocabulary import LIBRARY_SPLITS
 
 
@@ -16,7 +17,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "the top-down image: a table region, one object relation and a two-relation "
         "composition, with 1024 samples each (300 drawn) and the mode.",
     )
-    densities.add_argument("--seed", type=int, default=0, help="scene seed; also picks the relations")
+    densities.add_argument("--seed", type=count(0, MAX_SEED), default=0, help="scene seed; also picks the relations")
     densities.add_argument(
         "--split", choices=LIBRARY_SPLITS, default="seen", help="object and table-texture split to draw from"
     )

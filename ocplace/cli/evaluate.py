@@ -9,8 +9,18 @@ import sys
 from pathlib import Path
 
 from ocplace.cli.executor_options import add_executor_arguments, executor_config
-from ocplace.cli.options import DeprecatedAlias, add_dataset_argument, config_from_arguments, count, seconds
-from ocplace.vocabulary import EXPERIMENT_NAMES, SCENE_TIMEOUT_S, SCORED_SPLITS, TEST_SUBSETS
+from ocplace.cli.options import (
+    MAX_CHUNK,
+    MAX_SCENES,
+    MAX_SEED,
+    DeprecatedAlias,
+    add_dataset_argument,
+    config_from_arguments,
+    count,
+    number,
+    seconds,
+)
+from ocplace.vocabulary import EXPERIMENT_NAMES, MAX_SAMPLES, SCENE_TIMEOUT_S, SCORED_SPLITS, TEST_SUBSETS
 
 # `ocplace evaluate` options named after EvalSettings fields: left out (None), they keep its defaults.
 # Written by hand, not generated: EvalSettings sits behind NumPy, too slow to import for `--help`.
@@ -86,16 +96,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help=f"test subsets to score (default: all four), dev splits to choose settings on "
         f"({', '.join(SCORED_SPLITS)}), or the subsets of your own catalogue a dataset of `generate --catalogue` holds",
     )
-    evaluate.add_argument("--limit", type=int, help="first N scenes of each subset")
+    evaluate.add_argument("--limit", type=count(1, MAX_SCENES), help="first N scenes of each subset")
     evaluate.add_argument(
         "--physical",
-        type=count(0, none_below=-1),
+        type=count(0, MAX_SCENES, none_below=-1),
         default=None,
         metavar="K",
         help="physical check on the first K scenes of each subset (default 50; 0: none; -1: all)",
     )
     evaluate.add_argument("--parser", help="parser for methods that parse (default: offline)")
-    evaluate.add_argument("--num-samples", type=int, help="placement samples per scene (default: 1024)")
+    evaluate.add_argument(
+        "--num-samples", type=count(1, MAX_SAMPLES), help="placement samples per scene (default: 1024)"
+    )
     evaluate.add_argument(
         "--experiment",
         choices=EXPERIMENT_NAMES,
@@ -107,13 +119,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     evaluate.add_argument(
         "--threshold",
-        type=float,
+        type=number(0.0, 1.0),
         metavar="P",
         help="refuse a scene whose reference's best token has P below this (default 0: the paper's protocol, always "
         "place; the robot's gate is reported beside Table I as a selective table)",
     )
-    evaluate.add_argument("--seed", type=int, help="default: 0")
-    evaluate.add_argument("--chunk-size", type=int, help="scenes per method call (default: 32)")
+    evaluate.add_argument("--seed", type=count(0, MAX_SEED), help="default: 0")
+    evaluate.add_argument("--chunk-size", type=count(1, MAX_CHUNK), help="scenes per method call (default: 32)")
     evaluate.add_argument(
         "--rerun",
         type=Path,

@@ -4,13 +4,16 @@ from __future__ import annotations
 
 import argparse
 
+from ocplace.cli.options import MAX_WORKERS, count
 from ocplace.runtime.executor import ExecutorConfig
 
 
 def add_executor_arguments(parser: argparse.ArgumentParser, tasks: str) -> None:
     """`tasks` says what runs as tasks, e.g. "each scene is a task"."""
     group = parser.add_argument_group("where it runs", f"{tasks}; see docs/distributed.md")
-    group.add_argument("--workers", type=int, default=0, help="local processes, or CPUs of --ray (default: all)")
+    group.add_argument(
+        "--workers", type=count(0, MAX_WORKERS), default=0, help="local processes, or CPUs of --ray (default: all)"
+    )
     group.add_argument("--ray", action="store_true", help="run the tasks on a local Ray instance started here")
     group.add_argument(
         "--ray-address",

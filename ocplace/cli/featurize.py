@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ocplace.cli.executor_options import add_executor_arguments, executor_config
-from ocplace.cli.options import add_dataset_argument, config_from_arguments, count, dataset_of
+from ocplace.cli.options import MAX_SCENES, add_dataset_argument, config_from_arguments, count, dataset_of
 from ocplace.runtime.width import TRAIN_CPUS
 
 
@@ -25,7 +25,7 @@ def register(subparsers) -> None:
     )
     parser.add_argument("--split", default="train", help="the dataset split to featurise (default: train)")
     parser.add_argument("--out", type=Path, help="feature file (default: in the cache, printed at the end)")
-    parser.add_argument("--chunk-scenes", type=count(1), help="scenes per resumable chunk (default: 64)")
+    parser.add_argument("--chunk-scenes", type=count(1, MAX_SCENES), help="scenes per resumable chunk (default: 64)")
     add_executor_arguments(parser, "the split is encoded by one task, in this process unless --ray")
     parser.set_defaults(func=run_featurize)
 

@@ -7,7 +7,7 @@ import dataclasses
 from pathlib import Path
 
 from ocplace.cli.executor_options import add_executor_arguments, executor_config
-from ocplace.cli.options import count
+from ocplace.cli.options import MAX_SCENES, MAX_SEED, count
 from ocplace.sim.dataset.config import SPLIT_NAMES
 from ocplace.vocabulary import DEV_SPLITS, LIBRARY_SPLITS
 
@@ -29,13 +29,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--split", choices=SPLIT_CHOICES, default="all", help="generate only this split (default: all)"
     )
     generate.add_argument(
-        "--seed", type=count(0), default=0, help="the dataset's seed: same seed, same scenes (default 0)"
+        "--seed", type=count(0, MAX_SEED), default=0, help="the dataset's seed: same seed, same scenes (default 0)"
     )
-    generate.add_argument("--train", type=int, help="training scenes (default 2000)")
-    generate.add_argument("--test", type=int, default=400, help="scenes per test subset")
+    generate.add_argument("--train", type=count(0, MAX_SCENES), help="training scenes (default 2000)")
+    generate.add_argument("--test", type=count(0, MAX_SCENES), default=400, help="scenes per test subset")
     generate.add_argument(
         "--dev",
-        type=int,
+        type=count(0, MAX_SCENES),
         default=0,
         help="scenes per dev split (dev_seen, dev_colour; default 0: none, the paper's dataset); their scenes come "
         "from streams of their own, never a test subset's",

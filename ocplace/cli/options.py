@@ -20,6 +20,7 @@ import typing
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 
+from ocplace import serial
 from ocplace.errors import ConfigError
 
 _BOOLS = {"true": True, "false": False}
@@ -53,7 +54,8 @@ def add_config_arguments(
                 *flags, dest=field.name, action=argparse.BooleanOptionalAction, default=None, help=help_text
             )
         else:
-            parser.add_argument(*flags, dest=field.name, type=_flag_parser(hint), help=help_text)
+            bounds = field.metadata.get(serial.BOUNDS)
+            parser.add_argument(*flags, dest=field.name, type=_flag_parser(hint, bounds), help=help_text)
 
 
 def config_from_arguments(args: argparse.Namespace, base_config, fields: Sequence[str] | None = None):
@@ -193,16 +195,28 @@ def _selected_fields(config_cls: type, hints: dict, names: Sequence[str] | None)
     return [fields[name] for name in names]
 
 
-def _flag_parser(hint):
+def _flag_parser(hint, bounds=None):
     describe(hint)  # an unsupported type fails when the parser is built, not when a user passes the flag
 
     def parse(text: str):
         try:
-            return parse_value(text, hint)
+            return within(parse_value(text, hint), bounds)
         except ValueError as error:
             raise argparse.ArgumentTypeError(str(error)) from None
 
     return parse
+
+
+def within(value, bounds):
+    """`value` when it is not a number, or a finite one inside `bounds` (a field's `serial.BOUNDS`); ValueError
+    naming the range otherwise."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return value
+    if not math.isfinite(value):
+        raise ValueError(f"{value} is not a finite number")
+    if bounds is not None and not bounds[0] <= value <= bounds[1]:
+        raise ValueError(f"{value:g} is out of range: give a number from {bounds[0]:g} to {bounds[1]:g}")
+    return value
 
 
 def _help(field: dataclasses.Field, hint, default: object) -> str:
@@ -233,8 +247,9 @@ def _set(node, path: list[str], text: str, key: str):
         return dataclasses.replace(node, **{name: _set(current, rest, text, key)})
     if _is_group_value(current):
         raise _group_named(key, current)
+    bounds = next(field.metadata.get(serial.BOUNDS) for field in dataclasses.fields(node) if field.name == name)
     try:
-        return dataclasses.replace(node, **{name: parse_value(text, hints[name])})
+        return dataclasses.replace(node, **{name: within(parse_value(text, hints[name]), bounds)})
     except ValueError as error:
         raise ConfigError(f"--set {key}={text}: {error}") from None
 
@@ -325,6 +340,25 @@ def count(minimum: int = 0, maximum: int | None = None, none_below: int | None =
         span = f"at least {minimum}" if maximum is None else f"from {minimum} to {maximum:,}"
         extra = f" (or {none_below})" if none_below is not None else ""
         raise argparse.ArgumentTypeError(f"{value} is out of range: give a whole number {span}{extra}")
+
+    return parse
+
+
+# Bounds of the CLI's numeric flags, each checked as the flag is read (before any work; issue 60).
+MAX_SEED = 2**32 - 1
+MAX_WORKERS = 4096
+MAX_SCENES = 99_999  # scene ids hold five digits
+MAX_CHUNK = 4096
+
+
+def number(least: float, most: float):
+    """An argparse type: a finite number in [`least`, `most`], or argparse's usage error naming the range."""
+
+    def parse(text: str) -> float:
+        value = finite(text)
+        if least <= value <= most:
+            return value
+        raise argparse.ArgumentTypeError(f"{value:g} is out of range: give a number from {least:g} to {most:g}")
 
     return parse
 

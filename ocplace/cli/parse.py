@@ -6,6 +6,7 @@ import argparse
 import dataclasses
 import json
 
+from ocplace.cli.options import MAX_SEED, count, number
 from ocplace.models.parsing.config import CROSS_CHECK_POLICIES, PARSER_NAMES
 
 
@@ -21,14 +22,18 @@ def register(subparsers) -> None:
     )
     _add_parser_options(evaluate)
     evaluate.add_argument(
-        "--num", type=int, default=2000, help="generated instructions per template style (default 2000)"
+        "--num", type=count(1, 1_000_000), default=2000, help="generated instructions per template style (default 2000)"
     )
-    evaluate.add_argument("--seed", type=int, default=0, help="seed of the generated instructions (default 0)")
+    evaluate.add_argument(
+        "--seed", type=count(0, MAX_SEED), default=0, help="seed of the generated instructions (default 0)"
+    )
     evaluate.add_argument(
         "--names", help="text file with one object name per line (default: the built-in list of ~50 tabletop objects)"
     )
     evaluate.add_argument("--freeform", help="free-form JSONL file (default: the shipped set)")
-    evaluate.add_argument("--show-failures", type=int, default=5, metavar="K", help="print up to K failures per set")
+    evaluate.add_argument(
+        "--show-failures", type=count(0, 10_000), default=5, metavar="K", help="print up to K failures per set"
+    )
     evaluate.set_defaults(func=_parse_eval)
 
 
@@ -38,13 +43,18 @@ def _add_parser_options(command: argparse.ArgumentParser) -> None:
     command.add_argument("--model", help="LLM model name")
     command.add_argument(
         "--llm-deadline",
-        type=float,
+        type=number(0.1, 3600.0),
         metavar="SECONDS",
         help="longest an LLM parse may wait, retries included, before the offline parser answers (default 30)",
     )
-    command.add_argument("--llm-timeout", type=float, metavar="SECONDS", help="one LLM request (default 20)")
     command.add_argument(
-        "--llm-attempts", type=int, metavar="N", help="LLM requests per parse, when they fail transiently (default 3)"
+        "--llm-timeout", type=number(0.1, 3600.0), metavar="SECONDS", help="one LLM request (default 20)"
+    )
+    command.add_argument(
+        "--llm-attempts",
+        type=count(1, 100),
+        metavar="N",
+        help="LLM requests per parse, when they fail transiently (default 3)",
     )
     command.add_argument(
         "--llm-cross-check",

@@ -6,7 +6,7 @@ import argparse
 import dataclasses
 from pathlib import Path
 
-from ocplace.cli.options import count, finite
+from ocplace.cli.options import MAX_SEED, count, number
 from ocplace.vocabulary import DECISION_MODES, MAX_SAMPLES, MAX_TOP_K
 
 HELD_FOOTPRINT = (0.05, 0.05)  # half-extents (m) of your own images' held object unless --held-footprint says
@@ -53,7 +53,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     own.add_argument(
         "--held-footprint",
-        type=finite,
+        type=number(0.001, 1.0),
         nargs=2,
         metavar=("HX", "HY"),
         help="half-extents of the held object's footprint in metres (default 0.05 0.05)",
@@ -77,7 +77,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     model.add_argument("--parser", help="offline, offline-snap or llm (default: a --policy folder's, else offline)")
     model.add_argument(
-        "--threshold", type=float, help="least grounding probability to place against (default: the policy's)"
+        "--threshold",
+        type=number(0.0, 1.0),
+        help="least grounding probability to place against (default: the policy's)",
     )
     model.add_argument(
         "--decision",
@@ -91,7 +93,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="the joint decision's candidate tokens per reference (default: a --policy folder's, else the policy's)",
     )
     model.add_argument("--samples", type=count(1, MAX_SAMPLES), default=1024, help="placements to sample")
-    model.add_argument("--seed", type=count(0), default=0, help="seed of the placement samples (default 0)")
+    model.add_argument("--seed", type=count(0, MAX_SEED), default=0, help="seed of the placement samples (default 0)")
     parser.add_argument("--out", type=Path, default=Path("place.png"), help="figure to write (PNG)")
     parser.set_defaults(func=run_place)
 

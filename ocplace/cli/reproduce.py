@@ -7,7 +7,7 @@ from pathlib import Path
 
 from ocplace.cli.evaluate import command_record, physical_setting
 from ocplace.cli.executor_options import add_executor_arguments, executor_config
-from ocplace.cli.options import DeprecatedAlias, add_dataset_argument, add_set_argument, count
+from ocplace.cli.options import MAX_SCENES, MAX_SEED, DeprecatedAlias, add_dataset_argument, add_set_argument, count
 from ocplace.vocabulary import EXPERIMENT_NAMES, FIGURE_FORMATS
 
 
@@ -35,13 +35,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     reproduce.add_argument(
         "--seeds",
-        type=int,
+        type=count(1, 100),
         metavar="N",
         help="train and evaluate every run with N seeds; Table I shows mean and spread (default: the experiment's, 1)",
     )
     reproduce.add_argument(
         "--backbone-seeds",
-        type=int,
+        type=count(1, 100),
         metavar="N",
         help="pretrain the backbone with N seeds and train and evaluate the seeded methods on each (default: 1)",
     )
@@ -55,7 +55,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     reproduce.add_argument(
         "--physical",
-        type=count(0, none_below=-1),
+        type=count(0, MAX_SCENES, none_below=-1),
         default=None,
         metavar="K",
         help="physical check on the first K scenes per subset (default: the experiment's; -1: all)",
@@ -79,9 +79,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     figures.add_argument(
         "--out", type=Path, help="output folder (default: figures/ beside the results file, where `reproduce` writes)"
     )
-    figures.add_argument("--seed", type=int, default=0, help="seed of Fig. 5's relations and samples")
+    figures.add_argument("--seed", type=count(0, MAX_SEED), default=0, help="seed of Fig. 5's relations and samples")
     figures.add_argument("--format", choices=FIGURE_FORMATS, default="png", help="file format (default: png)")
-    figures.add_argument("--dpi", type=int, default=150, help="resolution of a PNG (default: 150; 10 to 1200)")
+    figures.add_argument(
+        "--dpi", type=count(10, 1200), default=150, help="resolution of a PNG (default: 150; 10 to 1200)"
+    )
     figures.set_defaults(func=_figures)
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from ocplace.cli.options import MAX_SCENES, MAX_SEED, count
 from ocplace.vocabulary import LIBRARY_SPLITS
 
 
@@ -15,7 +16,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Samples a scene from the object library, settles it in MuJoCo and saves "
         "RGB with labelled boxes, depth and segmentation side by side.",
     )
-    scene.add_argument("--seed", type=int, default=0, help="scene seed (same seed, same picture)")
+    scene.add_argument("--seed", type=count(0, MAX_SEED), default=0, help="scene seed (same seed, same picture)")
     scene.add_argument(
         "--split", choices=LIBRARY_SPLITS, default="seen", help="object and table-texture split to draw from"
     )
@@ -28,8 +29,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="(a) physics off: projected object centres and segmentation boxes; (b) depth on "
         "table pixels; (c) both engines settle every dropped object on the table.",
     )
-    parity.add_argument("--scenes", type=int, default=50, help="number of scenes to compare")
-    parity.add_argument("--seed", type=int, default=0, help="seed of the first scene (default 0)")
+    parity.add_argument("--scenes", type=count(1, MAX_SCENES), default=50, help="number of scenes to compare")
+    parity.add_argument("--seed", type=count(0, MAX_SEED), default=0, help="seed of the first scene (default 0)")
     parity.add_argument("--renderer", choices=("tiny", "egl"), default="tiny", help="PyBullet renderer")
     parity.add_argument("--out", type=Path, help="also write the full report as JSON here")
     parity.set_defaults(func=_parity)

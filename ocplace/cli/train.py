@@ -7,11 +7,14 @@ import dataclasses
 from pathlib import Path
 
 from ocplace.cli.options import (
+    MAX_SEED,
+    MAX_WORKERS,
     add_config_arguments,
     add_dataset_argument,
     add_set_argument,
     config_from_arguments,
     count,
+    number,
 )
 from ocplace.methods.ours.recipe import (  # light: no JAX behind it
     OursRecipe,
@@ -61,15 +64,15 @@ def register(subparsers) -> None:
     )
     parser.add_argument(
         "--cpus",
-        type=count(0),
+        type=count(0, MAX_WORKERS),
         default=TRAIN_CPUS,
         help=f"CPUs JAX computes for (default {TRAIN_CPUS}, as `ocplace reproduce` trains: the same recipe gives the "
         "same bits; 1 may be faster on a busy machine, with other last bits; 0: every CPU this process may use)",
     )
-    parser.add_argument("--seed", type=count(0), help="initial weights and example order (default 0)")
+    parser.add_argument("--seed", type=count(0, MAX_SEED), help="initial weights and example order (default 0)")
     parser.add_argument(
         "--fraction",
-        type=float,
+        type=number(0.001, 1.0),
         help="train on this seeded share of the scenes, nested (the sample-efficiency curve; default 1)",
     )
     overrides = parser.add_argument_group(

@@ -331,6 +331,7 @@ def generate_dataset(
     scene that is a test scene of `out` (or of `test_dataset`, a dataset folder) is a DatasetError."""
     out = Path(out)
     config.validate()
+    tests = read_manifest(test_dataset) if test_dataset is not None else None  # checked before any scene
     if config.catalogue is not None:
         _check_own_pools(config, dataset_library(config, cache))
     splits = [s.name for s in config.splits] if splits is None else splits
@@ -361,7 +362,7 @@ def generate_dataset(
             for _, made in map_tasks(executor, tasks):
                 bar.update(made)
     manifest = write_manifest(out, config, regenerated)
-    check_dev_scenes(out, manifest, read_manifest(test_dataset) if test_dataset is not None else None)
+    check_dev_scenes(out, manifest, tests)
     return manifest
 
 
