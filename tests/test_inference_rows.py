@@ -76,7 +76,9 @@ def test_set_reaches_a_rows_inference_settings_and_refuses_what_is_not_one():
         apply_overrides(smoke, ["inference.ours.decision.k=2"])
     with pytest.raises(ConfigError, match="one of argmax, joint"):
         apply_overrides(smoke, ["inference.ours.decision.mode=greedy"])
-    with pytest.raises(ConfigError, match=r"inference\.ours_joint\.decision\.top_k must be an integer from 1 to 16"):
+    with pytest.raises(
+        ConfigError, match=r"inference\.ours_joint\.decision\.top_k=0: 0 is out of range: give a number from 1 to 16"
+    ):
         apply_overrides(smoke, ["inference.ours_joint.decision.top_k=0"]).validate()
     with pytest.raises(ConfigError, match="inference.grids names no policy row"):
         dataclasses.replace(smoke, inference={**smoke.inference, "grids": InferenceSettings()}).validate()
@@ -209,7 +211,7 @@ def test_a_policy_folder_carries_its_decision_and_an_older_one_keeps_argmax(
     assert load_policy_folder(folder).decision == Decision("argmax")
     document["policy"]["decision"] = {"mode": "joint", "top_k": 0}
     (folder / CONFIG_FILE).write_text(json.dumps(document))
-    with pytest.raises(PolicyFolderError, match="top_k must be an integer from 1 to 16"):
+    with pytest.raises(PolicyFolderError, match="policy.decision.top_k: from 1 to 16, got 0"):
         load_policy_folder(folder)
 
 
@@ -259,7 +261,10 @@ def test_place_and_reproduce_take_the_decision_and_refuse_what_cannot_run(
     monkeypatch.setattr(pipeline, "run_pipeline", lambda *args, **kwargs: pytest.fail("ran with a refused key"))
     for key, message in (
         ("inference.nope.decision.mode=joint", "valid keys under 'inference' are ours.*"),
-        ("inference.ours.decision.top_k=0", "inference.ours.decision.top_k must be an integer from 1 to 16"),
+        (
+            "inference.ours.decision.top_k=0",
+            "inference.ours.decision.top_k=0: 0 is out of range: give a number from 1 to 16",
+        ),
     ):
         assert main(["reproduce", "--experiment", "smoke", "--out", str(tmp_path / "r"), "--set", key]) == 2
         assert message in capsys.readouterr().err
