@@ -70,11 +70,13 @@ def load_adapters(source) -> TrainedAdapters:
     path = trained_weights(source, "adapters", how_to_train) if source.is_dir() else source
     if not path.exists():
         raise TrainingError(f"no trained adapters at {path}; {how_to_train}")
-    arrays, metadata = load_weights(
-        path,
-        f"delete {path.parent} and train it again (`ocplace train ... --out "
-        f"{path.parent}`, or `ocplace reproduce`, which retrains missing runs)",
+    rebuild = (
+        f"delete {path.parent} and train it again (`ocplace train ... --out {path.parent}`, or `ocplace reproduce`, "
+        "which retrains missing runs)"
+        if source.is_dir()  # a folder the user named: never advise deleting one they did not
+        else f"pass a run directory (OUT/runs/ours/fraction-1.00) or the adapters file a run wrote instead of {path}"
     )
+    arrays, metadata = load_weights(path, rebuild)
     missing = [key for key in ADAPTER_METADATA if key not in metadata]
     if missing:  # e.g. the weights of another row (w/o LLM, a baseline) where Ours' adapters are expected
         raise TrainingError(

@@ -189,6 +189,18 @@ def test_nouns_and_the_validation_hash():
 # ----------------------------------------------------------------------------- the real corpus
 
 
+def test_the_corpus_manifest_records_its_source_folder_never_a_repr(corpus):
+    """Issue 60, item 10: the cut-out sources' loop rebound the name the manifest records, which then held a
+    Python repr with function addresses (two builds of the same catalogues differed)."""
+    import json
+
+    from ocplace.paths import corpus_cache
+    from ocplace.sim.corpus.build import MANIFEST_FILE, source_dir
+
+    manifest = json.loads((corpus_cache() / MANIFEST_FILE).read_text())
+    assert manifest["source"] == str(source_dir()) and "0x" not in json.dumps(manifest["catalogues"])
+
+
 def test_the_debian_corpus_converts_into_multi_material_objects(corpus, library):
     assert len(corpus.assets) >= 150, corpus.summary()
     assert any(asset.parts for asset in corpus.assets.values())

@@ -406,3 +406,19 @@ def test_every_numeric_flag_of_every_command_is_bounded_as_it_is_read():
                 continue
             accepted.append(f"{path} {'/'.join(action.option_strings)} {text}")
     assert accepted == []
+
+
+@pytest.mark.parametrize("out", [".", "..", "a_folder", "a_folder/", "taken.json"])
+def test_evaluate_checks_its_out_before_any_work(out, tmp_path, monkeypatch, capsys):
+    """Issue 60, item 7: `--out .`, `..`, an existing folder, or a file where the store goes: refused at once,
+    nothing written."""
+    from ocplace.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "a_folder").mkdir()
+    (tmp_path / "taken.evaluations").write_text("a file where the store would go")
+    before = sorted(p.name for p in tmp_path.iterdir())
+    assert main(["evaluate", "--dataset", str(tmp_path), "--out", out, "--methods", "no_adapter"]) == 2
+    err = capsys.readouterr().err
+    assert ("is a folder; give the results file" in err) or ("where --out taken.json keeps" in err), err
+    assert sorted(p.name for p in tmp_path.iterdir()) == before

@@ -237,6 +237,7 @@ def _evaluate(args: argparse.Namespace) -> int:
         fields=EVAL_SETTINGS_OPTIONS,
     )
     settings.validate()
+    store = checked_out(args.out)
     specs = method_specs()
     methods = args.methods or ("" if args.policy else "all")
     runs = method_runs(select_specs(methods, specs) if methods else [], parse_runs(args.run), args.runs_from)
@@ -245,7 +246,6 @@ def _evaluate(args: argparse.Namespace) -> int:
         settings = _runs_backbone(settings, [run.run_dir for run in runs if specs[run.method].uses_backbone])
     runs += [method_run(spec) for spec in policies]
     specs |= {spec.name: spec for spec in policies}
-    store = finished_store(args.out)
     with open_executor(executor_config(args)) as executor:
         evaluations = evaluate_runs(specs, runs, args.dataset, settings, executor, not args.no_progress, store)
     results = build_results(evaluations, args.dataset, settings, command_record(args))
@@ -287,6 +287,26 @@ def _all_failed(name: str, evaluations) -> str | None:
         f"the policy {name} placed nothing: all {len(failures)} scenes failed, {count} of them with {most} "
         f"(first: {failures[0][:300]}); the table above is written, but fix the policy before reading it (exit 1)"
     )
+
+
+def checked_out(out: Path) -> Path:
+    """The store of `--out` (`finished_store`), after checking, before any work, that OUT names a results file that
+    can be written and that the store can live beside it: never `.`, `..` or another folder, never a file where the
+    store goes. OutputError saying what to give instead."""
+    from ocplace.errors import OutputError
+    from ocplace.paths import check_writable
+
+    if out.name in ("", ".", "..") or out.is_dir():
+        raise OutputError(f"--out {out} is a folder; give the results file to write, e.g. --out {out / 'results.json'}")
+    store = finished_store(out)
+    if store.exists() and not store.is_dir():
+        raise OutputError(
+            f"{store} is a file, where --out {out} keeps its finished evaluations while it runs; move it, or choose "
+            "another --out"
+        )
+    check_writable(out)
+    check_writable(store, as_folder=True)
+    return store
 
 
 def finished_store(out: Path) -> Path:

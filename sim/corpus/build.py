@@ -195,9 +195,9 @@ def build_corpus(
     if unknown:
         raise CorpusError(f"unknown cut-out sources {sorted(unknown)}; the sources are {', '.join(CUTOUT_SOURCES)}")
     cutout_records = {}
-    for name, source in CUTOUT_SOURCES.items():
-        folder = _cutout_folder(source, name in cutouts, cutout_folders or {})
-        record = _plan_cutouts(source, folder, name in cutouts, config, root, known_skips, models, todo)
+    for name, cutout_source in CUTOUT_SOURCES.items():  # `source` stays the catalogues' folder the manifest records
+        folder = _cutout_folder(cutout_source, name in cutouts, cutout_folders or {})
+        record = _plan_cutouts(cutout_source, folder, name in cutouts, config, root, known_skips, models, todo)
         if record:
             catalogues.append(record)
             cutout_records[name] = record
