@@ -448,3 +448,52 @@ def test_open_colour_captions_keep_corpus_recolourings_that_name_a_test_object(l
     for bad in ({"protocol": "strict"}, {"pool": "task"}):
         assert dataclasses.replace(open_rule, **bad).problems()
     assert not open_rule.problems()
+
+
+@pytest.mark.parametrize("damage", ["an edited image", "a truncated file", "an older chunk without a checksum"])
+def test_a_damaged_rendered_chunk_is_rendered_again_never_used(library, corpus, tmp_path, damage, caplog):
+    """Issue 60, item 7: the shared renders are reused by every backbone seed of a recipe, so each chunk carries the
+    sha256 of its arrays; a chunk that no longer matches is rendered again (said in one line), giving the same
+    images as before."""
+    import dataclasses
+
+    from ocplace.train.pretrain import render
+    from ocplace.train.pretrain.render import chunk_path, render_all
+
+    config = dataclasses.replace(RENDER, chunk_scenes=1)
+    pool = training_pool(library, corpus, config)
+    first = render_all(library, pool, tmp_path, config, MODEL, progress=False)
+    path = chunk_path(tmp_path, 0)
+    with np.load(path) as stored:
+        arrays = dict(stored)
+    if damage == "an edited image":
+        arrays["images"] = arrays["images"].copy()
+        arrays["images"][0, 0, 0] ^= 0xFF
+        np.savez(path, **arrays)
+    elif damage == "a truncated file":
+        path.write_bytes(path.read_bytes()[:300])
+    else:
+        np.savez(path, **{k: v for k, v in arrays.items() if k != "sha256"})
+    rendered = []
+    original = render.render_chunks
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(render, "render_chunks", lambda *a, **k: (rendered.append(list(a[5])), original(*a, **k))[1])
+        again = render_all(library, pool, tmp_path, config, MODEL, progress=False)
+    assert rendered == [[0]] and "it is rendered again" in caplog.text
+    assert all(np.array_equal(getattr(first, f), getattr(again, f)) for f in ("images", "labels", "scenes"))
+
+
+def test_edited_caption_sentences_are_encoded_again(tmp_path, caplog):
+    """The shared `captions.npz` carries its checksum too: edited sentences are never read as the tower's."""
+    from ocplace.models.offline_backbone import FrozenTextTower
+    from ocplace.train.pretrain.loop import CAPTIONS_FILE, shared_caption_sentences
+
+    tower = FrozenTextTower.load(MODEL.text_max_length)
+    texts, used = ("a photo of a red box.", "a photo of a blue ball."), np.arange(2)
+    first = shared_caption_sentences(tower, texts, used, tmp_path)
+    with np.load(tmp_path / CAPTIONS_FILE) as stored:
+        arrays = dict(stored)
+    arrays["sentences"] = arrays["sentences"] + 1.0
+    np.savez(tmp_path / CAPTIONS_FILE, **arrays)
+    again = shared_caption_sentences(tower, texts, used, tmp_path)
+    assert np.array_equal(first, again) and "they are encoded again" in caplog.text

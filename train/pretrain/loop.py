@@ -26,6 +26,7 @@ import logging
 import math
 import shutil
 import time
+import zipfile
 from pathlib import Path
 
 import jax
@@ -59,7 +60,7 @@ from ocplace.train.pretrain.captions import CaptionBank
 from ocplace.train.pretrain.classes import caption_bank, pretraining_classes
 from ocplace.train.pretrain.loss import contrastive_loss
 from ocplace.train.pretrain.pool import TrainingPool, training_pool
-from ocplace.train.pretrain.render import RenderedImages, render_all
+from ocplace.train.pretrain.render import RenderedImages, arrays_sha256, render_all
 
 log = logging.getLogger(__name__)
 
@@ -283,9 +284,21 @@ def shared_caption_sentences(
     bank = hashlib.sha256("\n".join([text_tower.digest, *texts]).encode()).hexdigest()  # this tower's sentences
     known_rows, known = np.zeros(0, np.int64), None
     if path.exists():
-        with np.load(path) as saved:
-            if str(saved["bank"]) == bank:
-                known_rows, known = saved["rows"], saved["sentences"]
+        try:
+            with np.load(path, allow_pickle=False) as saved:
+                arrays = {name: saved[name] for name in ("bank", "rows", "sentences")}
+                if str(saved["sha256"]) != arrays_sha256(arrays):
+                    raise ValueError("its arrays do not match the checksum written with them")
+            if str(arrays["bank"]) == bank:
+                known_rows, known = arrays["rows"], arrays["sentences"]
+        except (
+            OSError,
+            ValueError,
+            KeyError,
+            EOFError,
+            zipfile.BadZipFile,
+        ) as error:  # damaged or edited: encoded again, never used
+            log.warning("caption sentences %s cannot be used (%s): they are encoded again", path, error)
     missing = np.setdiff1d(used, known_rows)
     encoded = caption_sentences(text_tower, texts, missing, progress) if len(missing) else None
     width = (encoded if encoded is not None else known).shape[1]
@@ -295,8 +308,9 @@ def shared_caption_sentences(
     if encoded is not None:
         every[missing] = encoded[missing]
         rows = np.union1d(known_rows, missing)
+        arrays = {"bank": np.array(bank), "rows": rows, "sentences": every[rows]}
         with atomic_path(path) as tmp, open(tmp, "wb") as handle:
-            np.savez(handle, bank=bank, rows=rows, sentences=every[rows])
+            np.savez(handle, sha256=np.array(arrays_sha256(arrays)), **arrays)
     sentences = np.zeros_like(every)
     sentences[used] = every[used]
     return sentences

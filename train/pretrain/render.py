@@ -19,8 +19,10 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import hashlib
 import logging
 import multiprocessing
+import zipfile
 from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
@@ -102,13 +104,34 @@ class RenderedImages:
         return cls(*(np.concatenate([getattr(p, f.name) for p in parts]) for f in dataclasses.fields(cls)))
 
     def save(self, path: Path) -> None:
+        """Written atomically with the sha256 of its arrays, which `load` checks."""
+        arrays = dataclasses.asdict(self)
         with atomic_path(path) as tmp, open(tmp, "wb") as handle:
-            np.savez(handle, **dataclasses.asdict(self))
+            np.savez(handle, sha256=np.array(arrays_sha256(arrays)), **arrays)
 
     @classmethod
-    def load(cls, path: Path) -> RenderedImages:
-        with np.load(path) as arrays:
-            return cls(*(arrays[f.name] for f in dataclasses.fields(cls)))
+    def load(cls, path: Path) -> RenderedImages | None:
+        """The chunk in `path`; None (said in one line) when it is unreadable or its arrays are not the ones it was
+        written with: it is then rendered again, never used."""
+        try:
+            with np.load(path, allow_pickle=False) as stored:
+                arrays = {f.name: stored[f.name] for f in dataclasses.fields(cls)}
+                if str(stored["sha256"]) != arrays_sha256(arrays):
+                    raise ValueError("its arrays do not match the checksum written with them")
+        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as error:
+            log.warning("rendered chunk %s cannot be used (%s): it is rendered again", path, error)
+            return None
+        return cls(**arrays)
+
+
+def arrays_sha256(arrays: dict[str, np.ndarray]) -> str:
+    """sha256 over each array's name, dtype, shape and bytes, in name order (a file's content, not its layout)."""
+    digest = hashlib.sha256()
+    for name in sorted(arrays):
+        array = np.ascontiguousarray(arrays[name])
+        digest.update(f"{name}:{array.dtype.str}:{array.shape}".encode())
+        digest.update(array.tobytes())
+    return digest.hexdigest()
 
 
 @contextlib.contextmanager
@@ -301,7 +324,11 @@ def render_all(
     from ocplace.runtime.progress import progress_bar
 
     num_chunks = -(-config.scenes // config.chunk_scenes)
-    missing = [c for c in range(num_chunks) if not chunk_path(run_dir, c).exists()]
+    chunks = {
+        c: RenderedImages.load(chunk_path(run_dir, c)) if chunk_path(run_dir, c).exists() else None
+        for c in range(num_chunks)
+    }
+    missing = [c for c, chunk in chunks.items() if chunk is None]
     done_scenes = config.scenes - sum(_chunk_scenes(c, config) for c in missing)
     to_render = sum(_chunk_scenes(c, config) for c in missing)
     # A render process starts in seconds (imports, arenas): worth it for the demo's 100 scenes, not for smoke's 2.
@@ -319,7 +346,13 @@ def render_all(
                 for future in as_completed(futures):
                     future.result()
                     bar.update(sum(_chunk_scenes(c, config) for c in futures[future]))
-    return RenderedImages.concatenate([RenderedImages.load(chunk_path(run_dir, c)) for c in range(num_chunks)])
+    for c in missing:
+        chunks[c] = RenderedImages.load(chunk_path(run_dir, c))
+    if any(chunk is None for chunk in chunks.values()):
+        raise TrainingError(
+            f"a chunk rendered now in {run_dir} cannot be read back (said above); run the command again"
+        )
+    return RenderedImages.concatenate([chunk for chunk in chunks.values() if chunk is not None])
 
 
 def render_chunks(
