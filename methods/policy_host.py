@@ -26,6 +26,7 @@ import numpy as np
 
 from ocplace.errors import POLICY_ERRORS, EvaluationError, PolicyProcessEnded, SceneTimeout
 from ocplace.paths import MAX_JSON_DEPTH, json_depth
+from ocplace.runtime.processes import kill_tree
 
 if TYPE_CHECKING:
     from multiprocessing.connection import Connection
@@ -214,38 +215,10 @@ def _output_json(output: object) -> dict[str, Any]:
 # ----------------------------------------------------------------------------- the evaluation's side
 
 
-def _descendants(pid: int) -> list[int]:
-    """Every live process below `pid` by parent links (those that left its process group with `setsid` too)."""
-    children: dict[int, list[int]] = {}
-    for entry in os.scandir("/proc"):
-        if entry.name.isdigit():
-            try:
-                with open(f"/proc/{entry.name}/stat", "rb") as handle:
-                    parent = int(handle.read().rsplit(b")", 1)[1].split()[1])
-            except (OSError, ValueError, IndexError):
-                continue  # it ended while we looked
-            children.setdefault(parent, []).append(int(entry.name))
-    found, stack = [], [pid]
-    while stack:
-        below = children.get(stack.pop(), [])
-        found += below
-        stack += below
-    return found
-
-
-def _kill_tree(pid: int) -> None:
-    """SIGKILL to `pid`'s process group and to every process below it: a policy's processes end with it."""
-    for target in _descendants(pid):
-        with contextlib.suppress(OSError):
-            os.kill(target, signal.SIGKILL)
-    with contextlib.suppress(OSError):
-        os.killpg(pid, signal.SIGKILL)
-
-
 def _stop(process: BaseProcess, connection: Pipe) -> int | None:
     """Kills `process` (if running) and all it started, and frees its pipe and handles; its exit code."""
     if process.pid is not None:
-        _kill_tree(process.pid)
+        kill_tree(process.pid)
     if process.is_alive():
         process.kill()
     process.join()

@@ -20,8 +20,8 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from ocplace.errors import TrainingError, WeightsError
-from ocplace.paths import write_bytes_atomic
+from ocplace.errors import FileRefused, TrainingError, WeightsError
+from ocplace.paths import MAX_WEIGHTS_BYTES, regular_file, write_bytes_atomic
 
 log = logging.getLogger(__name__)
 
@@ -106,6 +106,12 @@ def read_weights(path: str | Path, rebuild: str) -> tuple[dict[str, np.ndarray],
 def _read(path: str | Path, rebuild: str) -> tuple[dict[str, np.ndarray], dict[str, str]]:
     from safetensors import SafetensorError, safe_open
 
+    try:
+        regular_file(path, MAX_WEIGHTS_BYTES)  # a FIFO would block the read, a device never end it
+    except FileRefused as error:
+        raise WeightsError(f"{error}; {rebuild}") from None
+    except FileNotFoundError:
+        pass  # safe_open says so, as before
     try:
         with safe_open(str(path), framework="numpy") as handle:
             metadata = dict(handle.metadata() or {})

@@ -151,3 +151,39 @@ def test_a_stored_evaluation_is_checked_before_it_is_reused(smoke_dataset, tmp_p
     assert "cannot be trusted" in resumed.stderr and "it is evaluated again" in resumed.stderr
     (entry,) = json.loads((tmp_path / "results.json").read_text())["evaluations"]
     assert sum(scene["success"] for scene in entry["subsets"]["seen"]["scenes"]) == honest
+
+
+STOPPED_POLICY = """
+import os, signal, subprocess
+
+
+def place(observation):
+    child = subprocess.Popen(["sleep", "400"], start_new_session=True)
+    with open(os.environ["OCPLACE_TEST_PIDS"], "a") as pids:  # itself, its worker and what it started
+        pids.write(f"{os.getpid()} {os.getppid()} {child.pid}\\n")
+    os.kill(os.getpid(), signal.SIGSTOP)  # frozen mid-scene: its own watcher cannot run
+    return (0.0, 0.0)
+"""
+
+
+def test_a_stopped_policy_and_what_it_started_end_when_the_command_is_killed(smoke_dataset, tmp_path):
+    """Issue 60, item 4: `kill -9` of `evaluate` while the policy's process is stopped (SIGSTOP, a debugger, a frozen
+    cgroup): its worker, seeing its command gone, kills everything below it; nothing is left 15 s later."""
+    (tmp_path / "stopped_policy_of_the_kill_test.py").write_text(STOPPED_POLICY)
+    command = [sys.executable, "-m", "ocplace.cli", "evaluate", "--dataset", str(smoke_dataset), "--subsets", "seen"]
+    command += ["--limit", "1", "--physical", "0", "--backbone", "none", "--workers", "2", "--out", "results.json"]
+    command += ["--policy", "stopped_policy_of_the_kill_test:place", "--scene-timeout", "300", "--no-progress"]
+    pids_file = tmp_path / "pids"
+    running = subprocess.Popen(command, cwd=tmp_path, env=_env(tmp_path) | {"OCPLACE_TEST_PIDS": str(pids_file)})
+    deadline = time.monotonic() + 120
+    while not (pids_file.is_file() and pids_file.read_text().endswith("\n")):  # the known point: it has stopped
+        assert running.poll() is None and time.monotonic() < deadline
+        time.sleep(0.1)
+    time.sleep(0.5)
+    running.kill()
+    running.wait(30)
+    left = [int(pid) for pid in pids_file.read_text().split()]
+    deadline = time.monotonic() + 15
+    while any(pid_alive(pid) for pid in left) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert not any(pid_alive(pid) for pid in left), "a stopped policy, its worker or its child outlived the command"

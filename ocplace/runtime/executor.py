@@ -225,11 +225,13 @@ def init_worker(width: int | None, progress: bool = True) -> None:
     """Starts a worker (a local pool's process, a Ray actor); one for pinned tasks starts JAX `width` CPUs
     wide before any task can import it. Its long steps print progress lines unless `progress` is off. The worker
     ends itself when the process that started it is gone."""
+    from ocplace.runtime.processes import kill_tree
     from ocplace.runtime.progress import WORKER_PROGRESS_ENV, worker_progress_mode
 
     os.environ["OMP_NUM_THREADS"] = "1"  # one task per CPU; OpenMP (coacd) would oversubscribe
     os.environ[WORKER_PROGRESS_ENV] = worker_progress_mode(progress)
-    exit_with_parent()
+    # What the worker started (a hosted policy's process and its children, a stopped one too) ends with it.
+    exit_with_parent(lambda: kill_tree(os.getpid(), group=False))
     if width is not None:
         from ocplace.runtime.width import pin_jax_width
 
