@@ -365,16 +365,6 @@ def anchored(results: dict[str, Any], folder: Path) -> dict[str, Any]:
     }
 
 
-def write_outputs(results: dict[str, Any], out: Path) -> str:
-    """Writes RESULTS.json and RESULTS.md (the tables) beside it; returns the markdown."""
-    from ocplace.eval.table import render
-
-    write_results(out, results)
-    markdown = render(results)
-    write_text_atomic(out.with_suffix(".md"), markdown)
-    return markdown
-
-
 def read_results(path: str | Path) -> dict[str, Any]:
     from ocplace.paths import MAX_JSON_BYTES, read_json_bounded
 

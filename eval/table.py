@@ -15,12 +15,14 @@ diagnostic tables, the sample-efficiency table and the figures show the experime
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
 from typing import Any
 
 from ocplace.errors import ResultsError
 from ocplace.eval.harness import LEVEL_GROUPS, STAGES
-from ocplace.eval.results import LEGACY_THRESHOLD
+from ocplace.eval.results import LEGACY_THRESHOLD, write_results
 from ocplace.eval.statistics import COLUMNS, base_runs, derived, full_runs, repeats
+from ocplace.paths import write_text_atomic
 from ocplace.vocabulary import PAPER_SUBSETS, SCORED_SPLITS
 
 SUBSET_TITLES = {
@@ -433,3 +435,11 @@ def render(results: Mapping[str, Any]) -> str:
         failure_list(results),
     ]
     return "\n\n".join(part for part in parts if part) + "\n"
+
+
+def write_outputs(results: dict[str, Any], out: Path) -> str:
+    """Writes RESULTS.json and RESULTS.md (the tables) beside it; returns the markdown."""
+    write_results(out, results)
+    markdown = render(results)
+    write_text_atomic(out.with_suffix(".md"), markdown)
+    return markdown

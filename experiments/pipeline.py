@@ -610,8 +610,8 @@ def _write_results(summary: PipelineSummary, config: PipelineConfig, results: di
     """results.json, its tables and its summary, once, with the run itself: its config, each step's wall
     and CPUs, its errors and its total wall (known only at the end: the figures come after the results
     they draw)."""
-    from ocplace.eval.results import summarise, write_outcomes, write_outputs, write_results
-    from ocplace.eval.table import terminal_summary
+    from ocplace.eval.results import summarise, write_outcomes, write_results
+    from ocplace.eval.table import terminal_summary, write_outputs
 
     results["pipeline"] = {
         "config": _config_json(config),

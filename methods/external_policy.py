@@ -279,7 +279,7 @@ def evaluate_policy(
     policy itself (a Method, a placer, an object with a `place` method, or a class), run in this process.
     Returns the results (`ocplace.evaluation/1`, docs/evaluation.md):
     `ocplace.eval.table.render(results)` gives Table I and the other tables,
-    `ocplace.eval.results.write_outputs(results, path)` writes them and the JSON.
+    `ocplace.eval.table.write_outputs(results, path)` writes them and the JSON.
     """
     from ocplace.eval.results import build_results
 

@@ -3,7 +3,7 @@
 A run's training records the backbone spec it was given (its `.done.json` record, `methods/contract.py`) and the
 backbone's fingerprint (`run.json`, and the adapters' weights file). The spec is tried first when it can load here
 (an offline backbone's folder that exists, a CLIP checkpoint); else the saved offline backbone with that
-fingerprint. The loader checks the fingerprint either way (`models/backbone.py` `check_trained_on`).
+fingerprint. The loader checks the fingerprint either way (`models/backbone_match.py` `check_trained_on`).
 """
 
 from __future__ import annotations
@@ -39,7 +39,7 @@ def recorded_fingerprint(run_dir: str | Path) -> str | None:
 def trained_backbone(run_dir: str | Path, fingerprint: str | None = None) -> str:
     """The spec of the backbone `run_dir` was trained on (`fingerprint`: the one its weights record, when the
     run folder has no `run.json`); BackboneUnavailable naming it, and how to get it, when it is not here."""
-    from ocplace.models.backbone import backbone_hint
+    from ocplace.models.backbone_match import backbone_hint
     from ocplace.models.offline_backbone import saved_backbone_with
 
     spec = recorded_backbone(run_dir)

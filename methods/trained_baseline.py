@@ -34,7 +34,8 @@ class TrainedRun:
     @classmethod
     def load(cls, context: LoadContext, load_params: Callable[[Path], tuple[Any, ...]], label: str) -> TrainedRun:
         """`load_params(run_dir) -> (params, run_meta, sha256)` of the context's run, with its backbone."""
-        from ocplace.models.backbone import check_trained_on, load_backbone
+        from ocplace.models.backbone import load_backbone
+        from ocplace.models.backbone_match import check_trained_on
 
         params, run_meta, sha = load_params(context.trained_run)
         backbone = load_backbone(context.backbone)

@@ -27,7 +27,8 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from ocplace.errors import BackboneError, BackboneUnavailable, TrainingError
+from ocplace.errors import BackboneError, BackboneUnavailable
+from ocplace.models.preprocessing import ImagePreprocessing
 from ocplace.vocabulary import PLURAL_NOUNS
 
 DEFAULT_CLIP = "openai/clip-vit-base-patch32"
@@ -102,32 +103,6 @@ def is_plural(phrase: str) -> bool:
     return bool(words) and words[-1] in PLURAL_NOUNS
 
 
-def backbone_hint(fingerprint: str) -> str:
-    """How to get the backbone with `fingerprint`: its saved directory, or how to build or pass it."""
-    from ocplace.models.offline_backbone import saved_backbone_with
-    from ocplace.paths import backbones_cache
-
-    directory = saved_backbone_with(fingerprint)
-    if directory is not None:
-        return f"the backbone they were trained with is saved in {directory}: pass `--backbone offline:{directory}`"
-    return (
-        f"no saved offline backbone in {backbones_cache()} has that fingerprint: pass the backbone they were "
-        "trained with (`--backbone SPEC`, the spec their training used), or train adapters on a backbone you "
-        "have (`ocplace reproduce` pretrains its scale's backbone and trains on it)"
-    )
-
-
-def check_trained_on(backbone: Backbone, fingerprint: str, what: str) -> None:
-    """TrainingError unless `backbone` is the one with `fingerprint`, which `what` ("the adapters in RUN were")
-    was trained on; the message says where that backbone is, or how to get it. The one check every trained
-    run's loader makes."""
-    if backbone.fingerprint != fingerprint:
-        raise TrainingError(
-            f"{what} trained on features of another backbone (fingerprint {fingerprint[:12]}, this one "
-            f"{backbone.fingerprint[:12]}); {backbone_hint(fingerprint)}"
-        )
-
-
 def load_backbone(spec: str, **kwargs) -> Backbone:
     """A backbone from a spec string (see the module docstring); a bare kind such as "offline" is "offline:"."""
     kind, _, argument = spec.partition(":")
@@ -145,31 +120,6 @@ def load_backbone(spec: str, **kwargs) -> Backbone:
 
 
 # ----------------------------------------------------------------------------- image preprocessing
-
-
-@dataclasses.dataclass(frozen=True)
-class ImagePreprocessing:
-    """CLIPImageProcessor's steps: shortest edge -> `resize`, centre crop, rescale, normalise."""
-
-    resize: int  # target length of the shortest edge
-    crop: tuple[int, int]  # (height, width) of the centre crop
-    mean: tuple[float, float, float]
-    std: tuple[float, float, float]
-    resample: int  # PIL filter id (3 = bicubic, CLIP's)
-
-    @classmethod
-    def from_processor(cls, processor) -> ImagePreprocessing:
-        size = processor.size
-        if not (processor.do_resize and processor.do_center_crop and "shortest_edge" in size):
-            raise BackboneError("only CLIP-style preprocessing (shortest-edge resize, centre crop) is supported")
-        crop = processor.crop_size
-        return cls(
-            int(size["shortest_edge"]),
-            (int(crop["height"]), int(crop["width"])),
-            tuple(float(m) for m in processor.image_mean),
-            tuple(float(s) for s in processor.image_std),
-            int(processor.resample),
-        )
 
 
 def resize_and_crop(image: np.ndarray, prep: ImagePreprocessing) -> np.ndarray:

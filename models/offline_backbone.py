@@ -227,7 +227,7 @@ class FrozenTextTower:
 @functools.lru_cache(maxsize=2)
 def _load_text_tower(max_length: int) -> FrozenTextTower:
     """Loaded once per process: the weights never change, and loading takes seconds."""
-    from ocplace.models.parsing.encoder import load_minilm, minilm_path
+    from ocplace.models.minilm import load_minilm, minilm_path
 
     path = minilm_path()
     return FrozenTextTower(load_minilm(path, max_length=max_length), minilm_digest(path))

@@ -10,6 +10,7 @@ import dataclasses
 
 from ocplace.errors import BackboneError
 from ocplace.models import efficientnet_config
+from ocplace.models.preprocessing import ImagePreprocessing
 from ocplace.serial import bounded
 from ocplace.vocabulary import CLIP_IMAGE_MEAN, CLIP_IMAGE_STD
 
@@ -56,8 +57,6 @@ class OfflineConfig:
     @property
     def preprocessing(self):
         """The `ImagePreprocessing` of this trunk's crops."""
-        from ocplace.models.backbone import ImagePreprocessing  # JAX behind it: this module stays light
-
         mean, std = (
             (CLIP_IMAGE_MEAN, CLIP_IMAGE_STD)
             if self.is_vit

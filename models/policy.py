@@ -33,12 +33,14 @@ from ocplace.errors import (
     OcplaceError,
     PolicyInputError,
 )
-from ocplace.models.backbone import Backbone, ClipBackbone, PromptConfig, check_trained_on
+from ocplace.models.backbone import Backbone, ClipBackbone, PromptConfig
+from ocplace.models.backbone_match import check_trained_on
 from ocplace.models.detection import DetectorConfig, detect_boxes, estimate_aabbs
 from ocplace.models.grounding import GroundingModel
 from ocplace.models.inference_settings import ROBOT_DECISION, Decision
 from ocplace.models.parsing import ParsedTuple, Parser
 from ocplace.models.placement.sampler import SamplerConfig
+from ocplace.models.policy_folder import export_policy, read_policy_folder
 from ocplace.models.trained_adapters import TrainedAdapters, load_adapters
 from ocplace.sim import metric
 from ocplace.sim.camera import DEFAULT_CAMERA
@@ -249,15 +251,13 @@ class PlacementPolicy:
         backbone, adapters and settings from its `config.json` and `model.safetensors`. `parser`: None for the
         folder's own; `kwargs` override policy fields (`sampler`, `threshold`, ...). PolicyFolderError when the
         folder is missing, tampered or of another format."""
-        from ocplace.models.policy_folder import load_policy_folder
-
-        return load_policy_folder(directory, parser, **kwargs)
+        checkpoint = kwargs.pop("checkpoint", None)  # where a CLIP folder's checkpoint is now, if it moved
+        return cls(**(read_policy_folder(directory, parser, checkpoint=checkpoint) | kwargs))
 
     def save_pretrained(self, directory, parser: str | None = None):
         """This policy as a policy folder `directory` (what `from_pretrained` loads), with its model card; `parser`:
         the parser spec to record (default: this policy's parser's name). Returns the folder."""
         from ocplace.models.policy_card import card_text
-        from ocplace.models.policy_folder import export_policy
 
         kind = "clip" if isinstance(self.backbone, ClipBackbone) else "offline"
         source = {"backbone": f"{kind}:{getattr(self.backbone, 'source', '')}"}

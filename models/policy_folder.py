@@ -18,6 +18,7 @@ from __future__ import annotations
 import dataclasses
 import json
 from pathlib import Path
+from typing import Any
 
 import jax
 
@@ -130,12 +131,11 @@ def read_policy_config(directory: str | Path) -> dict:
     return document
 
 
-def load_policy_folder(directory: str | Path, parser=None, *, checkpoint: str | None = None, **overrides):
-    """The `PlacementPolicy` a policy folder holds (`parser`: a Parser or spec; None: the folder's; `checkpoint`:
-    where a CLIP folder's checkpoint is now, if it moved; `overrides`: PlacementPolicy fields such as `sampler` or
-    `threshold`)."""
+def read_policy_folder(directory: str | Path, parser=None, *, checkpoint: str | None = None) -> dict[str, Any]:
+    """The `PlacementPolicy` fields a policy folder holds, by name (`PlacementPolicy.from_pretrained` makes the
+    policy of them): `parser` a Parser or spec (None: the folder's), `checkpoint` where a CLIP folder's checkpoint
+    is now, if it moved."""
     from ocplace.models.parsing import make_parser
-    from ocplace.models.policy import PlacementPolicy
 
     directory = Path(directory)
     document = read_policy_config(directory)
@@ -173,7 +173,7 @@ def load_policy_folder(directory: str | Path, parser=None, *, checkpoint: str | 
         raise PolicyFolderError(
             f"{directory / CONFIG_FILE} does not describe these weights ({type(error).__name__}: {error}); {redo}"
         ) from None
-    return PlacementPolicy(backbone, grounding, prompt, parser, **(policy_fields | overrides))
+    return {"backbone": backbone, "grounding": grounding, "prompt": prompt, "parser": parser} | policy_fields
 
 
 def _folder_backbone(document: dict, tensors: dict, directory: Path, checkpoint: str | None, redo: str):

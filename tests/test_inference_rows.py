@@ -196,11 +196,11 @@ def test_a_policy_folder_carries_its_decision_and_an_older_one_keeps_argmax(
 ):
     from ocplace.models.backbone import load_backbone
     from ocplace.models.policy import PlacementPolicy
-    from ocplace.models.policy_folder import CONFIG_FILE, export_policy, load_policy_folder
+    from ocplace.models.policy_folder import CONFIG_FILE, export_policy
 
     policy = PlacementPolicy.from_run(load_backbone(tiny_backbone_spec), None, decision=Decision("joint", 2))
     folder = export_policy(policy, tmp_path / "policy", parser="offline")
-    loaded = load_policy_folder(folder)
+    loaded = PlacementPolicy.from_pretrained(folder)
     assert loaded.decision == Decision("joint", 2)
     record = read_scene(scene_dirs(smoke_dataset, "seen")[0])
     placed = loaded.place_many([scene_input(record)], jax.random.key(0))[0]
@@ -208,11 +208,11 @@ def test_a_policy_folder_carries_its_decision_and_an_older_one_keeps_argmax(
     document = json.loads((folder / CONFIG_FILE).read_text())
     del document["policy"]["decision"]  # as every folder written before the joint decision
     (folder / CONFIG_FILE).write_text(json.dumps(document))
-    assert load_policy_folder(folder).decision == Decision("argmax")
+    assert PlacementPolicy.from_pretrained(folder).decision == Decision("argmax")
     document["policy"]["decision"] = {"mode": "joint", "top_k": 0}
     (folder / CONFIG_FILE).write_text(json.dumps(document))
     with pytest.raises(PolicyFolderError, match="policy.decision.top_k: from 1 to 16, got 0"):
-        load_policy_folder(folder)
+        PlacementPolicy.from_pretrained(folder)
 
 
 def test_the_grounding_report_reads_every_recorded_reference_back(object_scenes, tmp_path):

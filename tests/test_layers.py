@@ -63,3 +63,14 @@ def test_where_to_change_what_names_files_of_the_tree():
         if not any((ROOT / path.replace("<row>", row)).exists() for row in (rows if "<row>" in path else [""]))
     ]
     assert missing == []
+
+
+def test_no_module_imports_itself_back_through_others(checkout):
+    """Issue 61: no import circle, at module level or inside a function; one added is caught, naming its modules."""
+    result = _check(checkout)
+    assert "Import circles: 0" in result.stdout, result.stdout
+    (checkout / "models" / "circle_a.py").write_text("from ocplace.models import circle_b\n")
+    (checkout / "models" / "circle_b.py").write_text("def late():\n    from ocplace.models.circle_a import x\n")
+    result = _check(checkout)
+    assert result.returncode != 0
+    assert "import circle: ocplace.models.circle_a <-> ocplace.models.circle_b" in result.stdout

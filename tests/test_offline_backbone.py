@@ -185,7 +185,7 @@ def test_a_backbone_seed_reads_the_renders_its_recipe_shares(smoke_run, library,
 
 
 def _minilm_dir() -> str:
-    from ocplace.models.parsing.encoder import minilm_path
+    from ocplace.models.minilm import minilm_path
 
     return minilm_path()
 
@@ -266,7 +266,7 @@ def test_a_saved_backbone_is_loaded_once_per_process_until_its_fingerprint_chang
 
 
 def test_text_tower_stays_frozen(smoke_run):
-    from ocplace.models.parsing.encoder import load_minilm
+    from ocplace.models.minilm import load_minilm
     from ocplace.train.checkpoints import list_checkpoints
 
     result, _, minilm_before = smoke_run

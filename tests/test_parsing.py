@@ -142,7 +142,7 @@ def test_snapper_refuses_what_it_cannot_tell_apart(snapper):
 
 
 def test_minilm_embeddings_are_unit_and_independent_of_batch(snapper):
-    from ocplace.models.parsing.encoder import load_minilm
+    from ocplace.models.minilm import load_minilm
 
     encode = load_minilm()
     alone = encode(["to the left of"])

@@ -191,7 +191,7 @@ def test_cli_evaluates_a_policy_module_and_reruns_it(smoke_dataset, tmp_path, mo
 
 
 def test_a_policy_no_process_can_import_again_is_evaluated_and_its_rerun_refused(smoke_dataset, tmp_path, capsys):
-    from ocplace.eval.results import write_outputs
+    from ocplace.eval.table import write_outputs
 
     def place(observation):
         return (0.0, 0.0)

@@ -16,7 +16,8 @@ from ocplace.paths import pid_alive
 COMMAND = """
 import sys, time
 from pathlib import Path
-from ocplace.runtime.executor import ExecutorConfig, Task, open_executor
+from ocplace.runtime.executor import ExecutorConfig, Task
+from ocplace.runtime.opening import open_executor
 from worker_tasks import report_and_sleep
 
 folder = Path(sys.argv[1])

@@ -148,7 +148,8 @@ class NoLlmMethod:
 
 def load(ctx: LoadContext) -> NoLlmMethod:
     from ocplace.methods.no_llm.model import load_model
-    from ocplace.models.backbone import PromptConfig, check_trained_on, load_backbone
+    from ocplace.models.backbone import PromptConfig, load_backbone
+    from ocplace.models.backbone_match import check_trained_on
     from ocplace.models.grounding import GroundingModel
     from ocplace.models.placement.sampler import SamplerConfig
     from ocplace.models.policy import PlacementPolicy

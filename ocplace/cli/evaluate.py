@@ -221,8 +221,8 @@ def _evaluate(args: argparse.Namespace) -> int:
         return _rerun(args)
     from ocplace.errors import EvaluationError
     from ocplace.eval.harness import DEFAULT_PHYSICAL_SCENES, EvalSettings
-    from ocplace.eval.results import build_results, write_outputs
-    from ocplace.eval.table import terminal_summary
+    from ocplace.eval.results import build_results
+    from ocplace.eval.table import terminal_summary, write_outputs
     from ocplace.experiments.evaluation import evaluate_runs
     from ocplace.methods.registry import method_run, method_specs, select_specs
     from ocplace.runtime import open_executor
@@ -336,7 +336,8 @@ def _import_from_here() -> None:
 
 
 def _rerun(args: argparse.Namespace) -> int:
-    from ocplace.eval.results import compare, read_results, write_outputs
+    from ocplace.eval.results import compare, read_results
+    from ocplace.eval.table import write_outputs
     from ocplace.experiments.evaluation import rerun
     from ocplace.methods.external_policy import with_policies
     from ocplace.methods.registry import method_specs

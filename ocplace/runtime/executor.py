@@ -258,25 +258,6 @@ def exit_with_parent(before_exit: Callable[[], None] | None = None) -> None:
     threading.Thread(target=watch, name="ocplace-exit-with-parent", daemon=True).start()
 
 
-@contextlib.contextmanager
-def open_executor(config: ExecutorConfig | None = None) -> Iterator[Executor]:
-    """The executor `config` describes, closed (and a Ray instance it started shut down) on exit."""
-    config = config or ExecutorConfig()
-    clamped = usable_workers(config.workers)[1]
-    if clamped is not None and config.address is None:  # a cluster joined sizes itself
-        log.warning(clamped)
-    if config.kind == "ray":
-        from ocplace.runtime.ray_executor import RayExecutor
-
-        executor = RayExecutor(config)  # shuts down what it started if it fails half-way
-    else:
-        executor = LocalExecutor(config.cpus(), config.progress)
-    try:
-        yield executor
-    finally:
-        executor.close()
-
-
 def map_tasks(executor: Executor, tasks: Iterable[Task]) -> Iterator[tuple[int, Any]]:
     """(index, result) of every task, in the order they finish; the first task error is raised."""
     indices = {executor.submit(task): index for index, task in enumerate(tasks)}
