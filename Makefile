@@ -29,6 +29,7 @@ lint: setup
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
 	$(VENV)/bin/python scripts/check_layers.py
+	$(VENV)/bin/python scripts/check_docs.py
 	$(VENV)/bin/python scripts/typecheck.py
 
 test: library lint

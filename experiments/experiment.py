@@ -251,7 +251,7 @@ class Experiment:
         if problems:
             raise ConfigError(
                 f"experiment {self.name!r} cannot run: {'; '.join(problems)}. Change the value with "
-                "--set KEY=VALUE, or in the experiment's file in ocplace/configs"
+                "--set KEY=VALUE, or in the experiment's file in configs/"
             )
 
 

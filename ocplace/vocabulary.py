@@ -46,7 +46,7 @@ CLIP_IMAGE_STD = (0.26862954, 0.26130258, 0.27577711)
 # beside it (eval/statistics.py). Chosen on the dev splits, never on a test subset: docs/settings.md.
 GATE_THRESHOLD = 0.55
 
-# The experiments of ocplace/configs by name (the keys of `ocplace.configs.EXPERIMENTS`), for the CLI's choices.
+# The experiments of configs/ by name (the keys of `ocplace.configs.EXPERIMENTS`), for the CLI's choices.
 EXPERIMENT_NAMES = ("smoke", "demo", "default")
 
 # The named primitives of the backbone's pretraining arenas (`sim/primitives.py`): shapes and sizes.

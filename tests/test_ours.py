@@ -1,4 +1,5 @@
-"""Table I's "Ours" and "Ours w/o Adapter" as evaluation methods (eval/ours.py)."""
+"""Table I's "Ours" and "Ours w/o Adapter" as evaluation methods (methods/ours/, methods/no_adapter/, on
+methods/policy_method.py)."""
 
 import dataclasses
 import json

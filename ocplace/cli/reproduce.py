@@ -21,7 +21,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "Every step skips what is already done: rerun to resume.",
     )
     reproduce.add_argument(
-        "--experiment", choices=EXPERIMENT_NAMES, default="demo", help="which experiment (ocplace/configs) to run"
+        "--experiment", choices=EXPERIMENT_NAMES, default="demo", help="which experiment (configs/) to run"
     )
     reproduce.add_argument(
         "--scale", dest="experiment", choices=EXPERIMENT_NAMES, action=DeprecatedAlias, instead="--experiment"

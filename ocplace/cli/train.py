@@ -51,7 +51,7 @@ def register(subparsers) -> None:
         "--experiment",
         choices=EXPERIMENT_NAMES,
         default="default",
-        help="whose recipe (ocplace/configs; default: default)",
+        help="whose recipe (configs/; default: default)",
     )
     add_set_argument(row, "recipes.no_llm.schedule.steps")
     parser.add_argument("--val-features", type=Path, help="feature file to report validation accuracy on")
