@@ -220,3 +220,30 @@ def rerun(
             for run in runs
         ]
     return build_results(fresh, dataset_dir, settings, command)
+
+
+def method_runs(
+    specs: Sequence[MethodSpec[Any]], runs: Mapping[str, Path], runs_from: Path | None = None
+) -> list[MethodRun]:
+    """The run of each spec to evaluate: its `--run` directory, else its row's run in a `reproduce` output
+    `runs_from`; EvaluationError when a row that places with a trained run has none."""
+    from ocplace.errors import EvaluationError
+    from ocplace.experiments.layout import run_directory
+
+    unused = set(runs) - {spec.name for spec in specs}
+    if unused:
+        raise EvaluationError(f"--run given for method(s) not evaluated: {', '.join(sorted(unused))}")
+    selected = []
+    for spec in specs:
+        run_dir = runs.get(spec.name)
+        if run_dir is None and runs_from is not None and spec.needs_run:
+            run_dir = run_directory(runs_from, spec.trained_as, 1.0)
+        if spec.needs_run and run_dir is None:
+            raise EvaluationError(
+                f"method {spec.name!r} places with a trained run: pass --run {spec.name}=RUN_DIR (a run directory "
+                f"from the training of {spec.trained_as}, e.g. `ocplace reproduce` writes them under OUT/runs)"
+            )
+        if run_dir is not None and not run_dir.exists():
+            raise EvaluationError(f"run directory {run_dir} of {spec.name!r} does not exist")
+        selected.append(method_run(spec, run_dir))
+    return selected

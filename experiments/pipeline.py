@@ -32,6 +32,7 @@ from ocplace import serial
 from ocplace.errors import ConfigError, ResultsError
 from ocplace.eval.harness import EvalSettings, Evaluation, MethodRun
 from ocplace.experiments.experiment import Experiment
+from ocplace.experiments.layout import run_directory
 from ocplace.methods.contract import MethodSpec, TrainContext, train_once
 from ocplace.methods.registry import method_run, method_specs, select_specs
 from ocplace.runtime import Executor, ExecutorConfig, Task, open_executor
@@ -167,14 +168,6 @@ def planned_runs(config: PipelineConfig, specs: Sequence[MethodSpec[Any]]) -> li
                 method_run(spec, None, fraction, seed, backbone, inference) for backbone in backbones for seed in seeds
             ]
     return runs
-
-
-def run_directory(
-    out: Path, name: str, fraction: float, seed: int | None = None, backbone_seed: int | None = None
-) -> Path:
-    folder = f"fraction-{fraction:.2f}" + ("" if seed is None else f"-seed-{seed}")
-    folder += "" if backbone_seed is None else f"-backbone-{backbone_seed}"
-    return out / "runs" / name / folder
 
 
 def evaluation_settings(config: PipelineConfig, backbone: str) -> EvalSettings:

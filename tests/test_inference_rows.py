@@ -53,8 +53,8 @@ def test_an_inference_only_row_trains_nothing_and_its_owners_runs_train_once(tmp
         if seeds == 2:
             assert nodes["evaluate ours_joint~seed1"].after == ("backbone", "train ours~seed1")
 
-    from ocplace.cli.evaluate import method_runs
     from ocplace.errors import EvaluationError
+    from ocplace.experiments.evaluation import method_runs
 
     owners = tmp_path / "out" / "runs" / "ours" / "fraction-1.00"
     owners.mkdir(parents=True)

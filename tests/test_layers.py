@@ -88,3 +88,30 @@ def test_architecture_names_only_files_and_flags_that_exist(tmp_path):
     stale = tmp_path / "stale.md"
     stale.write_text("The rows live in `methods/ours.py`; run `ocplace reproduce --scale demo --frobnicate`.\n")
     assert check_docs.problems(stale) == ["methods/ours.py: no such file", "--frobnicate: no ocplace command has it"]
+
+
+def test_the_cli_holds_no_function_another_module_imports():
+    """Issue 61, item 4: the CLI parses and prints; what a test, a script or the library calls lives in a library
+    layer. Only the option parsing itself (`ocplace.cli.options`, the `--set` texts scripts take too) and the entry
+    points are imported from it."""
+    import ast
+    import importlib
+    import inspect
+
+    allowed = {"main", "build_parser"}
+    found = []
+    for path in sorted(ROOT.rglob("*.py")):
+        relative = path.relative_to(ROOT)
+        if relative.parts[0] in (".venv", "build", "ocplace") and relative.parts[:2] != ("ocplace", "runtime"):
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("ocplace.cli."):
+                if node.module == "ocplace.cli.options":
+                    continue
+                module = importlib.import_module(node.module)
+                found += [
+                    f"{relative}: {node.module}.{alias.name}"
+                    for alias in node.names
+                    if alias.name not in allowed and inspect.isfunction(getattr(module, alias.name, None))
+                ]
+    assert found == []

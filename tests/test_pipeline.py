@@ -15,7 +15,7 @@ import pytest
 from ocplace import configs
 from ocplace.errors import ConfigError, OcplaceError
 from ocplace.eval import figures, results
-from ocplace.experiments import pipeline
+from ocplace.experiments import layout, pipeline
 from ocplace.experiments.evaluation import rerun
 from ocplace.experiments.experiment import TaskCpus
 from ocplace.methods import registry
@@ -515,7 +515,7 @@ def test_backbone_seeds_plan_a_pretraining_each_and_repeat_only_the_seeded_backb
     assert pipeline.backbone_key(1) in nodes["train ours~backbone1"].after
     assert pipeline.backbone_key(1) in nodes["evaluate ours~backbone1"].after
     assert pipeline.backbone_key(1) not in nodes["evaluate no_adapter"].after
-    assert pipeline.run_directory(tmp_path, "ours", 1.0, None, 1).name == "fraction-1.00-backbone-1"
+    assert layout.run_directory(tmp_path, "ours", 1.0, None, 1).name == "fraction-1.00-backbone-1"
 
 
 @pytest.mark.slow  # 90 s, a tenth of the default suite's 15 minutes: `make test-all` runs it

@@ -180,30 +180,6 @@ def physical_setting(value: int | None, default: int | None) -> int | None:
     return None if value == -1 else value  # `count(0, none_below=-1)` lets nothing else below 0 through
 
 
-def method_runs(specs: list, runs: dict[str, Path], runs_from: Path | None = None) -> list:
-    from ocplace.errors import EvaluationError
-    from ocplace.experiments.pipeline import run_directory
-    from ocplace.methods.registry import method_run
-
-    unused = set(runs) - {spec.name for spec in specs}
-    if unused:
-        raise EvaluationError(f"--run given for method(s) not evaluated: {', '.join(sorted(unused))}")
-    selected = []
-    for spec in specs:
-        run_dir = runs.get(spec.name)
-        if run_dir is None and runs_from is not None and spec.needs_run:
-            run_dir = run_directory(runs_from, spec.trained_as, 1.0)
-        if spec.needs_run and run_dir is None:
-            raise EvaluationError(
-                f"method {spec.name!r} places with a trained run: pass --run {spec.name}=RUN_DIR (a run directory "
-                f"from the training of {spec.trained_as}, e.g. `ocplace reproduce` writes them under OUT/runs)"
-            )
-        if run_dir is not None and not run_dir.exists():
-            raise EvaluationError(f"run directory {run_dir} of {spec.name!r} does not exist")
-        selected.append(method_run(spec, run_dir))
-    return selected
-
-
 def command_record(args: argparse.Namespace) -> dict:
     """The command line as typed (`argv`) and as parsed (`arguments`: exact even when called in-process)."""
     arguments = {key: value for key, value in vars(args).items() if key != "func"}
@@ -223,7 +199,7 @@ def _evaluate(args: argparse.Namespace) -> int:
     from ocplace.eval.harness import DEFAULT_PHYSICAL_SCENES, EvalSettings
     from ocplace.eval.results import build_results
     from ocplace.eval.table import terminal_summary, write_outputs
-    from ocplace.experiments.evaluation import evaluate_runs
+    from ocplace.experiments.evaluation import evaluate_runs, method_runs
     from ocplace.methods.registry import method_run, method_specs, select_specs
     from ocplace.runtime import open_executor
 

@@ -215,8 +215,12 @@ def within(value, bounds):
     if not math.isfinite(value):
         raise ValueError(f"{value} is not a finite number")
     if bounds is not None and not bounds[0] <= value <= bounds[1]:
-        raise ValueError(f"{value:g} is out of range: give a number from {bounds[0]:g} to {bounds[1]:g}")
+        raise ValueError(f"{value:g} is out of range: give a number from {_shown(bounds[0])} to {_shown(bounds[1])}")
     return value
+
+
+def _shown(bound: float) -> str:
+    return f"{bound:,}" if isinstance(bound, int) else f"{bound:g}"
 
 
 def _help(field: dataclasses.Field, hint, default: object) -> str:

@@ -197,52 +197,19 @@ def _dataset_scene(args):
 
 
 def _image_scene(args):
-    import cv2
-    import numpy as np
-
-    from ocplace.errors import PolicyInputError
-    from ocplace.models.policy import SceneInput, check_depth
+    from ocplace.models.scene_files import read_scene_input
     from ocplace.sim.camera import DEFAULT_CAMERA
-    from ocplace.sim.pinhole import PinholeCamera
 
-    def read(path: Path, flags: int):
-        image = cv2.imread(str(path), flags)
-        if image is None:
-            raise PolicyInputError(f"cannot read the image {path}")
-        return image
-
-    rgb = np.ascontiguousarray(read(args.rgb, cv2.IMREAD_COLOR)[..., ::-1])
-    depth = check_depth(
-        _read_npy(args.depth) if args.depth.suffix == ".npy" else read(args.depth, cv2.IMREAD_UNCHANGED)
-    )
-    segmentation = read(args.segmentation, cv2.IMREAD_UNCHANGED).astype(np.int32) if args.segmentation else None
     if args.camera is None:
         print("no --camera given: assuming the simulator's camera (640x480, 70 deg, 0.6 m above the table)")
-    camera = PinholeCamera.from_any(args.camera or DEFAULT_CAMERA)
-    return SceneInput(
-        rgb,
-        depth,
-        segmentation,
+    return read_scene_input(
+        args.rgb,
+        args.depth,
+        args.segmentation,
+        args.camera or DEFAULT_CAMERA,
         args.instruction,
         tuple(args.held_footprint or HELD_FOOTPRINT),
-        camera,
-        name=args.rgb.name,
     )
-
-
-def _read_npy(path: Path):
-    """A depth `.npy` of numbers; never unpickles (a pickled array could run any code)."""
-    import numpy as np
-
-    from ocplace.errors import PolicyInputError
-
-    try:
-        return np.load(path, allow_pickle=False)
-    except (OSError, ValueError, EOFError) as error:
-        raise PolicyInputError(
-            f"cannot read the depth {path} as a .npy array of numbers ({error}); save a float "
-            "array of metres with numpy.save"
-        ) from None
 
 
 def _compare_with_truth(placement, record) -> None:

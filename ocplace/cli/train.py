@@ -147,48 +147,21 @@ def train_method(args: argparse.Namespace) -> int:
     from ocplace.cli.options import apply_overrides
     from ocplace.errors import ConfigError
     from ocplace.experiments.experiment import read_overrides
-    from ocplace.methods.contract import TrainContext, finished_run, train_once
-    from ocplace.methods.registry import method_specs
+    from ocplace.experiments.training import train_row
     from ocplace.paths import check_writable
 
     if recipe_flags_given(args) or args.smoke or args.paper_adapters or args.val_features:
         raise ConfigError("with --method the recipe is the experiment's: change it with --set recipes.NAME.FIELD=VALUE")
-    specs = method_specs()
-    if args.method not in specs:
-        raise ConfigError(f"unknown method {args.method!r}; registered: {', '.join(specs)}")
-    spec = specs[args.method]
-    if spec.places_with is not None:
-        raise ConfigError(
-            f"{args.method} trains nothing: it places with {spec.places_with}'s runs; train those "
-            f"(`ocplace train --method {spec.places_with}`) and evaluate {args.method} on them"
-        )
-    if spec.train is None:
-        raise ConfigError(f"{args.method} learns nothing: there is no run to train (evaluate it directly)")
     if args.dataset is None:
         raise ConfigError("--method trains on a dataset: give --dataset DATA")
     seed, fraction = run_keys(args)
-    overrides = read_overrides(args.overrides)
+    experiment = apply_overrides(configs.get(args.experiment), read_overrides(args.overrides))
     check_writable(args.out, as_folder=True)
-    experiment = apply_overrides(configs.get(args.experiment), overrides)
-    experiment.validate()
-    if missing := experiment.missing_recipes([args.method]):
-        raise ConfigError(f"experiment {experiment.name!r} cannot train {args.method}: {missing[0]}")
-    context = TrainContext(
-        args.dataset,
-        args.backbone,
-        args.out,
-        experiment.recipe(args.method),
-        fraction,
-        seed,
-        experiment.name,
+    run_dir, reused, label = train_row(
+        args.method, experiment, args.dataset, args.backbone, args.out, seed, fraction, args.cpus
     )
-    if args.cpus:
-        pin_jax_width(args.cpus)
-    if spec.prepare is not None and finished_run(context) is None:
-        spec.prepare(context)
-    run_dir, reused = train_once(spec, context)
     done = "done before" if reused else "trained"
-    print(f"{run_dir}: {spec.label} {done} ({args.experiment} recipe, fraction {fraction:g}, seed {seed})")
+    print(f"{run_dir}: {label} {done} ({args.experiment} recipe, fraction {fraction:g}, seed {seed})")
     return 0
 
 
