@@ -24,6 +24,7 @@ import logging
 import shutil
 from collections.abc import Iterable
 from pathlib import Path
+from typing import Protocol
 
 import numpy as np
 
@@ -50,6 +51,22 @@ class SceneToFeaturize:
     workspace: np.ndarray  # uint8 (H, W, 3) the whole top-down image: visual token N, the table
     texts: tuple[str, ...]  # one reference phrase per tuple, e.g. "red bowl" or "table"
     targets: np.ndarray  # int32 (L,) ground-truth token per tuple among the N + 1 visual tokens
+
+
+class SceneLike(Protocol):
+    """What `featurize` reads of a scene: `SceneToFeaturize`'s attributes, on any object (the dataset loader's
+    `SceneExample`, a baseline's own)."""
+
+    @property
+    def scene_id(self) -> str: ...
+    @property
+    def crops(self) -> np.ndarray: ...
+    @property
+    def workspace(self) -> np.ndarray: ...
+    @property
+    def texts(self) -> tuple[str, ...]: ...
+    @property
+    def targets(self) -> np.ndarray: ...
 
 
 def check_example(example, max_objects: int, max_tuples: int) -> None:
@@ -194,7 +211,7 @@ def features_key(backbone_fingerprint: str, dataset_hash: str, config: Featurize
 
 
 def featurize(
-    examples: Iterable[SceneToFeaturize],
+    examples: Iterable[SceneLike],
     backbone: Backbone,
     out_path,
     *,

@@ -25,7 +25,7 @@ import functools
 import hashlib
 import json
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import jax
@@ -216,7 +216,7 @@ def minilm_digest(model_dir: str) -> str:
 class FrozenTextTower:
     """all-MiniLM-L6-v2 sentence embeddings (`encode`: texts -> `(L, 384)` unit rows) and its identity."""
 
-    encode: object
+    encode: Callable[[Sequence[str]], np.ndarray]
     digest: str
 
     @classmethod

@@ -269,8 +269,9 @@ def disk_full_is_typed(target: str | os.PathLike):
     try:
         yield
     except OSError as error:
-        if error.errno in _DISK_FULL:
-            raise unwritable(error, target, "or write the output elsewhere") from error
+        typed = unwritable(error, target, "or write the output elsewhere") if error.errno in _DISK_FULL else None
+        if typed is not None:
+            raise typed from error
         raise
 
 

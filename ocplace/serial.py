@@ -15,7 +15,7 @@ import functools
 import json
 import types
 import typing
-from collections.abc import Mapping
+from collections.abc import Hashable, Mapping
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -52,11 +52,11 @@ def to_json(value: object) -> str:
 def from_dict(cls: type[T], fields: Mapping[str, Any]) -> T:
     """The `cls` dataclass of `to_dict`'s output (or of JSON text read back); fields it lacks keep their defaults.
     A field `cls` does not have is a TypeError, as in `cls(**fields)`: such text was written by something else."""
-    hints = _hints(cls)
+    hints = _hints(typing.cast(Hashable, cls))  # a class is hashable; typeshed's `type[T]` does not say so
     unknown = set(fields) - set(hints)
     if unknown:
         raise TypeError(f"{cls.__name__} has no field {', '.join(sorted(unknown))}")
-    readers = _readers(cls)
+    readers = _readers(typing.cast(Hashable, cls))
     return cls(
         **{
             name: readers[name](value) if name in readers else _from(value, hints[name])
@@ -70,13 +70,13 @@ def from_json(cls: type[T], text: str) -> T:
 
 
 @functools.cache
-def _hints(cls: type) -> dict:
+def _hints(cls: Hashable) -> dict[str, Any]:
     return typing.get_type_hints(cls)
 
 
 @functools.cache
-def _readers(cls: type) -> dict:
-    return {field.name: field.metadata[READ] for field in dataclasses.fields(cls) if READ in field.metadata}
+def _readers(cls: Hashable) -> dict[str, Any]:
+    return {field.name: field.metadata[READ] for field in dataclasses.fields(cls) if READ in field.metadata}  # type: ignore[arg-type]  # a dataclass's class, hashable
 
 
 def _from(value, hint):
@@ -124,7 +124,8 @@ def text_problems(cls: type, data: object, where: str) -> list[str]:
             found += _value_problems(value, hints[name], fields[name].metadata.get(BOUNDS), f"{where}.{name}")
     if not found and hasattr(cls, "problems"):
         try:
-            found += [f"{where}: {problem}" for problem in from_dict(cls, data).problems()]
+            rebuilt: Any = from_dict(cls, data)
+            found += [f"{where}: {problem}" for problem in rebuilt.problems()]
         except (TypeError, ValueError) as error:
             found.append(f"{where}: {error}")
     return found
@@ -145,7 +146,7 @@ def _value_problems(value, hint, bounds, where: str) -> list[str]:
         if value is None and type(None) in arguments:
             return []
         return _value_problems(value, next(a for a in arguments if a is not type(None)), bounds, where)
-    if dataclasses.is_dataclass(hint):
+    if isinstance(hint, type) and dataclasses.is_dataclass(hint):
         return text_problems(hint, value, where)
     if origin is typing.Literal:
         return [] if value in arguments else [f"{where}: one of {', '.join(map(repr, arguments))}, got {_kind(value)}"]

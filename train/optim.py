@@ -29,7 +29,7 @@ import optax
 
 
 class AdamState(NamedTuple):
-    count: jax.Array  # int32 (), steps taken
+    count: jax.Array  # type: ignore[assignment]  # int32 (), steps taken; the name is in every checkpoint's keys
     moments: optax.Updates  # per leaf (2, *shape): first and second moment
 
 
@@ -83,10 +83,14 @@ class Budget(Protocol):
     """What `make` reads of a training's budget: a `Schedule` (every row's), or the backbone pretraining's
     `OptimConfig`, whose optimiser is a class constant (not serialised: its recipe key stays as it was)."""
 
-    learning_rate: float  # the peak
-    warmup_steps: int
-    steps: int
-    weight_decay: float
+    @property
+    def learning_rate(self) -> float: ...  # the peak
+    @property
+    def warmup_steps(self) -> int: ...
+    @property
+    def steps(self) -> int: ...
+    @property
+    def weight_decay(self) -> float: ...
 
     @property
     def optimiser(self) -> str: ...  # "adam" or "adamw_clipped" (an image tower's)

@@ -4,6 +4,7 @@ check before JAX is imported and a bad `--set` fails at once."""
 from __future__ import annotations
 
 import dataclasses
+import typing
 from dataclasses import MISSING
 from typing import Any, Literal, TypeVar
 
@@ -53,4 +54,5 @@ class Schedule:
 
 def rescheduled(recipe: R, **changes: Any) -> R:
     """`recipe` (any recipe holding a `schedule`) with those fields of its schedule changed."""
-    return dataclasses.replace(recipe, schedule=dataclasses.replace(recipe.schedule, **changes))  # type: ignore[attr-defined]
+    holder: Any = recipe  # any recipe dataclass that holds a `schedule`
+    return typing.cast(R, dataclasses.replace(holder, schedule=dataclasses.replace(holder.schedule, **changes)))

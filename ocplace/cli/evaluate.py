@@ -300,8 +300,8 @@ def _policy_specs(references: list[str], labels: list[str], scene_timeout_s: flo
         raise EvaluationError(f"give one --label per --policy, or none: got {len(labels)} for {len(references)}")
     if references:
         _import_from_here()
-    labels = labels or [None] * len(references)
-    return [policy_spec(ref, label, scene_timeout_s) for ref, label in zip(references, labels)]
+    named: list[str | None] = list(labels) or [None] * len(references)
+    return [policy_spec(ref, label, scene_timeout_s) for ref, label in zip(references, named)]
 
 
 def _import_from_here() -> None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from typing import Literal
 
 from ocplace.cli.options import MAX_WORKERS, count
 from ocplace.runtime.executor import ExecutorConfig
@@ -23,6 +24,6 @@ def add_executor_arguments(parser: argparse.ArgumentParser, tasks: str) -> None:
 
 
 def executor_config(args: argparse.Namespace) -> ExecutorConfig:
-    kind = "ray" if args.ray or args.ray_address else "local"
+    kind: Literal["local", "ray"] = "ray" if args.ray or args.ray_address else "local"
     progress = not getattr(args, "no_progress", False)  # a command without --no-progress shows its workers'
     return ExecutorConfig(kind=kind, workers=args.workers, address=args.ray_address, progress=progress)

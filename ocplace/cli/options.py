@@ -19,6 +19,7 @@ import types
 import typing
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 from ocplace import serial
 from ocplace.errors import ConfigError
@@ -230,7 +231,7 @@ def _help(field: dataclasses.Field, hint, default: object) -> str:
     return text.replace("%", "%%")  # argparse %-formats help
 
 
-def _set(node, path: list[str], text: str, key: str):
+def _set(node: Any, path: list[str], text: str, key: str) -> Any:
     """`node` (a dataclass, or a mapping of them such as `Experiment.recipes`) with the setting at `path` parsed
     from `text`; `key` is the whole dotted key."""
     name, rest = path[0], path[1:]
@@ -247,13 +248,14 @@ def _set(node, path: list[str], text: str, key: str):
             + ", ".join(f"{n}.*" if _is_group_value(getattr(node, n)) else n for n in fields)
         )
     current = getattr(node, name)
+    record: Any = node  # a dataclass instance (checked above)
     if rest:
-        return dataclasses.replace(node, **{name: _set(current, rest, text, key)})
+        return dataclasses.replace(record, **{name: _set(current, rest, text, key)})
     if _is_group_value(current):
         raise _group_named(key, current)
     bounds = next(field.metadata.get(serial.BOUNDS) for field in dataclasses.fields(node) if field.name == name)
     try:
-        return dataclasses.replace(node, **{name: within(parse_value(text, hints[name]), bounds)})
+        return dataclasses.replace(record, **{name: within(parse_value(text, hints[name]), bounds)})
     except ValueError as error:
         raise ConfigError(f"--set {key}={text}: {error}") from None
 

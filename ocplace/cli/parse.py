@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+from typing import Any
 
 from ocplace.cli.options import MAX_SEED, count, number
 from ocplace.models.parsing.config import CROSS_CHECK_POLICIES, PARSER_NAMES
@@ -111,7 +112,7 @@ def _parse_eval(args) -> int:
     names = evaluation.EVAL_OBJECT_NAMES
     if args.names:
         names = tuple(n.strip() for n in Path(args.names).read_text().splitlines() if n.strip())
-    snapper_holder = getattr(parser, "offline", parser)
+    snapper_holder: Any = getattr(parser, "offline", parser)  # the offline parser, alone or inside the LLM's
     start = time.perf_counter()
     _ = snapper_holder.snapper  # load and compile the encoder outside the timed runs
     print(f"sentence encoder loaded and compiled in {time.perf_counter() - start:.1f} s")

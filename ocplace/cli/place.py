@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 from pathlib import Path
+from typing import Any
 
 from ocplace.cli.options import MAX_SEED, count, number
 from ocplace.vocabulary import DECISION_MODES, MAX_SAMPLES, MAX_TOP_K
@@ -122,7 +123,7 @@ def run_place(args: argparse.Namespace) -> int:
     else:
         parser = make_parser(args.parser or "offline")
     parser.parse(scene.instruction)  # the policy parses it again: a few milliseconds, or the LLM parser's cache
-    kwargs = {"sampler": SamplerConfig(num_samples=args.samples)}
+    kwargs: dict[str, Any] = {"sampler": SamplerConfig(num_samples=args.samples)}
     if args.threshold is not None:
         kwargs["threshold"] = args.threshold
     if args.policy is not None:

@@ -146,7 +146,9 @@ class _Inline:
     """A task the calling process runs when it is waited for, so progress shows task by task."""
 
     def __init__(self, task: Task):
-        self.task, self.value, self.error = task, None, None
+        self.task = task
+        self.value: Any = None
+        self.error: Exception | None = None
 
     def run(self) -> _Inline:
         try:

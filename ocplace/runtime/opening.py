@@ -21,6 +21,7 @@ def open_executor(config: ExecutorConfig | None = None) -> Iterator[Executor]:
     clamped = usable_workers(config.workers)[1]
     if clamped is not None and config.address is None:  # a cluster joined sizes itself
         log.warning(clamped)
+    executor: Executor
     if config.kind == "ray":
         from ocplace.runtime.ray_executor import RayExecutor
 

@@ -29,6 +29,7 @@ import subprocess
 import sys
 import tempfile
 from pathlib import Path
+from typing import Any
 
 from ocplace.errors import ClusterError, ConfigError
 from ocplace.paths import cache_dir, pid_alive
@@ -144,8 +145,8 @@ class _Call:
 
     task: Task
     cpus: int  # what it holds on the cluster: its width, at most the largest node's CPUs
-    ref: object = None  # Ray's object ref, once started
-    actor: object = None  # the actor it runs on (pinned tasks)
+    ref: Any = None  # Ray's object ref, once started (Ray ships no types for it)
+    actor: Any = None  # the actor it runs on (pinned tasks)
     key: tuple = ()  # an actor's kind: (JAX width, worker environment)
     done: bool = False
     value: object = None

@@ -12,6 +12,7 @@ from __future__ import annotations
 import collections
 import dataclasses
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -46,7 +47,7 @@ def evaluate_split(
 
     encode_texts = _TextCache(backbone)
     pools = {"library": library.names(), "split": None}
-    counts = collections.Counter()
+    counts: collections.Counter[tuple[str, str]] = collections.Counter()
     chance = []
     crop_features, crop_names = [], []
     scenes = listed_scenes(dataset_dir, split)[:limit]
@@ -67,7 +68,9 @@ def evaluate_split(
         crop_features.append(visual[:-1])
         crop_names += [names[int(i)] for i in example.box_object_ids]
     pools["split"] = sorted(set(crop_names))
-    grounding = {group: counts[group, "correct"] / counts[group, "tuples"] for group, key in counts if key == "tuples"}
+    grounding: dict[str, Any] = {
+        group: counts[group, "correct"] / counts[group, "tuples"] for group, key in counts if key == "tuples"
+    }
     grounding["tuples"] = counts["all", "tuples"]
     grounding["counts"] = {group: count for (group, key), count in counts.items() if key == "tuples"}
     grounding["scenes"] = len(scenes)

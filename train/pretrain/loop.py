@@ -186,8 +186,9 @@ def gather_batch(images: RenderedImages, bank: CaptionBank, draw: BatchDraw) -> 
     """The images `draw` picked, gathered and turned, with their positives."""
     pixels = images.images[draw.indices]
     if draw.turns is not None:
+        flips = draw.flips if draw.flips is not None else np.zeros(len(pixels), bool)  # drawn with the turns
         pixels = np.stack(
-            [np.rot90(p[:, ::-1] if flip else p, turns) for p, turns, flip in zip(pixels, draw.turns, draw.flips)]
+            [np.rot90(p[:, ::-1] if flip else p, turns) for p, turns, flip in zip(pixels, draw.turns, flips)]
         )
     positives = bank.applies[draw.captions][:, draw.labels].T
     return Batch(np.ascontiguousarray(pixels), draw.factors, draw.labels, draw.captions, positives)
@@ -271,6 +272,8 @@ def caption_sentences(
         if sentences is None:
             sentences = np.zeros((len(texts), encoded.shape[1]), np.float32)
         sentences[rows] = encoded
+    if sentences is None:
+        raise TrainingError("no caption to encode: `used` is empty")
     return sentences
 
 
@@ -301,7 +304,10 @@ def shared_caption_sentences(
             log.warning("caption sentences %s cannot be used (%s): they are encoded again", path, error)
     missing = np.setdiff1d(used, known_rows)
     encoded = caption_sentences(text_tower, texts, missing, progress) if len(missing) else None
-    width = (encoded if encoded is not None else known).shape[1]
+    held = encoded if encoded is not None else known
+    if held is None:
+        raise TrainingError("no caption to encode: `used` is empty")
+    width = held.shape[1]
     every = np.zeros((len(texts), width), np.float32)
     if known is not None:
         every[known_rows] = known

@@ -18,6 +18,7 @@ Tables are the library's seen textures in both.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Collection
 
 from ocplace.errors import TrainingError
 from ocplace.models.offline_recipes import RenderConfig
@@ -122,12 +123,12 @@ def training_pool(library, corpus: Corpus | None, config: RenderConfig) -> Train
             if noun_group(a.human_name) not in groups
         )
         names = {a.name for a in assets}
-        asked = [("the large tier", "--large", corpus.large)] if large else []
+        asked: list[tuple[str, str, Collection[str]]] = [("the large tier", "--large", corpus.large)] if large else []
         for source in config.cutouts:
             tier = {name for name, of in corpus.cutouts.items() if of == source}
             asked.append((f"the cut-outs of {source}", f"--cutouts {source}", tier))
-        for what, flag, tier in asked:
-            if not set(tier) & names:
+        for what, flag, members in asked:
+            if not set(members) & names:
                 raise TrainingError(
                     f"the recipe asks for {what} of the corpus, and no model of it outside the held-out categories "
                     f"is built: run `ocplace corpus build {flag}`"
@@ -171,7 +172,9 @@ def benchmark_copies(library, assets) -> dict[str, str]:
     for asset in assets:
         descriptor = asset_descriptor(asset)
         close = [name for name, other in benchmark.items() if same_shape(descriptor, other)]
-        vertices = asset_vertices(asset) if close else None
+        if not close:
+            continue
+        vertices = asset_vertices(asset)
         for name in close:
             if name not in benchmark_vertices:
                 benchmark_vertices[name] = asset_vertices(library.get(name))

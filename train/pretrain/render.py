@@ -285,7 +285,7 @@ def _settled_scene(
     table is replaced by the next draw."""
     for _ in range(max_draws):
         spec = sample_scene_spec(rng, list(pool.objects), list(pool.textures), num_objects=config.objects_per_scene)
-        painted = {}
+        painted: dict[str, str] = {}
         if config.primitives_per_scene:
             spec, painted = with_primitives(spec, classes, extra, config)
             paint(arena.model, painted, extra)
