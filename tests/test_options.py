@@ -63,7 +63,7 @@ class Root:
 WORDS = st.text(st.characters(codec="utf-8", exclude_characters=",:\x00"), min_size=1).filter(
     lambda text: text == text.strip() and text.lower() != "none"
 )
-FLOATS = st.floats(allow_nan=False, width=64)
+FLOATS = st.floats(allow_nan=False, allow_infinity=False, width=64)  # --set refuses what is not finite
 VALUES = {
     "count": st.integers(),
     "rate": FLOATS,
@@ -136,6 +136,12 @@ def test_overrides_apply_in_order_and_the_last_one_wins(data):
         assert _get(changed, f"leaves.{key}") == value
     untouched = set(VALUES) - set(expected)
     assert all(_get(changed, f"leaves.{key}") == _get(Root(), f"leaves.{key}") for key in untouched)
+
+
+def test_set_refuses_a_number_that_is_not_finite():
+    for text in ("inf", "-inf", "nan"):
+        with pytest.raises(ConfigError, match=f"--set leaves.rate={text}: {text} is not a finite number"):
+            apply_overrides(Root(), [f"leaves.rate={text}"])
 
 
 def test_the_result_is_a_new_frozen_config_of_the_same_types():

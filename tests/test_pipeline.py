@@ -228,8 +228,9 @@ def test_figures_take_a_format_and_a_dpi_and_go_beside_their_results(first_run, 
     assert written == ["fig5_placement_distributions.svg", "fig7_sample_efficiency.svg"]
     assert (moved / "figures" / written[0]).read_text().lstrip().startswith("<?xml")
     bad = ["figures", str(moved / "results.json"), "--out", str(tmp_path / "bad")]
-    assert main([*bad, "--dpi", "0"]) == 2
-    assert "--dpi must be a whole number from 10 to 1200" in capsys.readouterr().err
+    with pytest.raises(SystemExit):  # refused as the flag is read (issue 60)
+        main([*bad, "--dpi", "0"])
+    assert "argument --dpi: 0 is out of range: give a whole number from 10 to 1,200" in capsys.readouterr().err
     with pytest.raises(SystemExit):  # argparse's usage error, naming the choices
         main([*bad, "--format", "bmp"])
     assert "invalid choice: 'bmp' (choose from 'png', 'pdf', 'svg')" in capsys.readouterr().err

@@ -7,7 +7,7 @@ import dataclasses
 import json
 from typing import Any
 
-from ocplace.cli.options import MAX_SEED, count, number
+from ocplace.cli.options import MAX_DURATION_S, MAX_SEED, count, number
 from ocplace.models.parsing.config import CROSS_CHECK_POLICIES, PARSER_NAMES
 
 
@@ -44,12 +44,12 @@ def _add_parser_options(command: argparse.ArgumentParser) -> None:
     command.add_argument("--model", help="LLM model name")
     command.add_argument(
         "--llm-deadline",
-        type=number(0.1, 3600.0),
+        type=number(0.001, MAX_DURATION_S),
         metavar="SECONDS",
         help="longest an LLM parse may wait, retries included, before the offline parser answers (default 30)",
     )
     command.add_argument(
-        "--llm-timeout", type=number(0.1, 3600.0), metavar="SECONDS", help="one LLM request (default 20)"
+        "--llm-timeout", type=number(0.001, MAX_DURATION_S), metavar="SECONDS", help="one LLM request (default 20)"
     )
     command.add_argument(
         "--llm-attempts",
