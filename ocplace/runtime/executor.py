@@ -27,6 +27,7 @@ import multiprocessing
 import os
 import threading
 import time
+import weakref
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures.process import BrokenProcessPool
 from typing import Any, Literal
@@ -166,6 +167,10 @@ class LocalExecutor(Executor):
     def __init__(self, workers: int, progress: bool = True):
         self.capacity, self._progress = workers, progress
         self._pools: dict[int | None, concurrent.futures.ProcessPoolExecutor] = {}  # JAX width (None: unpinned)
+        # The pool each running task's future came from: a pool whose worker died is dropped by the futures it
+        # breaks (BrokenProcessPool), the public signal, not its private flag.
+        self._origins: weakref.WeakKeyDictionary[concurrent.futures.Future, concurrent.futures.ProcessPoolExecutor]
+        self._origins = weakref.WeakKeyDictionary()
 
     def _pool(self, width: int | None) -> concurrent.futures.ProcessPoolExecutor:
         if width not in self._pools:
@@ -179,11 +184,13 @@ class LocalExecutor(Executor):
         return self._pools[width]
 
     def submit(self, task: Task):
-        if task.pinned:
-            return self._pool(task.cpus).submit(task.fn, *task.args)  # the worker pinned its width at start
-        if self.capacity == 1:
+        if not task.pinned and self.capacity == 1:
             return _Inline(task)
-        return self._pool(None).submit(run_task, task)
+        pool = self._pool(task.cpus if task.pinned else None)
+        # A pinned task's worker pinned its width when it started.
+        future = pool.submit(task.fn, *task.args) if task.pinned else pool.submit(run_task, task)
+        self._origins[future] = pool
+        return future
 
     def wait(self, handles):
         inline = next((h for h in handles if isinstance(h, _Inline)), None)
@@ -200,16 +207,16 @@ class LocalExecutor(Executor):
         try:
             return handle.result()
         except BrokenProcessPool:
-            self._drop_broken_pools()
+            self._drop_pool(self._origins.get(handle))
             raise ClusterError(
                 "a worker process died (killed, out of memory or a crash in native code); what it was doing "
                 "is lost, finished work is kept: rerun the command to resume"
             ) from None
 
-    def _drop_broken_pools(self) -> None:
+    def _drop_pool(self, broken: concurrent.futures.ProcessPoolExecutor | None) -> None:
         """A pool whose worker died refuses every later task: later tasks get a new one."""
         for width, pool in list(self._pools.items()):
-            if pool._broken:  # set by concurrent.futures when a worker dies; there is no public flag
+            if pool is broken:
                 pool.shutdown(wait=False, cancel_futures=True)
                 del self._pools[width]
 
