@@ -59,6 +59,9 @@ class PipelineConfig:
     dataset: Path | None = None  # an existing (or wanted) dataset folder instead of OUT/dataset
     executor: ExecutorConfig = ExecutorConfig()  # where the graph's tasks run (local pool or Ray)
     progress: bool = True
+    # Test-only datasets of users' catalogues (`generate --catalogue`), scored with the same runs, each into
+    # OUT/<catalogue>.results.json (docs/library.md, "Test on your own objects").
+    own_datasets: tuple[Path, ...] = ()
 
     def __post_init__(self) -> None:
         self.experiment.validate()  # a value that cannot work fails here, not hours into the run
@@ -86,6 +89,7 @@ class PipelineSummary:
     figures: list[Path] = dataclasses.field(default_factory=list)
     placement_figure: Path | None = None
     wall_s: float = 0.0  # the whole run; steps of the task graph overlap, so their sum is more
+    own_results: list[Path] = dataclasses.field(default_factory=list)  # one per `own_datasets`, their subsets scored
 
     def report(self) -> str:
         """The run's closing lines, after the tables: its errors and its wall (each step's line was printed as the
@@ -451,6 +455,8 @@ def run_pipeline(
             f"evaluation.backbone_seeds is {config.experiment.evaluation.backbone_seeds}, but a given backbone "
             f"({config.backbone}) has no pretraining to repeat: drop --backbone or set evaluation.backbone_seeds=1"
         )
+    for own in config.own_datasets:
+        own_dataset_subsets(own)  # checked before any work
     unknown += [
         f"{spec.name} places with {spec.places_with}'s runs, a row not registered (registered: {', '.join(specs)})"
         for spec in specs.values()
@@ -506,7 +512,57 @@ def _run(
         _card_row(out / POLICY_FOLDER, results)
     summary.wall_s = time.perf_counter() - began
     _write_results(summary, config, results)
+    summary.own_results = [
+        _score_own_dataset(config, specs, runs, evaluations, own, executor, backbone, out, command)
+        for own in config.own_datasets
+    ]
     return summary
+
+
+def own_dataset_subsets(dataset: Path) -> tuple[str, tuple[str, ...]]:
+    """`(catalogue name, its subsets)` of a test-only dataset of a user's catalogue; ConfigError for any other."""
+    from ocplace.sim.dataset.job import read_manifest
+
+    config = read_manifest(dataset).get("config") or {}
+    catalogue = config.get("catalogue") if isinstance(config, dict) else None
+    if not isinstance(catalogue, dict):
+        raise ConfigError(
+            f"{dataset} is no dataset of your own catalogue (made by `ocplace generate --catalogue FILE`); the "
+            "benchmark's own datasets are the experiment's"
+        )
+    return str(catalogue.get("name")), tuple(split["name"] for split in config["splits"])
+
+
+def _score_own_dataset(
+    config: PipelineConfig,
+    specs: Mapping[str, MethodSpec[Any]],
+    runs: list[MethodRun],
+    evaluations: list[Evaluation],
+    dataset: Path,
+    executor: Executor,
+    backbone: str,
+    out: Path,
+    command: object,
+) -> Path:
+    """Every row's run on the whole training set (its first seed) scored on `dataset`'s subsets, as `ocplace evaluate
+    --runs-from OUT` would; OUT/<catalogue>.results.json and its tables. Resumed from OUT/evaluations/ as the rest."""
+    from ocplace.eval.results import build_results
+    from ocplace.eval.table import write_outputs
+    from ocplace.experiments.evaluation import evaluate_runs
+
+    name, subsets = own_dataset_subsets(dataset)
+    trained = {e.key: None if e.run_dir is None else Path(e.run_dir) for e in evaluations}
+    base = [
+        dataclasses.replace(run, run_dir=trained[run.key])
+        for run in runs
+        if run.fraction == 1.0 and run.seed is None and run.backbone_seed is None and run.key in trained
+    ]
+    settings = dataclasses.replace(evaluation_settings(config, backbone), subsets=subsets)
+    scored = evaluate_runs(specs, base, dataset, settings, executor, config.progress, out / "evaluations")
+    path = out / f"{name}.results.json"
+    write_outputs(build_results(scored, dataset, settings, command), path)
+    print(f"your catalogue {name!r}: {', '.join(subsets)} scored into {path}", flush=True)
+    return path
 
 
 def _card_row(folder: Path, results: dict[str, Any] | None) -> None:

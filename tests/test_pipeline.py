@@ -615,3 +615,40 @@ def test_a_label_with_a_pipe_or_a_newline_stays_in_its_cell(first_run):
     [oracle] = [line for line in text.splitlines() if line.startswith("| Oracle |")]
     assert mine.startswith("| Mine \\| new line |") and mine.count(" | ") == oracle.count(" | ")  # as many cells
     assert "- Mine \\| new line (failing): 32 scenes" in table.failure_list(saved).splitlines()
+
+
+def test_reproduce_scores_its_rows_on_a_catalogues_dataset_too(first_run, config, specs, library, tmp_path):
+    """Issue 59: `reproduce --score-catalogue DIR` scores every row's run (the whole training set, its first seed) on
+    a test-only dataset of a user's catalogue, into OUT/<catalogue>.results.json, resuming the rest; a benchmark
+    dataset given there is refused before any work."""
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+    from example_catalogue import write_example
+
+    from ocplace.sim.dataset.config import catalogue_config
+    from ocplace.sim.dataset.job import generate_dataset
+    from ocplace.sim.library import default_config
+    from ocplace.sim.library.build import build_catalogue
+    from ocplace.sim.library.catalogue_library import catalogue_record
+    from ocplace.sim.library.user_catalogue import read_catalogue
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("OCPLACE_CACHE", str(tmp_path / "cache"))
+        (tmp_path / "cache").mkdir()
+        (tmp_path / "cache" / "library").symlink_to(library.root)
+        catalogue = read_catalogue(write_example(tmp_path / "objects"))
+        build_catalogue(catalogue, default_config(), progress=False)
+        own = tmp_path / "lab"
+        generate_dataset(own, catalogue_config(catalogue_record(catalogue), ("lab",), 4), progress=False)
+        with_own = dataclasses.replace(config, own_datasets=(own,))
+        summary = pipeline.run_pipeline(with_own, first_run.out, specs=specs, library=library, command=["pytest"])
+        with pytest.raises(ConfigError, match="is no dataset of your own catalogue"):
+            pipeline.run_pipeline(
+                dataclasses.replace(config, own_datasets=(config.dataset,)), tmp_path / "x", specs=specs
+            )
+    assert summary.own_results == [first_run.out / "lab.results.json"] and not (tmp_path / "x").exists()
+    scored = results.read_results(summary.own_results[0])
+    assert sorted(e["key"] for e in scored["evaluations"]) == sorted(specs)
+    assert all(len(e["subsets"]["lab"]["scenes"]) == 4 for e in scored["evaluations"])
+    assert "lab (your objects)" in summary.own_results[0].with_suffix(".md").read_text()

@@ -60,6 +60,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="K",
         help="physical check on the first K scenes per subset (default: the experiment's; -1: all)",
     )
+    reproduce.add_argument(
+        "--score-catalogue",
+        type=Path,
+        action="append",
+        default=[],
+        metavar="DIR",
+        help="also score every row on this test-only dataset of your own catalogue (`ocplace generate --catalogue`), "
+        'into OUT/<catalogue>.results.json; repeatable (docs/library.md, "Test on your own objects")',
+    )
     add_set_argument(reproduce, "recipes.ours.schedule.steps or dataset.train_scenes (applied after the other options)")
     reproduce.add_argument("--no-progress", action="store_true", help="no progress bars")
     add_executor_arguments(
@@ -136,9 +145,12 @@ def _reproduce(args: argparse.Namespace) -> int:
         dataset=args.dataset,
         executor=executor_config(args),
         progress=not args.no_progress,
+        own_datasets=tuple(args.score_catalogue),
     )
     summary = run_pipeline(config, args.out or experiment.out, command=command_record(args))
     print(summary.terminal)
+    for path in summary.own_results:
+        print(f"your objects: {path} and {path.with_suffix('.md')}")
     print(summary.report())
     return 1 if summary.errors else 0
 
