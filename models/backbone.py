@@ -83,12 +83,13 @@ class PromptConfig:
             return [f"template {self.template!r} must hold one {{}} (where the phrase goes) and no other brace"]
         return []
 
-    def text_for(self, phrase: str) -> str:
-        """The caption of `phrase`; a plural object ("scissors", "black sneakers") loses the template's "a "."""
+    def text_for(self, phrase: str, plural: bool = True) -> str:
+        """The caption of `phrase`; a plural object ("scissors", "black sneakers") loses the template's "a ", unless
+        `plural` is off (the offline backbone's pretraining captions, which its recipe key names, keep it)."""
         phrase = " ".join(phrase.split())
         if phrase.lower() in self.table_phrases:
             return self.table_text
-        if is_plural(phrase) and "a {}" in self.template:
+        if plural and is_plural(phrase) and "a {}" in self.template:
             return self.template.replace("a {}", "{}", 1).format(phrase)
         return self.template.format(phrase)
 

@@ -199,6 +199,17 @@ def test_a_plural_object_is_captioned_without_an_article():
     assert prompt.text_for("red bowl") == "a photo of a red bowl." and prompt.text_for("table") == "a photo of a table."
 
 
+def test_the_backbones_pretraining_captions_keep_their_words():
+    """The demo's backbone changed fingerprint when its captions of corpus models named "boots" or "glasses" lost
+    their article under the same recipe key: pretraining captions stay as the recipes were trained."""
+    from ocplace.models.backbone import PromptConfig
+    from ocplace.train.pretrain.captions import ObjectDescription, object_captions
+
+    boots = ObjectDescription("boots", "boots", (), "boots")
+    assert "a photo of a boots." in object_captions(boots, PromptConfig())
+    assert PromptConfig().text_for("boots") == "a photo of boots."  # grounding a plural object reads right
+
+
 @pytest.mark.slow
 def test_the_own_objects_tutorial_runs_as_written(tmp_path, trained_run, tiny_backbone_spec, borrowed_cache):
     """docs/library.md's "Test on your own objects" block, line by line, in a folder holding an exported policy where

@@ -131,7 +131,8 @@ def object_captions(obj: ObjectDescription, prompt: PromptConfig) -> list[str]:
     category, and its colours with and without the category."""
     captions = []
     for name in obj.names:
-        captions.append(prompt.text_for(name))
+        # As the recipes were pretrained: a caption bank in other words would be another backbone under one key.
+        captions.append(prompt.text_for(name, plural=False))
         captions += [t.format(a=article(name), name=name) for t in NAME_TEMPLATES]
     category = obj.category.lower()
     captions += [f"{article(category)} {category}", f"a photo of {article(category)} {category}."]

@@ -98,7 +98,7 @@ def validation_grounding(backbone: Backbone, scenes: ValidationScenes, prompt: P
     retrieval top-1 among all held-out names."""
     visual = backbone.encode_images(scenes.crops)
     vocabulary = sorted(set(scenes.names.tolist()))
-    texts = backbone.encode_texts([prompt.text_for(name) for name in vocabulary])
+    texts = backbone.encode_texts([prompt.text_for(name, plural=False) for name in vocabulary])  # as recorded
     name_index = np.array([vocabulary.index(name) for name in scenes.names])
     similarity = visual @ texts.T  # (M, names)
     correct, chance = [], []
