@@ -394,3 +394,34 @@ def test_a_run_named_relative_or_absolute_compares_by_its_content(results_json):
     assert results.compare(relative, absolute) == []
     absolute["evaluations"][0]["description"]["adapters"]["sha256"] = "ef" * 32
     assert any("describe() differs" in difference for difference in results.compare(relative, absolute))
+
+
+@pytest.mark.parametrize("damage", ["failures edited into successes", "cut to 200 bytes", "an empty object"])
+def test_a_stored_evaluation_is_checked_before_it_is_reused(smoke_dataset, tmp_path, damage, caplog):
+    """Issue 60, item 7: an evaluation kept for a resume (`OUT.evaluations/`, `OUT/evaluations/`) carries a checksum
+    of its content and its key; an entry edited, cut short or emptied is evaluated again (said in one line), never
+    trusted and never fatal, and what comes back is the honest evaluation."""
+    import eval_methods
+
+    from ocplace.eval.results import evaluation_to_json
+    from ocplace.experiments.evaluation import stored_evaluation
+    from ocplace.methods.registry import method_run
+
+    spec = eval_methods.SPECS["centre"]
+    settings = EvalSettings(backbone="none", subsets=("seen",), physical_scenes=0)
+    path, reused, honest = stored_evaluation(spec, method_run(spec), settings, smoke_dataset, "d" * 16, tmp_path)
+    assert not reused and sum(o.success for o in honest.subsets["seen"]) < len(honest.subsets["seen"])
+    document = json.loads(path.read_text())
+    if damage == "failures edited into successes":
+        for scene in document["evaluation"]["subsets"]["seen"]["scenes"]:
+            scene["success"] = True
+        path.write_text(json.dumps(document))
+    elif damage == "cut to 200 bytes":
+        path.write_text(path.read_text()[:200])
+    else:
+        path.write_text("{}")
+    again, reused, evaluation = stored_evaluation(spec, method_run(spec), settings, smoke_dataset, "d" * 16, tmp_path)
+    assert again == path and not reused and "cannot be trusted" in caplog.text and "evaluated again" in caplog.text
+    strip = lambda e: {k: v for k, v in evaluation_to_json(e).items() if k != "wall_s"}  # noqa: E731
+    assert strip(evaluation) == strip(honest)
+    assert stored_evaluation(spec, method_run(spec), settings, smoke_dataset, "d" * 16, tmp_path)[1]  # sound: reused

@@ -115,45 +115,6 @@ def test_a_killed_evaluation_on_two_workers_leaves_no_process_and_resumes_what_i
     assert modes == {fast: [(0.0, 0.0)] * 3, slow: [(0.05, 0.0)] * 3}
 
 
-CORNER_POLICY = """
-def place(observation):
-    return (0.1, 0.05)
-"""
-
-
-@pytest.mark.parametrize("damage", ["failures edited into successes", "cut to 200 bytes", "an empty object"])
-def test_a_stored_evaluation_is_checked_before_it_is_reused(smoke_dataset, tmp_path, damage):
-    """Issue 60, item 7: an evaluation kept for a resume carries a checksum of its content and its key; an entry
-    edited, cut short or emptied is evaluated again (said in one line), never trusted and never fatal, and the
-    table is the honest one."""
-    (tmp_path / "corner_policy_of_the_store_test.py").write_text(CORNER_POLICY)
-    command = [sys.executable, "-m", "ocplace.cli", "evaluate", "--dataset", str(smoke_dataset), "--subsets", "seen"]
-    command += ["--physical", "0", "--backbone", "none", "--out", "results.json", "--no-progress"]
-    command += ["--policy", "corner_policy_of_the_store_test:place"]
-    from ocplace.experiments.evaluation import DIE_AFTER_EVALUATIONS_ENV
-
-    killed = subprocess.run(command, cwd=tmp_path, env=_env(tmp_path) | {DIE_AFTER_EVALUATIONS_ENV: "1"})
-    assert killed.returncode == -signal.SIGKILL
-    (stored,) = (tmp_path / "results.evaluations").glob("*.json")
-    document = json.loads(stored.read_text())
-    scenes = document["evaluation"]["subsets"]["seen"]["scenes"]
-    honest = sum(scene["success"] for scene in scenes)
-    assert honest < len(scenes), "the test needs a failed scene to edit"
-    if damage == "failures edited into successes":
-        for scene in scenes:
-            scene["success"] = True
-        stored.write_text(json.dumps(document))
-    elif damage == "cut to 200 bytes":
-        stored.write_text(stored.read_text()[:200])
-    else:
-        stored.write_text("{}")
-    resumed = subprocess.run(command, cwd=tmp_path, env=_env(tmp_path), capture_output=True, text=True)
-    assert resumed.returncode == 0, resumed.stderr[-2000:]
-    assert "cannot be trusted" in resumed.stderr and "it is evaluated again" in resumed.stderr
-    (entry,) = json.loads((tmp_path / "results.json").read_text())["evaluations"]
-    assert sum(scene["success"] for scene in entry["subsets"]["seen"]["scenes"]) == honest
-
-
 STOPPED_POLICY = """
 import os, signal, subprocess
 
