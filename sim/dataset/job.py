@@ -26,7 +26,7 @@ from pathlib import Path
 
 import ocplace
 from ocplace.errors import DatasetConfigError, DatasetError
-from ocplace.paths import disk_full_is_typed, file_sha256, inside, write_text_atomic
+from ocplace.paths import disk_full_is_typed, file_sha256, inside, read_json_bounded, write_text_atomic
 from ocplace.runtime import Executor, ExecutorConfig, Task, map_tasks, open_executor
 from ocplace.runtime.progress import progress_bar
 from ocplace.sim.dataset.config import DatasetConfig, generate_advice
@@ -252,8 +252,8 @@ def library_of_dataset(out: str | Path, cache: str | None = None):
     """`dataset_library` of the dataset in `out`, from the configuration its dataset.json records."""
     path = Path(out) / CONFIG_FILE
     try:
-        described = json.loads(path.read_text())["config"]
-    except (OSError, ValueError, KeyError, TypeError) as error:
+        described = read_json_bounded(path)["config"]
+    except (OSError, ValueError, KeyError, TypeError) as error:  # FileRefused is a ValueError
         raise DatasetError(
             f"cannot read {path} ({error}); the dataset is incomplete: rerun `ocplace generate`"
         ) from None

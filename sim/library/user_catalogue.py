@@ -15,11 +15,11 @@ import json
 import math
 import os
 import re
-import stat
 from pathlib import Path
 
 from ocplace.errors import AssetBuildError, CatalogueError, FileRefused
-from ocplace.paths import read_json_bounded
+from ocplace.paths import file_sha256, read_json_bounded, regular_file
+from ocplace.runtime.progress import progress_bar
 from ocplace.sim.library.meshes import load_mesh
 from ocplace.sim.library.metadata import ObjectSpec, packaged_objects
 from ocplace.sim.library.process_object import SIZE_RANGE
@@ -33,6 +33,7 @@ UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
 MESH_SUFFIXES = (".obj", ".stl", ".ply")
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 MAX_CATALOGUE_BYTES = 4 << 20  # a catalogue is a hand-written list; anything larger is not one
+MAX_SOURCE_BYTES = 2 << 30  # a mesh or texture file; a scan of a tabletop object is far smaller
 _NAME = re.compile(OWN_SUBSET_PATTERN)
 _OBJECT_FIELDS = frozenset(
     (
@@ -102,7 +103,8 @@ def read_catalogue(path: str | Path) -> Catalogue:
         problems.append("objects: a non-empty list of objects is needed")
         entries = []
     specs = []
-    for index, entry in enumerate(entries):
+    # Each mesh is read to check it: a lab's scans can take a while, so the check shows its progress.
+    for index, entry in enumerate(progress_bar(entries, desc="checking the catalogue", unit="obj")):
         label = f"objects[{index}]" + (f" ({entry.get('name')})" if isinstance(entry, dict) else "")
         entry_problems: list[str] = []
         spec = _spec(entry, base, subsets, entry_problems)
@@ -265,8 +267,10 @@ def _relative_file(entry: dict, field: str, base: Path, suffixes: tuple[str, ...
     resolved = _relative(entry, field, base, problems)
     if resolved is None:
         return None
-    if not stat.S_ISREG(os.stat(resolved).st_mode):
-        problems.append(f"{field}: {entry[field]!r} is not a regular file")
+    try:
+        regular_file(resolved, MAX_SOURCE_BYTES)
+    except FileRefused as error:
+        problems.append(f"{field}: {error}")
         return None
     if resolved.suffix.lower() not in suffixes:
         problems.append(f"{field}: {entry[field]!r} is not one of {', '.join(suffixes)}")
@@ -386,5 +390,5 @@ def content_hash(name: str, subsets, specs) -> str:
         files = source_files(spec)
         for path in files.input_files():
             digest.update(path.name.encode())
-            digest.update(hashlib.sha256(path.read_bytes()).digest())
+            digest.update(bytes.fromhex(file_sha256(path)))  # streamed: a scan's mesh may be large
     return digest.hexdigest()
