@@ -100,6 +100,7 @@ def test_a_catalogue_never_enters_the_benchmark_pools_or_the_backbone_key(tmp_pa
         assert recipe_dir("default").name.startswith(keys["default"].name + "-pool")
 
 
+@pytest.mark.slow  # the default suite's 15 min budget on 2 cores (docs/performance.md)
 def test_the_same_catalogue_from_two_folders_is_the_same_objects_and_dataset(tmp_path, borrowed_cache):
     """Identity by content: object keys, recorded sources and the dataset hash never hold where the files lie."""
     from ocplace.eval.results import dataset_identity
@@ -126,6 +127,7 @@ def test_the_same_catalogue_from_two_folders_is_the_same_objects_and_dataset(tmp
     assert identities[0] == identities[1]
 
 
+@pytest.mark.slow  # the default suite's 15 min budget on 2 cores (docs/performance.md)
 def test_from_meshes_to_a_table_one_column_in_three_commands(tmp_path, default_offline_backbone, capsys):
     """`assets build --catalogue`, `generate --catalogue`, `evaluate --subsets`: a test-only dataset (no training
     split), scored under the subset's name, the results naming the catalogue by content hash."""

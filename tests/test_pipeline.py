@@ -617,6 +617,7 @@ def test_a_label_with_a_pipe_or_a_newline_stays_in_its_cell(first_run):
     assert "- Mine \\| new line (failing): 32 scenes" in table.failure_list(saved).splitlines()
 
 
+@pytest.mark.slow  # the default suite's 15 min budget on 2 cores (docs/performance.md)
 def test_reproduce_scores_its_rows_on_a_catalogues_dataset_too(first_run, config, specs, library, tmp_path):
     """Issue 59: `reproduce --score-catalogue DIR` scores every row's run (the whole training set, its first seed) on
     a test-only dataset of a user's catalogue, into OUT/<catalogue>.results.json, resuming the rest; a benchmark

@@ -128,6 +128,7 @@ def place(observation):
 """
 
 
+@pytest.mark.slow  # the default suite's 15 min budget on 2 cores (docs/performance.md)
 def test_a_stopped_policy_and_what_it_started_end_when_the_command_is_killed(smoke_dataset, tmp_path):
     """Issue 60, item 4: `kill -9` of `evaluate` while the policy's process is stopped (SIGSTOP, a debugger, a frozen
     cgroup): its worker, seeing its command gone, kills everything below it; nothing is left 15 s later."""
