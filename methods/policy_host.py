@@ -20,13 +20,20 @@ import os
 import signal
 import threading
 import weakref
+from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeGuard
 
 import numpy as np
 
 from ocplace.errors import POLICY_ERRORS, EvaluationError, PolicyProcessEnded, SceneTimeout
-from ocplace.paths import MAX_JSON_DEPTH, json_depth
-from ocplace.runtime.processes import kill_tree
+from ocplace.paths import MAX_JSON_DEPTH, json_depth, processes_cache
+from ocplace.runtime.processes import (
+    become_subreaper,
+    forget_process,
+    kill_tree,
+    reap_leftovers,
+    record_process,
+)
 
 if TYPE_CHECKING:
     from multiprocessing.connection import Connection
@@ -131,7 +138,11 @@ def serve(reference: str, connection: Pipe, jax_width: int | None = None) -> Non
     from ocplace.runtime.width import pinned_cpus
 
     os.setpgid(0, 0)  # a group of its own: what the policy starts is killed with it (`_stop`)
-    exit_with_parent(lambda: os.killpg(0, signal.SIGKILL))
+    become_subreaper()  # and what it starts through a child that ended is still below it
+    exit_with_parent(lambda: kill_tree(os.getpid()))
+    # The kernel's word that the command died while this process was stopped (its group orphaned): SIGHUP, then
+    # SIGCONT. By default SIGHUP would end this process alone, orphaning what it started in sessions of their own.
+    signal.signal(signal.SIGHUP, lambda *_: kill_tree(os.getpid()))
     with pinned_cpus(jax_width) if jax_width else contextlib.nullcontext():
         policy = _loaded(reference, connection)
         if policy is None or not _answered(policy, connection):
@@ -215,10 +226,11 @@ def _output_json(output: object) -> dict[str, Any]:
 # ----------------------------------------------------------------------------- the evaluation's side
 
 
-def _stop(process: BaseProcess, connection: Pipe) -> int | None:
-    """Kills `process` (if running) and all it started, and frees its pipe and handles; its exit code."""
+def _stop(process: BaseProcess, connection: Pipe, note: Path | None) -> int | None:
+    """Kills `process` (if running) and all it started, and frees its pipe, handles and `note`; its exit code."""
     if process.pid is not None:
         kill_tree(process.pid)
+    forget_process(note)
     if process.is_alive():
         process.kill()
     process.join()
@@ -259,10 +271,12 @@ class PolicyHost:
         self.reference, self.jax_width = reference, jax_width
         self._process: BaseProcess | None = None
         self._connection: Pipe | None = None
-        self._finalizer: weakref.finalize[[BaseProcess, Pipe], PolicyHost] | None = None
+        self._finalizer: weakref.finalize[[BaseProcess, Pipe, Path | None], PolicyHost] | None = None
         self.ready: dict[str, Any] = self._start()
 
     def _start(self) -> dict[str, Any]:
+        notes = processes_cache()
+        reap_leftovers(notes)  # what an earlier command killed with SIGKILL left: nothing of it could end them
         context = multiprocessing.get_context("spawn")  # never fork a process that runs JAX or EGL
         connection, child_end = context.Pipe()
         arguments = (self.reference, child_end, self.jax_width)
@@ -270,7 +284,8 @@ class PolicyHost:
         process.start()
         child_end.close()
         self._process, self._connection = process, connection
-        self._finalizer = weakref.finalize(self, _stop, process, connection)
+        note = record_process(notes, process.pid) if process.pid is not None else None
+        self._finalizer = weakref.finalize(self, _stop, process, connection, note)
         ready = self._receive(LOAD_TIMEOUT_S, loading=True)
         if "error" in ready:
             self.stop()

@@ -83,6 +83,10 @@ def compiled_cache() -> Path:
     return cache_dir() / "compiled"  # JAX's persistent compilation cache, one folder per CPU type and width
 
 
+def processes_cache() -> Path:
+    return cache_dir() / "processes"  # notes of running policy processes, for reaping what a killed command left
+
+
 def llm_cache(subdir: str) -> Path:
     return cache_dir() / subdir  # the LLM parser's answers; `subdir` is `LLMConfig.cache_subdir` ("parser")
 

@@ -12,6 +12,7 @@ import time
 import pytest
 
 from ocplace.paths import pid_alive
+from ocplace.runtime.processes import start_time
 
 COMMAND = """
 import sys, time
@@ -150,3 +151,63 @@ def test_a_stopped_policy_and_what_it_started_end_when_the_command_is_killed(smo
     while any(pid_alive(pid) for pid in left) and time.monotonic() < deadline:
         time.sleep(0.2)
     assert not any(pid_alive(pid) for pid in left), "a stopped policy, its worker or its child outlived the command"
+
+
+ORPHANING_POLICY = """
+import ctypes, os, signal, subprocess
+
+
+def place(observation):
+    # A daemon by double fork (its shell ends at once, in a session of its own), then the policy never returns.
+    shell = subprocess.run(["sh", "-c", "setsid sleep 400 >/dev/null 2>&1 & echo $!"], capture_output=True, text=True)
+    with open(os.environ["OCPLACE_TEST_PIDS"], "a") as pids:
+        pids.write(f"{os.getpid()} {shell.stdout.strip()}\\n")
+    if os.environ["OCPLACE_TEST_MODE"] == "stopped":
+        os.kill(os.getpid(), signal.SIGSTOP)
+    else:  # native code holding the GIL: no thread of the process runs Python, its watcher included
+        ctypes.PyDLL(None).sleep(400)
+    return (0.0, 0.0)
+"""
+
+HOSTING_COMMAND = """
+from ocplace.methods.policy_host import PolicyHost
+
+PolicyHost("orphaning_policy_of_the_reap_test:place").request(("place", None), 300)
+"""
+
+
+@pytest.mark.parametrize("mode", ["stopped", "native"])
+def test_nothing_a_policy_started_outlives_a_command_killed_with_sigkill(tmp_path, monkeypatch, mode):
+    """Issue 60, item 4: a command hosting a policy in its own process is killed with SIGKILL while the policy has a
+    double-forked daemon and is stopped (the kernel's SIGHUP to an orphaned group wakes it: it ends its tree) or
+    stuck in native code (nothing of it runs: the next policy started ends it and its daemon, from its note)."""
+    (tmp_path / "orphaning_policy_of_the_reap_test.py").write_text(ORPHANING_POLICY)
+    (tmp_path / "fast_policy_of_the_reap_test.py").write_text("def place(observation):\n    return (0.0, 0.0)\n")
+    pids_file, notes = tmp_path / "pids", tmp_path / "cache" / "processes"
+    env = _env(tmp_path) | {"OCPLACE_TEST_PIDS": str(pids_file), "OCPLACE_CACHE": str(tmp_path / "cache")}
+    running = subprocess.Popen(
+        [sys.executable, "-c", HOSTING_COMMAND], cwd=tmp_path, env=env | {"OCPLACE_TEST_MODE": mode}
+    )
+    deadline = time.monotonic() + 60
+    while not (pids_file.is_file() and pids_file.read_text().endswith("\n")):  # the known point: it is stuck
+        assert running.poll() is None and time.monotonic() < deadline
+        time.sleep(0.1)
+    running.kill()
+    running.wait(30)
+    left = [int(pid) for pid in pids_file.read_text().split()]
+    if mode == "native":
+        time.sleep(2)  # past the watcher's poll: were it able to run, it would have ended them
+        assert all(pid_alive(pid) for pid in left), "the stuck policy ended by itself: this case tests nothing"
+        assert [path.name for path in notes.iterdir()] == [f"{left[0]}-{start_time(left[0])}.json"]
+        monkeypatch.setenv("OCPLACE_CACHE", str(tmp_path / "cache"))
+        monkeypatch.syspath_prepend(str(tmp_path))
+        from ocplace.methods.policy_host import PolicyHost
+
+        host = PolicyHost("fast_policy_of_the_reap_test:place")
+        assert host.request(("place", None), 30) == {"mode": [0.0, 0.0]}
+        host.stop()
+        assert list(notes.iterdir()) == [], "a note outlived its process"
+    deadline = time.monotonic() + 10
+    while any(pid_alive(pid) for pid in left) and time.monotonic() < deadline:  # zombies until init reaps them
+        time.sleep(0.1)
+    assert not any(pid_alive(pid) for pid in left), "a policy or its daemon outlived the command"
