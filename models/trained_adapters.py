@@ -19,7 +19,14 @@ from ocplace.errors import TrainingError
 from ocplace.models.adapters import AdapterConfig, init_adapters
 from ocplace.models.backbone import PromptConfig
 from ocplace.models.grounding import GroundingModel
-from ocplace.models.weights_file import flatten_state, load_weights, save_weights, unflatten_state
+from ocplace.models.weights_file import (
+    WEIGHTS_KINDS,
+    expect_kind,
+    flatten_state,
+    load_weights,
+    save_weights,
+    unflatten_state,
+)
 from ocplace.paths import trained_weights
 
 
@@ -77,12 +84,8 @@ def load_adapters(source) -> TrainedAdapters:
         else f"pass a run directory (OUT/runs/ours/fraction-1.00) or the adapters file a run wrote instead of {path}"
     )
     arrays, metadata = load_weights(path, rebuild)
-    missing = [key for key in ADAPTER_METADATA if key not in metadata]
-    if missing:  # e.g. the weights of another row (w/o LLM, a baseline) where Ours' adapters are expected
-        raise TrainingError(
-            f"{path} holds no CLIP-Adapters (its metadata lacks {', '.join(missing)}): it is not a run of Ours or of "
-            "a row that trains as Ours does; pass one (`OUT/runs/ours/fraction-1.00`)"
-        )
+    wanted, example = WEIGHTS_KINDS["adapter_config"], "OUT/runs/ours/fraction-1.00"
+    expect_kind(path, metadata, list(ADAPTER_METADATA), wanted, example)
     config = AdapterConfig(**json.loads(metadata["adapter_config"]))
     template = jax.eval_shape(lambda: init_adapters(config, jax.random.key(0)))
     params = unflatten_state(arrays, template)

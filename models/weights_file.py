@@ -129,3 +129,36 @@ def _check_finite(path: str | Path, tensors: dict[str, np.ndarray], rebuild: str
                 f"{path} holds NaN or inf weights ({name}): the run diverged or the file is damaged; "
                 f"{rebuild} (a run that diverges again needs a lower learning rate)"
             )
+
+
+# The metadata key each kind of weights file carries, and the words a message names that kind by: a loader given
+# another kind (`evaluate --run ours=RUN` where RUN is a w/o LLM run) names both (issue 60, item 8).
+WEIGHTS_KINDS = {
+    "adapter_config": "Ours' CLIP-Adapters (a run of Ours or of a row trained as Ours is)",
+    "model_config": "the model of a w/o LLM run (no_llm)",
+    "run": "the weights of a {method} run",
+    "format": "a policy folder's model (`ocplace export`)",
+}
+
+
+def weights_kind(metadata: dict[str, str]) -> str:
+    """What a weights file holds, in words, by the metadata its writer put in it."""
+    for key, words in WEIGHTS_KINDS.items():
+        if key in metadata:
+            try:
+                method = json.loads(metadata[key]).get("method", "baseline") if key == "run" else ""
+            except (ValueError, AttributeError):
+                method = "baseline"
+            return words.format(method=method)
+    return "weights no ocplace row writes"
+
+
+def expect_kind(path: str | Path, metadata: dict[str, str], needed: list[str], wanted: str, example: str) -> None:
+    """TrainingError naming what `path` holds and the `wanted` kind, unless its metadata has the `needed` fields;
+    `example` is a path of the wanted kind."""
+    missing = [field for field in needed if field not in metadata]
+    if missing:
+        raise TrainingError(
+            f"{path} holds {weights_kind(metadata)}, not {wanted} (its metadata lacks {', '.join(missing)}); "
+            f"pass a run of the row you meant (e.g. `{example}`)"
+        )

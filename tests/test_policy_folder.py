@@ -13,10 +13,12 @@ import numpy as np
 import pytest
 
 from ocplace.cli import main
-from ocplace.errors import GroundingUncertain, NoFeasiblePlacement, PolicyFolderError
+from ocplace.errors import GroundingUncertain, NoFeasiblePlacement, PolicyFolderError, TrainingError
 from ocplace.experiments import pipeline
+from ocplace.methods.no_llm.model import load_model as load_no_llm
 from ocplace.methods.policy_method import scene_input
 from ocplace.models.backbone import load_backbone
+from ocplace.models.baselines.trained_run import load_run
 from ocplace.models.placement.sampler import SamplerConfig
 from ocplace.models.policy import PlacementPolicy
 from ocplace.models.policy_folder import CONFIG_FILE, MODEL_FILE
@@ -100,9 +102,14 @@ def test_cli_exports_a_run_and_places_with_the_folder(trained_run, tiny_backbone
 
     other_row = tmp_path / "no_llm_run" / "weights.safetensors"
     other_row.parent.mkdir()
-    save_weights(other_row, {"w": np.zeros(2, np.float32)}, {"backbone_fingerprint": "0" * 64})
+    save_weights(other_row, {"w": np.zeros(2, np.float32)}, {"model_config": "{}", "backbone_fingerprint": "0" * 64})
     assert main(["export", "--run", str(other_row.parent), "--out", str(tmp_path / "x")]) == 2
-    assert "holds no CLIP-Adapters (its metadata lacks adapter_config" in capsys.readouterr().err
+    both_rows = "holds the model of a w/o LLM run (no_llm), not Ours' CLIP-Adapters (a run of Ours or of a row"
+    assert both_rows in capsys.readouterr().err
+    with pytest.raises(TrainingError, match=re.escape("holds Ours' CLIP-Adapters (a run of Ours or of a row trained")):
+        load_no_llm(trained_run[0])
+    with pytest.raises(TrainingError, match="holds Ours' CLIP-Adapters .*, not the weights of a grids run"):
+        load_run(trained_run[0], "grids")
     (tmp_path / "a_file").write_text("keep me")
     assert main(["export", "--run", str(trained_run[0]), "--out", str(tmp_path / "a_file")]) == 2
     assert "it is a file, not a folder" in capsys.readouterr().err

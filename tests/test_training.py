@@ -323,7 +323,7 @@ def test_a_damaged_run_file_is_typed_when_the_run_resumes_or_loads(tmp_path, fea
     message = f"{run / RUN_FILE} is truncated or damaged (not a JSON object), so the run cannot be checked or resumed"
     assert capsys.readouterr().err.startswith(f"ocplace train: error: {message}")
     with pytest.raises(TrainingError, match=re.escape(f"delete {run} to train it again")):
-        load_run(run)
+        load_run(run, "grids")
 
 
 def _train_args(*options):

@@ -197,7 +197,7 @@ def mode_and_samples(
 
 def load_params(run_dir: Path) -> tuple[dict, dict, str]:
     """`(params, run_meta, weights sha256)` of a finished run."""
-    run_meta, arrays, sha = load_run(run_dir)
+    run_meta, arrays, sha = load_run(run_dir, "cliport")
     config = serial.from_dict(CliportConfig, run_meta["network"])
     template = jax.eval_shape(lambda: init_network(config, run_meta["dim"], jax.random.key(0)))
     return unflatten_state(arrays, template), run_meta, sha

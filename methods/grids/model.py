@@ -177,7 +177,7 @@ def sample_in_cell(
 
 def load_params(run_dir: Path) -> tuple[dict, dict, str]:
     """`(params, run_meta, weights sha256)` of a finished run."""
-    run_meta, arrays, sha = load_run(run_dir)
+    run_meta, arrays, sha = load_run(run_dir, "grids")
     config = serial.from_dict(GridConfig, run_meta["grid"])
     dim = int(arrays["['visual']['up']['kernel']"].shape[-1])  # the feature size is not in the run's config
     template = jax.eval_shape(lambda: init_grids(config, dim, jax.random.key(0)))

@@ -31,7 +31,7 @@ from ocplace.methods.no_llm.recipe import NoLlmConfig
 from ocplace.models.adapters import GroundingAdapters, apply_adapters
 from ocplace.models.backbone import Backbone, update_with_params
 from ocplace.models.grounding import cosine_logits, grounding_loss
-from ocplace.models.weights_file import load_weights, unflatten_state
+from ocplace.models.weights_file import WEIGHTS_KINDS, expect_kind, load_weights, unflatten_state
 from ocplace.paths import trained_weights
 from ocplace.sim.relations import RELATION_NAMES, RELATIONS
 
@@ -209,6 +209,8 @@ def load_model(run_dir: Path) -> TrainedNoLlm:
     arrays, metadata = load_weights(
         path, f"delete {path.parent} and rerun `ocplace reproduce` (it trains missing runs)"
     )
+    needed = ["model_config", "logit_scale", "backbone_fingerprint", "train_config"]
+    expect_kind(path, metadata, needed, WEIGHTS_KINDS["model_config"], "OUT/runs/no_llm/fraction-1.00")
     config = serial.from_json(NoLlmConfig, metadata["model_config"])
     template = jax.eval_shape(lambda: init_params(config, jax.random.key(0)))
     params = unflatten_state(arrays, template)
