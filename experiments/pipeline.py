@@ -467,8 +467,40 @@ def run_pipeline(
     if unknown:
         raise ConfigError(f"experiment {config.experiment.name!r} cannot run: {'; '.join(unknown)}")
     check_writable(out, as_folder=True)
+    check_outputs(config, out)
     with open_executor(config.executor) as executor:
         return _run(config, executor, out, specs, command, library)
+
+
+def check_outputs(config: PipelineConfig, out: Path) -> None:
+    """OutputError, before any work, listing every path of OUT that is taken by the wrong kind (a file where a
+    folder goes, a folder where a file goes), every catalogue scored twice into one file, and an OUT on or inside
+    its own dataset: each would otherwise fail (or mix files) once the runs are trained."""
+    from ocplace.errors import OutputError
+
+    files = ["results.json", "results.md", SUMMARY_FILE, OUTCOMES_FILE, PLACEMENT_FIGURE]
+    folders = ["runs", "evaluations", "figures", POLICY_FOLDER, *([] if config.dataset else ["dataset"])]
+    names = [own_dataset_subsets(own)[0] for own in config.own_datasets]
+    problems = [f"{own} is scored twice into {out / name}.results.json" for own, name in _repeated(names, config)]
+    files += [f"{name}.results{suffix}" for name in dict.fromkeys(names) for suffix in (".json", ".md")]
+    problems += [f"{out / name} is a folder, where a file goes" for name in files if (out / name).is_dir()]
+    problems += [
+        f"{out / name} is a file, where a folder goes"
+        for name in folders
+        if (out / name).exists() and not (out / name).is_dir()
+    ]
+    if config.dataset is not None and out.resolve().is_relative_to(Path(config.dataset).resolve()):
+        problems.append(f"--out {out} is the dataset {config.dataset} or inside it: the runs would mix with scenes")
+    if problems:
+        raise OutputError(
+            f"cannot write the outputs of `reproduce` into {out}: {'; '.join(problems)}; move those aside or "
+            "choose another --out"
+        )
+
+
+def _repeated(names: list[str], config: PipelineConfig) -> list[tuple[Path, str]]:
+    """The own datasets whose catalogue name an earlier one has, with that name."""
+    return [(own, name) for k, (own, name) in enumerate(zip(config.own_datasets, names)) if name in names[:k]]
 
 
 def _run(

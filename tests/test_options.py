@@ -428,3 +428,22 @@ def test_evaluate_checks_its_out_before_any_work(out, tmp_path, monkeypatch, cap
     err = capsys.readouterr().err
     assert ("is a folder; give the results file" in err) or ("where --out taken.json keeps" in err), err
     assert sorted(p.name for p in tmp_path.iterdir()) == before
+
+
+def test_reproduce_checks_every_output_path_before_any_work(tmp_path, capsys):
+    """Issue 60, item 7: a file where `reproduce` puts a folder, a folder where it puts a file, OUT inside its own
+    dataset: all named in one refusal, before the library, the dataset or any run is touched."""
+    from ocplace.cli import main
+
+    out = tmp_path / "out"
+    (out / "results.json").mkdir(parents=True)
+    (out / "runs").write_text("a file where the runs go")
+    before = sorted(str(p.relative_to(tmp_path)) for p in tmp_path.rglob("*"))
+    assert main(["reproduce", "--experiment", "smoke", "--out", str(out), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert f"{out / 'results.json'} is a folder, where a file goes" in err, err
+    assert f"{out / 'runs'} is a file, where a folder goes" in err, err
+    inside = ["reproduce", "--experiment", "smoke", "--dataset", str(tmp_path), "--out", str(tmp_path / "o")]
+    assert main(inside) == 2
+    assert "is the dataset" in capsys.readouterr().err
+    assert sorted(str(p.relative_to(tmp_path)) for p in tmp_path.rglob("*")) == before
