@@ -379,7 +379,28 @@ def read_results(path: str | Path) -> dict[str, Any]:
             f"{results.get('schema') if isinstance(results, dict) else type(results).__name__}"
         )
     _check_sections(path, results)
+    _check_paths(path, results)
     return anchored(results, path.parent)
+
+
+def _check_paths(path: Path, results: dict[str, Any]) -> None:
+    """ResultsError naming each folder the results name that can name no folder here (a NUL byte, too long)."""
+    from ocplace.paths import path_problem
+
+    named = [
+        ("dataset.dir", results["dataset"].get("dir")),
+        ("dataset.dir_relative", results["dataset"].get("dir_relative")),
+    ]
+    for k, entry in enumerate(results["evaluations"]):
+        named += [(f"evaluations[{k}].{key}", entry.get(key)) for key in ("run_dir", "run_dir_relative")]
+    problems = [
+        f"{where} ({problem})" for where, text in named if isinstance(text, str) and (problem := path_problem(text))
+    ]
+    if problems:
+        raise ResultsError(
+            f"{path} names folders that cannot exist: {'; '.join(problems)}; it was edited or damaged: write it again "
+            "with `ocplace evaluate`"
+        )
 
 
 def _has(value: object, fields: Mapping[str, type | tuple[type, ...]]) -> bool:
@@ -441,15 +462,15 @@ def settings_of(results: Mapping[str, Any]) -> EvalSettings:
 
 
 def _by_content(description: object) -> object:
-    """`description` without the names of what it also identifies by content: a `path` beside its `sha256`, a
-    backbone `spec` beside its `fingerprint` (a run named relative in one command and absolute in the other is
-    the same run)."""
+    """`description` without the names of what it also identifies by content: a `path` beside its `sha256` (w/o
+    LLM's `weights_sha256`), a backbone `spec` beside its `fingerprint` (a run named relative in one command and
+    absolute in the other is the same run)."""
     if isinstance(description, Mapping):
-        named = {"path": "sha256", "spec": "fingerprint"}
+        named = {"path": ("sha256", "weights_sha256"), "spec": ("fingerprint",)}
         return {
             key: _by_content(value)
             for key, value in description.items()
-            if not (key in named and named[key] in description)
+            if not (key in named and any(content in description for content in named[key]))
         }
     if isinstance(description, list):
         return [_by_content(value) for value in description]

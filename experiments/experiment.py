@@ -141,6 +141,10 @@ class EvalPlan:
         problems = []
         if self.methods is not None and not self.methods:
             problems.append("evaluation.methods names no method; name some, or none for every registered method")
+        for key in ("methods", "fraction_methods", "seed_methods"):
+            names = getattr(self, key) or ()
+            twice = sorted({name for name in names if names.count(name) > 1})
+            problems += [f"evaluation.{key} names {', '.join(twice)} twice; name each method once"] if twice else []
         problems += [
             f"evaluation.fractions holds {f}; a training-set fraction lies in (0, 1]"
             for f in self.fractions

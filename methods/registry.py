@@ -103,6 +103,9 @@ def select_specs(names: str, specs: dict[str, Any]) -> list[Any]:
     unknown = [n for n in wanted if n not in specs]
     if unknown or not wanted:
         raise EvaluationError(f"unknown method(s) {unknown or names!r}; registered: {', '.join(specs) or 'none'}")
+    twice = sorted({n for n in wanted if wanted.count(n) > 1})
+    if twice:  # it would be evaluated twice and shown in two equal rows
+        raise EvaluationError(f"--methods names {', '.join(twice)} twice; name each method once")
     return [specs[n] for n in wanted]
 
 

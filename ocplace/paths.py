@@ -358,6 +358,22 @@ def write_text_atomic(target: str | os.PathLike, text: str) -> None:
     write_bytes_atomic(target, text.encode("utf-8"))
 
 
+# What Linux takes: a longer path or name fails every call with ENAMETOOLONG, a NUL byte every call with ValueError.
+MAX_PATH_CHARS, MAX_NAME_BYTES = 4095, 255
+
+
+def path_problem(text: str) -> str | None:
+    """Why `text`, read from a file we did not just write, can name no file here (a NUL byte, a path or a name
+    longer than the system takes); None when it can."""
+    if "\x00" in text:
+        return "it holds a NUL byte"
+    if len(text.encode("utf-8", "surrogateescape")) > MAX_PATH_CHARS:
+        return f"it is longer than the {MAX_PATH_CHARS:,} bytes a path may be"
+    if any(len(part.encode("utf-8", "surrogateescape")) > MAX_NAME_BYTES for part in text.split("/")):
+        return f"a name in it is longer than the {MAX_NAME_BYTES} bytes a file name may be"
+    return None
+
+
 def pid_alive(pid: int) -> bool:
     """Whether a process with this pid runs (on this machine, in this pid namespace)."""
     try:

@@ -306,6 +306,26 @@ def test_results_without_evaluations_are_refused(tmp_path, capsys, body, named):
     assert code == 2 and err.startswith(f"ocplace evaluate: error: {path} is not a complete evaluation")
 
 
+@pytest.mark.parametrize(
+    "changes, problem",
+    [
+        ({"dir": "/data/da\x00ta"}, "dataset.dir (it holds a NUL byte)"),
+        ({"dir_relative": "../" + "d/" * 3000}, "dataset.dir_relative (it is longer than the 4,095 bytes"),
+        ({"dir": "/data/" + "x" * 300}, "dataset.dir (a name in it is longer than the 255 bytes"),
+    ],
+)
+def test_results_naming_folders_that_cannot_exist_are_refused(tmp_path, capsys, changes, problem):
+    """Issue 60: a NUL byte or an over-long path in a results file was a raw ValueError or OSError."""
+    path = _results(tmp_path, evaluations=[])
+    body = json.loads(path.read_text())
+    body["dataset"] |= changes
+    path.write_text(json.dumps(body))
+    code, _, err = _cli(capsys, "figures", path, "--out", tmp_path / "figures")
+    assert code == 2 and f"{path} names folders that cannot exist: {problem}" in err, err
+    code, _, err = _cli(capsys, "evaluate", "--rerun", path)
+    assert code == 2 and problem in err, err
+
+
 def test_results_settings_of_another_version_are_refused():
     with pytest.raises(ResultsError, match="settings are not those of this ocplace's evaluations"):
         settings_of({"settings": {"subsets": ["seen"], "sampler": "grid"}})

@@ -394,6 +394,11 @@ def test_a_run_named_relative_or_absolute_compares_by_its_content(results_json):
     assert results.compare(relative, absolute) == []
     absolute["evaluations"][0]["description"]["adapters"]["sha256"] = "ef" * 32
     assert any("describe() differs" in difference for difference in results.compare(relative, absolute))
+    for entry, root in ((relative["evaluations"][0], "out/demo"), (absolute["evaluations"][0], "/home/me/out/demo")):
+        entry["description"] = {"model": {"path": f"{root}/runs/no_llm/weights.safetensors", "weights_sha256": "ab"}}
+    assert results.compare(relative, absolute) == []  # issue 60: w/o LLM names its weights' hash otherwise
+    absolute["evaluations"][0]["description"]["model"]["weights_sha256"] = "ef"
+    assert any("describe() differs" in difference for difference in results.compare(relative, absolute))
 
 
 @pytest.mark.parametrize("damage", ["failures edited into successes", "cut to 200 bytes", "an empty object"])

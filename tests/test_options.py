@@ -447,3 +447,15 @@ def test_reproduce_checks_every_output_path_before_any_work(tmp_path, capsys):
     assert main(inside) == 2
     assert "is the dataset" in capsys.readouterr().err
     assert sorted(str(p.relative_to(tmp_path)) for p in tmp_path.rglob("*")) == before
+
+
+def test_a_method_named_twice_is_refused_before_any_work(tmp_path, capsys):
+    """Issue 60: `--methods no_adapter,no_adapter` evaluated the row twice and showed it in two equal rows."""
+    from ocplace.cli import main
+
+    command = ["evaluate", "--dataset", str(tmp_path), "--methods", "no_adapter,ours,no_adapter"]
+    assert main([*command, "--out", str(tmp_path / "r.json")]) == 2
+    assert "--methods names no_adapter twice; name each method once" in capsys.readouterr().err
+    assert main(["reproduce", "--experiment", "smoke", "--methods", "ours,ours", "--out", str(tmp_path / "o")]) == 2
+    assert "evaluation.methods names ours twice" in capsys.readouterr().err
+    assert sorted(tmp_path.iterdir()) == []
