@@ -10,13 +10,15 @@ import socket
 import threading
 import time
 
+import hypothesis
+import hypothesis.strategies as st
 import pytest
 from llm_endpoint import completion, send
 
 from ocplace.cli import main
 from ocplace.errors import LLMConfigError, LLMUnreachable
 from ocplace.models.parsing import GrammarConfig, LLMConfig, SnapConfig, as_pairs, evaluation, make_snapper
-from ocplace.models.parsing.llm import LLMParser, NoAnswer
+from ocplace.models.parsing.llm import LLMParser, NoAnswer, _skeleton, scrub
 from ocplace.models.parsing.offline import OfflineParser
 
 SECRET = "sk-test-0123456789-do-not-leak"
@@ -290,6 +292,36 @@ def test_an_echo_that_decodes_to_the_api_key_is_scrubbed(serve, llm, caplog, tmp
     assert SECRET[1:] not in item.fallback_reason and SECRET[1:] not in caplog.text
     assert "<api key>" in item.fallback_reason
     assert _files_holding(tmp_path, SECRET[1:]) == []
+
+
+JUNK = ["\u0301", "\u20dd", " ", "\u00a0", "\u200b", "\u00ad", "\ufeff", "\t"]  # marks, spaces, invisibles
+
+
+@hypothesis.settings(max_examples=200, deadline=None)
+@hypothesis.given(
+    st.lists(
+        st.tuples(st.sampled_from(JUNK), st.booleans(), st.booleans()), min_size=len(SECRET), max_size=len(SECRET)
+    ),
+    st.text(max_size=20),
+    st.text(max_size=20),
+)
+def test_every_spelling_of_the_api_key_is_scrubbed(spelling, before, after):
+    """Issue 60: an echo of the key with combining marks, spaces or in upper case passed the scrubber, although
+    docs/reliability.md says "any spelling". Each character of the key here may be upper-cased, made fullwidth, or
+    followed by a mark, a space or an invisible character."""
+    echo = "".join(
+        (chr(ord(char) + 0xFEE0) if wide and char.isalnum() else char.upper() if upper else char) + junk
+        for char, (junk, upper, wide) in zip(SECRET, spelling, strict=True)
+    )
+    scrubbed = scrub(f"{before}{echo}{after}", SECRET)
+    assert "<api key>" in scrubbed
+    assert _skeleton(SECRET)[1] not in _skeleton(scrubbed)[1]
+
+
+def test_the_scrubber_keeps_a_message_without_the_key_as_it_is():
+    message = "Stra\u00dfe caf\u0065\u0301 \uff21 \u200b no key here: sk-test-0123456789-do-not-lea"
+    assert scrub(message, SECRET) == message
+    assert scrub(f"got {SECRET}!", SECRET) == "got <api key>!"
 
 
 @pytest.mark.parametrize("fault", ["escaped echo beside an answer", "echo beside an answer"])

@@ -76,21 +76,42 @@ _JSON_ESCAPE = re.compile(r'\\(u[0-9a-fA-F]{4}|["\\/bfnrt])')
 _SIMPLE_ESCAPES = {'"': '"', "\\": "\\", "/": "/", "b": "\b", "f": "\f", "n": "\n", "r": "\r", "t": "\t"}
 
 
-def visible(text: str) -> str:
-    """`text` as a reader sees it: NFKC (fullwidth letters are letters) without format characters (zero-width
-    spaces and joiners, soft hyphens, byte-order marks), which a hostile echo could slip between the key's."""
-    return "".join(ch for ch in unicodedata.normalize("NFKC", text) if unicodedata.category(ch) != "Cf")
+def _skeleton(text: str) -> tuple[str, str, list[int]]:
+    """`text` decomposed (NFKD: fullwidth letters are letters, accents apart), and the letters a reader would
+    compare in it: case-folded, without spaces, combining marks or format characters (zero-width spaces and
+    joiners, soft hyphens, byte-order marks), which a hostile echo could slip between the key's; with the index
+    in the decomposed text of each letter kept."""
+    decomposed = unicodedata.normalize("NFKD", text)
+    kept, where = [], []
+    for index, char in enumerate(decomposed):
+        if char.isspace() or unicodedata.category(char) in ("Mn", "Me", "Cf"):
+            continue
+        for folded in char.casefold():
+            kept.append(folded)
+            where.append(index)
+    return decomposed, "".join(kept), where
 
 
 def scrub(message: str, secret: str | None) -> str:
-    """`message` with every occurrence of `secret` (the API key) replaced by API_KEY_MARK, also one spelled
-    with invisible characters or compatibility forms (then the whole message is given in its `visible` form)."""
+    """`message` with every occurrence of `secret` (the API key) replaced by API_KEY_MARK, also one in any other
+    case, spaced out, or spelled with invisible characters, combining marks or compatibility forms (the message
+    is then given recomposed, NFKC)."""
     if not secret:
         return message
     if secret in message:
         return message.replace(secret, API_KEY_MARK)
-    shown, key = visible(message), visible(secret)
-    return shown.replace(key, API_KEY_MARK) if key and key in shown else message
+    decomposed, shown, where = _skeleton(message)
+    key = _skeleton(secret)[1]
+    start = shown.find(key) if key else -1
+    if start < 0:
+        return message
+    pieces, last = [], 0
+    while start >= 0:
+        end = start + len(key)
+        pieces += [decomposed[last : where[start]], API_KEY_MARK]
+        last = where[end - 1] + 1
+        start = shown.find(key, end)
+    return unicodedata.normalize("NFKC", "".join([*pieces, decomposed[last:]]))
 
 
 def scrub_decoded(value, secret: str | None):
