@@ -24,7 +24,7 @@ from ocplace.models.inference_settings import InferenceSettings
 from ocplace.models.offline_recipes import PretrainConfig
 from ocplace.models.parsing.config import PARSER_NAMES
 from ocplace.runtime.width import TRAIN_CPUS
-from ocplace.vocabulary import MAX_SAMPLES, TEST_SUBSETS, subsets_problem
+from ocplace.vocabulary import MAX_SAMPLES, MAX_SEED, TEST_SUBSETS, subsets_problem
 
 
 @dataclasses.dataclass(frozen=True)
@@ -44,8 +44,6 @@ class DatasetSizes:
         ]
         if self.physical_scenes is not None and self.physical_scenes < 0:
             problems.append(f"dataset.physical_scenes must be none (all) or at least 0, got {self.physical_scenes}")
-        if self.seed < 0:
-            problems.append(f"dataset.seed must be at least 0, got {self.seed}")
         return problems
 
 
@@ -246,8 +244,8 @@ class Experiment:
         ranges, finite numbers, positive learning rates, known subsets and parser, each recipe's own checks.
         The method names are checked by the pipeline, which knows the registered methods."""
         problems = [] if self.name else ["name must not be empty"]
-        if self.seed < 0:
-            problems.append(f"seed must be at least 0, got {self.seed}")
+        if 0 <= self.seed <= MAX_SEED < self.seed + self.evaluation.seeds - 1:  # repeats' seeds follow the experiment's
+            problems.append(f"seed + evaluation.seeds - 1 must be at most {MAX_SEED:,}, got {self.seed}")
         problems += self.dataset.problems() + self.evaluation.problems() + recipe_problems(self.recipes)
         problems += inference_problems(self.inference)
         problems += [problem for problem in [_refusal("backbone", self.backbone.validate)] if problem]
@@ -279,7 +277,7 @@ def _refusal(key: str, validate: Callable[[], object]) -> str | None:
 def number_problems(node: object, key: str) -> list[str]:
     """Rules every recipe shares, by field name, anywhere in the tree under `node`: every number is
     finite, every `learning_rate` positive (a negative one trains by gradient ascent), every
-    `warmup_steps` at least 0."""
+    `warmup_steps` at least 0, every `seed` and `*_seed` one numpy and JAX take."""
     if dataclasses.is_dataclass(node):
         return [
             problem
@@ -297,4 +295,6 @@ def number_problems(node: object, key: str) -> list[str]:
         return [f"{key} must be positive, got {node}"]
     if name == "warmup_steps" and isinstance(node, int) and node < 0:
         return [f"{key} must be at least 0, got {node}"]
+    if (name == "seed" or name.endswith("_seed")) and isinstance(node, int) and not 0 <= node <= MAX_SEED:
+        return [f"{key} must be from 0 to {MAX_SEED:,} (what numpy and JAX seed from), got {node}"]
     return []

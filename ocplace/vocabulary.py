@@ -93,6 +93,7 @@ def subsets_problem(subsets, key: str, allowed: tuple[str, ...] = SCORED_SPLITS)
 # Placement samples per scene anything accepts: `(scenes, samples, 2)` arrays and XLA's buffers for them stay small
 # (200,000,000 aborted an evaluation worker inside XLA). The paper draws 1,024.
 MAX_SAMPLES = 65_536
+MAX_SEED = 2**32 - 1  # numpy's seeds are 32-bit; a seed above would be refused (or wrap) deep in a task
 
 # Seconds anyone's policy (`evaluate --policy`) may take per scene before that scene fails as a timeout.
 SCENE_TIMEOUT_S = 60.0

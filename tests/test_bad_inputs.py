@@ -390,6 +390,10 @@ CANNOT_RUN = "experiment 'smoke' cannot run: "
         ("evaluation.methods=", CANNOT_RUN + "evaluation.methods names no method"),
         ("dataset.test_scenes=0", CANNOT_RUN + "dataset.test_scenes must be at least 1, got 0"),
         ("dataset.physical_scenes=-2", CANNOT_RUN + "dataset.physical_scenes must be none (all) or at least 0, got -2"),
+        ("evaluation.methods=ours,ours", CANNOT_RUN + "evaluation.methods names ours twice; name each method once"),
+        ("seed=9223372036854775808", CANNOT_RUN + "seed must be from 0 to 4,294,967,295 (what numpy and JAX seed"),
+        ("dataset.seed=-1", CANNOT_RUN + "dataset.seed must be from 0 to 4,294,967,295"),
+        ("backbone.optim.seed=4294967296", CANNOT_RUN + "backbone.optim.seed must be from 0 to 4,294,967,295"),
     ],
 )
 def test_reproduce_refuses_a_bad_override_before_any_work(tmp_path, capsys, monkeypatch, override, message):

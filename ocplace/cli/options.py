@@ -23,6 +23,7 @@ from typing import Any
 
 from ocplace import serial
 from ocplace.errors import ConfigError
+from ocplace.vocabulary import MAX_SEED as MAX_SEED  # a flag's bound, as a recipe's
 
 _BOOLS = {"true": True, "false": False}
 _SEPARATORS = (",", ":")  # between a tuple's items, and between the items of a tuple inside it
@@ -351,7 +352,6 @@ def count(minimum: int = 0, maximum: int | None = None, none_below: int | None =
 
 
 # Bounds of the CLI's numeric flags, each checked as the flag is read (before any work; issue 60).
-MAX_SEED = 2**32 - 1
 MAX_WORKERS = 4096
 MAX_SCENES = 99_999  # scene ids hold five digits
 MAX_CHUNK = 4096
