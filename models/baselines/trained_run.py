@@ -29,7 +29,7 @@ def load_run(run_dir: Path, method: str) -> tuple[dict, dict[str, np.ndarray], s
     )
     wanted, example = f"the weights of a {method} run", f"OUT/runs/{method}/fraction-1.00"
     weights_file.expect_kind(path, metadata, ["run"], wanted, example)
-    if run_meta.get("method") != method:
+    if run_meta.get("method", method) != method:  # a run that names another row (older runs name none)
         kind = weights_file.weights_kind(metadata)
         raise TrainingError(f"{path} holds {kind}, not {wanted}; pass a run of the row you meant (e.g. `{example}`)")
     return run_meta, arrays, hashlib.sha256(path.read_bytes()).hexdigest()
