@@ -14,7 +14,7 @@ import math
 import re
 from collections.abc import Callable, Collection, Iterable, Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 from ocplace import serial
 from ocplace.errors import ConfigError, OcplaceError
@@ -26,6 +26,8 @@ from ocplace.models.parsing.config import PARSER_NAMES
 from ocplace.runtime.width import TRAIN_CPUS
 from ocplace.vocabulary import MAX_SAMPLES, MAX_SEED, TEST_SUBSETS, subsets_problem
 
+
+RecipeT = TypeVar("RecipeT")
 
 @dataclasses.dataclass(frozen=True)
 class DatasetSizes:
@@ -228,6 +230,14 @@ class Experiment:
             return self.recipes[method]
         recipe_type = registry.recipe_types().get(method)
         return None if recipe_type is None else recipe_type()
+
+    def recipe_as(self, method: str, kind: type[RecipeT]) -> RecipeT:
+        """`recipe(method)`, which must be a `kind` (a script's typed view of one row's recipe); ConfigError
+        naming both types otherwise."""
+        recipe = self.recipe(method)
+        if not isinstance(recipe, kind):
+            raise ConfigError(f"{method}'s recipe is a {type(recipe).__name__}, not a {kind.__name__}")
+        return recipe
 
     def missing_recipes(self, methods: Iterable[str]) -> list[str]:
         """For each of `methods` that learns with a recipe this experiment does not hold, what to add: every row of

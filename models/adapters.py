@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+from typing import cast
 
 import flax.linen as nn
 import jax
@@ -91,7 +92,8 @@ def apply_adapters(
     config: AdapterConfig, params: dict, visual: jax.Array, text: jax.Array
 ) -> tuple[jax.Array, jax.Array]:
     """`(V*, T*)` for visual tokens `(..., T, D)` and text tokens `(..., L, D)`."""
-    return GroundingAdapters(config).apply({"params": params}, visual, text)
+    adapted = GroundingAdapters(config).apply({"params": params}, visual, text)  # no `mutable`: the output alone
+    return cast(tuple[jax.Array, jax.Array], adapted)
 
 
 def count_parameters(params) -> int:

@@ -376,7 +376,7 @@ def _load_flax_clip(name_or_dir: str, local_only: bool):
     model = FlaxCLIPModel(CLIPConfig.from_pretrained(name_or_dir), _do_init=False)
     shapes = types.SimpleNamespace(params=model.params_shape_tree, base_model_prefix=model.base_model_prefix)
     params = load_pytorch_checkpoint_in_flax_state_dict(shapes, str(weights), is_sharded=False)
-    if jax.tree_util.tree_structure(params) != jax.tree_util.tree_structure(model.params_shape_tree):
+    if str(jax.tree_util.tree_structure(params)) != str(jax.tree_util.tree_structure(model.params_shape_tree)):
         raise BackboneError(f"{weights} does not hold every weight of the CLIP model its config.json describes")
     return model, params
 

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import functools
 import math
+from typing import Any, cast
 
 import flax.linen as nn
 import jax
@@ -83,6 +84,7 @@ def depthwise_conv(x: jax.Array, kernel: jax.Array, stride: int) -> jax.Array:
             window = padded[:, i : i + stride * (out_h - 1) + 1 : stride, j : j + stride * (out_w - 1) + 1 : stride, :]
             term = window * kernel[i, j]
             total = term if total is None else total + term
+    assert total is not None, "a kernel has at least one tap"
     return total
 
 
@@ -180,13 +182,13 @@ def features(params: dict, pixels: jax.Array, variant: str = "lite0") -> jax.Arr
 
     `params` is the variables dict `{"params": ..., "batch_stats": ...}` (`load_pretrained`).
     """
-    return module(variant).apply(params, pixels, classify=False)
+    return cast(jax.Array, module(variant).apply(params, pixels, classify=False))  # no `mutable`: the output alone
 
 
 @functools.partial(jax.jit, static_argnames=("variant",))
 def logits(params: dict, pixels: jax.Array, variant: str = "lite0") -> jax.Array:
     """ImageNet-1k logits `(B, 1000)` of pixels `(B, H, W, 3)`."""
-    return module(variant).apply(params, pixels, classify=True)
+    return cast(jax.Array, module(variant).apply(params, pixels, classify=True))  # no `mutable`: the output alone
 
 
 @functools.partial(jax.jit, static_argnames=("variant",))
@@ -215,10 +217,10 @@ def variable_shapes(variant: str = "lite0", image_size: int | None = None) -> di
 
 
 @functools.partial(jax.jit, static_argnames=("variant",))
-def init(key: jax.Array, variant: str = "lite0") -> dict:
+def init(key: jax.Array, variant: str = "lite0") -> dict[str, Any]:
     """Randomly initialised variables (ImageNet weights: `imagenet_weights.load_pretrained`); jitted,
     the same bits as op by op."""
-    return module(variant).init(key, jnp.zeros((1, 32, 32, 3), jnp.uint8))
+    return dict(module(variant).init(key, jnp.zeros((1, 32, 32, 3), jnp.uint8)))
 
 
 def count_params(tree: dict) -> int:

@@ -22,7 +22,7 @@ import itertools
 import json
 import logging
 import shutil
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Protocol
 
@@ -187,13 +187,13 @@ def without_objects(features: Features, dataset_dir: str | Path, split: str, hel
 
     held_out = sorted(set(held_out))
     infos = {scene.name: scene.info() for scene in listed_scenes(dataset_dir, split)}
-    held = np.zeros(features.visual_mask.shape, bool)  # (num_scenes, max_tokens)
+    held: np.ndarray = np.zeros(features.visual_mask.shape, bool)  # (num_scenes, max_tokens)
     for row, scene_id in enumerate(features.scene_ids):
         info = infos[scene_id]
         names = {obj.object_id: obj.name for obj in info.objects}
         for token, object_id in enumerate(info.boxes.object_ids):
             held[row, token] = names[int(object_id)] in held_out
-    referred = np.take_along_axis(held, np.clip(features.targets, 0, held.shape[1] - 1), axis=1)
+    referred = np.take_along_axis(held, np.clip(features.targets, 0, held.shape[-1] - 1), axis=1)
     text_mask = features.text_mask & ~referred
     payload = json.dumps([features.info.key, "without", held_out])
     masked = dataclasses.replace(
@@ -286,7 +286,7 @@ def featurize_split_task(dataset_dir, split: str, backbone_spec: str, out, confi
     return featurize_split(dataset_dir, split, load_backbone(backbone_spec), out, config, progress=True)
 
 
-def encode_chunk(chunk: list[SceneToFeaturize], backbone: Backbone, config: FeaturizeConfig) -> dict[str, np.ndarray]:
+def encode_chunk(chunk: Sequence[SceneLike], backbone: Backbone, config: FeaturizeConfig) -> dict[str, np.ndarray]:
     """Padded arrays (see the module docstring) for a list of scenes."""
     for example in chunk:
         check_example(example, config.max_objects, config.max_tuples)
@@ -377,7 +377,7 @@ def save_features(features: Features, path) -> Path:
     return Path(path)
 
 
-def _scene_meta(chunk: list[SceneToFeaturize]) -> list[dict]:
+def _scene_meta(chunk: Sequence[SceneLike]) -> list[dict]:
     return [{"id": example.scene_id, "texts": list(example.texts)} for example in chunk]
 
 
@@ -395,7 +395,8 @@ def _merge(chunk_paths: list[Path], info: FeatureInfo) -> tuple[dict[str, np.nda
 
     if not chunk_paths:
         raise FeaturesError("no scenes to featurize: the dataset yielded no examples")
-    arrays, scenes = {name: [] for name in ARRAY_NAMES}, []
+    arrays: dict[str, list[np.ndarray]] = {name: [] for name in ARRAY_NAMES}
+    scenes: list[dict] = []
     for path in chunk_paths:
         with safe_open(str(path), framework="numpy") as handle:
             scenes += json.loads(handle.metadata()["scenes"])

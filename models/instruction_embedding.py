@@ -27,6 +27,7 @@ class InstructionEmbedding(gymnasium.ObservationWrapper):
             encode = FrozenTextTower.load(INSTRUCTION_TOKENS).encode
         self._encode = encode
         dim = int(np.asarray(encode(["put it left of the mug."])).shape[-1])
+        assert isinstance(env.observation_space, spaces.Dict), "the placement environment's observation is a Dict"
         observation_space = dict(env.observation_space.spaces)
         observation_space["instruction"] = spaces.Box(-1.0, 1.0, (dim,), np.float32)
         self.observation_space = spaces.Dict(observation_space)

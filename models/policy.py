@@ -129,6 +129,11 @@ class SceneProgress:
     def ok(self) -> bool:
         return self.error is None
 
+    def parsed_scene(self) -> tuple[PreparedScene, tuple[ParsedTuple, ...]]:
+        """What the prepare and parse stages made, for the stages after them (which see only scenes both passed)."""
+        assert self.prepared is not None and self.parsed is not None, "a stage after parsing saw an unparsed scene"
+        return self.prepared, self.parsed
+
     def attempt(self, stage: Callable[..., Any], *args: Any) -> Any:
         """`stage(*args)`, or None with its OcplaceError kept as this scene's `error`."""
         try:
@@ -187,9 +192,9 @@ class Placement:
             "  parse: " + ("; ".join(f"<{ref}, {rel}>" for ref, rel in self.pairs) or "-"),
         ]
         for ref in self.references:
-            where = TABLE_LABEL if ref.is_table else f"box {ref.token} {ref.box.tolist()}"
+            where = TABLE_LABEL if ref.is_table or ref.box is None else f"box {ref.token} {ref.box.tolist()}"
             lines.append(f"  {ref.phrase!r} -> {where} (p={ref.probability:.3f}), relation {ref.relation}")
-        if self.mode is not None:
+        if self.mode is not None and self.mode_px is not None and self.samples is not None:  # set together
             lines.append(
                 f"  mode: ({self.mode[0]:+.4f}, {self.mode[1]:+.4f}) m = pixel "
                 f"({self.mode_px[0]:.1f}, {self.mode_px[1]:.1f}); {len(self.samples)} samples"
@@ -261,8 +266,8 @@ class PlacementPolicy:
 
         kind = "clip" if isinstance(self.backbone, ClipBackbone) else "offline"
         source = {"backbone": f"{kind}:{getattr(self.backbone, 'source', '')}"}
-        parser = parser or getattr(self.parser, "name", "offline")
-        return export_policy(self, directory, parser=parser, card=card_text(Path(directory), source))
+        recorded = parser or str(getattr(self.parser, "name", "offline"))
+        return export_policy(self, directory, parser=recorded, card=card_text(Path(directory), source))
 
     # ------------------------------------------------------------------ public calls
 
@@ -421,25 +426,27 @@ class PlacementPolicy:
             problem = self._joint_problem(runs, probabilities)
             choice = jax.device_get(choose_assignments(problem, self.decision.top_k, self.sampler.grid))
         for row, run in enumerate(runs):
+            prepared, parsed = run.parsed_scene()
             tokens = None
             if choice is not None:
-                tokens = [int(token) for token in choice.tokens[row, : len(run.parsed)]]
+                tokens = [int(token) for token in choice.tokens[row, : len(parsed)]]
                 run.decision = "joint" if choice.found[row] else "joint_fallback"
-            run.references = self.decide(run.prepared, run.parsed, probabilities[row], tokens)
+            run.references = self.decide(prepared, parsed, probabilities[row], tokens)
 
     def _joint_problem(self, runs: Sequence[SceneProgress], probabilities: np.ndarray):
         """The `JointProblem` of `runs` (prepared and parsed), padded to whole steps of scenes."""
         from ocplace.models.joint_grounding import SCENES_PER_STEP, JointProblem
         from ocplace.sim import relations
 
-        num_tuples = max(len(run.parsed) for run in runs)
+        parsed_scenes = [run.parsed_scene() for run in runs]
+        num_tuples = max(len(parsed) for _, parsed in parsed_scenes)
         num_tokens = probabilities.shape[-1]
-        num_boxes = max([self.min_boxes] + [len(run.prepared.boxes) for run in runs])
+        num_boxes = max([self.min_boxes] + [len(prepared.boxes) for prepared, _ in parsed_scenes])
         scenes = []
-        for row, run in enumerate(runs):
-            count, parsed = len(run.prepared.boxes), run.parsed
+        for row, (prepared, parsed) in enumerate(parsed_scenes):
+            count = len(prepared.boxes)
             token_boxes = np.zeros((num_tokens, 2, 2), np.float32)
-            token_boxes[:count] = run.prepared.aabbs
+            token_boxes[:count] = prepared.aabbs
             names = [item.reference for item in parsed] + [None] * (num_tuples - len(parsed))
             relation = [relations.relation_index(item.relation) for item in parsed] + [0] * (num_tuples - len(parsed))
             scenes.append(
@@ -452,7 +459,7 @@ class PlacementPolicy:
                     token_boxes=token_boxes,
                     boxes=np.concatenate([token_boxes[:count], np.zeros((num_boxes - count, 2, 2), np.float32)]),
                     box_mask=np.arange(num_boxes) < count,
-                    half_extents=np.asarray(run.prepared.half_extents, np.float32),
+                    half_extents=np.asarray(prepared.half_extents, np.float32),
                 )
             )
         scenes += scenes[:1] * (-len(scenes) % SCENES_PER_STEP)  # whole steps: few compiled shapes
@@ -522,7 +529,7 @@ class PlacementPolicy:
         result = jax.device_get(sample_placements(key, metric.stack_problems(batch), self.sampler))
         for row, (run, problem) in enumerate(valid):
             if result.empty[row]:
-                run.error = NoFeasiblePlacement(run.prepared.name, explain_empty(problem, self.sampler.grid))
+                run.error = NoFeasiblePlacement(run.parsed_scene()[0].name, explain_empty(problem, self.sampler.grid))
             else:
                 run.sampled = (result.samples[row], result.heatmap[row], result.mode[row])
 

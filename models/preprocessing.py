@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 
 from ocplace.errors import BackboneError
+from ocplace.sim.vectors import vec3
 
 
 @dataclasses.dataclass(frozen=True)
@@ -30,7 +31,7 @@ class ImagePreprocessing:
         return cls(
             int(size["shortest_edge"]),
             (int(crop["height"]), int(crop["width"])),
-            tuple(float(m) for m in processor.image_mean),
-            tuple(float(s) for s in processor.image_std),
+            vec3(processor.image_mean),
+            vec3(processor.image_std),
             int(processor.resample),
         )

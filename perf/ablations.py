@@ -20,6 +20,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from ocplace import serial
+from ocplace.methods.no_llm.recipe import NoLlmRecipe
+from ocplace.methods.no_pretrain.recipe import NoPretrainRecipe
 from ocplace.train import optim
 
 
@@ -27,7 +29,7 @@ def time_no_llm(experiment: str, dim: int, steps: int, num_scenes: int) -> dict:
     from ocplace import configs
     from ocplace.methods.no_llm import train as no_llm
 
-    config = configs.get(experiment).recipes["no_llm"]
+    config = configs.get(experiment).recipe_as("no_llm", NoLlmRecipe)
     schedule = config.schedule
     rng = np.random.default_rng(0)
     arrays = {
@@ -69,7 +71,7 @@ def time_no_pretrain(experiment: str, steps: int, num_scenes: int) -> dict:
     from ocplace.methods.no_pretrain import train as train_no_pretrain
     from ocplace.models.offline_backbone import split_trainable
 
-    recipe = configs.get(experiment).recipes["no_pretrain"]
+    recipe = configs.get(experiment).recipe_as("no_pretrain", NoPretrainRecipe)
     model, schedule = recipe.model, recipe.schedule
     size = model.backbone.image_size
     rng = np.random.default_rng(0)

@@ -51,8 +51,8 @@ def problems() -> dict:
         return rng.normal(size=(scenes, *shape)).astype(np.float32)
 
     adapters = AdapterConfig(DIM)
-    ours_data = (normal(6, DIM), np.ones((scenes, 6), bool), normal(2, DIM), np.ones((scenes, 2), bool))
-    ours_data += (rng.integers(6, size=(scenes, 2)).astype(np.int32),)
+    targets = rng.integers(6, size=(scenes, 2)).astype(np.int32)
+    ours_data = (normal(6, DIM), np.ones((scenes, 6), bool), normal(2, DIM), np.ones((scenes, 2), bool), targets)
 
     def ours_loss(params, batch):
         visual, visual_mask, text, text_mask, targets = batch

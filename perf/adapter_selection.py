@@ -31,7 +31,7 @@ from selection_scores import standard_error
 import ocplace  # noqa: F401  (sets the headless OpenGL default before MuJoCo loads)
 
 # Training regimes: (name, changes of Ours' recipe by dotted key); each trained for every step count.
-REGIMES = {
+REGIMES: dict[str, dict[str, object]] = {
     "paper": {},
     "normalised": {"adapters.normalise": True},
     "normalised+decay": {"adapters.normalise": True, "schedule.weight_decay": 0.1},
@@ -200,8 +200,8 @@ def main() -> None:
         )
         return
     rows = []
-    for (regime, changes), steps in itertools.product(REGIMES.items(), STEPS):
-        changes = {**changes, "schedule.steps": steps, "schedule.checkpoint_every": steps, "eval_every": steps}
+    for (regime, regime_changes), steps in itertools.product(REGIMES.items(), STEPS):
+        changes = {**regime_changes, "schedule.steps": steps, "schedule.checkpoint_every": steps, "eval_every": steps}
         config = apply_overrides(OursRecipe(), [f"{key}={format_value(value)}" for key, value in changes.items()])
         model = train_ours(train, args.work / f"{regime}-{steps}", config, progress=False).model
         for visual, text in itertools.product(RATIOS, RATIOS):

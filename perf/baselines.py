@@ -21,8 +21,10 @@ import numpy as np
 from ocplace import configs
 from ocplace.methods.cliport import model as cliport
 from ocplace.methods.cliport import train as train_cliport
+from ocplace.methods.cliport.recipe import CliportRecipe
 from ocplace.methods.grids import model as grids
 from ocplace.methods.grids import train as train_grids
+from ocplace.methods.grids.recipe import GridsRecipe
 from ocplace.models import offline_backbone as ob
 from ocplace.models import offline_config
 from ocplace.sim.camera import Camera
@@ -76,7 +78,7 @@ def cliport_seconds(recipe: train_cliport.CliportRecipe, dim: int, steps: int) -
     config, schedule = recipe.network, recipe.schedule
     rng = np.random.default_rng(0)
     count = 32
-    data = {
+    data: dict[str, np.ndarray] = {
         "rgb": rng.integers(0, 256, (count, config.height, config.width, 3), dtype=np.uint8),
         "height": rng.uniform(0, 0.2, (count, config.height, config.width)).astype(np.float16),
         "text": rng.normal(size=(count, dim)).astype(np.float32),
@@ -113,8 +115,9 @@ def main() -> None:
 
     config = offline_config.default_config() if args.experiment == "default" else offline_config.smoke_config()
     backbone = ob.OfflineBackbone(config, ob.init_params(config, jax.random.key(0)))
-    recipes = configs.get(args.experiment).recipes
-    grid_recipe, cliport_recipe = recipes["grids"], recipes["cliport"]
+    experiment = configs.get(args.experiment)
+    grid_recipe = experiment.recipe_as("grids", GridsRecipe)
+    cliport_recipe = experiment.recipe_as("cliport", CliportRecipe)
     featurize = grid_featurize_seconds(backbone, grid_recipe.grid, args.scenes)
     grid_step = grid_step_seconds(grid_recipe, backbone.dim, args.grid_steps)
     cliport_step, cliport_infer = cliport_seconds(cliport_recipe, backbone.dim, args.cliport_steps)

@@ -10,6 +10,7 @@ difference of a statistic: a variance relative, a mean in units of its channel's
 from __future__ import annotations
 
 import argparse
+import inspect
 import json
 import resource
 import subprocess
@@ -30,11 +31,11 @@ def _run(mode: str, images: int, size: int, out: Path) -> None:
     pixels = np.random.default_rng(0).integers(0, 256, (images, size, size, 3), dtype=np.uint8)
     calibrate = efficientnet.calibrate_batch_stats
     start = time.perf_counter()
-    stats = (calibrate if mode == "fused" else calibrate.__wrapped__)(variables, pixels)["batch_stats"]
+    stats = (calibrate if mode == "fused" else inspect.unwrap(calibrate))(variables, pixels)["batch_stats"]
     jax.block_until_ready(stats)
     seconds = time.perf_counter() - start
     leaves = {jax.tree_util.keystr(p): np.asarray(x) for p, x in jax.tree_util.tree_leaves_with_path(stats)}
-    np.savez(out / f"{mode}.npz", **leaves)
+    np.savez(out / f"{mode}.npz", **leaves)  # type: ignore[arg-type]  # numpy's stub takes a key for allow_pickle
     peak_gb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6
     (out / f"{mode}.json").write_text(json.dumps({"seconds": seconds, "peak_gb": peak_gb}))
 

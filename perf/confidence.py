@@ -52,6 +52,7 @@ def choose(right: np.ndarray) -> float:
 def selection_run(data: Path, backbone_spec: str, experiment: str, work: Path) -> Path:
     """Ours' recipe trained without the seen colour variants; returns the run directory."""
     from ocplace import configs
+    from ocplace.methods.ours.recipe import OursRecipe
     from ocplace.methods.ours.train import train_ours
     from ocplace.models.backbone import load_backbone
     from ocplace.models.features import featurize_split, load_features, without_objects
@@ -61,7 +62,7 @@ def selection_run(data: Path, backbone_spec: str, experiment: str, work: Path) -
     backbone = load_backbone(backbone_spec)
     features = load_features(featurize_split(data, "train", backbone), backbone.fingerprint)
     held = without_objects(features, data, "train", colour_variants(load_library()))
-    train_ours(held, work, configs.get(experiment).recipes["ours"])
+    train_ours(held, work, configs.get(experiment).recipe_as("ours", OursRecipe))
     return work
 
 
@@ -79,7 +80,7 @@ def groundings(policy, dev: Path, key) -> dict[str, list[float]]:
         records = [scene.read() for scene in listed_scenes(dev, split)]
         scenes = [scene_input(record) for record in records]
         for record, placement in zip(records, policy.place_many(scenes, key, progress=True)):
-            truth = {reference_key(t.reference_name): t.token_index for t in record.tuples}
+            truth = {reference_key(t.reference_name): t.token_index for t in record.true_tuples()}
             for reference in placement.references:
                 right = truth.get(reference_key(reference.phrase)) == reference.token
                 found["right" if right else "wrong"].append(reference.probability)

@@ -17,6 +17,7 @@ import multiprocessing
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 import gymnasium
 import numpy as np
@@ -65,7 +66,7 @@ def vector_rate(episodes: int, workers: int, **kwargs) -> tuple[float, float]:
     return played / (end - start), (played - workers) / (end - started)
 
 
-def fresh(measure, *args, **kwargs) -> float:
+def fresh(measure, *args, **kwargs) -> Any:
     """`measure(*args, **kwargs)` in a new process, so that no timing inherits another's imports or caches."""
     with concurrent.futures.ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool:
         return pool.submit(measure, *args, **kwargs).result()

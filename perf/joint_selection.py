@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import json
 import time
+from typing import Any
 
 import jax
 import numpy as np
@@ -80,7 +81,7 @@ def main() -> None:
     records = [scene.read() for split in DEV_SPLITS for scene in listed_scenes(args.dev, split)]
     splits = np.array([record.split for record in records])
     decisions = {"argmax": Decision("argmax"), **{f"joint@{k}": Decision("joint", k) for k in CANDIDATES}}
-    report: dict[str, object] = {"backbone": args.backbone, "run": str(run), "candidates": list(CANDIDATES)}
+    report: dict[str, Any] = {"backbone": args.backbone, "run": str(run), "candidates": list(CANDIDATES)}
     for row, adapters in (("ours", run), ("no_adapter", None)):
         scores = {}
         for name, decision in decisions.items():

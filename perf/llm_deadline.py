@@ -44,7 +44,7 @@ def drip_server(start: bytes, interval: float, stop: threading.Event) -> http.se
     return server
 
 
-def timed_parse(config: LLMConfig, where: str, interval: float) -> tuple[float, str]:
+def timed_parse(config: LLMConfig, where: str, interval: float) -> tuple[float, str | None]:
     stop = threading.Event()
     server = drip_server(STARTS[where], interval, stop)
     llm = dataclasses.replace(config, base_url=f"http://127.0.0.1:{server.server_port}/v1")

@@ -45,8 +45,8 @@ def pick_scene(dataset: Path):
     from ocplace.sim.dataset.job import listed_scenes
 
     records = [scene.read() for scene in listed_scenes(dataset, "seen")[:40]]
-    record = max(records, key=lambda r: (len(r.tuples), len(r.boxes)))
-    return scene_input(record), [t.token_index for t in record.tuples]
+    record = max(records, key=lambda r: (len(r.true_tuples()), len(r.boxes)))
+    return scene_input(record), [t.token_index for t in record.true_tuples()]
 
 
 @dataclasses.dataclass(frozen=True)

@@ -24,7 +24,7 @@ from ocplace.eval.statistics import subset_scenes
 COLUMNS = (*LEVEL_GROUPS, "overall")
 
 
-def gated_rates(entry: dict, subset: str, threshold: float) -> dict[str, float] | None:
+def gated_rates(entry: dict, subset: str, threshold: float) -> dict[str, float | None] | None:
     """Success per Table I column had `entry` refused below `threshold`; None for a method without confidences."""
     scenes = subset_scenes(entry, subset)
     if not scenes or all(scene.get("confidence") is None for scene in scenes):

@@ -58,7 +58,13 @@ def write_example(out: Path) -> Path:
     entries = []
     for name, human, category, shape, (width, height), colour in OBJECTS:
         mesh = _mesh(shape.split()[-1], width, height)
-        entry = {"name": name, "human_name": human, "category": category, "units": "mm", "licence": "CC0 (made here)"}
+        entry: dict[str, object] = {
+            "name": name,
+            "human_name": human,
+            "category": category,
+            "units": "mm",
+            "licence": "CC0 (made here)",
+        }
         if shape.startswith("textured"):
             folder = out / "meshes" / name
             folder.mkdir(exist_ok=True)

@@ -63,10 +63,10 @@ def paper_table(results: dict, source: str) -> str:
         cells = [spread([run["subsets"][s]["aggregate"]["overall"]["success"] for run in runs]) for s in subsets]
         lines.append(f"| {entry['label']} | " + " | ".join(cells) + " |")
     lines.append("| the paper's Ours (real CLIP) | " + " | ".join(f"{PAPER_OURS.get(s, '-')}" for s in subsets) + " |")
-    runs = f"{min(counts)}-{max(counts)}" if min(counts) != max(counts) else f"{max(counts)}"
+    run_count = f"{min(counts)}-{max(counts)}" if min(counts) != max(counts) else f"{max(counts)}"
     note = (
         f"Overall success of the mode (%), the paper's protocol; mean ± sample standard deviation over each row's "
-        f"{runs} distinct runs (a row that learns nothing counts once per backbone); from `{source}` by "
+        f"{run_count} distinct runs (a row that learns nothing counts once per backbone); from `{source}` by "
         "`scripts/readme_figures.py --paper`."
     )
     return "\n".join([PAPER_BEGIN, *lines, "", note, PAPER_END])

@@ -98,8 +98,8 @@ def _flush(v, xp):
     return xp.where(xp.abs(v) < _TINY, FLOAT(0), v)
 
 
-RADIUS_SQ_MIN = split_square(FLOAT([RADIUS_MIN]))[0]
-RADIUS_SQ_MAX = split_square(FLOAT([RADIUS_MAX]))[0]
+RADIUS_SQ_MIN = split_square(np.asarray([RADIUS_MIN], FLOAT))[0]
+RADIUS_SQ_MAX = split_square(np.asarray([RADIUS_MAX], FLOAT))[0]
 
 
 def half_plane_table() -> np.ndarray:
@@ -145,10 +145,10 @@ def encode_problem(
       half_extents: `(2,)` half-extents of the held object's footprint.
       max_boxes: pad the boxes to this many (default: no padding).
     """
-    tuples = [t if isinstance(t, GroundedTuple) else GroundedTuple(*t) for t in tuples]
-    if not 1 <= len(tuples) <= max_tuples:
+    grounded_tuples = [t if isinstance(t, GroundedTuple) else GroundedTuple(*t) for t in tuples]
+    if not 1 <= len(grounded_tuples) <= max_tuples:
         raise InvalidPlacementProblem(
-            f"a placement needs 1 to {max_tuples} tuples, got {len(tuples)}; raise max_tuples to pad more"
+            f"a placement needs 1 to {max_tuples} tuples, got {len(grounded_tuples)}; raise max_tuples to pad more"
         )
     boxes = np.asarray(boxes, dtype=FLOAT).reshape(-1, 2, 2)
     max_boxes = len(boxes) if max_boxes is None else max_boxes
@@ -162,7 +162,7 @@ def encode_problem(
     relation_index = np.zeros(max_tuples, np.int32)
     is_object = np.zeros(max_tuples, bool)
     reference_box = np.zeros((max_tuples, 2, 2), FLOAT)
-    for index, grounded in enumerate(tuples):
+    for index, grounded in enumerate(grounded_tuples):
         relation = relations.relation(grounded.relation)
         relation_index[index] = relations.relation_index(relation.name)
         if grounded.reference_box is not None:
@@ -179,7 +179,7 @@ def encode_problem(
         relation=relation_index,
         reference_is_object=is_object,
         reference_box=reference_box,
-        tuple_mask=np.arange(max_tuples) < len(tuples),
+        tuple_mask=np.arange(max_tuples) < len(grounded_tuples),
         boxes=padded_boxes,
         box_mask=np.arange(max_boxes) < len(boxes),
         half_extents=half_extents,
@@ -366,8 +366,8 @@ class Grid:
 
     @property
     def shape(self) -> tuple[int, int]:
-        sizes = 2.0 * np.asarray(self.table.half_extents) / self.resolution
-        return tuple(int(n) for n in np.floor(sizes + 1e-6))
+        columns, rows = (int(n) for n in np.floor(2.0 * np.asarray(self.table.half_extents) / self.resolution + 1e-6))
+        return columns, rows
 
     @property
     def cell_area(self) -> float:

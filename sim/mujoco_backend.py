@@ -22,6 +22,7 @@ from ocplace.sim.camera import DEFAULT_CAMERA, Camera
 from ocplace.sim.library.types import CORPUS_SPLIT, ObjectAsset
 from ocplace.sim.render import OffscreenCamera
 from ocplace.sim.scene import RenderedScene, SceneObject, SceneSpec, retry_seed, sample_drop_poses, settle_until_still
+from ocplace.sim.trimesh_io import read_trimesh
 from ocplace.sim.workspace import DEFAULT_TABLE, Table
 
 VISIBLE_GROUP = 1
@@ -76,7 +77,7 @@ def default_config() -> ArenaConfig:
 
 
 def _hull_volume(path: Path) -> float:
-    return float(trimesh.load(path, force="mesh", process=False).convex_hull.volume)
+    return float(read_trimesh(path).convex_hull.volume)
 
 
 def arena_xml(objects: Sequence[ObjectAsset], textures: dict[str, Path], config: ArenaConfig) -> str:
@@ -211,7 +212,7 @@ def _add_object(asset: ET.Element, world: ET.Element, index: int, obj: ObjectAss
             )
         else:
             ET.SubElement(asset, "material", name=material, rgba=" ".join(map(str, part.rgba)), specular="0.1")
-        ET.SubElement(asset, "mesh", name=f"{part_prefix}_visual", file=str(part.mesh), **open_mesh)
+        ET.SubElement(asset, "mesh", {"name": f"{part_prefix}_visual", "file": str(part.mesh), **open_mesh})
         ET.SubElement(
             body,
             "geom",
@@ -422,7 +423,5 @@ class MujocoScenes:
 
 def object_hull_points(obj: ObjectAsset) -> np.ndarray:
     """`(P, 3)` vertices of the convex hull of the visual meshes, in the object frame."""
-    points = [
-        trimesh.load(part.mesh, force="mesh", process=False, skip_materials=True).vertices for part in obj.visual_parts
-    ]
+    points = [read_trimesh(part.mesh, skip_materials=True).vertices for part in obj.visual_parts]
     return np.asarray(trimesh.convex.convex_hull(np.concatenate(points)).vertices)

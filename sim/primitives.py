@@ -19,6 +19,7 @@ import trimesh
 from ocplace.errors import SceneError
 from ocplace.paths import write_text_atomic
 from ocplace.sim.library.types import ObjectAsset
+from ocplace.sim.vectors import vec3
 from ocplace.vocabulary import SHAPES, SIZES
 
 PRIMITIVE_SPLIT = "primitive"
@@ -136,6 +137,6 @@ def primitive_asset(primitive: Primitive, directory: Path) -> ObjectAsset:
         hulls=hulls,
         mjcf=Path(),
         urdf=Path(),  # arena-only: nothing loads a primitive on its own
-        extents=tuple(float(x) for x in mesh.extents),
+        extents=vec3(mesh.extents),
         mass=DENSITY * sum(p.volume for p in pieces),
     )

@@ -83,10 +83,10 @@ class PybulletScenes:
         self.close()
 
     def _load_egl(self) -> None:
-        import pkgutil
+        import importlib.util
 
-        egl = pkgutil.get_loader("eglRenderer")
-        if egl is None or self.client.loadPlugin(egl.get_filename(), "_eglRendererPlugin") < 0:
+        egl = importlib.util.find_spec("eglRenderer")
+        if egl is None or egl.origin is None or self.client.loadPlugin(egl.origin, "_eglRendererPlugin") < 0:
             raise SceneError("PyBullet's EGL renderer plugin could not be loaded; use renderer='tiny'")
         self._renderer_flag = pybullet.ER_BULLET_HARDWARE_OPENGL
 

@@ -144,9 +144,10 @@ def sample_drop_poses(
     every earlier sphere it overlaps horizontally.
     """
     rng = np.random.default_rng(seed)
-    positions, quaternions, spheres = [], [], []
-    for size in extents:
-        size = np.asarray(size, dtype=np.float64)
+    positions, quaternions = [], []
+    spheres: list[tuple[np.ndarray, float, float]] = []  # (x-y centre, height, radius) of each object dropped
+    for extent in extents:
+        size = np.asarray(extent, dtype=np.float64)
         radius = 0.5 * float(np.linalg.norm(size))
         xy = rng.uniform(-np.asarray(drop_half_extents), np.asarray(drop_half_extents))
         quaternion = _tilted_yaw_quaternion(rng, max_tilt)

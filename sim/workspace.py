@@ -6,6 +6,7 @@ World frame (docs/design.md#conventions): table top is z = 0, +x right in the im
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 import numpy as np
 
@@ -39,7 +40,8 @@ class Table:
     @classmethod
     def from_dict(cls, fields: dict) -> Table:
         """The table of `dataclasses.asdict(table)`, also after a JSON round trip (lists back to tuples)."""
-        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in fields.items()})
+        values: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v for k, v in fields.items()}
+        return cls(**values)
 
     def cell_bounds(self, column: int, row: int) -> np.ndarray:
         """`(2, 2)` bounds of grid cell (column 0..2 left to right, row 0..2 front to back)."""

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 from ocplace.errors import TrainingError
 from ocplace.models.weights_file import flatten_state, load_weights, save_weights, unflatten_state
@@ -36,7 +37,7 @@ def list_checkpoints(run_dir: Path) -> list[Path]:
     return sorted((Path(run_dir) / CHECKPOINT_DIR).glob("step_*.safetensors"))
 
 
-def load_checkpoint(path: Path, template) -> tuple[object, int, dict[str, str]]:
+def load_checkpoint(path: Path, template) -> tuple[Any, int, dict[str, str]]:
     """`(state, step, metadata)` of a verified checkpoint, restored into `template`'s structure."""
     path = Path(path)
     arrays, metadata = load_weights(

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import functools
 from pathlib import Path
+from typing import cast
 
 import cv2
 import flax.linen as nn
@@ -133,7 +134,7 @@ def network_input(rgb, height, config: CliportConfig):
 
 def pixel_logits(config: CliportConfig, params, rgb, height, text, mask):
     """`(B, h * w)` flat logits, -inf off the table (`mask (h, w)` or `(B, h, w)` bool)."""
-    logits = AttentionNet(config).apply({"params": params}, network_input(rgb, height, config), text)
+    logits = cast(jax.Array, AttentionNet(config).apply({"params": params}, network_input(rgb, height, config), text))
     return jnp.where(mask.reshape(*mask.shape[:-2], -1), logits.reshape(logits.shape[0], -1), -jnp.inf)
 
 

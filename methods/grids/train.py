@@ -40,8 +40,8 @@ def scene_examples(dataset_dir: Path, split: str, config: GridConfig) -> Iterato
     """The cache's scene examples: cells as crops, tuple texts, the oracle's cell as every tuple's target."""
     for scene in listed_scenes(dataset_dir, split):
         record = scene.read()
-        texts = tuple(grids.tuple_text(t.reference_name, t.relation) for t in record.tuples)
-        target = int(grids.cell_of(record.oracle.placement, config))
+        texts = tuple(grids.tuple_text(t.reference_name, t.relation) for t in record.true_tuples())
+        target = int(grids.cell_of(record.true_placement(), config))
         yield feature_cache.SceneToFeaturize(
             scene_id=record.id,
             crops=grids.cell_crops(record.rgb, top_down_camera(record), config),

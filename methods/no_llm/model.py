@@ -19,6 +19,7 @@ import functools
 import hashlib
 import json
 from pathlib import Path
+from typing import cast
 
 import flax.linen as nn
 import jax
@@ -83,9 +84,8 @@ def allowed_relations(visual_mask) -> jax.Array:
 def relation_logits(config: NoLlmConfig, params: dict, visual_star, sentence_star, visual_mask):
     """`(..., T, 9)` relation logits for every visual token as the reference; -inf where not allowed."""
     sentence = jnp.broadcast_to(sentence_star[..., None, :], visual_star.shape)
-    logits = RelationHead(config.hidden).apply(
-        {"params": params["relation"]}, jnp.concatenate([visual_star, sentence], axis=-1)
-    )
+    head = RelationHead(config.hidden)
+    logits = cast(jax.Array, head.apply({"params": params["relation"]}, jnp.concatenate([visual_star, sentence], -1)))
     return jnp.where(allowed_relations(visual_mask), logits, -jnp.inf)
 
 

@@ -86,7 +86,8 @@ def split_sentences(dataset_dir: Path, split: str, backbone: Backbone, config: N
     scenes = [scene.info() for scene in listed_scenes(dataset_dir, split)]
     relations = np.zeros((len(scenes), 2), np.int32)
     for row, scene in enumerate(scenes):
-        relations[row, : len(scene.tuples)] = [relation_index(t.relation) for t in scene.tuples]
+        truth = scene.true_tuples()
+        relations[row, : len(truth)] = [relation_index(t.relation) for t in truth]
     sentence = encode_sentences(backbone, config, [scene.instruction for scene in scenes])
     scene_ids = tuple(scene.id for scene in scenes)
     with atomic_path(path) as tmp:

@@ -15,6 +15,7 @@ from ocplace.sim import metric
 from ocplace.sim.camera import Camera
 from ocplace.sim.dataset.records import SceneInfo
 from ocplace.sim.metric import GroundedTuple, PlacementProblem
+from ocplace.sim.vectors import vec3
 
 
 def top_down_camera(scene: SceneInfo) -> Camera:
@@ -25,7 +26,7 @@ def top_down_camera(scene: SceneInfo) -> Camera:
         width=pinhole.width,
         height=pinhole.height,
         fov_x_deg=math.degrees(2.0 * math.atan(pinhole.width / 2.0 / fx)),
-        position=tuple(float(v) for v in pinhole.position),
+        position=vec3(pinhole.position),
     )
     if not np.allclose(pinhole.rotation, camera.rotation, atol=1e-6) or not math.isclose(fy, fx):
         raise InvalidPlacementProblem(

@@ -110,4 +110,5 @@ def choose(
         or (policy == "offline" and comparison.describe() is not None)
     )
     note = comparison.describe()
-    return [dataclasses.replace(item, disagreement=note) for item in (offline if use_offline else llm)]
+    chosen = offline if use_offline and offline is not None else llm
+    return [dataclasses.replace(item, disagreement=note) for item in chosen]

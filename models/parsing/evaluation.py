@@ -262,7 +262,7 @@ def _answers_by_policy(parser, instruction: str, own) -> dict:
     answers = {"llm alone": _NO_ANSWER if own is None else own or None, "offline alone": offline}
     comparison = crosscheck.compare(own, offline, offline_error) if own is not None else None
     for policy in CROSS_CHECK_POLICIES:
-        chosen = offline if own is None else crosscheck.choose(policy, own, offline, comparison)
+        chosen = offline if own is None or comparison is None else crosscheck.choose(policy, own, offline, comparison)
         answers[f"cross-check {policy}"] = chosen or None
     return answers
 

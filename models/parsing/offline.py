@@ -155,7 +155,7 @@ def _resolve_pronouns(mentions: list[grammar.Mention]) -> None:
             continue
         before = [m.reference for m in mentions[:index] if m.reference]
         after = [m.reference for m in mentions[index + 1 :] if m.reference and not m.pronoun]
-        antecedent = (before[-1:] or after[:1] or [None])[0]
+        antecedent = before[-1] if before else after[0] if after else None
         if antecedent is None:
             raise ParseError(
                 f"{mention.phrase!r} refers to 'it', but the instruction names no "

@@ -99,8 +99,8 @@ def _shut(sock: socket.socket) -> None:
         sock.shutdown(socket.SHUT_RDWR)
 
 
-class _WatchedConnection:
-    """Hands its socket to the watchdog once connected."""
+class _WatchedConnection(http.client.HTTPConnection):
+    """Hands its socket to the watchdog once connected (an HTTP or, mixed in first, an HTTPS connection)."""
 
     def __init__(self, *args, watchdog: _Watchdog, **kwargs):
         super().__init__(*args, **kwargs)
@@ -111,7 +111,7 @@ class _WatchedConnection:
         self._watchdog.watch(self.sock)
 
 
-class _HTTPConnection(_WatchedConnection, http.client.HTTPConnection):
+class _HTTPConnection(_WatchedConnection):
     pass
 
 

@@ -61,7 +61,7 @@ def _to_pixels(mapping, points_xy: np.ndarray) -> np.ndarray:
 
 def _outline(axis, mapping, box, **style) -> None:
     (x0, y0), (x1, y1) = box
-    outline = _to_pixels(mapping, [[x0, y0], [x1, y0], [x1, y1], [x0, y1], [x0, y0]])
+    outline = _to_pixels(mapping, np.asarray([[x0, y0], [x1, y0], [x1, y1], [x0, y1], [x0, y0]]))
     axis.plot(outline[:, 0], outline[:, 1], **style)
 
 

@@ -30,8 +30,8 @@ def explain_empty(problem: PlacementProblem, grid: Grid = metric.DEFAULT_GRID) -
     checks = metric.check_grid(problem, grid)
     terms = metric.grid_terms(problem, grid)
     region = np.ones(grid.shape, bool)
-    named = []
-    for k in np.flatnonzero(problem.tuple_mask):
+    named: list[str] = []
+    for k in (int(k) for k in np.flatnonzero(problem.tuple_mask)):
         region &= checks.tuples[k]
         if not region.any():
             if not named:

@@ -297,5 +297,7 @@ def sample_placements(key, problems: PlacementProblem, config: SamplerConfig = S
     positions = jnp.arange(1, problems.relation.shape[-1] + 1)
     active_tuples = jnp.max(jnp.where(problems.tuple_mask, positions, 0))  # padding K beyond this costs nothing
     return jax.lax.map(
-        lambda args: _sample_scene(*args, config, active_tuples), (keys, problems), batch_size=config.scenes_per_step
+        lambda args: _sample_scene(args[0], args[1], config, active_tuples),
+        (keys, problems),
+        batch_size=config.scenes_per_step,
     )

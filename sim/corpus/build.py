@@ -88,12 +88,14 @@ class Corpus:
     @functools.cached_property
     def large(self) -> frozenset[str]:
         """The names of the converted models of the `large` tier (a recipe renders them only when it asks)."""
-        return frozenset(m.asset.name for m in self.models if m.status == "ok" and m.large)
+        return frozenset(m.asset.name for m in self.models if m.asset is not None and m.status == "ok" and m.large)
 
     @functools.cached_property
     def cutouts(self) -> Mapping[str, str]:
         """The source of each converted cut-out, by name (a recipe renders them only when it asks for the source)."""
-        return types.MappingProxyType({m.asset.name: m.cutout for m in self.models if m.status == "ok" and m.cutout})
+        return types.MappingProxyType(
+            {m.asset.name: m.cutout for m in self.models if m.asset is not None and m.status == "ok" and m.cutout}
+        )
 
     def summary(self) -> str:
         counts = {status: sum(m.status == status for m in self.models) for status in ("ok", "rejected", "skipped")}
@@ -164,7 +166,9 @@ def build_corpus(
     refuse_links(root / MODELS_DIRNAME)  # before anything is written into it
     remove_abandoned_tmp(root / TMP_DIRNAME)
     known_skips = _previous_skips(root)
-    models, catalogues, todo = [], [], []
+    models: list[CorpusModel] = []
+    catalogues: list[dict[str, object]] = []  # the manifest's entry of each catalogue file
+    todo = []
     for path in _catalogues(source):
         licence = LICENCES.get(path.stem, "see the catalogue's LICENSE.TXT")
         try:
@@ -298,7 +302,7 @@ def _outcome(result: ConversionResult, planned: CorpusModel) -> CorpusModel:
     return dataclasses.replace(planned, status="skipped", reason=result.reason)
 
 
-def _finish(root: Path, source: Path, catalogues: list, models: list[CorpusModel], config) -> Corpus:
+def _finish(root: Path, source: Path, catalogues: list[dict[str, object]], models: list[CorpusModel], config) -> Corpus:
     records = [
         {
             "key": m.entry.key,
@@ -326,7 +330,7 @@ def _finish(root: Path, source: Path, catalogues: list, models: list[CorpusModel
 
 def _corpus(root: Path, models: list[CorpusModel]) -> Corpus:
     kept = sorted((m for m in models if m.status == "ok"), key=lambda m: m.entry.key)
-    assets = types.MappingProxyType({m.asset.name: m.asset for m in kept})
+    assets = types.MappingProxyType({m.asset.name: m.asset for m in kept if m.asset is not None})
     return Corpus(root, tuple(models), assets)
 
 
@@ -340,7 +344,7 @@ def _remove_unreferenced(root: Path, folders: set[str]) -> None:
                 remove_tree(path)
 
 
-def attribution(models: list[CorpusModel], catalogues: list[dict]) -> str:
+def attribution(models: list[CorpusModel], catalogues: list[dict[str, object]]) -> str:
     """The attribution file: every converted model, its creator, catalogue and licence."""
     lines = [
         "# Attribution of the ocplace pretraining corpus",
@@ -360,7 +364,7 @@ def attribution(models: list[CorpusModel], catalogues: list[dict]) -> str:
         "| --- | --- | --- | --- |",
     ]
     for m in models:
-        if m.status == "ok":
+        if m.status == "ok" and m.asset is not None:
             lines.append(
                 f"| {m.entry.key} | {m.entry.name} | {m.entry.creator or m.entry.catalogue} | {m.asset.licence} |"
             )

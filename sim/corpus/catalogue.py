@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from ocplace.errors import CorpusError
+from ocplace.sim.vectors import vec3
 
 PROPERTIES_FILE = "PluginFurnitureCatalog.properties"
 # A catalogue is untrusted input: a member that declares or inflates to more than this is refused (the largest
@@ -159,7 +160,7 @@ def read_entries(path: Path) -> tuple[list[CatalogueEntry], list[tuple[int, str,
                     index=index,
                     name=_valid_text(" ".join(get("name").split())),
                     category=_valid_text(get("category")),
-                    size_cm=tuple(_number(properties, f"{k}#{index}") for k in ("width", "depth", "height")),
+                    size_cm=vec3(_number(properties, f"{k}#{index}") for k in ("width", "depth", "height")),
                     model=member_name(get("model")),
                     rotation=_rotation(get("modelRotation")),
                     creator=_valid_text(get("creator")),

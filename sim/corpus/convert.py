@@ -96,15 +96,15 @@ def _parts(scene: trimesh.Scene) -> list[TexturedMesh]:
         image = getattr(material, "image", None)
         uv = getattr(geometry.visual, "uv", None)
         diffuse = getattr(material, "diffuse", None)
-        rgba = tuple(float(c) / 255.0 for c in diffuse) if diffuse is not None else (0.7, 0.7, 0.7, 1.0)
+        red, green, blue = (float(c) / 255.0 for c in diffuse[:3]) if diffuse is not None else (0.7, 0.7, 0.7)
         textured = image is not None and uv is not None and len(uv) == len(geometry.vertices)
         parts.append(
             TexturedMesh(
                 np.asarray(geometry.vertices, np.float64),
                 np.asarray(geometry.faces, np.int64),
                 np.asarray(uv, np.float64) if textured else None,
-                image.convert("RGB") if textured else None,
-                (*rgba[:3], 1.0),
+                image.convert("RGB") if image is not None and textured else None,
+                (red, green, blue, 1.0),
             )
         )
     return parts
@@ -119,6 +119,7 @@ def load_parts(archive: zipfile.ZipFile, entry: CatalogueEntry) -> list[Textured
         scene = trimesh.load(
             io.BytesIO(data), file_type="obj", resolver=resolver, group_material=True, force="scene", process=False
         )
+        assert isinstance(scene, trimesh.Scene), "force='scene' loads a scene"
         parts = _parts(scene)
     except (KeyError, OSError, ValueError, IndexError, zipfile.BadZipFile, EOFError) as error:
         raise CorpusError(f"cannot load {entry.model}: {type(error).__name__}: {error}") from error

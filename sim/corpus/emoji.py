@@ -102,7 +102,8 @@ def emoji_name(stem: str) -> str:
 def read_emoji(source: Path) -> tuple[list[CatalogueEntry], list[tuple[str, str]]]:
     """The emoji of `source` the rule keeps, as catalogue entries (in file order; `model` is the file name), and
     `(file, why)` for each that cannot be used (a file that resolves outside `source`)."""
-    entries, problems = [], []
+    entries: list[CatalogueEntry] = []
+    problems: list[tuple[str, str]] = []
     for image in sorted(source.glob("*.webp")):
         name = emoji_name(image.stem)
         if not name:

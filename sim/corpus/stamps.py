@@ -81,7 +81,8 @@ def read_stamps(source: Path) -> tuple[list[CatalogueEntry], list[tuple[str, str
 
     A file that resolves outside `source` (a symlink out of the package) is refused before it is opened.
     """
-    entries, problems = [], []
+    entries: list[CatalogueEntry] = []
+    problems: list[tuple[str, str]] = []
     images = sorted(p for folder in STAMP_FOLDERS for p in (source / folder).rglob("*.png"))
     for image in images:
         relative = image.relative_to(source).as_posix()

@@ -41,7 +41,7 @@ def physical_failures(scenes: list[ListedScene], dataset_dir, cache: str | None)
     failures = []
     for listed in scenes:
         scene = listed.info()
-        if not physical_check(_arena(dataset_dir, cache), scene, scene.oracle.placement).success:
+        if not physical_check(_arena(dataset_dir, cache), scene, scene.true_placement()).success:
             failures.append(scene.id)
     return failures
 
@@ -81,14 +81,14 @@ def check_oracle(
             metric_failures = []
             for listed in progress_bar(scenes, desc=f"oracle {split}", enabled=progress):
                 scene = listed.info()
-                if not placement_success(scene.oracle.placement[None], scene.problem())[0]:
+                if not placement_success(scene.true_placement()[None], scene.problem())[0]:
                     metric_failures.append(scene.id)
             report[split] = {
                 "scenes": len(scenes),
                 "metric_success": len(scenes) - len(metric_failures),
                 "metric_failures": metric_failures,
             }
-            if physical:
+            if physical and executor is not None:  # opened above when none was given
                 failed = _physical_report(scenes, dataset_dir, executor, cache, progress, f"physical {split}")
                 report[split] |= {"physical_success": len(scenes) - len(failed), "physical_failures": failed}
     return report

@@ -395,7 +395,9 @@ def coinciding_scenes(manifest: Mapping, tests: Mapping | None = None) -> list[t
 
 def write_manifest(out: Path, config: DatasetConfig, regenerated: int = 0) -> dict:
     """Lists the config's scenes that exist; a folder the config does not name stays unlisted, so unread."""
-    files, counts, resamples = {}, {}, {"scenes": 0, "relations": 0}
+    files: dict[str, str] = {}
+    counts: dict[str, dict[str, int]] = {}
+    resamples = {"scenes": 0, "relations": 0}
     for split in config.splits:
         for index in range(split.num_scenes):
             scene_dir = _scene_dir(out, split.name, index)

@@ -46,7 +46,7 @@ def example_from_record(record: SceneRecord, crop_size: int = CROP_SIZE) -> Scen
         if len(boxes)
         else np.zeros((0, crop_size, crop_size, 3), np.uint8)
     )
-    tuples = record.tuples
+    tuples = record.true_tuples()
     return SceneExample(
         scene_id=record.id,
         crops=crops,

@@ -81,10 +81,6 @@ class ResampleCounts:
     relations: int  # relation draws repeated because the feasible region was empty
 
 
-def _parsed():
-    return dataclasses.field(init=False, repr=False)
-
-
 @dataclasses.dataclass(frozen=True, eq=False)
 class SceneInfo:
     """A scene.json, parsed on construction: the one reader of its fields.
@@ -94,32 +90,48 @@ class SceneInfo:
     """
 
     meta: dict  # the raw JSON, only for code that writes or hashes it
-    id: str = _parsed()  # "<split>-<index, 5 digits>"
-    split: str = _parsed()
-    index: int = _parsed()  # position in the split
-    level: str = _parsed()  # "table", "1obj" or "2obj"
-    instruction: str = _parsed()
-    instruction_style: str = _parsed()  # the split's templates, "seen" or "unseen"
-    tuples: tuple[TupleRecord, ...] | None = _parsed()  # ground truth, in instruction order
-    held_object: HeldObjectRecord = _parsed()
-    table_texture: str = _parsed()  # library texture name
-    spec: SceneSpec = _parsed()  # rebuilds the scene
-    objects: tuple[ObjectRecord, ...] = _parsed()  # in object-id order, visible or not
-    boxes: Boxes = _parsed()  # the visible objects' boxes, ascending id: visual tokens 0..N-1
-    camera: PinholeCamera = _parsed()  # what rendered the images
-    oracle: OracleRecord | None = _parsed()  # ground truth
-    resamples: ResampleCounts = _parsed()
+    id: str = dataclasses.field(init=False, repr=False)  # "<split>-<index, 5 digits>"
+    split: str = dataclasses.field(init=False, repr=False)
+    index: int = dataclasses.field(init=False, repr=False)  # position in the split
+    level: str = dataclasses.field(init=False, repr=False)  # "table", "1obj" or "2obj"
+    instruction: str = dataclasses.field(init=False, repr=False)
+    instruction_style: str = dataclasses.field(init=False, repr=False)  # the split's templates, "seen" or "unseen"
+    tuples: tuple[TupleRecord, ...] | None = dataclasses.field(
+        init=False, repr=False
+    )  # ground truth, in instruction order
+    held_object: HeldObjectRecord = dataclasses.field(init=False, repr=False)
+    table_texture: str = dataclasses.field(init=False, repr=False)  # library texture name
+    spec: SceneSpec = dataclasses.field(init=False, repr=False)  # rebuilds the scene
+    objects: tuple[ObjectRecord, ...] = dataclasses.field(init=False, repr=False)  # in object-id order, visible or not
+    boxes: Boxes = dataclasses.field(
+        init=False, repr=False
+    )  # the visible objects' boxes, ascending id: visual tokens 0..N-1
+    camera: PinholeCamera = dataclasses.field(init=False, repr=False)  # what rendered the images
+    oracle: OracleRecord | None = dataclasses.field(init=False, repr=False)  # ground truth
+    resamples: ResampleCounts = dataclasses.field(init=False, repr=False)
 
     def __post_init__(self):
         for name, value in _parse(self.meta).items():
             object.__setattr__(self, name, value)
+
+    def true_tuples(self) -> tuple[TupleRecord, ...]:
+        """The ground-truth tuples; DatasetError for a redacted record, which holds none."""
+        if self.tuples is None:
+            raise DatasetError(f"scene {self.id} was redacted: it holds no ground truth")
+        return self.tuples
+
+    def true_placement(self) -> np.ndarray:
+        """`(2,)` the oracle placement; DatasetError for a redacted record, which holds none."""
+        if self.oracle is None:
+            raise DatasetError(f"scene {self.id} was redacted: it holds no ground truth")
+        return self.oracle.placement
 
     def problem(self) -> PlacementProblem:
         """The placement problem of the scene, with the ground-truth grounding."""
         aabbs = np.stack([obj.aabb for obj in self.objects])[:, :, :2]
         tuples = [
             GroundedTuple(t.relation, None if t.reference_object_id == 0 else aabbs[t.reference_object_id - 1])
-            for t in self.tuples
+            for t in self.true_tuples()
         ]
         return encode_problem(tuples, aabbs, self.held_object.footprint_half_extents)
 

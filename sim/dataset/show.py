@@ -35,17 +35,17 @@ def feasible_overlay(record: SceneRecord, alpha: float = 0.45) -> np.ndarray:
 def scene_figure(record: SceneRecord) -> np.ndarray:
     """`(H + banner, W, 3)`: feasible region, labelled boxes (references in bold), oracle point."""
     labels = {obj.object_id: obj.human_name for obj in record.objects}
-    references = {t.reference_object_id for t in record.tuples}
+    references = {t.reference_object_id for t in record.true_tuples()}
     canvas = draw_boxes(feasible_overlay(record), record.boxes, labels)
     for object_id, (u0, v0, u1, v1) in zip(record.boxes.object_ids, record.boxes.boxes, strict=True):
         if object_id in references:
             cv2.rectangle(canvas, (int(u0) - 2, int(v0) - 2), (int(u1) + 1, int(v1) + 1), (255, 255, 255), 2)
-    u, v = _camera(record).table_to_pixel(record.oracle.placement)
+    u, v = _camera(record).table_to_pixel(record.true_placement())
     cv2.drawMarker(canvas, (int(round(u)), int(round(v))), (255, 0, 255), cv2.MARKER_TILTED_CROSS, 18, 3)
     lines = [
         f"{record.id} ({record.level}): {record.instruction}",
         "truth: "
-        + "; ".join(f"{t.relation} of {t.reference_name} (token {t.token_index})" for t in record.tuples)
+        + "; ".join(f"{t.relation} of {t.reference_name} (token {t.token_index})" for t in record.true_tuples())
         + f" | held: {record.held_object.human_name}",
     ]
     banner = np.full((22 * len(lines) + 8, canvas.shape[1], 3), 255, np.uint8)

@@ -51,7 +51,7 @@ def observation_space(camera: PinholeCamera) -> spaces.Dict:
         {
             "rgb": spaces.Box(0, 255, (height, width, 3), np.uint8),
             "depth": spaces.Box(0.0, DEPTH_MAX, (height, width), np.float32),
-            "boxes": spaces.Box(0, np.tile(np.int32([width, height, width, height]), (MAX_BOXES, 1)), dtype=np.int32),
+            "boxes": spaces.Box(0, np.tile(_image_corner(width, height), (MAX_BOXES, 1)), dtype=np.int32),
             "box_mask": spaces.MultiBinary(MAX_BOXES),
             "box_aabbs": spaces.Box(-WORKSPACE_EXTENT, WORKSPACE_EXTENT, (MAX_BOXES, 2, 3), np.float64),
             "instruction": spaces.Text(MAX_INSTRUCTION_LENGTH, charset=INSTRUCTION_CHARACTERS),
@@ -88,3 +88,8 @@ def observation(record: SceneRecord) -> dict:
         "camera_intrinsics": np.array(record.camera.intrinsics),
         "camera_pose": np.array(record.camera.world_from_camera),
     }
+
+
+def _image_corner(width: int, height: int) -> np.ndarray:
+    """`(4,)` int32 upper bounds of a pixel box `(u0, v0, u1, v1)`."""
+    return np.asarray([width, height, width, height], np.int32)

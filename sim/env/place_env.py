@@ -14,8 +14,9 @@ import copy
 import dataclasses
 import os
 import sys
+import types
 from pathlib import Path
-from typing import ClassVar
+from typing import TYPE_CHECKING, Any
 
 import cv2
 import gymnasium
@@ -30,6 +31,9 @@ from ocplace.sim.env.scenes import DatasetScenes, GeneratedScenes
 from ocplace.sim.metric import check_placements
 from ocplace.sim.workspace import DEFAULT_TABLE
 
+if TYPE_CHECKING:
+    from ocplace.sim.mujoco_backend import MujocoScenes
+
 SUCCESS_COLOUR = (40, 200, 60)  # RGB of a successful placement's footprint in `render()`
 FAILURE_COLOUR = (230, 40, 40)
 # Where Gymnasium's `make_vec` lives: its sync/async copies are refused (`_made_by_gymnasiums_vectorizer`).
@@ -41,7 +45,7 @@ def _made_by_gymnasiums_vectorizer() -> bool:
     """Whether Gymnasium's own sync/async vectorizer is making this environment: its `make_vec` builds each copy in
     a closure named `create_single_env`, with nothing in the arguments that tells the copies apart (Gymnasium
     offers no other hook), so that closure on the call stack is the only sign."""
-    frame = sys._getframe(1)
+    frame: types.FrameType | None = sys._getframe(1)
     for _ in range(32):
         if frame is None:
             return False
@@ -82,10 +86,10 @@ def metric_details(record: SceneRecord, placement: np.ndarray) -> dict:
         reason = "the placement is not finite (NaN or infinite)"
         return {"success": False, "reason": reason, "inside_table": None, "collision_free": None, "tuples_hold": None}
     checks = check_placements(placement[None], record.problem())
-    tuples_hold = [bool(holds) for holds in checks.tuples[: len(record.tuples), 0]]
+    tuples_hold = [bool(holds) for holds in checks.tuples[: len(record.true_tuples()), 0]]
     reasons = [
         f"{truth.relation} {truth.reference_name} does not hold"
-        for truth, holds in zip(record.tuples, tuples_hold)
+        for truth, holds in zip(record.true_tuples(), tuples_hold)
         if not holds
     ]
     if not checks.inside_table[0]:
@@ -105,8 +109,8 @@ def ground_truth(record: SceneRecord) -> dict:
     """What `info` reveals once the episode is over: the level, the tuples (with token indices), the oracle."""
     return {
         "level": record.level,
-        "tuples": [dataclasses.asdict(t) for t in record.tuples],
-        "oracle": record.oracle.placement.tolist(),
+        "tuples": [dataclasses.asdict(t) for t in record.true_tuples()],
+        "oracle": record.true_placement().tolist(),
     }
 
 
@@ -128,7 +132,7 @@ class PlaceEnv(gymnasium.Env):
         scenes and for the physical check.
     """
 
-    metadata: ClassVar[dict] = {"render_modes": ["rgb_array"], "render_fps": 4}
+    metadata: dict[str, Any] = {"render_modes": ["rgb_array"], "render_fps": 4}  # noqa: RUF012 (Env declares it so)
 
     def __init__(
         self,
@@ -166,7 +170,7 @@ class PlaceEnv(gymnasium.Env):
         self.action_space = spaces.Box(bounds[0], bounds[1], dtype=np.float32)
         self._workers, self._next_episode = workers, worker
         self._library_cache = library_cache
-        self._arena = None  # MuJoCo arena of the physical check, made on its first drop
+        self._arena: MujocoScenes | None = None  # MuJoCo arena of the physical check, made on its first drop
         self._record: SceneRecord | None = None
         self._observation: dict | None = None
         self._placement: np.ndarray | None = None
@@ -214,6 +218,7 @@ class PlaceEnv(gymnasium.Env):
             from ocplace.sim.mujoco_backend import MujocoScenes
 
             self._arena = MujocoScenes.from_library(load_library(self._library_cache))
+        assert self._record is not None, "stepped after a reset"
         result = physical_check(self._arena, self._record, placement)
         return {
             "success": bool(result.success),
@@ -243,6 +248,7 @@ class PlaceEnv(gymnasium.Env):
 
     def _pixels(self, xy: np.ndarray) -> np.ndarray:
         """`(..., 2)` int32 pixels of table points, clipped so that a placement far off the table still draws."""
+        assert self._record is not None, "drawn after a reset"
         pixels = self._record.camera.table_to_pixel(xy)
         return np.clip(np.round(pixels), -PIXEL_LIMIT, PIXEL_LIMIT).astype(np.int32)
 

@@ -9,10 +9,14 @@ encoding its PNGs), so an environment over either source shows the same observat
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ocplace.sim.dataset.config import DatasetConfig
 from ocplace.sim.dataset.records import SceneRecord, stored_record
 from ocplace.sim.pinhole import PinholeCamera
+
+if TYPE_CHECKING:
+    from ocplace.sim.dataset.generate import SceneGenerator
 
 
 class DatasetScenes:
@@ -50,7 +54,7 @@ class GeneratedScenes:
         config.validate()
         self._config, self._split, self._cache = config, split, library_cache
         self._levels = level_schedule(config.split(split), config.seed)
-        self._generator = None
+        self._generator: SceneGenerator | None = None
 
     def __len__(self) -> int:
         return len(self._levels)

@@ -177,8 +177,8 @@ def _build_textures(root: Path, max_px: int) -> list[dict]:
             log.warning("table texture %s changed since it was built: it is made again", target)
             target.unlink()
         if not target.is_file():
-            with Image.open(source) as image:
-                image = image.convert("RGB")
+            with Image.open(source) as opened:
+                image = opened.convert("RGB")
                 image.thumbnail((max_px, max_px), Image.Resampling.LANCZOS)
                 with atomic_path(target) as tmp:
                     image.save(tmp, format="PNG")

@@ -16,6 +16,7 @@ import re
 from importlib import resources
 
 from ocplace.errors import AssetBuildError
+from ocplace.sim.vectors import vec3
 from ocplace.vocabulary import LIBRARY_SPLITS
 
 CLIPORT_SPLITS = ("seen", "unseen")
@@ -75,7 +76,7 @@ def _as_scale(value) -> tuple[float, float, float] | None:
         return None
     if isinstance(value, (int, float)):
         return (float(value),) * 3
-    return tuple(float(v) for v in value)
+    return vec3(value)
 
 
 def _object_spec(entry: dict, licences: dict[str, str]) -> ObjectSpec:

@@ -21,6 +21,7 @@ from ocplace.sim.library.records import ASSET_FILE, asset_from_json, asset_to_js
 from ocplace.sim.library.shape_descriptor import write_descriptor
 from ocplace.sim.library.sources import SourceFiles
 from ocplace.sim.library.types import ObjectAsset
+from ocplace.sim.vectors import vec4
 
 SIZE_RANGE = (0.005, 0.6)  # metres, largest extent; outside it the scale is surely wrong
 
@@ -76,7 +77,7 @@ def _write_object(directory: Path, spec: ObjectSpec, files: SourceFiles, config:
         directory=directory,
         visual_mesh=directory / writers.VISUAL_OBJ,
         texture=directory / writers.TEXTURE_PNG if textured else None,
-        rgba=tuple(float(c) for c in rgba),
+        rgba=vec4(rgba),
         hulls=tuple(directory / writers.hull_filename(i) for i in range(len(hulls))),
         mjcf=directory / writers.MJCF_FILE,
         urdf=directory / writers.URDF_FILE,

@@ -15,6 +15,7 @@ from scipy.spatial.transform import Rotation
 from ocplace.errors import AssetBuildError
 from ocplace.sim.library.config import CoacdSettings
 from ocplace.sim.library.meshes import TexturedMesh
+from ocplace.sim.vectors import vec3
 
 _WELD_DECIMALS = 7  # positions in metres (0.1 um) and UVs: merges only exact duplicates
 _MIN_HULL_VOLUME = 1e-9  # m^3; coacd can emit slivers that MuJoCo rejects
@@ -94,7 +95,7 @@ def rest_on_table(mesh: TexturedMesh) -> TexturedMesh:
 
 
 def extents(vertices: np.ndarray) -> tuple[float, float, float]:
-    return tuple(float(e) for e in vertices.max(axis=0) - vertices.min(axis=0))
+    return vec3(vertices.max(axis=0) - vertices.min(axis=0))
 
 
 def prepare_texture(image: Image.Image, max_px: int, tint=None) -> Image.Image:
@@ -105,8 +106,8 @@ def prepare_texture(image: Image.Image, max_px: int, tint=None) -> Image.Image:
         image = Image.fromarray(np.uint8(np.round(grey[..., None] * np.asarray(tint) * 255)), "RGB")
     if max(image.size) > max_px:
         ratio = max_px / max(image.size)
-        size = tuple(max(1, round(s * ratio)) for s in image.size)
-        image = image.resize(size, Image.Resampling.LANCZOS)
+        width, height = (max(1, round(s * ratio)) for s in image.size)
+        image = image.resize((width, height), Image.Resampling.LANCZOS)
     return image
 
 
@@ -119,8 +120,8 @@ def collision_input(mesh: TexturedMesh, max_faces: int) -> tuple[trimesh.Trimesh
     does not, manifold3d's simplification (which always does) is the fallback.
     """
     shape = weld(dataclasses.replace(mesh, uv=None, texture=None))
-    reduced = decimate(shape, max_faces)
-    reduced = trimesh.Trimesh(reduced.vertices, reduced.faces, process=True)
+    decimated = decimate(shape, max_faces)
+    reduced = trimesh.Trimesh(decimated.vertices, decimated.faces, process=True)
     if reduced.is_watertight:
         return reduced, True
     closed = _simplify_closed(shape, max_faces)
@@ -236,7 +237,7 @@ def merge_hulls(pieces: list[np.ndarray], max_count: int) -> list[np.ndarray]:
     while len(alive) > max_count:
         if not cost:  # no touching pieces left: allow any pair
             cost = {(a, b): pair_cost(a, b) for a in alive for b in alive if a < b}
-        a, b = min(cost, key=cost.get)
+        a, b = min(cost, key=lambda pair: cost[pair])
         pieces[a] = _hull_points(np.vstack([pieces[a], pieces[b]]))
         volumes[a] = _hull_volume(pieces[a])
         boxes[a] = (np.minimum(boxes[a][0], boxes[b][0]), np.maximum(boxes[a][1], boxes[b][1]))
@@ -260,14 +261,14 @@ def _convex_hull(points: np.ndarray) -> Hull | None:
 
 def mass_properties(hulls: list[Hull], density: float) -> MassProperties:
     """Uniform density over the hulls (overlaps counted twice), at least `_MIN_MASS`."""
-    masses, centres, inertias = [], [], []
+    hull_masses, centres, inertias = [], [], []
     for hull in hulls:
         mesh = trimesh.Trimesh(hull.vertices, hull.faces, process=False)
         mesh.density = density
-        masses.append(mesh.mass)
+        hull_masses.append(mesh.mass)
         centres.append(mesh.center_mass)
         inertias.append(mesh.moment_inertia)
-    masses = np.asarray(masses)
+    masses = np.asarray(hull_masses)
     mass = float(masses.sum())
     centre = (masses[:, None] * np.asarray(centres)).sum(axis=0) / mass
     inertia = np.zeros((3, 3))

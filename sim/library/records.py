@@ -16,8 +16,8 @@ ASSET_FILE = "asset.json"  # written last inside an object's folder: its presenc
 MANIFEST_VERSION = 1
 
 
-_OBJECT_FIELDS = {"name": str, "status": str, "folder": (str, type(None))}
-_TEXTURE_FIELDS = {"name": str, "file": str, "split": str}
+_OBJECT_FIELDS: dict[str, type | tuple[type, ...]] = {"name": str, "status": str, "folder": (str, type(None))}
+_TEXTURE_FIELDS: dict[str, type | tuple[type, ...]] = {"name": str, "file": str, "split": str}
 
 
 def manifest_problem(manifest: object) -> str | None:

@@ -20,10 +20,10 @@ import json
 from pathlib import Path
 
 import numpy as np
-import trimesh
 from scipy.spatial import cKDTree
 
 from ocplace.sim.library.types import ObjectAsset
+from ocplace.sim.trimesh_io import read_trimesh
 
 DESCRIPTOR_FILE = "shape.json"  # written beside a converted model, so checks need not read its meshes
 # Below this many faces a mesh is a primitive-like shape (a box, a slab) that distinct models share by
@@ -93,7 +93,7 @@ def mesh_descriptor(meshes) -> tuple[float, ...]:
 
 
 def _meshes(asset: ObjectAsset) -> list[tuple[np.ndarray, np.ndarray]]:
-    loaded = [trimesh.load(part.mesh, force="mesh", process=False, skip_materials=True) for part in asset.visual_parts]
+    loaded = [read_trimesh(part.mesh, skip_materials=True) for part in asset.visual_parts]
     return [(np.asarray(mesh.vertices), np.asarray(mesh.faces)) for mesh in loaded]
 
 

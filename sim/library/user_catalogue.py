@@ -25,6 +25,7 @@ from ocplace.sim.library.metadata import ObjectSpec, packaged_objects
 from ocplace.sim.library.process_object import SIZE_RANGE
 from ocplace.sim.library.processing import extents, orient
 from ocplace.sim.library.sources import gso_files, source_files
+from ocplace.sim.vectors import vec3, vec4
 from ocplace.vocabulary import OWN_SUBSET_PATTERN, RESERVED_NAMES
 
 FORMAT = "ocplace-catalogue"
@@ -114,7 +115,7 @@ def read_catalogue(path: str | Path) -> Catalogue:
         if spec is not None:
             specs.append(spec)
     problems += _clashes(specs, subsets)
-    if problems:
+    if problems or not isinstance(name, str):  # a name that is no text is one of the problems
         listed = "\n  - ".join(problems)
         raise CatalogueError(f"{path}: {len(problems)} problem(s); nothing was built:\n  - {listed}")
     return Catalogue(
@@ -212,8 +213,8 @@ def _spec(entry: object, base: Path, subsets: dict[str, Subset], problems: list[
     scale = _scale(entry, problems)
     rotate = _rotate(entry.get("rotate", []), problems)
     rgba = _rgba(entry.get("rgba"), problems)
-    if problems:
-        return None
+    if problems or not (isinstance(name, str) and human_name and category and licence and isinstance(subset, str)):
+        return None  # each of those missing is one of the problems
     return ObjectSpec(
         name=name,
         human_name=human_name,
@@ -298,7 +299,7 @@ def _scale(entry: dict, problems: list[str]) -> tuple[float, float, float] | Non
     ):
         problems.append(f"scale: a positive number or three (metres per mesh unit), got {value!r}")
         return None
-    return tuple(float(v) for v in values)
+    return vec3(values)
 
 
 def _rotate(value: object, problems: list[str]) -> tuple[tuple[str, float], ...]:
@@ -311,7 +312,7 @@ def _rotate(value: object, problems: list[str]) -> tuple[tuple[str, float], ...]
         and math.isfinite(turn[1])
         for turn in value
     )
-    if not ok:
+    if not ok or not isinstance(value, list):
         problems.append(f'rotate: a list of [axis, degrees] turns such as [["x", 90]], got {value!r}')
         return ()
     return tuple((axis, float(degrees)) for axis, degrees in value)
@@ -325,10 +326,10 @@ def _rgba(value: object, problems: list[str]) -> tuple[float, float, float, floa
         and len(value) in (3, 4)
         and all(isinstance(v, (int, float)) and not isinstance(v, bool) and 0.0 <= v <= 1.0 for v in value)
     )
-    if not ok:
+    if not ok or not isinstance(value, list):
         problems.append(f"rgba: three or four numbers in [0, 1] (red, green, blue, opacity), got {value!r}")
         return None
-    return tuple(float(v) for v in [*value, 1.0][:4])
+    return vec4([*value, 1.0][:4])
 
 
 def _check_files(spec: ObjectSpec, problems: list[str]) -> None:
