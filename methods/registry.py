@@ -66,6 +66,22 @@ def recipe_types() -> dict[str, type[Recipe]]:
     return types
 
 
+def recipe_presets(scale: str) -> dict[str, Recipe]:
+    """Each learning row's recipe at an experiment's `scale` (its package's `PRESETS[scale]`, beside `RECIPE`): what
+    configs/<scale>.py trains with, so that every value of a row's recipe lives in its own recipe.py. A row from
+    outside the tree without presets is left out (`Experiment.recipe` falls back on its `RECIPE`'s defaults);
+    EvaluationError when a row has presets but none for `scale`."""
+    presets = {}
+    for name, package in ((n, importlib.import_module(p)) for n, p in row_packages().items()):
+        if hasattr(package, "RECIPE") and hasattr(package, "PRESETS"):
+            if scale not in package.PRESETS:
+                raise EvaluationError(
+                    f"row {name!r} has no recipe for {scale!r} (its PRESETS: {', '.join(package.PRESETS)})"
+                )
+            presets[name] = package.PRESETS[scale]
+    return presets
+
+
 def inference_defaults() -> dict[str, InferenceSettings]:
     """The placement-time settings of each policy row (its package's `INFERENCE`), by name, without importing JAX:
     what an experiment's `inference` starts from."""

@@ -1,13 +1,14 @@
 """The experiments of `ocplace.configs`: one per scale, each complete and valid."""
 
 import dataclasses
+import importlib
 
 import pytest
 
 from ocplace import configs
 from ocplace.errors import ConfigError, UnknownExperiment
 from ocplace.methods.no_llm.recipe import NoLlmRecipe
-from ocplace.methods.registry import method_specs, recipe_types
+from ocplace.methods.registry import method_specs, recipe_types, row_packages
 from ocplace.models.offline_recipes import output_dir, recipe_dir
 from ocplace.train.schedule import Schedule
 
@@ -71,6 +72,9 @@ def test_each_experiment_holds_a_recipe_for_every_learning_row_of_its_registered
     assert set(experiment.recipes) == learning == set(types)
     assert all(type(experiment.recipes[row]) is types[row] for row in learning)
     assert experiment.missing_recipes(method_specs()) == []
+    # One place per setting (issue 61): every recipe value is its row's preset for this experiment, none restated.
+    packages = {row: importlib.import_module(package) for row, package in row_packages().items() if row in learning}
+    assert {row: package.PRESETS[name] for row, package in packages.items()} == dict(experiment.recipes)
 
 
 def test_a_row_finds_its_recipe_by_name_and_a_missing_or_foreign_one_is_named():

@@ -46,3 +46,30 @@ class GridsRecipe:
     def validate(self) -> None:
         if problems := self.schedule.problems():
             raise TrainingError("invalid training configuration: " + "; ".join(problems))
+
+
+# The recipe at each experiment's scale (configs/<name>.py). The default is the paper's budget for the adapters:
+# 200K steps at batch 1, warm-up then cosine decay.
+PRESETS = {
+    "default": GridsRecipe(
+        GridConfig(),
+        Schedule(
+            steps=200_000,
+            batch_size=1,
+            learning_rate=1e-4,
+            warmup_steps=1_000,
+            chunk_steps=2_000,
+            checkpoint_every=50_000,
+        ),
+    ),
+    "demo": GridsRecipe(
+        GridConfig(),
+        Schedule(
+            steps=4_000, batch_size=4, learning_rate=1e-3, warmup_steps=100, chunk_steps=1_000, checkpoint_every=2_000
+        ),
+    ),
+    "smoke": GridsRecipe(
+        smoke_grid_config(),
+        Schedule(steps=120, batch_size=4, learning_rate=1e-2, warmup_steps=5, chunk_steps=40, checkpoint_every=40),
+    ),
+}

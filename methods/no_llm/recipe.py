@@ -60,3 +60,20 @@ class NoLlmRecipe:
         return NoLlmConfig(
             dim=dim, reduction=self.adapters.reduction, residual_ratio=self.adapters.residual_ratio, hidden=self.hidden
         )
+
+
+# The recipe at each experiment's scale (configs/<name>.py).
+PRESETS = {
+    "default": NoLlmRecipe(),
+    "demo": NoLlmRecipe(
+        schedule=dataclasses.replace(
+            NoLlmRecipe().schedule, steps=3_000, warmup_steps=200, chunk_steps=500, checkpoint_every=1_500
+        )
+    ),
+    "smoke": NoLlmRecipe(
+        schedule=Schedule(
+            steps=120, batch_size=8, learning_rate=3e-3, warmup_steps=10, chunk_steps=40, checkpoint_every=40
+        ),
+        hidden=32,
+    ),
+}

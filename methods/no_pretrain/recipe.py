@@ -76,3 +76,17 @@ class NoPretrainRecipe:
             )
         if problems:
             raise TrainingError("invalid training configuration: " + "; ".join(problems))
+
+
+# The recipe at each experiment's scale (configs/<name>.py).
+PRESETS = {
+    "default": NoPretrainRecipe(default_config()),
+    "demo": NoPretrainRecipe(
+        demo_config(), dataclasses.replace(SCHEDULE, steps=75, warmup_steps=8, checkpoint_every=25), log_every=25
+    ),
+    "smoke": NoPretrainRecipe(
+        smoke_config(),
+        dataclasses.replace(SCHEDULE, steps=150, batch_size=4, warmup_steps=3, checkpoint_every=50),
+        log_every=10,
+    ),
+}

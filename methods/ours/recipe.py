@@ -76,3 +76,22 @@ def smoke_config() -> OursRecipe:
         steps=300, batch_size=1, learning_rate=1e-2, warmup_steps=10, chunk_steps=50, checkpoint_every=100
     )
     return OursRecipe(schedule=schedule, eval_every=100)
+
+
+def demo_paper_config() -> OursRecipe:
+    """`make demo`'s budget with the paper's adapters: a tenth of the paper's steps at a higher peak rate (the demo
+    dataset is small too)."""
+    schedule = dataclasses.replace(
+        PAPER_SCHEDULE, steps=20_000, learning_rate=5e-4, warmup_steps=500, checkpoint_every=10_000
+    )
+    return OursRecipe(schedule=schedule, eval_every=10_000)
+
+
+# The recipe of each row trained as Ours is, at each experiment's scale (configs/<name>.py): "ours" with the
+# adapters rule A chose, "ours_paper" with the paper's.
+PRESETS = {
+    "default": default_config(),
+    "demo": chosen_adapters(demo_paper_config()),
+    "smoke": chosen_adapters(smoke_config()),
+}
+PAPER_PRESETS = {"default": paper_config(), "demo": demo_paper_config(), "smoke": smoke_config()}
