@@ -26,8 +26,8 @@ from ocplace.models.parsing.config import PARSER_NAMES
 from ocplace.runtime.width import TRAIN_CPUS
 from ocplace.vocabulary import MAX_SAMPLES, MAX_SEED, TEST_SUBSETS, subsets_problem
 
-
 RecipeT = TypeVar("RecipeT")
+
 
 @dataclasses.dataclass(frozen=True)
 class DatasetSizes:

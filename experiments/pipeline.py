@@ -273,38 +273,10 @@ def task_graph(
     compiles for that many wherever it runs and the results are the same bits on any executor
     (ocplace/runtime/width.py).
     """
-    nodes: list[Node] = []
     cpus = config.experiment.cpus
-    backbone_of: Callable[[Mapping[str, Any], MethodRun], str]
-    if config.backbone is None:
-        seeds = list(dict.fromkeys(run.backbone_seed for run in [MethodRun("", ""), *runs]))  # the base one first
-        for previous, seed in zip([None, *seeds], seeds, strict=False):
-            task = Task(
-                pretrain_task,
-                (config.experiment.backbone_recipe(seed), config.progress, cpus.pretrain, len(seeds) > 1),
-                cpus=cpus.pretrain,
-                pinned=True,
-            )
-            # One after another: the first that pretrains renders and encodes for the others (a cached one does not),
-            # and no two write the shared captions at once.
-            waits: tuple[str, ...] = () if seed is None else (backbone_key(previous),)
-            nodes.append(Node(backbone_key(seed), functools.partial(_given, task), waits))
-
-        def backbone_after(run: MethodRun) -> tuple[str, ...]:
-            return (backbone_key(run.backbone_seed),)
-
-        def backbone_of(done: Mapping[str, Any], run: MethodRun) -> str:
-            spec: str = done[backbone_key(run.backbone_seed)]
-            return spec
-    else:
-
-        def backbone_after(run: MethodRun) -> tuple[str, ...]:
-            return ()
-
-        given = config.backbone
-
-        def backbone_of(done: Mapping[str, Any], run: MethodRun) -> str:
-            return given
+    source = backbone_source(config, runs)
+    nodes: list[Node] = source.nodes()
+    backbone_after, backbone_of = source.after, source.spec
 
     def method_node(
         key: str,
@@ -350,6 +322,61 @@ def task_graph(
         draw = _figure_maker(config, dataset_dir, out, backbone_of, drawn)
         nodes.append(Node(FIGURE_NODE, draw, backbone_after(drawn) + (f"train {drawn.key}",)))
     return nodes
+
+
+@dataclasses.dataclass(frozen=True)
+class PretrainedBackbones:
+    """Where the runs' backbones come from when none is given: pretrained in the graph, one node per backbone seed
+    (the experiment's own first), one after another."""
+
+    config: PipelineConfig
+    seeds: tuple[int | None, ...]  # None: the recipe's own optimiser seed
+
+    def nodes(self) -> list[Node]:
+        cpus = self.config.experiment.cpus
+        nodes: list[Node] = []
+        for previous, seed in zip([None, *self.seeds], self.seeds, strict=False):
+            recipe = self.config.experiment.backbone_recipe(seed)
+            arguments = (recipe, self.config.progress, cpus.pretrain, len(self.seeds) > 1)
+            task = Task(pretrain_task, arguments, cpus=cpus.pretrain, pinned=True)
+            # One after another: the first that pretrains renders and encodes for the others (a cached one does not),
+            # and no two write the shared captions at once.
+            waits: tuple[str, ...] = () if seed is None else (backbone_key(previous),)
+            nodes.append(Node(backbone_key(seed), functools.partial(_given, task), waits))
+        return nodes
+
+    def after(self, run: MethodRun) -> tuple[str, ...]:
+        """The nodes `run`'s tasks wait for: its backbone's."""
+        return (backbone_key(run.backbone_seed),)
+
+    def spec(self, done: Mapping[str, Any], run: MethodRun) -> str:
+        """The backbone spec of `run`, from what its backbone's node returned."""
+        spec: str = done[backbone_key(run.backbone_seed)]
+        return spec
+
+
+@dataclasses.dataclass(frozen=True)
+class GivenBackbone:
+    """Where the runs' backbones come from with `--backbone SPEC`: that spec for every run, no node to wait for."""
+
+    given: str
+
+    def nodes(self) -> list[Node]:
+        return []
+
+    def after(self, run: MethodRun) -> tuple[str, ...]:
+        return ()
+
+    def spec(self, done: Mapping[str, Any], run: MethodRun) -> str:
+        return self.given
+
+
+def backbone_source(config: PipelineConfig, runs: list[MethodRun]) -> PretrainedBackbones | GivenBackbone:
+    """The strategy that gives each run its backbone: the one given, or those the graph pretrains."""
+    if config.backbone is not None:
+        return GivenBackbone(config.backbone)
+    seeds = tuple(dict.fromkeys(run.backbone_seed for run in [MethodRun("", ""), *runs]))  # the base one first
+    return PretrainedBackbones(config, seeds)
 
 
 def trained_run(run: MethodRun, specs: Mapping[str, MethodSpec[Any]]) -> MethodRun | None:

@@ -335,7 +335,8 @@ def pretrain(
     render_workers: int = 1,
     share_renders: bool = False,
 ) -> PretrainResult:
-    """Renders, trains and saves the offline backbone of `config` (resuming whatever was done).
+    """Renders, trains and saves the offline backbone of `config` (resuming whatever was done): its phases in order,
+    `_rendered`, `_captioned`, then `_Training` on the runner.
 
     `stop_after`: return after this many training steps without saving (to test resuming);
     `render_workers`: processes that render (the same images with any number);
@@ -355,103 +356,162 @@ def pretrain(
         summary = read_backbone_config(out_dir)["pretraining"]
         return PretrainResult(out_dir, backbone, summary["probe_loss_before"], summary["probe_loss_after"], {})
     checkpoints.claim_run_dir(run_dir, run_meta)
-
     timings = {"setup_s": time.perf_counter() - began}
-
-    mark, cpu_mark = time.perf_counter(), time.process_time()
     renders_root = shared_renders_dir(config, pool) if share_renders else run_dir
-    images = render_all(library, pool, renders_root, config.render, config.model, progress, render_workers)
+    images = _rendered(library, pool, renders_root, config, progress, render_workers, timings)
+    inputs = _captioned(images, bank, config, renders_root if share_renders else None, progress, timings)
+    training = _Training(config, bank, inputs, out_dir, run_meta, timings, began)
+    outcome = runner.run(training.spec(run_dir), progress, stop_after=stop_after)
+    if outcome.saved is None:
+        return training.result(outcome.state)
+    if not keep_run:
+        shutil.rmtree(run_dir / "renders", ignore_errors=True)
+        shutil.rmtree(run_dir / checkpoints.CHECKPOINT_DIR, ignore_errors=True)
+    saved: PretrainResult = outcome.saved
+    return saved
+
+
+def _rendered(
+    library, pool: TrainingPool, root: Path, config: PretrainConfig, progress: bool, workers: int, timings: dict
+) -> RenderedImages:
+    """The pretraining images of the pool, rendered into (or read from) `root`; their time into `timings`."""
+    mark, cpu_mark = time.perf_counter(), time.process_time()
+    images = render_all(library, pool, root, config.render, config.model, progress, workers)
     timings["render_s"] = time.perf_counter() - mark
     timings["render_cpu_s"] = time.process_time() - cpu_mark
+    return images
+
+
+@dataclasses.dataclass(frozen=True)
+class _Inputs:
+    """What the training phase reads beside the recipe: the images, each class's image indices, every step's batch
+    draw and the probe's, the captions' sentences and the frozen text tower (kept in the saved backbone)."""
+
+    images: RenderedImages
+    by_class: list[np.ndarray]
+    draws: list[BatchDraw]
+    probe_draw: BatchDraw
+    sentences: jax.Array  # (num_captions, D) the caption bank's sentence embeddings
+    text_tower: FrozenTextTower
+
+
+def _captioned(
+    images: RenderedImages,
+    bank: CaptionBank,
+    config: PretrainConfig,
+    shared_root: Path | None,
+    progress: bool,
+    timings: dict,
+) -> _Inputs:
+    """Every step's batch drawn, and the sentences of the captions they use encoded (kept in `shared_root`, the
+    shared renders' folder, when given); TrainingError when the renders hold no object crop."""
     by_class = [np.flatnonzero(images.labels == k) for k in range(len(bank.class_names))]
     if not len(by_class[bank.table_class]) or not any(len(c) for c in by_class[: bank.table_class]):
         raise TrainingError("rendering produced no object crops; check the library with `ocplace scene`")
-
-    optim = config.optim
     mark = time.perf_counter()
     text_tower = FrozenTextTower.load(config.model.text_max_length)
-    draws, probe_draw = run_draws(images, by_class, bank, optim)
+    draws, probe_draw = run_draws(images, by_class, bank, config.optim)
     used = used_captions([*draws, probe_draw])
-    if share_renders:
-        sentences = shared_caption_sentences(text_tower, bank.texts, used, renders_root, progress)
+    if shared_root is not None:
+        sentences = shared_caption_sentences(text_tower, bank.texts, used, shared_root, progress)
     else:
         sentences = caption_sentences(text_tower, bank.texts, used, progress)
-    bank_sentences = jnp.asarray(sentences)
     timings["captions_s"] = time.perf_counter() - mark
+    return _Inputs(images, by_class, draws, probe_draw, jnp.asarray(sentences), text_tower)
 
-    mark, cpu_mark = time.perf_counter(), time.process_time()
-    params = init_params(config.model, jax.random.key(optim.seed))
-    trainable, frozen = split_trainable(trainable_mask(config.model, params), params)
-    probe = gather_batch(images, bank, probe_draw)
-    probe_args = (probe.pixels, bank_sentences[probe.captions], probe.positives)
-    loss_before = float(probe_loss(config.model, params, *probe_args))
-    train_step = make_train_step(config.model, optim)
-    resumed = bool(checkpoints.list_checkpoints(run_dir))
 
-    def chunk(state, start: int, count: int):
+class _Training:
+    """The contrastive training on the runner: its initial state, a chunk of steps, what each logged step records,
+    and the backbone saved at the end. Made where its clock starts (the initial weights and the probe's loss)."""
+
+    def __init__(
+        self,
+        config: PretrainConfig,
+        bank: CaptionBank,
+        inputs: _Inputs,
+        out_dir: Path,
+        run_meta: dict,
+        timings: dict,
+        began: float,
+    ):
+        self.config, self.bank, self.inputs, self.out_dir, self.run_meta = config, bank, inputs, out_dir, run_meta
+        self.timings, self.began = timings, began
+        self.mark, self.cpu_mark = time.perf_counter(), time.process_time()
+        params = init_params(config.model, jax.random.key(config.optim.seed))
+        self.trainable, self.frozen = split_trainable(trainable_mask(config.model, params), params)
+        probe = gather_batch(inputs.images, bank, inputs.probe_draw)
+        self.probe_args = (probe.pixels, inputs.sentences[probe.captions], probe.positives)
+        self.loss_before = float(probe_loss(config.model, params, *self.probe_args))
+        self.train_step = make_train_step(config.model, config.optim)
+        self.resumed = False
+        self.usual_record = runner.loss_and_learning_rate(optimisers.learning_rates(config.optim))
+
+    def spec(self, run_dir: Path) -> runner.Run:
+        optim = self.config.optim
+        self.resumed = bool(checkpoints.list_checkpoints(run_dir))
+        return runner.Run(
+            run_dir=run_dir,
+            run_meta=self.run_meta,
+            steps=optim.steps,
+            chunk_steps=1,
+            log_every=LOG_EVERY,
+            checkpoint_every=optim.checkpoint_every,
+            keep_checkpoints=optim.keep_checkpoints,
+            init_state=lambda: (self.trainable, optimisers.make(optim).init(self.trainable)),
+            chunk=self.chunk,
+            record=self.record,
+            artefact=self.out_dir / FINGERPRINT_FILE,
+            save_artefact=self.save,
+            checkpoint_meta={"run": json.dumps(self.run_meta, sort_keys=True)},
+            desc="pretrain",
+        )
+
+    def chunk(self, state, start: int, count: int):
+        images, bank, inputs = self.inputs.images, self.bank, self.inputs
         losses = []
         for step in range(start, start + count):
-            batch = gather_batch(images, bank, draws[step])
-            state, loss = train_step(
-                state, frozen, batch.pixels, batch.factors, batch.captions, batch.positives, bank_sentences
+            batch = gather_batch(images, bank, inputs.draws[step])
+            state, loss = self.train_step(
+                state, self.frozen, batch.pixels, batch.factors, batch.captions, batch.positives, inputs.sentences
             )
             losses.append(loss)
         return state, jnp.stack(losses)
 
-    usual_record = runner.loss_and_learning_rate(optimisers.learning_rates(optim))
+    def record(self, state, step: int, losses: np.ndarray) -> dict:
+        logit_scale = float(jnp.exp(state[0]["log_logit_scale"]))
+        return {**self.usual_record(state, step, losses), "logit_scale": logit_scale}
 
-    def record(state, step: int, losses: np.ndarray) -> dict:
-        return {**usual_record(state, step, losses), "logit_scale": float(jnp.exp(state[0]["log_logit_scale"]))}
-
-    def trained(state) -> tuple[OfflineBackbone, float]:
+    def trained(self, state) -> tuple[OfflineBackbone, float]:
         """The backbone of `state` and its probe loss; stops the training clock first."""
-        timings["train_s"] = time.perf_counter() - mark
-        timings["train_cpu_s"] = time.process_time() - cpu_mark
-        params = join_params(jax.device_get(state[0]), frozen)
-        loss_after = float(probe_loss(config.model, params, *probe_args))
-        return OfflineBackbone(config.model, params, text_tower, source=str(out_dir)), loss_after
+        self.timings["train_s"] = time.perf_counter() - self.mark
+        self.timings["train_cpu_s"] = time.process_time() - self.cpu_mark
+        params = join_params(jax.device_get(state[0]), self.frozen)
+        loss_after = float(probe_loss(self.config.model, params, *self.probe_args))
+        backbone = OfflineBackbone(self.config.model, params, self.inputs.text_tower, source=str(self.out_dir))
+        return backbone, loss_after
 
-    def save(fingerprint_path: Path, state) -> PretrainResult:
-        backbone, loss_after = trained(state)
-        timings["total_s"] = time.perf_counter() - began
+    def result(self, state) -> PretrainResult:
+        """What a run stopped before its end returns: the backbone so far, not saved."""
+        backbone, loss_after = self.trained(state)
+        return PretrainResult(self.out_dir, backbone, self.loss_before, loss_after, self.timings)
+
+    def save(self, fingerprint_path: Path, state) -> PretrainResult:
+        backbone, loss_after = self.trained(state)
+        self.timings["total_s"] = time.perf_counter() - self.began
+        images, names = self.inputs.images, self.bank.class_names
         summary = {
-            "run": run_meta,
+            "run": self.run_meta,
             "images": int(len(images.labels)),
-            "images_per_class": {name: int(len(c)) for name, c in zip(bank.class_names, by_class, strict=True)},
-            "probe_loss_before": loss_before,
+            "images_per_class": {name: int(len(c)) for name, c in zip(names, self.inputs.by_class, strict=True)},
+            "probe_loss_before": self.loss_before,
             "probe_loss_after": loss_after,
             "final_logit_scale": backbone.logit_scale,
-            "timings_s": {k: round(v, 1) for k, v in timings.items()},
-            "resumed": resumed,
+            "timings_s": {k: round(v, 1) for k, v in self.timings.items()},
+            "resumed": self.resumed,
             "finished": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
         }
         backbone.save(fingerprint_path.parent, {"pretraining": summary})
-        return PretrainResult(out_dir, backbone, loss_before, loss_after, timings)
-
-    spec = runner.Run(
-        run_dir=run_dir,
-        run_meta=run_meta,
-        steps=optim.steps,
-        chunk_steps=1,
-        log_every=LOG_EVERY,
-        checkpoint_every=optim.checkpoint_every,
-        keep_checkpoints=optim.keep_checkpoints,
-        init_state=lambda: (trainable, optimisers.make(optim).init(trainable)),
-        chunk=chunk,
-        record=record,
-        artefact=out_dir / FINGERPRINT_FILE,
-        save_artefact=save,
-        checkpoint_meta={"run": json.dumps(run_meta, sort_keys=True)},
-        desc="pretrain",
-    )
-    outcome = runner.run(spec, progress, stop_after=stop_after)
-    if outcome.saved is None:
-        backbone, loss_after = trained(outcome.state)
-        return PretrainResult(out_dir, backbone, loss_before, loss_after, timings)
-    if not keep_run:
-        shutil.rmtree(run_dir / "renders", ignore_errors=True)
-        shutil.rmtree(run_dir / checkpoints.CHECKPOINT_DIR, ignore_errors=True)
-    return outcome.saved
+        return PretrainResult(self.out_dir, backbone, self.loss_before, loss_after, self.timings)
 
 
 def shared_renders_dir(config: PretrainConfig, pool: TrainingPool) -> Path:
