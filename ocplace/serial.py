@@ -85,7 +85,7 @@ def _from(value, hint):
     origin, arguments = typing.get_origin(hint), typing.get_args(hint)
     if origin in (typing.Union, types.UnionType):
         return _from(value, next(a for a in arguments if a is not type(None)))
-    if dataclasses.is_dataclass(hint):
+    if isinstance(hint, type) and dataclasses.is_dataclass(hint):
         return from_dict(hint, value)
     if origin is tuple:
         if len(arguments) == 2 and arguments[1] is Ellipsis:

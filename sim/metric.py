@@ -83,6 +83,7 @@ class TupleGeometry(NamedTuple):
 
 def split_square(v, xp=np):
     """`v * v` as a sum of exact partial products: the same bits with or without fused multiply-add."""
+    high: Any  # v's leading bits, a numpy or a JAX array as `v`
     if xp is np:
         high = (np.asarray(v, FLOAT).view(np.uint32) & _SPLIT_MASK).view(FLOAT)
     else:

@@ -4,6 +4,7 @@ failures typed as worth retrying (`Transient`) or final (`NoAnswer`). No message
 from __future__ import annotations
 
 import contextlib
+import functools
 import http.client
 import socket
 import threading
@@ -127,10 +128,10 @@ class _WatchedHandler(urllib.request.HTTPHandler, urllib.request.HTTPSHandler):
         self._watchdog = watchdog
 
     def http_open(self, request):
-        return self.do_open(_HTTPConnection, request, watchdog=self._watchdog)
+        return self.do_open(functools.partial(_HTTPConnection, watchdog=self._watchdog), request)
 
     def https_open(self, request):
-        return self.do_open(_HTTPSConnection, request, watchdog=self._watchdog)
+        return self.do_open(functools.partial(_HTTPSConnection, watchdog=self._watchdog), request)
 
 
 class _NoRedirects(urllib.request.HTTPRedirectHandler):
