@@ -529,7 +529,8 @@ class PlacementPolicy:
         result = jax.device_get(sample_placements(key, metric.stack_problems(batch), self.sampler))
         for row, (run, problem) in enumerate(valid):
             if result.empty[row]:
-                run.error = NoFeasiblePlacement(run.parsed_scene()[0].name, explain_empty(problem, self.sampler.grid))
+                assert run.prepared is not None, "a scene is sampled once prepared (w/o LLM's too, which parses none)"
+                run.error = NoFeasiblePlacement(run.prepared.name, explain_empty(problem, self.sampler.grid))
             else:
                 run.sampled = (result.samples[row], result.heatmap[row], result.mode[row])
 
