@@ -234,7 +234,7 @@ def test_an_experiment_takes_nested_overrides():
         dataset=dataclasses.replace(experiment.dataset, train_scenes=100),
         evaluation=dataclasses.replace(experiment.evaluation, methods=("ours", "grids")),
     )
-    valid = "valid keys under 'recipes' are ours.*, ours_paper.*, no_llm.*, no_pretrain.*"
+    valid = "valid keys under 'recipes' are ours.*, ours_paper.*, grids.*, cliport.*, no_llm.*, no_pretrain.*"
     with pytest.raises(ConfigError, match=re.escape(valid)):
         apply_overrides(experiment, ["recipes.oursx.steps=1"])
     with pytest.raises(
