@@ -59,6 +59,9 @@ def test_place_by_default(default_offline_backbone, smoke_dataset, tmp_path, cap
     assert "zero-shot grounding" in capsys.readouterr().out and out.is_file()
 
 
+# Slow: the default suite's 15 min budget on 2 cores (docs/performance.md, session 12); placing and evaluating
+# on the bare spec in this process stay in it (test_place_by_default, test_backbone_eval_by_default)
+@pytest.mark.slow
 def test_evaluate(default_offline_backbone, smoke_dataset, tmp_path):
     out = tmp_path / "results.json"
     options = ["--subsets", "seen", "--limit", "2", "--physical", "0", "--no-progress", "--workers", "1"]
@@ -68,7 +71,7 @@ def test_evaluate(default_offline_backbone, smoke_dataset, tmp_path):
     assert entry["description"]["backbone"]["spec"] == "offline"
 
 
-@pytest.mark.slow  # ~30 s; `evaluate` above resolves the bare spec in its tasks the same way (make test-all runs it)
+@pytest.mark.slow  # ~30 s; `evaluate` above resolves the bare spec in its tasks the same way (both in make test-all)
 def test_reproduce(default_offline_backbone, smoke_dataset, tmp_path):
     out = tmp_path / "out"
     command = ["reproduce", "--experiment", "smoke", "--out", str(out), "--dataset", str(smoke_dataset)]

@@ -231,6 +231,9 @@ def test_pinned_tasks_run_on_long_lived_workers_of_their_width_with_a_fresh_proc
     assert all(ran[i][1] == fresh[task.cpus] for i, task in enumerate(tasks)), "a reused worker gave other bits"
 
 
+# Slow: the default suite's 15 min budget on 2 cores (docs/performance.md, session 12); the local pool's test
+# of the same contract stays in it
+@pytest.mark.slow
 def test_pinned_tasks_on_ray_run_on_long_lived_actors_of_their_width_with_a_fresh_processs_bits(tmp_path, monkeypatch):
     monkeypatch.setenv("OCPLACE_CACHE", str(tmp_path))
     tasks = [Task(worker_and_digest, (0,), cpus=cpus, pinned=True) for cpus in (1, 1, 1, 2, 2)]
@@ -244,6 +247,9 @@ def test_pinned_tasks_on_ray_run_on_long_lived_actors_of_their_width_with_a_fres
     assert all(ran[i][1] == fresh[task.cpus] for i, task in enumerate(tasks)), "a reused actor gave other bits"
 
 
+# Slow: the default suite's 15 min budget on 2 cores (docs/performance.md, session 12); the local pool's killed
+# worker and Ray's retry of a killed worker mid-generation stay in it
+@pytest.mark.slow
 def test_a_killed_ray_actor_is_restarted_and_its_task_retried(tmp_path, monkeypatch):
     monkeypatch.setenv("OCPLACE_CACHE", str(tmp_path))
     marker = tmp_path / "killed-actor"
