@@ -218,6 +218,9 @@ def specs(monkeypatch, tmp_path):
     return {spec.name: spec for spec in (grids.SPEC, cliport.SPEC)}
 
 
+# Slow: the default suite's 15 min budget on 2 cores (docs/performance.md, session 12); every row's train, load and
+# place stays in it (test_registered_rows.py)
+@pytest.mark.slow
 def test_grids_trains_resumes_and_places_in_the_chosen_cell(specs, smoke_dataset, tiny_backbone_spec, tmp_path):
     spec = specs["grids"]
     assert spec.label == "Raw Image Grids"
@@ -277,6 +280,9 @@ def test_grids_trains_resumes_and_places_in_the_chosen_cell(specs, smoke_dataset
     assert fell_back.parsed == outputs[0].parsed and "HTTP 500" in fell_back.parse_note
 
 
+# Slow: the default suite's 15 min budget on 2 cores (docs/performance.md, session 12); every row's train, load and
+# place stays in it (test_registered_rows.py)
+@pytest.mark.slow
 def test_cliport_trains_and_places_from_its_pixel_distribution(
     specs, default_offline_backbone, smoke_dataset, tmp_path
 ):

@@ -345,6 +345,9 @@ def test_cli_evaluate_and_rerun(smoke_dataset, oracle_run, tmp_path, monkeypatch
     assert results.compare(saved, results.read_results(tmp_path / "results.rerun.json")) == []
 
 
+# Slow: the default suite's 15 min budget on 2 cores (docs/performance.md, session 12); the CLI's evaluate and rerun
+# stay in it
+@pytest.mark.slow
 def test_a_rerun_finds_runs_named_relative_to_another_folder(smoke_dataset, tmp_path, monkeypatch, capsys):
     from ocplace.cli import main
 

@@ -245,6 +245,9 @@ def test_the_grounding_report_reads_every_recorded_reference_back(object_scenes,
     assert error["expected_calibration_error"] == pytest.approx(abs(0.9 - wanted_right / len(rows)))
 
 
+# Slow: the default suite's 15 min budget on 2 cores (docs/performance.md, session 12); the joint row's placement and
+# its folder's decision stay in it
+@pytest.mark.slow
 def test_place_and_reproduce_take_the_decision_and_refuse_what_cannot_run(
     trained_run, tiny_backbone_spec, smoke_dataset, tmp_path, monkeypatch, capsys
 ):

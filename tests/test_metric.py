@@ -172,6 +172,9 @@ def test_numpy_and_jax_metrics_agree_exactly_on_boundaries():
         assert 0 < numpy_checks.success.sum() < len(points)
 
 
+# Slow: the default suite's 15 min budget on 2 cores (docs/performance.md, session 12); the metric's hypothesis tests
+# stay in it
+@pytest.mark.slow
 def test_grid_checks_equal_the_metric_at_cell_centres():
     problems, _ = synthetic.random_problems(3, 6)
     centres = metric.DEFAULT_GRID.cell_centres().reshape(-1, 2)

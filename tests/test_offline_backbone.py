@@ -161,6 +161,9 @@ def smoke_run(tmp_path_factory, library):
     return result, built, minilm_before
 
 
+# Slow: the default suite's 15 min budget on 2 cores (docs/performance.md, session 12); the captions' sharing between
+# seeds stays in it (test_pretrain_data.py)
+@pytest.mark.slow
 def test_a_backbone_seed_reads_the_renders_its_recipe_shares(smoke_run, library, corpus, tmp_path, monkeypatch):
     """`reproduce --backbone-seeds N`: every optimiser seed of a recipe trains on one set of renders, drawn once."""
     from ocplace.train.pretrain import loop, render

@@ -167,6 +167,9 @@ def test_outputs_honour_the_umask(demo_root, tmp_path):
         os.umask(previous)
 
 
+# Slow: the default suite's 15 min budget on 2 cores (docs/performance.md, session 12); a demo output's folder
+# scored as a row (test_a_demo_output_scores_the_zero_shot_row_with_its_own_policy_folder) stays in it
+@pytest.mark.slow
 def test_a_policy_folder_is_a_table_one_row_and_reruns_without_trust(demo_root, smoke_dataset, tmp_path, capsys):
     folder = demo_root / "out/demo/policy"
     out = tmp_path / "results.json"
